@@ -1,0 +1,66 @@
+"""The ``fiper`` command: one entry point for the suite's tools.
+
+Each sub-command lives in its own module and is imported only when it runs, so ``fiper --help`` is
+fast and a missing part of the environment is reported as a clear message, not a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+
+from fiper_ros import __version__
+
+#: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "doctor": ("fiper_ros.doctor", "check that the workspace environment is complete"),
+}
+
+#: Modules whose absence means the workspace was not set up or not sourced.
+_ENVIRONMENT_MODULES = {"rclpy", "fiper_msgs", "torch", "numpy", "mujoco", "pinocchio", "rosbags", "mcap", "yaml"}
+
+NOT_SET_UP = (
+    "fiper: the workspace environment is incomplete ({missing} cannot be imported).\n"
+    "fiper: run 'make setup' in the repository, then '. ./env.sh' (or use bin/fiper, which sources it)."
+)
+
+
+def _load(name: str) -> tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]:
+    module = importlib.import_module(COMMANDS[name][0])
+    return module.add_arguments, module.run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the parser; sub-command options are added only for the chosen sub-command."""
+    parser = argparse.ArgumentParser(prog="fiper", description="FIPER failure prediction for generative robot policies.")
+    parser.add_argument("--version", action="version", version=f"fiper-ros {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (_, help_text) in COMMANDS.items():
+        sub.add_parser(name, help=help_text, description=help_text)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``fiper COMMAND ...``; return the process exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    known, _ = parser.parse_known_args(argv)
+    try:
+        add_arguments, run = _load(known.command)
+        sub_parser = argparse.ArgumentParser(prog=f"fiper {known.command}", description=COMMANDS[known.command][1])
+        add_arguments(sub_parser)
+        args = sub_parser.parse_args(argv[1:])
+        return run(args)
+    except ModuleNotFoundError as exc:
+        top = (exc.name or "").split(".")[0]
+        if top not in _ENVIRONMENT_MODULES:
+            raise
+        print(NOT_SET_UP.format(missing=top), file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,23 @@
+"""ament_python package of the MuJoCo Franka stand-in."""
+from setuptools import find_packages, setup
+
+PACKAGE = "sim_bridge"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["assets/**/*"]},
+    include_package_data=True,
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="fiper-ros maintainers",
+    maintainer_email="fiper-ros@example.com",
+    description="MuJoCo Franka stand-in with Sorting, Stacking and PushT tasks.",
+    license="Apache-2.0",
+    entry_points={"console_scripts": ["sim_bridge = sim_bridge.cli:main"]},
+)

@@ -1,0 +1,1 @@
+"""MuJoCo Franka stand-in for fiper-ros."""
