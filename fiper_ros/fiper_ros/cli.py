@@ -15,6 +15,8 @@ from fiper_ros import __version__
 #: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``.
 COMMANDS: dict[str, tuple[str, str]] = {
     "doctor": ("fiper_ros.doctor", "check that the workspace environment is complete"),
+    "launch": ("fiper_ros.launch", "start the suite's nodes from a launch YAML (processes or in-process)"),
+    "echo": ("fiper_ros.echo", "print the messages of a topic"),
 }
 
 #: Modules whose absence means the workspace was not set up or not sourced.
@@ -44,14 +46,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``fiper COMMAND ...``; return the process exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    known, _ = parser.parse_known_args(argv)
+    if not argv or argv[0] not in COMMANDS:
+        build_parser().parse_args(argv)  # prints help, version or the usage error, and exits
+        return 2
+    name = argv[0]
     try:
-        add_arguments, run = _load(known.command)
-        sub_parser = argparse.ArgumentParser(prog=f"fiper {known.command}", description=COMMANDS[known.command][1])
+        add_arguments, run = _load(name)
+        sub_parser = argparse.ArgumentParser(prog=f"fiper {name}", description=COMMANDS[name][1])
         add_arguments(sub_parser)
-        args = sub_parser.parse_args(argv[1:])
-        return run(args)
+        return run(sub_parser.parse_args(argv[1:]))
     except ModuleNotFoundError as exc:
         top = (exc.name or "").split(".")[0]
         if top not in _ENVIRONMENT_MODULES:
@@ -60,7 +63,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -45,7 +45,7 @@ def sample_messages() -> dict[str, Any]:
         ),
         "fiper_msgs/msg/Score": Score(
             header=_header(14), rollout_id=7, step=3, detector=Score.DETECTOR_ACE, score=1.5, windowed_score=4.25,
-            threshold=float("nan"), exceeded=True, window=12, latency_ms=0.375,
+            threshold=float("nan"), exceeded=True, window=12, latency_ms=0.375, complete=False,
         ),
         "fiper_msgs/msg/FailureAlarm": FailureAlarm(
             header=_header(15), rollout_id=7, step=3, state=FailureAlarm.STATE_ALARM, latched=True,

@@ -1,0 +1,1 @@
+"""Benchmarks of the fiper-ros suite."""

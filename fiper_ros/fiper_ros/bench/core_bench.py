@@ -1,0 +1,107 @@
+"""Latency of the FIPER core per policy step: ACE, RND-OE (batch 1), fusion, and all together.
+
+Run: ``python -m fiper_ros.bench.core_bench`` (or ``make bench-core``). Prints p50/p99 in ms and the
+ratio of each p50 to its target (ACE <= 1 ms, RND-OE small <= 2 ms, all together <= 3 ms).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from fiper_ros.core.ace import ace_score
+from fiper_ros.core.calibration import Calibration, CalibrationSettings
+from fiper_ros.core.monitor import FiperMonitor
+from fiper_ros.core.rnd_oe import RNDOE, RNDConfig
+from fiper_ros.core.thresholds import Threshold
+
+ACE_SHAPES = ((256, 16, 3), (30, 16, 5), (32, 8, 3))
+EMBEDDING_DIMS = (64, 128, 512)
+TARGET_ACE_MS = 1.0
+TARGET_RND_MS = 2.0
+TARGET_TOTAL_MS = 3.0
+
+
+def measure(function: Callable[[int], object], iterations: int, warmup: int) -> tuple[float, float]:
+    """p50 and p99 in ms of ``function(i)`` over ``iterations`` calls after ``warmup`` calls."""
+    for i in range(warmup):
+        function(i)
+    times = np.empty(iterations)
+    for i in range(iterations):
+        start = time.perf_counter()
+        function(i)
+        times[i] = time.perf_counter() - start
+    p50, p99 = np.percentile(times * 1e3, [50, 99])
+    return float(p50), float(p99)
+
+
+def _monitor(embedding_dim: int, ace_shape: tuple[int, int, int]) -> FiperMonitor:
+    """A monitor with an untrained small RND-OE: the per-step cost does not depend on training."""
+    _, horizon, dims = ace_shape
+    thresholds = Threshold("cp_constant", 0.05, np.full(100, 1e9))
+    calibration = Calibration(
+        settings=CalibrationSettings(window_obs=5, window_act=5),
+        rnd=RNDOE(embedding_dim, RNDConfig.small()),
+        ranges=np.ones(dims),
+        threshold_obs=thresholds,
+        threshold_act=thresholds,
+        embedding_dim=embedding_dim,
+        action_dim=dims,
+        horizon=horizon,
+        exec_steps=horizon // 2,
+        action_space="ee_position",
+        num_rollouts=0,
+    )
+    return FiperMonitor(calibration)
+
+
+def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | None]]:
+    """All measurements as ``(name, p50, p99, target_ms)``."""
+    rng = np.random.default_rng(0)
+    rows: list[tuple[str, float, float, float | None]] = []
+    for shape in ACE_SHAPES:
+        batches = [rng.normal(size=shape).astype(np.float32) for _ in range(8)]
+        cell = np.full(shape[2], 0.03 * 6.0)  # alpha = 0.03 of a range of about 6 sigma
+        p50, p99 = measure(lambda i, b=batches, c=cell: ace_score(b[i % 8], c), iterations, warmup)
+        rows.append((f"ACE (B,H,D)={shape}", p50, p99, TARGET_ACE_MS))
+    for name, config, target in (("small", RNDConfig.small(), TARGET_RND_MS), ("paper", RNDConfig.paper(), None)):
+        for dim in EMBEDDING_DIMS:
+            model = RNDOE(dim, config)
+            inputs = rng.normal(size=(8, dim)).astype(np.float32)
+            n = iterations if name == "small" else max(iterations // 10, 20)
+            p50, p99 = measure(lambda i, m=model, x=inputs: m.score_one(x[i % 8]), n, warmup)
+            rows.append((f"RND-OE {name} score_one E={dim}", p50, p99, target))
+    monitor = _monitor(512, ACE_SHAPES[0])
+    latch = monitor.latch
+    p50, p99 = measure(lambda i: latch.update(i % 3 == 0, i % 2 == 0), iterations, warmup)
+    rows.append(("fusion step (FusionLatch.update)", p50, p99, None))
+    embeddings = rng.normal(size=(8, 512)).astype(np.float32)
+    actions = [rng.normal(size=ACE_SHAPES[0]).astype(np.float32) for _ in range(8)]
+    step = iter(range(10**9))
+    p50, p99 = measure(lambda i: monitor.update(next(step), embeddings[i % 8], actions[i % 8]), iterations, warmup)
+    name = "together: FiperMonitor.update (ACE 256x16x3, RND-OE small E=512, windows, fusion)"
+    rows.append((name, p50, p99, TARGET_TOTAL_MS))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the table; exit status 0 (targets are reported, not enforced)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--iterations", type=int, default=1000)
+    parser.add_argument("--warmup", type=int, default=50)
+    args = parser.parse_args(argv)
+    rows = run(args.iterations, args.warmup)
+    width = max(len(name) for name, *_ in rows)
+    sys.stdout.write(f"{'measurement'.ljust(width)}  p50 ms  p99 ms  p50/target\n")
+    for name, p50, p99, target in rows:
+        ratio = f"{p50 / target:.2f} of {target:g} ms" if target else "-"
+        sys.stdout.write(f"{name.ljust(width)}  {p50:6.3f}  {p99:6.3f}  {ratio}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,20 @@
+"""FIPER core: failure prediction scores, thresholds and metrics (Römer et al., NeurIPS 2025).
+
+Pure Python (numpy, torch, optional pinocchio); never imports rclpy. The ROS nodes, the bag replay
+and the offline evaluation all call :mod:`fiper_ros.core.monitor`, so their results are identical.
+
+Modules, one concept each:
+
+- :mod:`.rollout`: the rollout record and its ``.npz`` container.
+- :mod:`.ace`: action-chunk entropy, eq. (4) and App. A.1.
+- :mod:`.kinematics`: joint-space actions to end-effector positions (App. A.1, last paragraph).
+- :mod:`.mlp`: MLP builder and numpy forward pass shared by RND-OE and the RND-A baseline.
+- :mod:`.rnd_oe`: random network distillation on observation embeddings, eq. (1) and App. A.2.
+- :mod:`.window`: score aggregation, eqs. (2) and (5).
+- :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
+- :mod:`.fusion`: the AND/OR combination, eq. (7) and App. A.4.
+- :mod:`.metrics`: TPR, TNR, accuracy, DT and TWA, App. B.4.
+- :mod:`.compat`: the "paper" and "reference" (authors' code) profiles.
+- :mod:`.calibration`: fitting, saving and loading a calibration.
+- :mod:`.monitor`: streaming and vectorised failure prediction.
+"""

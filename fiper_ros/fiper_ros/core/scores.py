@@ -1,0 +1,54 @@
+"""Per-step FIPER scores under a profile: ``s_RND`` (eq. 1) and ``s_ACE`` (eq. 4).
+
+Calibration, the streaming monitors and the vectorised rollout prediction all compute their
+per-step scores here, so a score is the same number wherever it is computed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fiper_ros.core.ace import step_entropies
+from fiper_ros.core.compat import Profile
+from fiper_ros.core.kinematics import ActionProjection
+from fiper_ros.core.rnd_oe import RNDOE
+from fiper_ros.core.rollout import Rollout
+
+JOINT_POSITIONS_KEY = "joint_positions"
+
+
+def obs_score(rnd: RNDOE, embedding: np.ndarray, profile: Profile) -> float:
+    """``s_RND(O_t)`` of one embedding ``[E]`` (numpy path) plus the profile's epsilon."""
+    return rnd.score_one(embedding) + profile.score_epsilon
+
+
+def obs_scores(rnd: RNDOE, embeddings: np.ndarray, profile: Profile) -> np.ndarray:
+    """``s_RND`` of every step of ``[T, E]``, step by step with the same numpy path as :func:`obs_score`."""
+    return np.array([obs_score(rnd, e, profile) for e in embeddings], dtype=np.float64)
+
+
+def act_scores(positions: np.ndarray, cell: np.ndarray, profile: Profile) -> np.ndarray:
+    """``s_ACE`` of position batches ``[..., B, H, P]`` -> ``[...]`` (sum or mean over ``H``, plus epsilon)."""
+    entropies = step_entropies(positions, cell, profile.range_buffer)
+    reduced = entropies.sum(axis=-1) if profile.ace_reduce == "sum" else entropies.mean(axis=-1)
+    return reduced + profile.score_epsilon
+
+
+def act_score(positions: np.ndarray, cell: np.ndarray, profile: Profile) -> float:
+    """``s_ACE`` of one position batch ``[B, H, P]``."""
+    return float(act_scores(positions, cell, profile))
+
+
+def step_joint_position(rollout: Rollout, step: int) -> np.ndarray | None:
+    """The measured joint position at ``step`` (``metadata["joint_positions"]``), if recorded."""
+    joints = rollout.metadata.get(JOINT_POSITIONS_KEY)
+    return None if joints is None else np.asarray(joints[step], dtype=np.float64)
+
+
+def rollout_positions(rollout: Rollout, projection: ActionProjection) -> np.ndarray:
+    """ACE positions ``[T, B, H, P]`` of every action batch of a rollout."""
+    if projection.action_space == "ee_position":
+        return projection(rollout.actions.reshape(-1, *rollout.actions.shape[2:])).reshape(
+            *rollout.actions.shape[:3], -1
+        )
+    return np.stack([projection(rollout.actions[t], step_joint_position(rollout, t)) for t in range(rollout.length)])

@@ -1,0 +1,277 @@
+"""Calibrated thresholds ``gamma_t`` for the aggregated scores (Sec. 4.3, App. A.3).
+
+All thresholds are fitted on the aggregated score curves ``eta_i(t)`` of the *successful*
+calibration rollouts ``i = 1..M`` (curves may have different lengths). Kinds:
+
+- ``"cp_constant"``: ``gamma = `` the empirical ``ceil((M+1)(1-delta))/M`` quantile of the
+  per-rollout maxima ``max_t eta_i(t)`` (App. A.3, the CP-constant theorem: the inf-definition, i.e. the
+  ``ceil((M+1)(1-delta))``-th smallest maximum). If that level exceeds 1 (``M`` too small for
+  ``delta``) no finite threshold has the guarantee: ``+inf`` is returned and a warning logged.
+- ``"cp_band"``: one-sided conformal band (App. A.3 after Diquigiovanni et al.). The rollouts are
+  split (seeded) into ``I1`` and ``I2`` (default 50/50). ``mu(t)`` is the mean and ``s(t)`` the standard deviation
+  over the ``I1`` rollouts running at ``t``; ``s(t)`` is floored at ``std_floor`` times its mean over
+  the well-supported steps so that steps where all ``I1`` curves coincide (often ``t = 0``) cannot dominate. Neither
+  depends on ``I2``. Band scores ``R_i = max_t (eta_i(t) - mu(t)) / s(t)`` for ``i in I2`` (upper
+  sign), ``k`` = their conformal quantile at level ``ceil((M2+1)(1-delta))/M2``, and
+  ``gamma_t = mu(t) + k s(t)``.
+- ``"time_varying"``: the per-step empirical ``1-delta`` quantile (numpy's linear interpolation)
+  over the rollouts still running at ``t``; no finite-sample guarantee.
+- ``"gaussian"``: ``gamma_t = mu(t) + z(1-delta) sigma(t)`` (App. A.3 remark), ``mu`` from ``I1``,
+  ``sigma(t)`` the root-mean-square deviation of the ``I2`` curves from ``mu(t)``.
+
+Support rule: a per-step statistic at ``t`` is only computed where at least ``min_support``
+rollouts of the set it is computed from reach ``t`` (default ``max(5, M // 5)``, capped at the set
+size). Later steps, up to the longest calibration rollout, carry the last well-supported value
+forward. Steps beyond the longest calibration rollout use the threshold's ``extension``: ``"last"``
+(default), ``"mean"`` (the authors' code, through a config-key typo) or ``"max"`` of the values.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+
+LOG = logging.getLogger(__name__)
+
+KINDS = ("cp_constant", "cp_band", "time_varying", "gaussian")
+EXTENSIONS = ("last", "mean", "max")
+BAND_SIGNS = ("upper", "lower")
+# Guards ceil() against (M+1)(1-delta) landing a rounding error above an integer.
+_CEIL_TOLERANCE = 1e-9
+
+
+class ThresholdError(ValueError):
+    """Thresholds cannot be fitted or read."""
+
+
+@dataclass(frozen=True)
+class ThresholdSettings:
+    """How to fit a threshold.
+
+    Attributes:
+        kind: One of ``KINDS``.
+        delta: Target false-alarm rate, in (0, 1).
+        extension: Rule for steps beyond the longest calibration rollout, one of ``EXTENSIONS``.
+        min_support: Rollouts a step needs for per-step statistics; ``None``: ``max(5, M // 5)``.
+        band_split: Fraction of rollouts in ``I1`` for ``cp_band`` and ``gaussian``.
+        band_sign: ``"upper"`` (paper) or ``"lower"`` (the authors' code) band score.
+        conformal: Conformal quantile (paper); ``False`` uses ``np.quantile`` as the authors' code.
+        std_floor: ``s(t) >= std_floor * mean_t s(t)`` for ``cp_band``.
+        seed: Seed of the ``I1``/``I2`` split.
+    """
+
+    kind: str = "cp_band"
+    delta: float = 0.05
+    extension: str = "last"
+    min_support: int | None = None
+    band_split: float = 0.5
+    band_sign: str = "upper"
+    conformal: bool = True
+    std_floor: float = 0.1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ThresholdError(f"unknown threshold kind {self.kind!r}; expected one of {KINDS}")
+        if not 0.0 < self.delta < 1.0:
+            raise ThresholdError(f"delta must be in (0, 1), got {self.delta}")
+        if self.extension not in EXTENSIONS:
+            raise ThresholdError(f"unknown extension {self.extension!r}; expected one of {EXTENSIONS}")
+        if self.band_sign not in BAND_SIGNS:
+            raise ThresholdError(f"unknown band_sign {self.band_sign!r}; expected one of {BAND_SIGNS}")
+        if not 0.0 < self.band_split < 1.0:
+            raise ThresholdError(f"band_split must be in (0, 1), got {self.band_split}")
+        if self.min_support is not None and self.min_support < 1:
+            raise ThresholdError(f"min_support must be >= 1, got {self.min_support}")
+        if self.std_floor < 0:
+            raise ThresholdError(f"std_floor must be >= 0, got {self.std_floor}")
+
+
+@dataclass(frozen=True, eq=False)
+class Threshold:
+    """A fitted threshold ``gamma_t`` over policy steps ``t = 0..len(values)-1`` and its extension."""
+
+    kind: str
+    delta: float
+    values: np.ndarray
+    extension: str = "last"
+    params: dict[str, Any] = field(default_factory=dict)
+    tail: float = field(init=False, repr=False)
+    """``gamma_t`` for every ``t >= len(values)`` (the extension rule applied)."""
+
+    def __post_init__(self) -> None:
+        values = np.array(self.values, dtype=np.float64)
+        if values.ndim != 1 or values.shape[0] == 0:
+            raise ThresholdError(f"threshold values must be a non-empty 1-D array, got shape {values.shape}")
+        if np.any(np.isnan(values)):
+            raise ThresholdError("threshold values contain NaN")
+        if self.extension not in EXTENSIONS:
+            raise ThresholdError(f"unknown extension {self.extension!r}; expected one of {EXTENSIONS}")
+        values.flags.writeable = False
+        object.__setattr__(self, "values", values)
+        tail = {"last": values[-1], "mean": np.mean(values), "max": np.max(values)}[self.extension]
+        object.__setattr__(self, "tail", float(tail))
+
+    def at(self, t: int) -> float:
+        """``gamma_t`` at policy step ``t >= 0``."""
+        if t < 0:
+            raise IndexError(f"policy step must be >= 0, got {t}")
+        return float(self.values[t]) if t < self.values.shape[0] else self.tail
+
+    def over(self, length: int) -> np.ndarray:
+        """``gamma_t`` for ``t = 0..length-1``."""
+        out = np.full(length, self.tail)
+        n = min(length, self.values.shape[0])
+        out[:n] = self.values[:n]
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form for the calibration file."""
+        return {
+            "kind": self.kind,
+            "delta": float(self.delta),
+            "extension": self.extension,
+            "values": [float(v) for v in self.values],
+            "params": dict(self.params),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Threshold:
+        """Inverse of :meth:`to_dict`."""
+        try:
+            return cls(data["kind"], float(data["delta"]), np.asarray(data["values"], dtype=np.float64),
+                       data.get("extension", "last"), dict(data.get("params", {})))
+        except KeyError as error:
+            raise ThresholdError(f"threshold entry lacks {error}") from error
+
+
+def conformal_quantile(scores: Sequence[float] | np.ndarray, delta: float) -> float:
+    """The empirical ``ceil((M+1)(1-delta))/M`` quantile of ``M`` scores (App. A.3, inf-definition).
+
+    Returns ``+inf`` (with a warning) when ``ceil((M+1)(1-delta)) > M``.
+    """
+    ordered = np.sort(np.asarray(scores, dtype=np.float64))
+    m = ordered.shape[0]
+    if m == 0:
+        raise ThresholdError("conformal quantile of no scores")
+    rank = math.ceil((m + 1) * (1.0 - delta) - _CEIL_TOLERANCE)
+    if rank > m:
+        LOG.warning("conformal level ceil((M+1)(1-delta))/M > 1 for M=%d, delta=%g: threshold is +inf", m, delta)
+        return math.inf
+    return float(ordered[rank - 1])
+
+
+def _quantile(scores: np.ndarray, delta: float, conformal: bool) -> float:
+    return conformal_quantile(scores, delta) if conformal else float(np.quantile(scores, 1.0 - delta))
+
+
+def _validated(curves: Sequence[np.ndarray]) -> list[np.ndarray]:
+    if len(curves) == 0:
+        raise ThresholdError("no calibration curves: thresholds need successful calibration rollouts")
+    out = []
+    for i, curve in enumerate(curves):
+        array = np.asarray(curve, dtype=np.float64)
+        if array.ndim != 1 or array.shape[0] == 0:
+            raise ThresholdError(f"calibration curve {i} must be a non-empty 1-D array, got shape {array.shape}")
+        if np.any(np.isnan(array)):
+            raise ThresholdError(f"calibration curve {i} contains NaN")
+        out.append(array)
+    return out
+
+
+def _padded(curves: list[np.ndarray], length: int) -> np.ndarray:
+    """``[len(curves), length]`` matrix, NaN where a rollout has ended."""
+    matrix = np.full((len(curves), length), np.nan)
+    for i, curve in enumerate(curves):
+        matrix[i, : curve.shape[0]] = curve
+    return matrix
+
+
+def _supported_length(matrix: np.ndarray, min_support: int | None) -> int:
+    """Number of leading steps reached by at least ``min_support`` rollouts (at least 1)."""
+    n = matrix.shape[0]
+    need = min(max(5, n // 5) if min_support is None else min_support, n)
+    counts = np.sum(~np.isnan(matrix), axis=0)
+    return max(1, int(np.sum(counts >= need)))
+
+
+def _carried(values: np.ndarray, supported: int, length: int) -> np.ndarray:
+    """``values[:supported]`` extended to ``length`` with its last entry (the support rule)."""
+    out = np.empty(length)
+    out[:supported] = values[:supported]
+    out[supported:] = values[supported - 1]
+    return out
+
+
+def _per_step(matrix: np.ndarray, min_support: int | None, statistic: str, q: float = 0.0) -> np.ndarray:
+    supported = _supported_length(matrix, min_support)
+    head = matrix[:, :supported]
+    if statistic == "mean":
+        values = np.nanmean(head, axis=0)
+    elif statistic == "std":
+        values = np.nanstd(head, axis=0)
+    else:
+        values = np.nanquantile(head, q, axis=0)
+    return _carried(values, supported, matrix.shape[1])
+
+
+def _split(m: int, settings: ThresholdSettings) -> tuple[np.ndarray, np.ndarray]:
+    if m < 2:
+        raise ThresholdError(f"{settings.kind} needs at least 2 calibration rollouts to split, got {m}")
+    order = np.random.default_rng(settings.seed).permutation(m)
+    m1 = min(max(round(settings.band_split * m), 1), m - 1)
+    return order[:m1], order[m1:]
+
+
+def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:
+    first, second = _split(len(curves), s)
+    set1 = _padded([curves[i] for i in first], length)
+    mu = _per_step(set1, s.min_support, "mean")
+    spread = _per_step(set1, s.min_support, "std")
+    floor = s.std_floor * float(np.mean(spread[: _supported_length(set1, s.min_support)]))
+    if floor <= 0.0:
+        floor = 1e-12 * max(1.0, float(np.max(np.abs(mu))))
+    scale = np.maximum(spread, floor)
+    sign = 1.0 if s.band_sign == "upper" else -1.0
+    band_scores = np.array(
+        [np.max(sign * (curves[i] - mu[: curves[i].shape[0]]) / scale[: curves[i].shape[0]]) for i in second]
+    )
+    k = _quantile(band_scores, s.delta, s.conformal)
+    values = mu + k * scale if math.isfinite(k) else np.full(length, math.inf)
+    return values, {"k": float(k), "m1": int(first.shape[0]), "m2": int(second.shape[0]), "s_floor": floor}
+
+
+def _gaussian(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:
+    first, second = _split(len(curves), s)
+    mu = _per_step(_padded([curves[i] for i in first], length), s.min_support, "mean")
+    set2 = _padded([curves[i] for i in second], length)
+    supported = _supported_length(set2, s.min_support)
+    sigma = np.sqrt(np.nanmean((set2[:, :supported] - mu[:supported]) ** 2, axis=0))
+    z = NormalDist().inv_cdf(1.0 - s.delta)
+    return mu + z * _carried(sigma, supported, length), {"z": z, "m1": int(first.shape[0]), "m2": int(second.shape[0])}
+
+
+def fit_threshold(curves: Sequence[np.ndarray], settings: ThresholdSettings | None = None) -> Threshold:
+    """Fit ``gamma_t`` on the aggregated score curves of successful calibration rollouts."""
+    s = settings or ThresholdSettings()
+    checked = _validated(curves)
+    length = max(curve.shape[0] for curve in checked)
+    params: dict[str, Any] = {"m": len(checked)}
+    if s.kind == "cp_constant":
+        gamma = _quantile(np.array([curve.max() for curve in checked]), s.delta, s.conformal)
+        values = np.full(length, gamma)
+    elif s.kind == "time_varying":
+        values = _per_step(_padded(checked, length), s.min_support, "quantile", 1.0 - s.delta)
+    elif s.kind == "cp_band":
+        values, extra = _cp_band(checked, length, s)
+        params.update(extra)
+    else:
+        values, extra = _gaussian(checked, length, s)
+        params.update(extra)
+    return Threshold(s.kind, s.delta, values, s.extension, params)

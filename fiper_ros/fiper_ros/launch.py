@@ -1,0 +1,212 @@
+"""``fiper launch CONFIG.yaml``: start the suite's nodes as separate OS processes (or in one).
+
+There is no ``ros2 launch`` with the pip wheels. The config names each node's module, namespace,
+parameter files and inline parameters; the launcher starts ``python -m MODULE --ros-args ...`` per
+node in its own process group, prefixes their output with the node name, reports starts and exits,
+forwards Ctrl-C / SIGTERM and stops everything cleanly (SIGINT, then SIGKILL after a grace period).
+A node that exits is reported and the others keep running (a monitor must notice a dead peer), unless
+the node is marked ``required``; the launcher's exit status is 1 if any node exited on its own.
+``--in-process`` runs all nodes in one process on a multi-threaded executor.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class LaunchError(ValueError):
+    """The launch configuration is unusable."""
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node of a launch configuration."""
+
+    name: str
+    module: str
+    namespace: str
+    parameter_files: tuple[Path, ...]
+    parameters: dict[str, Any] = field(default_factory=dict)
+    required: bool = False
+    """Stop the whole launch when this node exits."""
+
+    def ros_args(self, use_sim_time: bool) -> list[str]:
+        """The ``--ros-args`` of this node's command line."""
+        args = ["--ros-args", "-r", f"__node:={self.name}", "-r", f"__ns:={self.namespace}"]
+        for path in self.parameter_files:
+            args += ["--params-file", str(path)]
+        params = dict(self.parameters)
+        params.setdefault("use_sim_time", use_sim_time)
+        for key, value in params.items():
+            args += ["-p", f"{key}:={yaml.safe_dump(value, default_flow_style=True).strip().removesuffix('...').strip()}"]
+        return args
+
+
+@dataclass(frozen=True)
+class LaunchConfig:
+    """A parsed launch file."""
+
+    nodes: tuple[NodeSpec, ...]
+    use_sim_time: bool
+
+
+def load_config(path: Path) -> LaunchConfig:
+    """Read and check a launch YAML (see fiper_ros/config/suite.yaml)."""
+    if not path.is_file():
+        raise LaunchError(f"launch file not found: {path}")
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data.get("nodes"), dict) or not data["nodes"]:
+        raise LaunchError(f"{path}: needs a non-empty mapping 'nodes'")
+    namespace = str(data.get("namespace", "/fiper"))
+    files = []
+    for entry in data.get("parameter_files", []):
+        file = (path.parent / entry).resolve()
+        if not file.is_file():
+            raise LaunchError(f"{path}: parameter file not found: {file}")
+        files.append(file)
+    nodes = []
+    for name, spec in data["nodes"].items():
+        if not isinstance(spec, dict) or "module" not in spec:
+            raise LaunchError(f"{path}: node {name!r} needs a 'module'")
+        own = [(path.parent / f).resolve() for f in spec.get("parameter_files", [])]
+        nodes.append(NodeSpec(name, spec["module"], str(spec.get("namespace", namespace)), tuple(files + own),
+                              dict(spec.get("parameters", {})), bool(spec.get("required", False))))
+    return LaunchConfig(tuple(nodes), bool(data.get("use_sim_time", False)))
+
+
+class ProcessGroup:
+    """The launched processes, their output and their shutdown."""
+
+    def __init__(self, grace_s: float) -> None:
+        self.grace_s = grace_s
+        self.procs: dict[str, subprocess.Popen[str]] = {}
+        self._print_lock = threading.Lock()
+
+    def say(self, line: str) -> None:
+        """Print one line without interleaving with the nodes' output."""
+        with self._print_lock:
+            print(line, flush=True)
+
+    def start(self, spec: NodeSpec, use_sim_time: bool) -> None:
+        """Start one node process and a thread relaying its output."""
+        cmd = [sys.executable, "-m", spec.module, *spec.ros_args(use_sim_time)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,  # noqa: S603
+                                start_new_session=True, env=os.environ | {"PYTHONUNBUFFERED": "1"})
+        self.procs[spec.name] = proc
+        self.say(f"[launch] started {spec.name} (pid {proc.pid}): {spec.module} in {spec.namespace}")
+        threading.Thread(target=self._relay, args=(spec.name, proc), daemon=True).start()
+
+    def _relay(self, name: str, proc: subprocess.Popen[str]) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            self.say(f"[{name}] {line.rstrip()}")
+
+    def stop(self) -> None:
+        """SIGINT every running process, SIGKILL what is left after the grace period."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT)
+        deadline = time.monotonic() + self.grace_s
+        for name, proc in self.procs.items():
+            try:
+                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.say(f"[launch] {name} did not stop within {self.grace_s:g} s: killing it")
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+
+    def watch(self, stop_event: threading.Event, required: set[str]) -> int:
+        """Run until ``stop_event``, every node has exited, or a required node exited.
+
+        Returns 0, or 1 if any node exited on its own (the others keep running unless it was required).
+        """
+        reported: set[str] = set()
+        status = 0
+        while not stop_event.is_set() and len(reported) < len(self.procs):
+            for name, proc in self.procs.items():
+                if name not in reported and proc.poll() is not None:
+                    reported.add(name)
+                    self.say(f"[launch] {name} exited with code {proc.returncode}")
+                    status = 1
+            if reported & required:
+                self.say(f"[launch] required node(s) {', '.join(sorted(reported & required))} exited")
+                break
+            stop_event.wait(0.2)
+        return status
+
+
+def run_processes(config: LaunchConfig, grace_s: float) -> int:
+    """Run every node in its own process until Ctrl-C / SIGTERM or until one dies."""
+    group = ProcessGroup(grace_s)
+    stop_event = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop_event.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        for spec in config.nodes:
+            group.start(spec, config.use_sim_time)
+        status = group.watch(stop_event, {spec.name for spec in config.nodes if spec.required})
+    finally:
+        group.say("[launch] stopping")
+        group.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    group.say("[launch] " + ", ".join(f"{n}: exit {p.returncode}" for n, p in group.procs.items()))
+    return status
+
+
+def run_in_process(config: LaunchConfig) -> int:
+    """Run every node in this process on one multi-threaded executor."""
+    import rclpy  # noqa: PLC0415 - only this mode needs rclpy in the launcher itself
+    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor  # noqa: PLC0415
+    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file  # noqa: PLC0415
+
+    rclpy.init()
+    nodes = []
+    try:
+        executor = MultiThreadedExecutor()
+        for spec in config.nodes:
+            node_class = importlib.import_module(spec.module).NODE_CLASS
+            overrides: dict[str, Parameter] = {}
+            for file in spec.parameter_files:
+                overrides |= parameter_dict_from_yaml_file(str(file), target_nodes=[f"{spec.namespace}/{spec.name}"])
+            values = {"use_sim_time": config.use_sim_time} | spec.parameters
+            overrides |= {k: Parameter(k, value=v) for k, v in values.items()}
+            node = node_class(namespace=spec.namespace, parameter_overrides=list(overrides.values()))
+            nodes.append(node)
+            executor.add_node(node)
+            print(f"[launch] {spec.name} running in-process ({spec.module})", flush=True)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper launch``."""
+    parser.add_argument("config", type=Path, help="launch YAML, e.g. fiper_ros/config/suite.yaml")
+    parser.add_argument("--in-process", action="store_true", help="run all nodes in this one process")
+    parser.add_argument("--grace", type=float, default=10.0, help="seconds a node gets to stop before SIGKILL")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper launch``."""
+    try:
+        config = load_config(args.config)
+    except (LaunchError, yaml.YAMLError) as error:
+        print(f"fiper launch: {error}", file=sys.stderr)
+        return 2
+    return run_in_process(config) if args.in_process else run_processes(config, args.grace)

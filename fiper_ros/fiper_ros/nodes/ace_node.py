@@ -1,0 +1,95 @@
+"""ACE node: ActionChunkBatch -> Score on ``scores/ace`` (paper eqs. 4-6).
+
+Joint-space batches are mapped to end-effector positions with pinocchio (parameters ``urdf_path``
+and ``ee_frame``); joint-velocity batches are integrated from the latest ``joint_states`` first.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+import numpy as np
+from sensor_msgs.msg import JointState
+
+from fiper_msgs.msg import ActionChunkBatch
+from fiper_ros.core.calibration import Calibration
+from fiper_ros.core.kinematics import PinocchioFK
+from fiper_ros.core.monitor import ActionMonitor, StepScore
+from fiper_ros.nodes import qos
+from fiper_ros.nodes.base import describe
+from fiper_ros.nodes.conversions import floats_of
+from fiper_ros.nodes.detector import DetectorNode
+from fiper_ros.nodes.main import run_node
+from fiper_ros.runtime import validation
+from fiper_ros.runtime.validation import InputRejected
+
+JOINT_SPACES = (ActionChunkBatch.ACTION_SPACE_JOINT_POSITION, ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY)
+
+
+class AceNode(DetectorNode):
+    """Scores each batch of sampled action chunks with action-chunk entropy."""
+
+    detector = "ace"
+    input_topic = "action_chunks"
+    input_type = ActionChunkBatch
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("ace_node", **kwargs)
+        self.declare_parameter("urdf_path", "", describe("robot URDF for joint-space actions", read_only=True))
+        self.declare_parameter("ee_frame", "panda_hand", describe("end-effector frame of the URDF", read_only=True))
+        self.declare_parameter("joint_state_topic", "/joint_states",
+                               describe("measured joint positions, for joint-velocity actions", read_only=True))
+        self._q_current: np.ndarray | None = None
+        self._joint_sub: Any = None
+
+    def make_monitor(self, calibration: Calibration) -> ActionMonitor:
+        fk = None
+        if calibration.action_space in JOINT_SPACES:
+            urdf = self.get_parameter("urdf_path").value
+            if not urdf:
+                raise ValueError(f"calibration action space is {calibration.action_space}: set parameter urdf_path")
+            fk = PinocchioFK(urdf, self.get_parameter("ee_frame").value)
+        return ActionMonitor(calibration, fk)
+
+    def activate(self) -> None:
+        super().activate()
+        if self.calibration is not None and self.calibration.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
+            self._joint_sub = self.create_subscription(
+                JointState, self.get_parameter("joint_state_topic").value, self._on_joint_state, qos.INPUT)
+            self._inputs.append(self._joint_sub)
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        self._q_current = np.asarray(msg.position, dtype=np.float64)
+
+    def window(self) -> int:
+        return self.calibration.settings.window_act if self.calibration else 0
+
+    def to_array(self, msg: ActionChunkBatch) -> np.ndarray:
+        actions = validation.action_batch(floats_of(msg.data), msg.batch_size, msg.horizon, msg.action_dim,
+                                          msg.exec_steps, self.get_parameter("max_elements").value)
+        cal = self.calibration
+        if msg.action_space != cal.action_space:
+            raise InputRejected(validation.ACTION_SPACE,
+                                f"action space {msg.action_space!r} != calibration's {cal.action_space!r}")
+        if (msg.horizon, msg.action_dim) != (cal.horizon, cal.action_dim):
+            raise InputRejected(validation.CALIBRATION_MISMATCH,
+                                f"H x D = {msg.horizon} x {msg.action_dim} != calibration's {cal.horizon} x {cal.action_dim}")
+        if cal.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY and self._q_current is None:
+            raise InputRejected(validation.NO_JOINT_STATE, "joint-velocity actions need a joint_states message first")
+        return actions
+
+    def score(self, step: int, value: np.ndarray) -> StepScore:
+        return self.monitor.update(step, value, self._q_current)
+
+
+#: The node class, for in-process launching.
+NODE_CLASS = AceNode
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``python -m fiper_ros.nodes.ace_node --ros-args ...``."""
+    return run_node(AceNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,207 @@
+"""Common shell of the suite's managed nodes: parameters, autostart, diagnostics, rejections.
+
+Every node is a lifecycle node: ``configure`` loads what it needs (calibration, models), ``activate``
+creates its subscriptions. With the ``autostart`` parameter (default true) the node walks itself to
+ACTIVE and retries ``configure`` every ``configure_retry_s`` while it fails (e.g. the calibration is
+missing), so it keeps running and says why on ``/diagnostics`` instead of dying.
+"""
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+
+from fiper_ros.nodes import qos
+from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
+from fiper_ros.runtime.validation import InputRejected
+
+LEVEL_NAMES = {DiagnosticStatus.OK: "OK", DiagnosticStatus.WARN: "WARN", DiagnosticStatus.ERROR: "ERROR"}
+
+
+def describe(description: str, *, read_only: bool = False, low: float | None = None, high: float | None = None,
+             integer: bool = False) -> ParameterDescriptor:
+    """A parameter descriptor with an optional range."""
+    descriptor = ParameterDescriptor(description=description, read_only=read_only)
+    if low is not None and high is not None:
+        if integer:
+            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        else:
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+    return descriptor
+
+
+class FiperNode(LifecycleNode):
+    """Lifecycle node with autostart, ``/diagnostics``, QoS-event and rejection accounting."""
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self.declare_parameter("autostart", True, describe("walk to ACTIVE on start-up", read_only=True))
+        self.declare_parameter("configure_retry_s", 2.0,
+                               describe("retry period of a failed configure (autostart)", low=0.1, high=3600.0))
+        self.declare_parameter("diagnostics_period_s", 1.0,
+                               describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
+        self.declare_parameter("log_period_s", 10.0,
+                               describe("at most one log line per rejection reason in this period", low=0.0, high=3600.0))
+        self.rejected: Counter[str] = Counter()
+        self.qos_incompatible: Counter[str] = Counter()
+        self.latency = LatencyStats()
+        self.rates: dict[str, RateMeter] = {}
+        self.config_error = ""
+        self._log_limit = RateLimitedLog(self.get_parameter("log_period_s").value)
+        #: Wall-clock (steady) time for what must not stall with a paused /clock: heartbeats, retries.
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+        self.create_timer(self.get_parameter("diagnostics_period_s").value, self.publish_diagnostics, clock=self.steady)
+        self._autostart_timer = None
+        if self.get_parameter("autostart").value:
+            self._autostart_timer = self.create_timer(0.0, self._autostart, clock=self.steady)
+
+    # lifecycle ----------------------------------------------------------------------------------------
+    def _autostart(self) -> None:
+        self._autostart_timer.cancel()
+        state = self.lifecycle_state()
+        if state == "unconfigured":
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                self._autostart_timer = self.create_timer(self.get_parameter("configure_retry_s").value,
+                                                          self._autostart, clock=self.steady)
+                return
+            state = "inactive"
+        if state == "inactive":
+            self.trigger_activate()
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Load what the node needs; failure keeps it alive, UNCONFIGURED, reporting why."""
+        try:
+            self.configure()
+        except Exception as error:  # noqa: BLE001 - any load error is reported, never fatal
+            message = f"configure failed: {error}"
+            if message != self.config_error:
+                self.get_logger().error(message)
+            self.config_error = message
+            return TransitionCallbackReturn.FAILURE
+        self.config_error = ""
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Create subscriptions (inputs start flowing)."""
+        self.activate()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Destroy subscriptions (inputs stop)."""
+        self.deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Forget what configure loaded."""
+        self.cleanup()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Nothing to release beyond what rclpy releases."""
+        return TransitionCallbackReturn.SUCCESS
+
+    def configure(self) -> None:
+        """Load calibration / models; raise to fail the transition."""
+
+    def activate(self) -> None:
+        """Create subscriptions."""
+
+    def deactivate(self) -> None:
+        """Destroy subscriptions."""
+
+    def cleanup(self) -> None:
+        """Drop loaded state."""
+
+    # helpers for subclasses ---------------------------------------------------------------------------
+    def lifecycle_state(self) -> str:
+        """Label of the current lifecycle state ("unconfigured", "inactive", "active", ...)."""
+        return self._state_machine.current_state[1]  # rclpy offers no public getter
+
+    def now_ns(self) -> int:
+        """The node clock (sim time under ``use_sim_time``)."""
+        return self.get_clock().now().nanoseconds
+
+    def tick(self, stream: str) -> None:
+        """Count one message of ``stream`` for the rate diagnostics."""
+        self.rates.setdefault(stream, RateMeter()).tick(self.now_ns())
+
+    def reject(self, error: InputRejected) -> None:
+        """Count a rejected message and log it, at most once per reason and log period."""
+        self.rejected[error.reason] += 1
+        if self._log_limit.should_log(error.reason, self.now_ns()):
+            suppressed = self._log_limit.suppressed.pop(error.reason, 0)
+            more = f" ({suppressed} more since the last report)" if suppressed else ""
+            self.get_logger().warning(f"rejected message: {error}{more}")
+
+    def subscription_events(self, topic: str, extra: Callable[[Any], None] | None = None) -> SubscriptionEventCallbacks:
+        """Event callbacks that count QoS incompatibilities on ``topic`` (and optional liveliness)."""
+        return SubscriptionEventCallbacks(incompatible_qos=lambda info: self._incompatible(topic, info),
+                                          liveliness=extra)
+
+    def publisher_events(self, topic: str) -> PublisherEventCallbacks:
+        """Event callbacks that count QoS incompatibilities on ``topic``."""
+        return PublisherEventCallbacks(incompatible_qos=lambda info: self._incompatible(topic, info))
+
+    def _incompatible(self, topic: str, info: Any) -> None:
+        self.qos_incompatible[topic] += 1
+        self.get_logger().error(
+            f"QoS incompatible with a peer on {topic} (policy id {info.last_policy_kind}); messages are not delivered"
+        )
+
+    def timed(self) -> float:
+        """Start a latency measurement; pass the result to :meth:`record_latency`."""
+        return time.perf_counter()
+
+    def record_latency(self, started: float) -> float:
+        """Record and return the milliseconds since ``started``."""
+        latency_ms = (time.perf_counter() - started) * 1e3
+        self.latency.add(latency_ms)
+        return latency_ms
+
+    # diagnostics --------------------------------------------------------------------------------------
+    def diagnostic_values(self) -> dict[str, str]:
+        """Node-specific key/values for /diagnostics."""
+        return {}
+
+    def diagnostic_level(self) -> tuple[int, str]:
+        """Worst condition of the node and its message."""
+        if self.qos_incompatible:
+            return DiagnosticStatus.ERROR, "QoS incompatible: " + ", ".join(sorted(self.qos_incompatible))
+        if self.config_error:
+            return DiagnosticStatus.ERROR, self.config_error
+        state = self.lifecycle_state()
+        if state != "active":
+            return DiagnosticStatus.WARN, f"lifecycle state {state}"
+        if self.rejected:
+            return DiagnosticStatus.WARN, "rejected input: " + ", ".join(f"{k}={v}" for k, v in sorted(self.rejected.items()))
+        return DiagnosticStatus.OK, "running"
+
+    def publish_diagnostics(self) -> None:
+        """Publish this node's DiagnosticStatus on /diagnostics."""
+        now = self.now_ns()
+        level, message = self.diagnostic_level()
+        values = {
+            "lifecycle_state": self.lifecycle_state(),
+            "latency_p50_ms": f"{self.latency.percentile(50):.3f}",
+            "latency_p99_ms": f"{self.latency.percentile(99):.3f}",
+        }
+        values |= {f"rate_hz.{name}": f"{meter.rate(now):.2f}" for name, meter in sorted(self.rates.items())}
+        values |= {f"rejected.{reason}": str(n) for reason, n in sorted(self.rejected.items())}
+        values |= {f"qos_incompatible.{topic}": str(n) for topic, n in sorted(self.qos_incompatible.items())}
+        values |= self.diagnostic_values()
+        status = DiagnosticStatus(
+            level=level, name=f"fiper: {self.get_fully_qualified_name()}", message=message,
+            hardware_id=self.get_fully_qualified_name(),
+            values=[KeyValue(key=k, value=v) for k, v in values.items()],
+        )
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(msg)

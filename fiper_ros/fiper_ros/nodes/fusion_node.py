@@ -1,0 +1,207 @@
+"""Fusion node: matches ``scores/rnd_oe`` and ``scores/ace`` per (rollout_id, step), fuses them
+(eq. 7, AND by default) and publishes FailureAlarm on ``alarm`` (/fiper/alarm) every policy step.
+
+The contract for supervisors is in docs/alarm-contract.md: RELIABLE + TRANSIENT_LOCAL + KEEP_LAST(1);
+ALARM latches until ``~/reset`` or the next START; UNKNOWN, never OK, while a score stream is
+missing, stale (older than ``deadline_s``), not alive, or uncalibrated; and a heartbeat repeats the
+current state every ``heartbeat_s`` so that silence itself means the monitor is gone.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from collections import deque
+from typing import Any
+
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from std_srvs.srv import Trigger
+
+from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
+from fiper_ros.nodes import qos
+from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
+from fiper_ros.nodes.main import run_node
+from fiper_ros.runtime.alarm import ALARM, DETECTORS, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore
+from fiper_ros.runtime.pending import PendingBuffer
+from fiper_ros.runtime.rollouts import RolloutTracker
+
+STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
+
+
+class FusionNode(FiperNode):
+    """Publishes the fused failure prediction on ``alarm``."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("fusion_node", **kwargs)
+        self.declare_parameter("combine", "and", describe("'and' (paper eq. 7) or 'or'", read_only=True))
+        self.declare_parameter("deadline_s", 1.0,
+                               describe("a score stream older than this makes the state UNKNOWN", low=0.01, high=600.0))
+        self.declare_parameter("heartbeat_s", 0.5,
+                               describe("republish the current state after this much silence", low=0.01, high=600.0))
+        self.declare_parameter("buffer_size", 64,
+                               describe("unmatched steps kept per rollout before eviction", low=1, high=100000, integer=True))
+        self.declare_parameter("start_wait_s", 1.0,
+                               describe("how long a score may wait for its rollout's START", read_only=True,
+                                        low=0.0, high=60.0))
+        self.fuser: AlarmFuser | None = None
+        self.pending: PendingBuffer[DetectorScore] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
+        self.ended: deque[int] = deque(maxlen=16)
+        self.dropped_early = 0
+        self.rollouts = RolloutTracker()
+        self.lost: set[str] = set()
+        self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
+        self._last_publish_ns = 0
+        self._inputs: list[Any] = []
+        self._timer: Any = None
+        self._alarm_pub = self.create_lifecycle_publisher(
+            FailureAlarm, "alarm", qos.ALARM, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            event_callbacks=self.publisher_events("alarm"),
+        )
+        self.create_service(Trigger, "~/reset", self._on_reset)
+
+    def configure(self) -> None:
+        combine = self.get_parameter("combine").value
+        self.fuser = AlarmFuser(combine, int(self.get_parameter("deadline_s").value * 1e9),
+                                self.get_parameter("buffer_size").value)
+
+    def activate(self) -> None:
+        for detector in DETECTORS:
+            topic = f"scores/{detector}"
+            self._inputs.append(self.create_subscription(
+                Score, topic, self._on_score, qos.SCORE_SUB,
+                event_callbacks=self.subscription_events(topic, lambda info, d=detector: self._on_liveliness(d, info)),
+            ))
+        self._inputs.append(self.create_subscription(
+            RolloutEvent, "rollout_events", self._on_event, qos.EVENT,
+            event_callbacks=self.subscription_events("rollout_events")))
+        period = min(self.get_parameter("heartbeat_s").value, self.get_parameter("deadline_s").value) / 2
+        self._timer = self.create_timer(period, self._on_timer)
+
+    def deactivate(self) -> None:
+        for subscription in self._inputs:
+            self.destroy_subscription(subscription)
+        self._inputs.clear()
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+
+    def cleanup(self) -> None:
+        self.fuser = None
+
+    # callbacks ----------------------------------------------------------------------------------------
+    def _on_liveliness(self, detector: str, info: Any) -> None:
+        if info.alive_count == 0:
+            if detector not in self.lost:
+                self.get_logger().error(f"score stream {detector} lost liveliness: its node is gone")
+            self.lost.add(detector)
+            self._on_timer()
+        else:
+            self.lost.discard(detector)
+
+    def _on_event(self, msg: RolloutEvent) -> None:
+        now = self.now_ns()
+        if msg.event == RolloutEvent.EVENT_START:
+            if self.fuser.rollout_id == msg.rollout_id:
+                return  # a repeated START: keep the rollout's state
+            self.rollouts.start(msg.rollout_id, msg.task, msg.scenario)
+            self.fuser.start(msg.rollout_id, now)
+            for early in self.pending.take(msg.rollout_id):
+                self._fuse(early)
+        elif msg.event == RolloutEvent.EVENT_END:
+            self.ended.append(msg.rollout_id)
+            record = self.rollouts.end(msg.rollout_id, OUTCOMES.get(msg.outcome, "unknown"))
+            self.fuser.end(msg.rollout_id)
+            if record is not None:
+                record.alarm_step = self.fuser.alarm_step
+                self.get_logger().info(f"fusion: {record.summary()}")
+
+    def _on_score(self, msg: Score) -> None:
+        started = self.timed()
+        self.tick(f"scores/{msg.detector}")
+        if msg.detector not in DETECTORS:
+            self.get_logger().warning(f"ignoring score of unknown detector {msg.detector!r}")
+            return
+        score = DetectorScore(msg.detector, msg.rollout_id, msg.step, msg.windowed_score, msg.threshold,
+                              stamp_ns(msg.header.stamp), msg.complete)
+        now = self.now_ns()
+        self.dropped_early += len(self.pending.expire(now))
+        if msg.rollout_id != self.fuser.rollout_id and msg.rollout_id not in self.ended:
+            self.dropped_early += len(self.pending.add(msg.rollout_id, score, now))  # its START is still on the way
+            return
+        self._fuse(score)
+        self.record_latency(started)
+
+    def _fuse(self, score: DetectorScore) -> None:
+        state = self.fuser.add(score, self.now_ns())
+        if state is None:
+            return
+        active = self.rollouts.active
+        if active is not None:
+            active.steps += 1
+        self.publish(state)
+
+    def _on_timer(self) -> None:
+        if self.fuser is None:
+            return
+        now = self.now_ns()
+        state = self.fuser.check(now, frozenset(self.lost))
+        if state is not None:
+            self.publish(state)
+        elif now - self._last_publish_ns >= self.get_parameter("heartbeat_s").value * 1e9:
+            self.publish(self.heartbeat_state(now))
+
+    def heartbeat_state(self, now: int) -> AlarmState:
+        """The state to repeat when nothing new happened."""
+        fuser = self.fuser
+        if fuser.rollout_id is not None and fuser.last is not None:
+            return fuser.last
+        reason = "no active rollout" if fuser.rollout_id is None else "waiting for the first scores of the rollout"
+        return AlarmState(rollout_id=fuser.rollout_id or 0, step=0, state=ALARM if fuser.latched else UNKNOWN,
+                          latched=fuser.latched, obs_exceeded=False, act_exceeded=False, eta_obs=math.nan,
+                          gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combine,
+                          reason=reason, stamp_ns=now)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        del request
+        if self.fuser is None:
+            response.success, response.message = False, "fusion node is not configured"
+            return response
+        was = self.fuser.latched
+        self.fuser.reset()
+        response.success = True
+        response.message = "latched alarm cleared" if was else "no alarm was latched"
+        self.get_logger().info(f"~/reset: {response.message}")
+        return response
+
+    def publish(self, state: AlarmState) -> None:
+        """Publish one FailureAlarm."""
+        msg = FailureAlarm(rollout_id=state.rollout_id, step=state.step, state=STATES[state.state],
+                           latched=state.latched, obs_exceeded=state.obs_exceeded, act_exceeded=state.act_exceeded,
+                           eta_obs=state.eta_obs, gamma_obs=state.gamma_obs, eta_act=state.eta_act,
+                           gamma_act=state.gamma_act, combine=state.combine, reason=state.reason)
+        msg.header.stamp = to_stamp(state.stamp_ns)
+        self._alarm_pub.publish(msg)
+        self.states[state.state] += 1
+        self._last_publish_ns = self.now_ns()
+
+    def diagnostic_values(self) -> dict[str, str]:
+        values = {f"published.{k}": str(v) for k, v in self.states.items()}
+        if self.fuser is not None:
+            values |= {"matched": str(self.fuser.matched), "evicted": str(self.fuser.evicted),
+                       "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
+                       "lost_streams": ",".join(sorted(self.lost)) or "none",
+                       "waiting_for_start": str(len(self.pending)), "dropped_without_start": str(self.dropped_early)}
+        return values
+
+
+#: The node class, for in-process launching.
+NODE_CLASS = FusionNode
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``python -m fiper_ros.nodes.fusion_node --ros-args ...``."""
+    return run_node(FusionNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

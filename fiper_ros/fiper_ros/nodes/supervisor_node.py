@@ -1,0 +1,74 @@
+"""Example safety supervisor: subscribes to /fiper/alarm as the contract says and halts the robot
+(a std_srvs/Trigger service, the sim bridge's ``halt``) on ALARM, and on UNKNOWN or silence that
+lasts longer than its own ``deadline_s``.
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.nodes import qos
+from fiper_ros.nodes.base import describe
+from fiper_ros.nodes.main import run_node
+from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
+from fiper_ros.runtime.supervision import HaltDecision, SupervisorLogic
+
+STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
+
+
+class SupervisorNode(Node):
+    """Halts the robot when the failure monitor says so or stops saying anything."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("supervisor_node", **kwargs)
+        self.declare_parameter("alarm_topic", "/fiper/alarm", describe("FailureAlarm topic", read_only=True))
+        self.declare_parameter("halt_service", "/sim/halt", describe("std_srvs/Trigger that halts the robot",
+                                                                      read_only=True))
+        self.declare_parameter("deadline_s", 2.0, describe("tolerated UNKNOWN / silence", low=0.05, high=600.0))
+        self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9))
+        self.halts: list[HaltDecision] = []
+        self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
+        # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state.
+        self.create_subscription(FailureAlarm, self.get_parameter("alarm_topic").value, self._on_alarm, qos.ALARM)
+        self.create_timer(0.05, self._on_clock)
+
+    def _now(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _on_alarm(self, msg: FailureAlarm) -> None:
+        decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now())
+        if msg.state == FailureAlarm.STATE_ALARM and decision is not None:
+            self.get_logger().warning(
+                f"ALARM rollout {msg.rollout_id} step {msg.step}: eta_obs {msg.eta_obs:.3g} > {msg.gamma_obs:.3g}"
+                f" = {msg.obs_exceeded}, eta_act {msg.eta_act:.3g} > {msg.gamma_act:.3g} = {msg.act_exceeded}")
+        self._act(decision)
+
+    def _on_clock(self) -> None:
+        self._act(self.logic.on_clock(self._now()))
+
+    def _act(self, decision: HaltDecision | None) -> None:
+        if decision is None:
+            return
+        self.halts.append(decision)
+        self.get_logger().warning(f"halting the robot (rollout {decision.rollout_id}): {decision.reason}")
+        if self._halt.service_is_ready():
+            self._halt.call_async(Trigger.Request())
+        else:
+            self.get_logger().error(f"halt service {self._halt.srv_name} is not available")
+
+
+#: The node class, for in-process launching.
+NODE_CLASS = SupervisorNode
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``python -m fiper_ros.nodes.supervisor_node --ros-args ...``."""
+    return run_node(SupervisorNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

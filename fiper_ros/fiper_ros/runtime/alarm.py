@@ -1,0 +1,170 @@
+"""The fusion node's state machine: match the two score streams per step, fuse (eq. 7), latch, and
+say UNKNOWN whenever a stream is missing, stale or uncalibrated.
+
+Contract (docs/alarm-contract.md): one :class:`AlarmState` per policy step whose two scores both
+arrived; ALARM latches until :meth:`AlarmFuser.reset` or the next rollout START; UNKNOWN, never OK,
+while a stream is missing, older than ``deadline_ns``, or carries no threshold.
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+
+from fiper_ros.core.fusion import exceeds, fuse
+
+OK = "ok"
+ALARM = "alarm"
+UNKNOWN = "unknown"
+DETECTORS = ("rnd_oe", "ace")
+
+
+@dataclass(frozen=True)
+class DetectorScore:
+    """One detector's windowed score for one step, as a Score message carries it."""
+
+    detector: str
+    rollout_id: int
+    step: int
+    windowed: float
+    threshold: float
+    stamp_ns: int
+    complete: bool = True
+    """False while the window holds a missing step: ``windowed`` is then a lower bound."""
+
+
+@dataclass(frozen=True)
+class AlarmState:
+    """What the fusion node publishes on /fiper/alarm."""
+
+    rollout_id: int
+    step: int
+    state: str
+    latched: bool
+    obs_exceeded: bool
+    act_exceeded: bool
+    eta_obs: float
+    gamma_obs: float
+    eta_act: float
+    gamma_act: float
+    combine: str
+    reason: str
+    stamp_ns: int
+
+
+class AlarmFuser:
+    """Streaming eq. (7) over matched (rollout_id, step) score pairs, with latch and staleness."""
+
+    def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64) -> None:
+        if combine not in ("and", "or"):
+            raise ValueError(f"combine must be 'and' or 'or', got {combine!r}")
+        self.combine = combine
+        self.deadline_ns = deadline_ns
+        self.buffer_size = buffer_size
+        self.rollout_id: int | None = None
+        self.latched = False
+        self.alarm_step: int | None = None
+        self.last: AlarmState | None = None
+        self._pending: OrderedDict[tuple[int, int], dict[str, DetectorScore]] = OrderedDict()
+        self._last_seen: dict[str, int] = {}
+        self.matched = 0
+        self.evicted = 0
+        self.unmatched_stale = 0
+
+    # rollout lifecycle -------------------------------------------------------------------------------
+    def start(self, rollout_id: int, now_ns: int) -> None:
+        """A new rollout: clear the latch, the buffer and the streams' ages."""
+        self.unmatched_stale += len(self._pending)
+        self._pending.clear()
+        self.rollout_id = rollout_id
+        self.latched = False
+        self.alarm_step = None
+        self.last = None
+        self._last_seen = {d: now_ns for d in DETECTORS}  # the deadline runs from the START
+
+    def end(self, rollout_id: int) -> None:
+        """The rollout ended: nothing more is expected from it."""
+        if rollout_id == self.rollout_id:
+            self.unmatched_stale += len(self._pending)
+            self._pending.clear()
+            self.rollout_id = None
+
+    def reset(self) -> None:
+        """Clear a latched ALARM (the ~/reset service)."""
+        self.latched = False
+        self.alarm_step = None
+
+    # scores -----------------------------------------------------------------------------------------
+    def add(self, score: DetectorScore, now_ns: int) -> AlarmState | None:
+        """Take one detector's score; return the fused state once both scores of the step are in."""
+        if score.detector not in DETECTORS:
+            raise ValueError(f"unknown detector {score.detector!r}")
+        if score.rollout_id != self.rollout_id:
+            return None
+        self._last_seen[score.detector] = now_ns
+        key = (score.rollout_id, score.step)
+        entry = self._pending.setdefault(key, {})
+        entry[score.detector] = score
+        if len(entry) < len(DETECTORS):
+            while len(self._pending) > self.buffer_size:
+                self._pending.popitem(last=False)
+                self.evicted += 1
+            return None
+        del self._pending[key]
+        # Older steps still waiting for their partner will never be reported: count them.
+        for old in [k for k in self._pending if k[1] < score.step]:
+            del self._pending[old]
+            self.unmatched_stale += 1
+        self.matched += 1
+        self.last = self._fuse(entry["rnd_oe"], entry["ace"])
+        return self.last
+
+    def _fuse(self, obs: DetectorScore, act: DetectorScore) -> AlarmState:
+        uncalibrated = [s.detector for s in (obs, act) if not math.isfinite(s.threshold)]
+        obs_exc = bool(exceeds(obs.windowed, obs.threshold))
+        act_exc = bool(exceeds(act.windowed, act.threshold))
+        common = dict(
+            rollout_id=obs.rollout_id, step=obs.step, obs_exceeded=obs_exc, act_exceeded=act_exc,
+            eta_obs=obs.windowed, gamma_obs=obs.threshold, eta_act=act.windowed, gamma_act=act.threshold,
+            combine=self.combine, stamp_ns=max(obs.stamp_ns, act.stamp_ns),
+        )
+        if uncalibrated:
+            return AlarmState(state=UNKNOWN, latched=self.latched, reason=f"no threshold: {', '.join(uncalibrated)}",
+                              **common)
+        # Scores are >= 0, so an incomplete window's sum is a lower bound: its "exceeded" is certain,
+        # its "not exceeded" is not. An alarm therefore stands; an OK needs complete windows.
+        if bool(fuse(obs_exc, act_exc, self.combine)):
+            if not self.latched:
+                self.latched, self.alarm_step = True, obs.step
+            names = [n for n, e in (("rnd_oe", obs_exc), ("ace", act_exc)) if e]
+            return AlarmState(state=ALARM, latched=True, reason=f"exceeded: {', '.join(names)} ({self.combine})",
+                              **common)
+        if self.latched:
+            return AlarmState(state=ALARM, latched=True, reason=f"latched since step {self.alarm_step}", **common)
+        certainly_below = [s.complete and not e for s, e in ((obs, obs_exc), (act, act_exc))]
+        if not (any(certainly_below) if self.combine == "and" else all(certainly_below)):
+            incomplete = [s.detector for s in (obs, act) if not s.complete]
+            return AlarmState(state=UNKNOWN, latched=False,
+                              reason=f"window holds a missing step: {', '.join(incomplete)}", **common)
+        return AlarmState(state=OK, latched=False, reason="below thresholds", **common)
+
+    # time -------------------------------------------------------------------------------------------
+    def stale_streams(self, now_ns: int) -> list[str]:
+        """Detectors of the active rollout whose last score is older than the deadline."""
+        if self.rollout_id is None:
+            return []
+        return [d for d in DETECTORS if now_ns - self._last_seen.get(d, now_ns) > self.deadline_ns]
+
+    def check(self, now_ns: int, lost: frozenset[str] = frozenset()) -> AlarmState | None:
+        """UNKNOWN state if a stream is stale or ``lost`` (liveliness), else ``None``."""
+        bad = sorted(set(self.stale_streams(now_ns)) | (set(lost) if self.rollout_id is not None else set()))
+        if not bad:
+            return None
+        base = self.last or AlarmState(
+            rollout_id=self.rollout_id or 0, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
+            act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
+            combine=self.combine, reason="", stamp_ns=now_ns,
+        )
+        state = ALARM if self.latched else UNKNOWN
+        reason = f"stream(s) {', '.join(bad)} missing or older than {self.deadline_ns / 1e9:g} s"
+        return replace(base, state=state, latched=self.latched, reason=reason, stamp_ns=now_ns)

@@ -1,0 +1,89 @@
+"""Checks of incoming arrays: a bad message is rejected with a reason, never passed on silently."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+#: Rejection reasons, the keys of the nodes' "rejected" diagnostics.
+SHAPE = "shape"
+NON_FINITE = "non_finite"
+OVERSIZE = "oversize"
+CALIBRATION_MISMATCH = "calibration_mismatch"
+NO_CALIBRATION = "no_calibration"
+UNKNOWN_ROLLOUT = "unknown_rollout"
+DUPLICATE_STEP = "duplicate_step"
+OUT_OF_ORDER_STEP = "out_of_order_step"
+NEGATIVE_STEP = "negative_step"
+ACTION_SPACE = "action_space"
+NO_JOINT_STATE = "no_joint_state"
+INTERNAL = "internal_error"
+REASONS = (
+    SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT,
+    DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL,
+)
+
+#: Default cap on the number of floats in one message (256 x 64 x 64 actions, or a 4M embedding).
+DEFAULT_MAX_ELEMENTS = 1 << 22
+
+
+class InputRejected(ValueError):
+    """A message that must not be scored; ``reason`` is one of :data:`REASONS`."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+def _finite(values: np.ndarray, what: str) -> np.ndarray:
+    if not np.isfinite(values).all():
+        bad = int(values.size - np.count_nonzero(np.isfinite(values)))
+        raise InputRejected(NON_FINITE, f"{what} has {bad} NaN/inf value(s)")
+    return values
+
+
+def _size(n: int, max_elements: int, what: str) -> None:
+    if n > max_elements:
+        raise InputRejected(OVERSIZE, f"{what} has {n} values, more than max_elements={max_elements}")
+
+
+def embedding(data: Sequence[float] | np.ndarray, shape: Sequence[int], expected_dim: int | None,
+              max_elements: int = DEFAULT_MAX_ELEMENTS) -> np.ndarray:
+    """Return the embedding as a flat float array, or raise :class:`InputRejected`.
+
+    ``shape`` is the declared shape (empty: flat); ``expected_dim`` the calibration's embedding size
+    (``None``: no calibration loaded, which is itself a rejection).
+    """
+    values = np.asarray(data, dtype=np.float32)
+    _size(values.size, max_elements, "embedding")
+    declared = int(np.prod(shape)) if len(shape) else values.size
+    if values.ndim != 1 or declared != values.size or any(int(d) <= 0 for d in shape):
+        raise InputRejected(SHAPE, f"embedding has {values.size} values but declares shape {list(shape)}")
+    if values.size == 0:
+        raise InputRejected(SHAPE, "embedding is empty")
+    if expected_dim is None:
+        raise InputRejected(NO_CALIBRATION, "no calibration loaded")
+    if values.size != expected_dim:
+        raise InputRejected(CALIBRATION_MISMATCH, f"embedding dim {values.size} != calibration's {expected_dim}")
+    return _finite(values, "embedding")
+
+
+def action_batch(data: Sequence[float] | np.ndarray, batch_size: int, horizon: int, action_dim: int,
+                 exec_steps: int, max_elements: int = DEFAULT_MAX_ELEMENTS) -> np.ndarray:
+    """Return the batch as a float array ``[B, H, D]``, or raise :class:`InputRejected`.
+
+    Checks only the message's own consistency; compatibility with a calibration is the caller's
+    check (it may map joint-space actions to end-effector positions first).
+    """
+    values = np.asarray(data, dtype=np.float32)
+    _size(values.size, max_elements, "action batch")
+    if min(batch_size, horizon, action_dim) <= 0:
+        raise InputRejected(SHAPE, f"declared B x H x D = {batch_size} x {horizon} x {action_dim} has a zero size")
+    if values.size != batch_size * horizon * action_dim:
+        raise InputRejected(
+            SHAPE, f"{values.size} values for declared B x H x D = {batch_size} x {horizon} x {action_dim}"
+        )
+    if not 0 < exec_steps <= horizon:
+        raise InputRejected(SHAPE, f"exec_steps {exec_steps} outside 1..H={horizon}")
+    return _finite(values.reshape(batch_size, horizon, action_dim), "action batch")

@@ -1,0 +1,82 @@
+"""Scripted Stacking-1 expert: pick one block (drawn from the seed) and place it in the target area.
+
+The expert tracks a sequence of TCP waypoints (above the block, grasp height, lift, above the target,
+place height, lift) with the hand pointing down and its yaw aligned to the block. A Cartesian
+reference moves towards the active waypoint at bounded speed; differential IK turns it into joint
+positions and the action is the joint velocity reaching them in one control step.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from ..ik import DiffIK
+from ..planar import step_towards
+from ..tasks.stacking import COLORS, MAX_JOINT_VEL
+from ..transforms import hand_down_quat, wrap_angle
+
+CARRY_HEIGHT = 0.12
+CART_STEP = 0.02
+"""Largest reference TCP displacement per control step [m]."""
+REACHED = 0.008
+GRIP_WAIT = 6
+RELEASE_WAIT = 5
+LAST_PHASE = 7
+
+
+class StackingExpert:
+    """Privileged-state expert of the Stacking-1 task; ``act(state)`` returns the next 8-D action."""
+
+    def __init__(self, seed: int, model: mujoco.MjModel, control_hz: float) -> None:
+        """Draw the block from ``seed``; ``model`` is the environment's model (for IK)."""
+        rng = np.random.default_rng([seed, 2])
+        self.color = COLORS[int(rng.integers(len(COLORS)))]
+        self._ik = DiffIK(model)
+        self._hz = control_hz
+        self._phase = 0
+        self._wait = 0
+        self._ref: np.ndarray | None = None
+        self._yaw: float | None = None
+        self._grasp_xy: np.ndarray | None = None
+
+    def _waypoint(self, state: dict[str, Any]) -> tuple[np.ndarray | None, float]:
+        """Active waypoint (None while waiting) and gripper opening of the current phase."""
+        if self._phase < 2:
+            self._grasp_xy = state["blocks"][self.color]["pos"][:2].copy()
+        block = self._grasp_xy
+        target = state["target"]
+        grasp_z = max(state["block_half"], 0.018)
+        phases = [
+            (np.array([block[0], block[1], CARRY_HEIGHT]), 1.0),
+            (np.array([block[0], block[1], grasp_z]), 1.0),
+            (None, 0.0),
+            (np.array([block[0], block[1], CARRY_HEIGHT]), 0.0),
+            (np.array([target[0], target[1], CARRY_HEIGHT]), 0.0),
+            (np.array([target[0], target[1], state["block_half"] + 0.008]), 0.0),
+            (None, 1.0),
+            (np.array([target[0], target[1], CARRY_HEIGHT]), 1.0),
+        ]
+        return phases[self._phase]
+
+    def act(self, state: dict[str, Any]) -> np.ndarray:
+        """Next action for the privileged ``state`` of ``StackingEnv.state()``."""
+        if self._ref is None:
+            self._ref = state["tcp"].copy()
+        if self._phase < 2:
+            # Align the hand with the block's faces (blocks are symmetric under quarter turns).
+            block_yaw = state["blocks"][self.color]["yaw"]
+            self._yaw = float(wrap_angle(4.0 * block_yaw) / 4.0)
+        waypoint, gripper = self._waypoint(state)
+        if waypoint is None:
+            self._wait += 1
+            if self._wait >= (GRIP_WAIT if gripper == 0.0 else RELEASE_WAIT):
+                self._phase, self._wait = min(self._phase + 1, LAST_PHASE), 0
+        else:
+            self._ref = step_towards(self._ref, waypoint, CART_STEP)
+            if np.linalg.norm(state["tcp"] - waypoint) < REACHED:
+                self._phase = min(self._phase + 1, LAST_PHASE)
+        q_des = self._ik.solve(state["q_cmd"], self._ref, hand_down_quat(self._yaw), iterations=8)
+        qdot = np.clip((q_des - state["q_cmd"]) * self._hz, -MAX_JOINT_VEL, MAX_JOINT_VEL)
+        return np.concatenate([qdot, [gripper]])

@@ -1,0 +1,129 @@
+"""ACE score, eq. (5) and App. A.1: hand-computed cases and a brute-force cross-check."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fiper_ros.core.ace import action_ranges, ace_score, ace_scores, cell_size, step_entropies
+
+
+def _two_cells(horizon: int) -> np.ndarray:
+    actions = np.zeros((4, horizon, 2))
+    actions[2:, :, 0] = 1.0  # two samples per cell along dim 0, dim 1 constant
+    return actions
+
+
+def test_two_equal_cells_give_one_bit_per_step() -> None:
+    assert ace_score(_two_cells(5), np.array([0.5, 0.5])) == 5.0
+
+
+def test_k_equally_filled_cells_give_log2_k() -> None:
+    for k in (3, 4, 7):
+        actions = np.repeat(np.arange(k, dtype=float), 3)[:, None, None]  # 3 samples in each of k cells
+        assert ace_score(actions, np.array([0.5])) == pytest.approx(math.log2(k), abs=1e-12)
+
+
+def test_identical_samples_give_zero() -> None:
+    actions = np.broadcast_to(np.array([0.3, -1.0, 2.0]), (16, 6, 3))
+    assert ace_score(actions, np.array([0.1, 0.1, 0.1])) == 0.0
+
+
+def test_single_sample_gives_zero() -> None:
+    actions = np.random.default_rng(0).normal(size=(1, 8, 3))
+    assert ace_score(actions, np.full(3, 0.01)) == 0.0
+
+
+def test_sample_on_the_maximum_joins_the_last_bin() -> None:
+    # range 1.0, cell 0.5 -> 2 bins; 0.5 starts bin 1 and the max 1.0 stays in bin 1
+    actions = np.array([0.0, 0.5, 1.0, 1.0])[:, None, None]
+    assert ace_score(actions, np.array([0.5])) == pytest.approx(-(0.25 * math.log2(0.25) + 0.75 * math.log2(0.75)))
+
+
+def test_zero_range_dimension_is_a_single_bin() -> None:
+    rng = np.random.default_rng(1)
+    actions = rng.normal(size=(32, 4, 2))
+    only_first = ace_score(actions[:, :, :1], np.array([0.2]))
+    assert ace_score(actions, np.array([0.2, 0.0])) == only_first
+    assert only_first > 0
+
+
+def test_cells_are_joint_over_dimensions() -> None:
+    # Each dimension alone splits 2/2, jointly the 4 samples sit in 4 different cells -> 2 bits.
+    actions = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]])[:, None, :]
+    assert ace_score(actions, np.array([0.5, 0.5])) == 2.0
+
+
+def test_permutation_invariance() -> None:
+    rng = np.random.default_rng(2)
+    actions = rng.normal(size=(64, 16, 3))
+    cell = np.full(3, 0.3)
+    assert ace_score(actions[rng.permutation(64)], cell) == ace_score(actions, cell)
+
+
+def _brute_force(actions: np.ndarray, cell: np.ndarray, buffer: float = 0.0) -> float:
+    total = 0.0
+    for i in range(actions.shape[1]):
+        step = actions[:, i, :]
+        low, high = step.min(axis=0), step.max(axis=0)
+        low, high = low - buffer * (high - low), high + buffer * (high - low)
+        keys = []
+        for sample in step:
+            key = []
+            for d, value in enumerate(sample):
+                if cell[d] == 0:
+                    key.append(0)
+                    continue
+                bins = max(math.ceil((high[d] - low[d]) / cell[d]), 1)
+                key.append(min(math.floor((value - low[d]) / cell[d]), bins - 1))
+            keys.append(tuple(key))
+        _, counts = np.unique(np.array(keys), axis=0, return_counts=True)
+        p = counts / len(keys)
+        total += float(-(p * np.log2(p)).sum())
+    return total
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_matches_brute_force(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    samples, horizon, dims = int(rng.integers(1, 40)), int(rng.integers(1, 6)), int(rng.integers(1, 8))
+    actions = rng.normal(size=(samples, horizon, dims))
+    cell = rng.uniform(0.05, 1.0, size=dims)
+    cell[rng.random(dims) < 0.2] = 0.0
+    assert ace_score(actions, cell) == pytest.approx(_brute_force(actions, cell), abs=1e-9)
+    assert step_entropies(actions, cell, 0.01).sum() == pytest.approx(_brute_force(actions, cell, 0.01), abs=1e-9)
+
+
+def test_huge_cell_counts_use_the_tuple_path() -> None:
+    # 12 dims with ~1e4 bins each overflow int64 codes; every sample is then its own cell.
+    actions = np.random.default_rng(3).normal(size=(64, 2, 12))
+    assert ace_score(actions, np.full(12, 1e-4)) == pytest.approx(2 * math.log2(64))
+
+
+def test_rollout_scores_equal_per_step_scores() -> None:
+    rng = np.random.default_rng(4)
+    actions = rng.normal(size=(10, 30, 16, 5)).astype(np.float32)
+    cell = np.full(5, 0.4)
+    per_step = np.array([ace_score(a, cell) for a in actions])
+    assert np.array_equal(ace_scores(actions, cell), per_step)
+
+
+def test_ranges_and_cell_size() -> None:
+    chunks = [np.array([[[0.0, 1.0]], [[2.0, -1.0]]]), np.array([[[-1.0, 0.5]]])]
+    assert np.array_equal(action_ranges(chunks), [3.0, 2.0])
+    assert np.allclose(cell_size(np.array([3.0, 2.0]), 0.1), [0.3, 0.2])
+    with pytest.raises(ValueError, match="alpha"):
+        cell_size(np.array([1.0]), 1.5)
+    with pytest.raises(ValueError, match="at least one"):
+        action_ranges([])
+
+
+def test_bad_inputs_raise() -> None:
+    with pytest.raises(ValueError, match=r"\[B, H, D\]"):
+        ace_score(np.zeros((4, 3)), np.ones(3))
+    with pytest.raises(ValueError, match="shape"):
+        ace_score(np.zeros((4, 3, 2)), np.ones(3))
+    with pytest.raises(ValueError, match="NaN"):
+        ace_score(np.full((4, 3, 1), np.nan), np.ones(1))

@@ -1,0 +1,99 @@
+"""Streaming monitors equal the vectorised rollout prediction bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers.core_data import make_rollout
+
+from fiper_ros.core.calibration import Calibration
+from fiper_ros.core.monitor import ActionMonitor, FiperMonitor, MonitorError, ObservationMonitor, predict_rollout
+
+
+@pytest.mark.parametrize(("ood", "length"), [(False, None), (True, None), (False, 40)])
+def test_streaming_equals_vectorised(calibration: Calibration, ood: bool, length: int | None) -> None:
+    rollout = make_rollout(np.random.default_rng(int(ood) + (length or 0)), 0, ood=ood, success=not ood, length=length)
+    prediction = predict_rollout(rollout, calibration)
+    monitor = FiperMonitor(calibration)
+    steps = [monitor.update(t, rollout.embeddings[t], rollout.actions[t]) for t in range(rollout.length)]
+    for name, stream in (("obs", [s.obs for s in steps]), ("act", [s.act for s in steps])):
+        assert np.array_equal([s.score for s in stream], getattr(prediction, f"{name}_scores"))
+        assert np.array_equal([s.windowed for s in stream], getattr(prediction, f"{name}_windowed"))
+        assert np.array_equal([s.threshold for s in stream], getattr(prediction, f"{name}_thresholds"))
+        assert np.array_equal([s.exceeded for s in stream], getattr(prediction, f"{name}_exceeded"))
+    assert [s.fusion.alarm for s in steps] == prediction.alarms.tolist()
+    assert steps[-1].fusion.first_alarm_step == prediction.first_alarm_step
+
+
+def test_ood_failure_is_flagged_and_id_success_is_not(calibration: Calibration) -> None:
+    rng = np.random.default_rng(21)
+    assert predict_rollout(make_rollout(rng, 1, ood=True, success=False), calibration).first_alarm_step is not None
+    quiet = [predict_rollout(make_rollout(rng, i), calibration).first_alarm_step is None for i in range(10)]
+    assert sum(quiet) >= 6
+
+
+def test_steps_must_be_consecutive(calibration: Calibration) -> None:
+    rollout = make_rollout(np.random.default_rng(2), 0)
+    monitor = ObservationMonitor(calibration)
+    monitor.update(0, rollout.embeddings[0])
+    with pytest.raises(MonitorError, match="expected policy step 1, got 2"):
+        monitor.update(2, rollout.embeddings[2])
+    monitor.reset()
+    assert monitor.update(0, rollout.embeddings[0]).step == 0
+
+
+def test_mismatched_inputs_are_refused(calibration: Calibration) -> None:
+    from fiper_ros.core.calibration import CalibrationMismatch
+
+    with pytest.raises(CalibrationMismatch, match="embedding_dim"):
+        ObservationMonitor(calibration).update(0, np.zeros(5))
+    with pytest.raises(CalibrationMismatch, match="horizon"):
+        ActionMonitor(calibration).update(0, np.zeros((8, 3, 4)))
+
+
+def test_joint_velocity_rollouts_stream_like_they_replay(tmp_path_factory: pytest.TempPathFactory) -> None:
+    import dataclasses
+
+    from helpers.core_data import TINY_RND
+    from helpers.urdfs import PLANAR_URDF
+
+    from fiper_ros.core.calibration import CalibrationSettings, calibrate
+    from fiper_ros.core.kinematics import PinocchioFK
+    from fiper_ros.core.rollout import Rollout
+
+    path = tmp_path_factory.mktemp("urdf") / "planar2.urdf"
+    path.write_text(PLANAR_URDF)
+    fk = PinocchioFK(path, "tip")
+    rng = np.random.default_rng(5)
+
+    def velocity_rollout(index: int) -> Rollout:
+        base = make_rollout(rng, index, length=12)
+        joints = rng.uniform(-1, 1, size=(12, 2))
+        return dataclasses.replace(
+            base, actions=base.actions[..., :2], action_space="joint_velocity", metadata={"joint_positions": joints}
+        )
+
+    settings = CalibrationSettings(
+        rnd=dataclasses.replace(TINY_RND, max_epochs=3), control_dt=0.1, threshold="time_varying", min_rollouts=4
+    )
+    calibration = calibrate([velocity_rollout(i) for i in range(6)], settings, fk=fk)
+    rollout = velocity_rollout(10)
+    prediction = predict_rollout(rollout, calibration, fk)
+    monitor = ActionMonitor(calibration, fk)
+    joints = rollout.metadata["joint_positions"]
+    streamed = [monitor.update(t, rollout.actions[t], joints[t]).windowed for t in range(rollout.length)]
+    assert np.array_equal(streamed, prediction.act_windowed)
+    assert calibration.ranges.shape == (3,) and calibration.ranges[2] == 0.0  # planar arm: EE z is constant
+
+
+def test_skipped_steps_enter_the_window_as_missing(calibration: Calibration) -> None:
+    rollout = make_rollout(np.random.default_rng(3), 0, length=8)
+    full = predict_rollout(rollout, calibration)
+    monitor = ObservationMonitor(calibration)  # w_O = 3
+    assert monitor.update(0, rollout.embeddings[0]).complete
+    monitor.skip_to(3)  # steps 1 and 2 were lost
+    assert monitor.next_step == 3
+    results = {t: monitor.update(t, rollout.embeddings[t]) for t in range(3, 8)}
+    assert [results[t].complete for t in range(3, 8)] == [False, False, True, True, True]
+    assert results[3].windowed == full.obs_scores[3]  # a lower bound while steps are missing
+    assert [results[t].windowed for t in (5, 6, 7)] == full.obs_windowed[5:].tolist()

@@ -1,0 +1,45 @@
+"""Score aggregation, eqs. (2) and (6)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fiper_ros.core.window import WindowAccumulator, aggregate, cumulative, windowed
+
+
+def test_hand_computed_window() -> None:
+    scores = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert np.array_equal(windowed(scores, 2), [1.0, 3.0, 5.0, 7.0, 9.0])
+    assert np.array_equal(windowed(scores, 3), [1.0, 3.0, 6.0, 9.0, 12.0])
+    assert np.array_equal(windowed(scores, 1), scores)
+
+
+def test_window_longer_than_rollout_is_the_cumulative_sum() -> None:
+    scores = np.array([0.5, 0.25, 2.0])
+    assert np.array_equal(windowed(scores, 50), cumulative(scores))
+    assert np.array_equal(cumulative(scores), [0.5, 0.75, 2.75])
+
+
+def test_aggregate_modes() -> None:
+    scores = np.array([1.0, 2.0, 4.0])
+    assert np.array_equal(aggregate(scores, "single"), scores)
+    assert np.array_equal(aggregate(scores, "window", 2), [1.0, 3.0, 6.0])
+    assert np.array_equal(aggregate(scores, "cumulative"), [1.0, 3.0, 7.0])
+    with pytest.raises(ValueError, match="mode"):
+        aggregate(scores, "median")
+    with pytest.raises(ValueError, match="window size"):
+        windowed(scores, 0)
+
+
+@pytest.mark.parametrize(
+    ("mode", "w"), [("window", 1), ("window", 4), ("window", 40), ("cumulative", 1), ("single", 1)]
+)
+def test_streaming_equals_vectorised_bit_for_bit(mode: str, w: int) -> None:
+    rng = np.random.default_rng(w)
+    accumulator = WindowAccumulator(w, mode)
+    for length in (1, 7, 33):
+        scores = rng.lognormal(size=length) * 1e3
+        accumulator.reset()
+        streamed = np.array([accumulator.push(s) for s in scores])
+        assert np.array_equal(streamed, aggregate(scores, mode, w))

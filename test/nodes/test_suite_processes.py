@@ -1,0 +1,138 @@
+"""The suite as separate OS processes (``fiper launch``) over real DDS on loopback: the alarm at the
+known step, a late-joining supervisor still gets the latched alarm, a killed scoring node turns the
+state UNKNOWN within the deadline, and Ctrl-C stops everything cleanly."""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import rclpy
+import yaml
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.nodes import qos
+from helpers.dds import ros_env
+from helpers.suite import Driver
+from helpers.synthetic import FAIL_FROM, make_rollout
+
+DEADLINE_S = 1.0
+
+
+class Launch:
+    """``fiper launch`` in a subprocess, its output collected line by line."""
+
+    def __init__(self, config: Path, domain: int) -> None:
+        self.proc = subprocess.Popen(  # noqa: S603
+            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
+            env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        self.lines: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip())
+
+    def pid_of(self, name: str) -> int:
+        for line in self.lines:
+            match = re.match(rf"\[launch\] started {name} \(pid (\d+)\)", line)
+            if match:
+                return int(match.group(1))
+        raise AssertionError(f"{name} not started:\n" + "\n".join(self.lines))
+
+    def interrupt(self) -> int:
+        os.killpg(self.proc.pid, signal.SIGINT)
+        return self.proc.wait(timeout=30)
+
+
+def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
+    tmp_path: Path, calibration_dir: Path, ros_domain: int
+) -> None:
+    config = tmp_path / "suite.yaml"
+    share = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "config"
+    config.write_text(yaml.safe_dump({
+        "namespace": "/fiper",
+        "parameter_files": [str(share / "nodes.yaml")],
+        "nodes": {
+            "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": {"calibration_dir": str(calibration_dir)}},
+            "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": {"calibration_dir": str(calibration_dir)}},
+            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": {"deadline_s": DEADLINE_S}},
+        },
+    }))
+    launch = Launch(config, ros_domain)
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    executor = SingleThreadedExecutor(context=context)
+    driver = Driver(context)
+    executor.add_node(driver)
+
+    def spin_until(condition, timeout: float = 30.0) -> bool:  # noqa: ANN001
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not condition():
+            executor.spin_once(timeout_sec=0.02)
+        return condition()
+
+    try:
+        assert spin_until(lambda: driver.embeddings.get_subscription_count() >= 1
+                          and driver.batches.get_subscription_count() >= 1
+                          and driver.events.get_subscription_count() >= 3, timeout=60), "\n".join(launch.lines)
+        assert spin_until(lambda: any("waiting" in m.reason or "no active" in m.reason for m in driver.alarms))
+        # The fusion node (and this driver) must have discovered both score publishers: a VOLATILE score
+        # published before discovery completes is not delivered.
+        assert spin_until(lambda: all(driver.count_subscribers(f"/fiper/scores/{d}") >= 2
+                                      and driver.count_publishers(f"/fiper/scores/{d}") >= 1 for d in ("rnd_oe", "ace")))
+        spin_until(lambda: False, timeout=1.0)
+
+        # 1. a scripted failure raises ALARM exactly at the step where both windowed scores cross.
+        rollout = make_rollout(500, fail=True)
+        driver.start(1)
+        for step in range(rollout.length):
+            driver.step(1, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+            assert spin_until(lambda s=step: s in driver.alarms_of(1), timeout=10), (step, "\n".join(launch.lines))
+        states = driver.alarms_of(1)
+        first = min(s for s, m in states.items() if m.state == FailureAlarm.STATE_ALARM)
+        assert first == FAIL_FROM
+        assert all(states[s].state == FailureAlarm.STATE_OK for s in range(FAIL_FROM))
+
+        # 2. a supervisor that joins now still receives the latched ALARM (transient local).
+        late: list[FailureAlarm] = []
+        supervisor = Node("late_supervisor", context=context)
+        supervisor.create_subscription(FailureAlarm, "/fiper/alarm", late.append, qos.ALARM)
+        executor.add_node(supervisor)
+        assert spin_until(lambda: bool(late), timeout=10)
+        assert late[0].state == FailureAlarm.STATE_ALARM and late[0].latched and late[0].rollout_id == 1
+
+        # 3. a new rollout runs OK; killing the ACE process turns the state UNKNOWN within the deadline.
+        ok_rollout = make_rollout(501)
+        driver.start(2)
+        for step in range(3):
+            driver.step(2, step, ok_rollout.embeddings[step], ok_rollout.actions[step], ok_rollout.exec_steps)
+            assert spin_until(lambda s=step: s in driver.alarms_of(2), timeout=10)
+        assert all(m.state == FailureAlarm.STATE_OK for m in driver.alarms_of(2).values())
+        os.kill(launch.pid_of("ace_node"), signal.SIGKILL)
+        killed_at = time.monotonic()
+        driver.alarms.clear()
+        assert spin_until(lambda: any(m.state == FailureAlarm.STATE_UNKNOWN and m.rollout_id == 2 and "ace" in m.reason
+                                      for m in driver.alarms), timeout=10)
+        assert time.monotonic() - killed_at <= DEADLINE_S + 1.0  # deadline (or liveliness lease) + one tick
+        first_unknown = next(i for i, m in enumerate(driver.alarms) if m.state == FailureAlarm.STATE_UNKNOWN)
+        spin_until(lambda: False, timeout=1.5)  # heartbeats go on: none of them may say OK again
+        assert all(m.state != FailureAlarm.STATE_OK for m in driver.alarms[first_unknown:])
+        assert spin_until(lambda: any("ace_node exited with code -9" in line for line in launch.lines), timeout=5)
+    finally:
+        executor.shutdown()
+        driver.destroy_node()
+        rclpy.try_shutdown(context=context)
+        status = launch.interrupt()
+    # Ctrl-C stopped the remaining nodes cleanly; the launcher reports the node that died.
+    assert status == 1, "\n".join(launch.lines)
+    assert any("rnd_oe_node: exit 0" in line and "fusion_node: exit 0" in line for line in launch.lines), "\n".join(launch.lines[-10:])

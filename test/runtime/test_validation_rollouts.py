@@ -1,0 +1,91 @@
+"""Input validation and rollout tracking of the node shells (no DDS)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fiper_ros.runtime import validation
+from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.validation import InputRejected
+
+
+def _reason(call) -> str:  # noqa: ANN001
+    with pytest.raises(InputRejected) as info:
+        call()
+    return info.value.reason
+
+
+def test_embedding_accepts_a_well_formed_vector() -> None:
+    out = validation.embedding(np.arange(4, dtype=np.float32), [4], 4)
+    assert out.dtype == np.float32 and out.tolist() == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize(
+    ("data", "shape", "dim", "reason"),
+    [
+        ([1.0, 2.0, 3.0], [4], 3, validation.SHAPE),
+        ([1.0, 2.0, 3.0], [3], 4, validation.CALIBRATION_MISMATCH),
+        ([1.0, float("nan"), 3.0], [3], 3, validation.NON_FINITE),
+        ([1.0, float("inf"), 3.0], [3], 3, validation.NON_FINITE),
+        ([1.0, 2.0, 3.0], [3], None, validation.NO_CALIBRATION),
+        ([], [], 3, validation.SHAPE),
+        ([1.0, 2.0], [2, 0], 2, validation.SHAPE),
+    ],
+)
+def test_embedding_rejections(data: list[float], shape: list[int], dim: int | None, reason: str) -> None:
+    assert _reason(lambda: validation.embedding(data, shape, dim)) == reason
+
+
+def test_oversize_is_rejected_before_anything_else() -> None:
+    assert _reason(lambda: validation.embedding(np.zeros(11), [11], 11, max_elements=10)) == validation.OVERSIZE
+    assert _reason(lambda: validation.action_batch(np.zeros(12), 2, 2, 3, 1, max_elements=10)) == validation.OVERSIZE
+
+
+def test_action_batch_reshapes_row_major() -> None:
+    out = validation.action_batch(np.arange(12, dtype=np.float32), 2, 3, 2, 1)
+    assert out.shape == (2, 3, 2) and out[1, 0, 1] == 7
+
+
+@pytest.mark.parametrize(
+    ("n", "b", "h", "d", "exec_steps", "reason"),
+    [
+        (11, 2, 3, 2, 1, validation.SHAPE),
+        (12, 2, 3, 2, 0, validation.SHAPE),
+        (12, 2, 3, 2, 4, validation.SHAPE),
+        (0, 0, 3, 2, 1, validation.SHAPE),
+    ],
+)
+def test_action_batch_rejections(n: int, b: int, h: int, d: int, exec_steps: int, reason: str) -> None:
+    assert _reason(lambda: validation.action_batch(np.zeros(n), b, h, d, exec_steps)) == reason
+
+
+def test_action_batch_rejects_nan() -> None:
+    data = np.zeros(12)
+    data[5] = np.nan
+    assert _reason(lambda: validation.action_batch(data, 2, 3, 2, 1)) == validation.NON_FINITE
+
+
+def test_tracker_orders_steps_within_the_active_rollout() -> None:
+    tracker = RolloutTracker()
+    assert _reason(lambda: tracker.admit(1, 0)) == validation.UNKNOWN_ROLLOUT
+    tracker.start(1)
+    record, started = tracker.admit(1, 0)
+    assert not started and record.steps == 1
+    assert _reason(lambda: tracker.admit(1, 0)) == validation.DUPLICATE_STEP
+    tracker.admit(1, 3)
+    assert record.gaps == 2
+    assert _reason(lambda: tracker.admit(1, 2)) == validation.OUT_OF_ORDER_STEP
+    assert _reason(lambda: tracker.admit(1, -1)) == validation.NEGATIVE_STEP
+    assert _reason(lambda: tracker.admit(2, 4)) == validation.UNKNOWN_ROLLOUT
+    ended = tracker.end(1, "failure")
+    assert ended is record and "2 steps, 2 missing" in record.summary() and "outcome failure" in record.summary()
+    assert _reason(lambda: tracker.admit(1, 4)) == validation.UNKNOWN_ROLLOUT
+    assert tracker.end(1, "success") is None
+
+
+def test_tracker_auto_start_takes_a_new_rollout_id() -> None:
+    tracker = RolloutTracker(auto_start=True)
+    record, started = tracker.admit(9, 0)
+    assert started and record.rollout_id == 9
+    record2, started2 = tracker.admit(10, 0)
+    assert started2 and record2.rollout_id == 10 and record2 is not record
