@@ -2,13 +2,14 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test demo bench-core bench-nodes lock clean distclean
+.PHONY: help setup test demo bench-core bench-eval bench-nodes lock clean distclean
 
 help:
 	@echo "make demo        the main job (arrives with the demo issue; see README)"
 	@echo "make test        set up the workspace if needed, then run the whole test suite"
 	@echo "make setup       venv with pinned wheels, Debian packages, colcon build (idempotent)"
 	@echo "make bench-core  latency of the FIPER core (ACE, RND-OE, fusion)"
+	@echo "make bench-eval  speed of the evaluation engine (scores, full sweep) on synthetic data"
 	@echo "make bench-nodes end-to-end latency and throughput of the node suite over DDS"
 	@echo "make lock        regenerate requirements.lock from requirements.in"
 	@echo "make clean       remove colcon build/install/log; make distclean also removes the venv"
@@ -26,6 +27,9 @@ demo: setup
 
 bench-core: setup
 	@$(RUN) python -m fiper_ros.bench.core_bench
+
+bench-eval: setup
+	@$(RUN) python -m fiper_ros.bench.eval_bench
 
 bench-nodes: setup
 	@$(RUN) python -m fiper_ros.bench.nodes_bench

@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "doctor": ("fiper_ros.doctor", "check that the workspace environment is complete"),
     "launch": ("fiper_ros.launch", "start the suite's nodes from a launch YAML (processes or in-process)"),
     "echo": ("fiper_ros.echo", "print the messages of a topic"),
+    "evaluate": ("fiper_ros.evaluation.cli", "evaluate FIPER and the baselines on rollout datasets"),
 }
 
 #: Modules whose absence means the workspace was not set up or not sourced.

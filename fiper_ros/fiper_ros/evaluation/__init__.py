@@ -1,0 +1,18 @@
+"""Offline evaluation of FIPER and the baselines (Sec. 5 and App. B-C of the paper); no rclpy.
+
+Modules, one concept each:
+
+- :mod:`.data`: datasets (task name, calibration and test rollouts) and their loading.
+- :mod:`.synthetic`: SYNTHETIC benchmark rollouts shaped like the paper's simulation tasks.
+- :mod:`.methods`: the seven methods and the per-step score streams they read.
+- :mod:`.scoring`: per-step scores of every stream, computed once per dataset, settings and seed.
+- :mod:`.cache`: the on-disk score cache and its keys.
+- :mod:`.threshold_grid`: core thresholds fitted for many deltas at once (bit-identical).
+- :mod:`.sweep`: windows x thresholds x deltas (x FIPER pairs and AND/OR) -> first-alarm steps.
+- :mod:`.protocol`: metrics, averaging over deltas, model selection, seeds, the clean split.
+- :mod:`.engine`: the whole run over tasks and seeds (scores -> sweep -> metrics -> protocols).
+- :mod:`.report`: ``results.md`` (Tables 1 and 2) and ``results.json``.
+- :mod:`.plots`: the PNG figures.
+- :mod:`.progress`: a stderr progress line.
+- :mod:`.cli`: ``fiper evaluate``.
+"""

@@ -1,0 +1,102 @@
+"""On-disk cache of per-step score streams: one ``<key>.npz`` per (dataset, stream, settings, seed).
+
+The key is a SHA-256 over the dataset digest, the stream name and settings, the seed (for streams
+that use one) and the code version (a hash of the source files that compute scores), so a changed
+dataset, setting or scoring code never reads stale scores.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import fiper_ros
+
+LOG = logging.getLogger(__name__)
+
+DEFAULT_DIRECTORY = Path(".cache") / "fiper-eval"
+#: Packages whose source determines the scores.
+_SCORING_PACKAGES = ("core", "baselines")
+_SCORING_MODULES = ("evaluation/scoring.py", "evaluation/methods.py")
+
+
+@dataclass
+class StreamScores:
+    """Per-step scores of one stream: the successful calibration rollouts and the test rollouts."""
+
+    calibration: list[np.ndarray]
+    test: list[np.ndarray]
+
+
+def code_version() -> str:
+    """SHA-256 over the source files that compute scores (core, baselines, scoring)."""
+    root = Path(fiper_ros.__file__).parent
+    files = sorted(f for package in _SCORING_PACKAGES for f in (root / package).glob("*.py"))
+    files += [root / module for module in _SCORING_MODULES]
+    digest = hashlib.sha256(fiper_ros.__version__.encode())
+    for file in files:
+        digest.update(file.relative_to(root).as_posix().encode())
+        digest.update(file.read_bytes())
+    return digest.hexdigest()
+
+
+def cache_key(data_digest: str, stream: str, settings: dict[str, Any], seed: int | None, version: str) -> str:
+    """The cache key of one stream of one dataset (``seed=None`` for seedless streams)."""
+    payload = json.dumps({"data": data_digest, "stream": stream, "settings": settings, "seed": seed,
+                          "code": version}, sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def _pack(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    lengths = np.array([a.shape[0] for a in arrays], dtype=np.int64)
+    flat = np.concatenate(arrays) if arrays else np.zeros(0)
+    return flat.astype(np.float64), lengths
+
+
+def _unpack(flat: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
+    return np.split(flat, np.cumsum(lengths)[:-1]) if lengths.size else []
+
+
+class ScoreCache:
+    """A directory of cached :class:`StreamScores`; counts hits and misses."""
+
+    def __init__(self, directory: str | Path = DEFAULT_DIRECTORY) -> None:
+        self.directory = Path(directory)
+        self.hits = 0
+        self.misses = 0
+
+    def _path(self, key: str) -> Path:
+        return self.directory / f"{key}.npz"
+
+    def get(self, key: str) -> StreamScores | None:
+        """The cached scores of ``key`` or ``None`` (a miss)."""
+        path = self._path(key)
+        if not path.is_file():
+            self.misses += 1
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                scores = StreamScores(_unpack(data["calibration"], data["calibration_lengths"]),
+                                      _unpack(data["test"], data["test_lengths"]))
+        except (OSError, KeyError, ValueError) as error:
+            LOG.warning("ignoring unreadable score cache file %s: %s", path, error)
+            self.misses += 1
+            return None
+        self.hits += 1
+        return scores
+
+    def put(self, key: str, scores: StreamScores) -> None:
+        """Store ``scores`` under ``key`` (written to a temporary file, then renamed)."""
+        self.directory.mkdir(parents=True, exist_ok=True)
+        calibration, calibration_lengths = _pack(scores.calibration)
+        test, test_lengths = _pack(scores.test)
+        temporary = self._path(key).with_suffix(".tmp.npz")
+        np.savez(temporary, calibration=calibration, calibration_lengths=calibration_lengths, test=test,
+                 test_lengths=test_lengths)
+        temporary.replace(self._path(key))

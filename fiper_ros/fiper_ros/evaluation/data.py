@@ -1,0 +1,110 @@
+"""Evaluation datasets: a task name with its calibration and test rollouts.
+
+A dataset is read from one or more ``.npz`` files written by
+:meth:`fiper_ros.core.rollout.RolloutSet.save_npz` (or directories of them); the calibration and
+test splits of all files are concatenated in file-name order.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fiper_ros.core.rollout import Rollout, RolloutError, RolloutSet, successful
+
+#: The four rollout categories of the paper's Fig. 3.
+CATEGORIES = ("Success-ID", "Success-OOD", "Fail-ID", "Fail-OOD")
+
+
+class DatasetError(ValueError):
+    """A dataset cannot be read or is unusable for evaluation."""
+
+
+@dataclass
+class Dataset:
+    """One task's calibration rollouts (successes are used) and labelled test rollouts."""
+
+    task: str
+    calibration: list[Rollout]
+    test: list[Rollout]
+
+    def __post_init__(self) -> None:
+        if not successful(self.calibration):
+            raise DatasetError(f"task {self.task!r}: no successful calibration rollouts")
+        unknown = [r.rollout_id for r in self.test if r.success is None]
+        if unknown:
+            raise DatasetError(f"task {self.task!r}: test rollouts without an outcome: {unknown[:3]}")
+        if not self.test:
+            raise DatasetError(f"task {self.task!r}: no test rollouts")
+
+    @property
+    def calibration_successes(self) -> list[Rollout]:
+        """The calibration data ``D_c`` (Sec. 4.3): successful calibration rollouts."""
+        return successful(self.calibration)
+
+    @property
+    def failed(self) -> np.ndarray:
+        """Per test rollout, whether it failed (a positive)."""
+        return np.array([bool(r.failed) for r in self.test])
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Per test rollout, ``T``."""
+        return np.array([r.length for r in self.test])
+
+    @property
+    def max_length(self) -> int:
+        """Longest rollout over calibration and test (``T_max`` of the reference DT)."""
+        return max(r.length for r in (*self.calibration, *self.test))
+
+    @property
+    def categories(self) -> list[str]:
+        """Per test rollout, one of :data:`CATEGORIES`."""
+        return [f"{'Success' if r.success else 'Fail'}-{'OOD' if r.is_ood else 'ID'}" for r in self.test]
+
+    def digest(self) -> str:
+        """SHA-256 over every rollout's arrays, outcome, scenario and layout (the score-cache key)."""
+        digest = hashlib.sha256(self.task.encode())
+        for split, rollouts in (("calibration", self.calibration), ("test", self.test)):
+            for rollout in rollouts:
+                head = (split, rollout.rollout_id, rollout.scenario, rollout.success, rollout.exec_steps,
+                        rollout.action_space, rollout.embeddings.shape, rollout.actions.shape)
+                digest.update(repr(head).encode())
+                digest.update(rollout.embeddings.tobytes())
+                digest.update(rollout.actions.tobytes())
+                for key in sorted(rollout.metadata):
+                    value = rollout.metadata[key]
+                    if isinstance(value, np.ndarray):
+                        digest.update(key.encode())
+                        digest.update(np.ascontiguousarray(value).tobytes())
+        return digest.hexdigest()
+
+
+def _files(path: Path) -> list[Path]:
+    if path.is_dir():
+        files = sorted(path.glob("*.npz"))
+        if not files:
+            raise DatasetError(f"no .npz rollout files in {path}")
+        return files
+    if not path.is_file():
+        raise DatasetError(f"rollout file or directory not found: {path}")
+    return [path]
+
+
+def load_dataset(task: str, paths: Sequence[str | Path]) -> Dataset:
+    """Read the rollout sets at ``paths`` (files or directories) into one :class:`Dataset`."""
+    calibration: list[Rollout] = []
+    test: list[Rollout] = []
+    for path in paths:
+        for file in _files(Path(path)):
+            try:
+                rollouts = RolloutSet.load_npz(file)
+            except RolloutError as error:
+                raise DatasetError(str(error)) from error
+            calibration.extend(rollouts.calibration)
+            test.extend(rollouts.test)
+    return Dataset(task, calibration, test)

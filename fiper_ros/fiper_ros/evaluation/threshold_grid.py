@@ -1,0 +1,106 @@
+"""Core thresholds for many deltas at once, bit-identical to :func:`fiper_ros.core.thresholds.fit_threshold`.
+
+The sweep fits every (stream, window, kind) threshold for ten deltas. Only a conformal quantile (CP
+constant, CP band) or the per-step quantile level (time-varying) depends on delta, so the
+delta-independent statistics are computed once with the core's own helpers:
+
+- ``cp_constant``: the per-rollout maxima, then one quantile per delta;
+- ``cp_band``: the core's split, mean, spread, floor and band scores once, then ``k`` per delta;
+- ``time_varying``: the per-step quantiles for all levels at once: the calibration curves are sorted
+  per step once and numpy's linear interpolation (the core's ``np.nanquantile``) is applied to the
+  non-NaN order statistics with numpy's own float operations, vectorised over steps and levels.
+
+``test/evaluation/test_threshold_grid.py`` checks the equality with ``fit_threshold`` for every kind,
+both profiles' settings and ragged curves.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from fiper_ros.core.thresholds import (
+    Threshold,
+    ThresholdSettings,
+    _carried,
+    _padded,
+    _per_step,
+    _quantile,
+    _split,
+    _supported_length,
+    _validated,
+)
+
+GRID_KINDS = ("cp_constant", "cp_band", "time_varying")
+
+
+def _linear_quantiles(sorted_head: np.ndarray, counts: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """numpy's ``"linear"`` quantile of the first ``counts[j]`` sorted values of every column ``j``.
+
+    The same float operations as numpy's ``_quantile`` (virtual index ``(n - 1) q``, neighbours,
+    ``_lerp``), vectorised over columns and levels: ``[len(levels), columns]``.
+    """
+    top = (counts - 1)[None, :]
+    virtual = top * levels[:, None]
+    previous = np.floor(virtual)
+    above = virtual >= top
+    lower = np.where(above, top, previous).astype(np.intp)
+    upper = np.where(above, top, previous + 1).astype(np.intp)
+    gamma = virtual - np.where(above, -1, lower)
+    columns = np.arange(sorted_head.shape[1])[None, :]
+    a, b = sorted_head[lower, columns], sorted_head[upper, columns]
+    diff = b - a
+    return np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)
+
+
+def _time_varying(matrix: np.ndarray, levels: np.ndarray, min_support: int | None) -> np.ndarray:
+    """Per-step quantiles ``[len(levels), length]`` with the core's support rule."""
+    supported = _supported_length(matrix, min_support)
+    head = np.sort(matrix[:, :supported], axis=0)  # NaN (ended rollouts) sort last
+    values = _linear_quantiles(head, np.sum(~np.isnan(head), axis=0), levels)
+    return np.stack([_carried(row, supported, matrix.shape[1]) for row in values])
+
+
+def _cp_band(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings) -> np.ndarray:
+    """``mu + k(delta) s`` ``[len(deltas), length]`` (the core's ``_cp_band``, k per delta)."""
+    first, second = _split(len(curves), s)
+    set1 = _padded([curves[i] for i in first], length)
+    mu = _per_step(set1, s.min_support, "mean")
+    spread = _per_step(set1, s.min_support, "std")
+    floor = s.std_floor * float(np.mean(spread[: _supported_length(set1, s.min_support)]))
+    if floor <= 0.0:
+        floor = 1e-12 * max(1.0, float(np.max(np.abs(mu))))
+    scale = np.maximum(spread, floor)
+    sign = 1.0 if s.band_sign == "upper" else -1.0
+    band_scores = np.array(
+        [np.max(sign * (curves[i] - mu[: curves[i].shape[0]]) / scale[: curves[i].shape[0]]) for i in second]
+    )
+    out = np.empty((len(deltas), length))
+    for row, delta in enumerate(deltas):
+        k = _quantile(band_scores, delta, s.conformal)
+        out[row] = mu + k * scale if math.isfinite(k) else math.inf
+    return out
+
+
+def fit_threshold_grid(
+    curves: Sequence[np.ndarray], kinds: Sequence[str], deltas: Sequence[float], settings: ThresholdSettings
+) -> dict[str, list[Threshold]]:
+    """Per kind, ``[fit_threshold(curves, replace(settings, kind=kind, delta=d)) for d in deltas]``."""
+    checked = _validated(curves)
+    length = max(curve.shape[0] for curve in checked)
+    out: dict[str, list[Threshold]] = {}
+    for kind in kinds:
+        if kind == "cp_constant":
+            maxima = np.array([curve.max() for curve in checked])
+            values = np.stack([np.full(length, _quantile(maxima, d, settings.conformal)) for d in deltas])
+        elif kind == "time_varying":
+            levels = np.array([1.0 - d for d in deltas])
+            values = _time_varying(_padded(checked, length), levels, settings.min_support)
+        elif kind == "cp_band":
+            values = _cp_band(checked, length, deltas, settings)
+        else:
+            raise ValueError(f"threshold kind {kind!r} is not swept; expected one of {GRID_KINDS}")
+        out[kind] = [Threshold(kind, float(d), row, settings.extension) for d, row in zip(deltas, values)]
+    return out

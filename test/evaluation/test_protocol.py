@@ -1,0 +1,45 @@
+"""Protocol pieces: the clean split, selection by mean TWA, averaging over deltas and seeds."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fiper_ros.evaluation.protocol import METRICS, alarm_metrics, run_protocol, validation_split
+from fiper_ros.evaluation.sweep import Group
+
+
+def test_validation_split_is_disjoint_stratified_and_seeded() -> None:
+    failed = np.array([True] * 10 + [False] * 7)
+    validation, report = validation_split(failed, seed=1)
+    assert not set(validation) & set(report)
+    assert sorted([*validation, *report]) == list(range(17))
+    assert failed[validation].sum() == 5 and failed[report].sum() == 5
+    np.testing.assert_array_equal(validation_split(failed, seed=1)[0], validation)
+    assert not np.array_equal(validation_split(failed, seed=2)[0], validation)
+
+
+def test_alarm_metrics_match_hand_computed_values() -> None:
+    alarms = np.array([[[2, -1, 0, -1]]])  # one group, one delta, four rollouts
+    failed = np.array([True, True, False, False])
+    twa, acc, dt, tpr, tnr = alarm_metrics(alarms, failed, 10, "paper")[0, 0]
+    assert (tpr, tnr, acc) == (0.5, 0.5, 0.5)
+    assert dt == 0.2
+    assert twa == 0.5 * ((1 - 0.2) / 2 + 0.5)
+
+
+def test_selection_maximises_mean_twa_and_reports_the_other_subset() -> None:
+    groups = [Group("ace", "1", "cp_band"), Group("ace", "2", "cp_band"), Group("ace", "cum", "cp_band")]
+    select = np.zeros((2, 3, 3, 4, len(METRICS)))  # tasks, seeds, groups, deltas, metrics
+    select[:, :, 1, :, 0] = 0.9
+    select[:, :, 2, :, 0] = 1.0  # best, but cumulative is not selectable by default
+    report = np.random.default_rng(0).random(select.shape)
+    result = run_protocol("clean", groups, select, report, ["ace"], default_window=1, default_kind="cp_band")
+    assert result.selected["ace"].group == groups[1]
+    np.testing.assert_allclose(result.selected["ace"].values, report[:, :, 1].mean(axis=2))
+    assert result.default["ace"].group == groups[0]
+    mean, std = result.selected["ace"].average()
+    per_seed = report[:, :, 1].mean(axis=2).mean(axis=0)
+    np.testing.assert_allclose(mean, per_seed.mean(axis=0))
+    np.testing.assert_allclose(std, per_seed.std(axis=0))
+    anywhere = run_protocol("paper", groups, select, report, ["ace"], 1, "cp_band", ("window", "cumulative"))
+    assert anywhere.selected["ace"].group == groups[2]

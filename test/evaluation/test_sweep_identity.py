@@ -1,0 +1,71 @@
+"""The sweep reproduces the single-configuration path (core.calibration + core.monitor + core.metrics)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fiper_ros.core.calibration import CalibrationSettings, calibrate
+from fiper_ros.core.compat import get_profile
+from fiper_ros.core.fusion import first_alarm
+from fiper_ros.core.metrics import evaluate
+from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.engine import horizons
+from fiper_ros.evaluation.methods import MethodSettings
+from fiper_ros.evaluation.protocol import METRICS, alarm_metrics
+from fiper_ros.evaluation.scoring import compute_streams
+from fiper_ros.evaluation.sweep import Group, SweepSettings, sweep_task
+
+SEED = 2
+SWEEP = SweepSettings(windows=(1, 2, 3, 5), cumulative=True, deltas=(0.1, 0.2, 0.3), pairs="full")
+CASES = {
+    "paper": [
+        Group("fiper", "3/3", "cp_band", "and"),
+        Group("fiper", "2/5", "time_varying", "or"),
+        Group("fiper", "cum/cum", "cp_constant", "and"),
+        Group("rnd_oe", "5", "time_varying"),
+        Group("ace", "1", "cp_band"),
+    ],
+    "reference": [Group("fiper", "3/2", "cp_band", "and"), Group("ace", "cum", "time_varying")],
+}
+
+
+def _single_path(dataset: Dataset, settings: MethodSettings, group: Group, delta: float) -> list[int | None]:
+    """First alarm per test rollout from a calibration fitted for exactly this configuration."""
+    w_obs, w_act = group.windows()
+    calibration = calibrate(dataset.calibration, CalibrationSettings(
+        window_obs=w_obs or 1, window_act=(w_act or w_obs or 1), aggregation=group.aggregation, threshold=group.kind,
+        delta=delta, combine=group.combine or "and", rnd=settings.rnd, seed=SEED, profile=settings.profile))
+    out: list[int | None] = []
+    for rollout in dataset.test:
+        prediction = predict_rollout(rollout, calibration)
+        if group.method == "fiper":
+            out.append(prediction.first_alarm_step)
+        else:
+            out.append(first_alarm(prediction.obs_exceeded if group.method == "rnd_oe" else prediction.act_exceeded))
+    return out
+
+
+@pytest.mark.parametrize("profile", ["paper", "reference"])
+def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: str) -> None:
+    settings = MethodSettings.tiny(profile)
+    streams, _ = compute_streams(tiny_dataset, ["rnd_oe", "ace"], settings, SEED)
+    base = CalibrationSettings(profile=profile, seed=SEED).threshold_settings()
+    groups, alarms = sweep_task(streams, ["rnd_oe", "ace", "fiper"], SWEEP, base)
+    dt_mode = get_profile(profile).dt_mode
+    t_max = horizons(tiny_dataset, profile)
+    metrics = alarm_metrics(alarms, tiny_dataset.failed, t_max, dt_mode)
+    raised = 0
+    for group in CASES[profile]:
+        g = groups.index(group)
+        for d, delta in enumerate(SWEEP.deltas):
+            expected = _single_path(tiny_dataset, settings, group, delta)
+            swept = [None if a < 0 else int(a) for a in alarms[g, d]]
+            assert swept == expected, (group, delta)
+            raised += sum(a is not None for a in expected)
+            reference = evaluate(expected, list(tiny_dataset.failed),
+                                 t_max if isinstance(t_max, int) else t_max.tolist(), dt_mode)
+            np.testing.assert_array_equal(metrics[g, d], [reference[m] for m in METRICS])
+    total = len(CASES[profile]) * len(SWEEP.deltas) * len(tiny_dataset.test)
+    assert 0 < raised < total  # the comparison covers both alarms and silent rollouts

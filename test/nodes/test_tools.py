@@ -1,0 +1,86 @@
+"""`fiper echo` and `fiper launch --in-process` over real DDS on loopback."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import rclpy
+import yaml
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.nodes import qos
+from helpers.dds import ros_env
+from helpers.suite import Driver
+
+
+def _fiper(args: list[str], domain: int) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", *args], env=ros_env(domain),  # noqa: S603
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+
+
+def test_echo_prints_a_latched_alarm_published_before_it_started(ros_domain: int) -> None:
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    node = rclpy.create_node("alarm_source", context=context)
+    publisher = node.create_publisher(FailureAlarm, "/fiper/alarm", qos.ALARM)
+    publisher.publish(FailureAlarm(rollout_id=42, step=7, state=FailureAlarm.STATE_ALARM, latched=True,
+                                   reason="both exceeded"))
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    echo = _fiper(["echo", "/fiper/alarm", "--count", "1", "--wait", "30"], ros_domain)
+    try:
+        deadline = time.monotonic() + 60
+        while echo.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        out = echo.communicate(timeout=10)[0]
+    finally:
+        if echo.poll() is None:
+            os.killpg(echo.pid, signal.SIGKILL)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    assert echo.returncode == 0, out
+    assert "rollout_id: 42" in out and "step: 7" in out and "state: 1" in out and "reason: 'both exceeded'" in out
+
+
+def test_echo_of_a_missing_topic_says_so(ros_domain: int) -> None:
+    out, _ = _fiper(["echo", "/fiper/nothing_here", "--wait", "1"], ros_domain).communicate(timeout=60)
+    assert "not found" in out and "Traceback" not in out
+
+
+def test_launch_in_process_runs_the_suite_and_stops_on_ctrl_c(tmp_path: Path, calibration_dir: Path,
+                                                             ros_domain: int) -> None:
+    config = tmp_path / "suite.yaml"
+    config.write_text(yaml.safe_dump({"namespace": "/fiper", "nodes": {
+        "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": {"calibration_dir": str(calibration_dir)}},
+        "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": {"calibration_dir": str(calibration_dir)}},
+        "fusion_node": {"module": "fiper_ros.nodes.fusion_node"},
+    }}))
+    launch = _fiper(["launch", str(config), "--in-process"], ros_domain)
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    driver = Driver(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(driver)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (driver.embeddings.get_subscription_count()
+                                                   and driver.batches.get_subscription_count()
+                                                   and any("no active rollout" in m.reason for m in driver.alarms)):
+            executor.spin_once(timeout_sec=0.05)
+        assert driver.embeddings.get_subscription_count() == 1 and driver.batches.get_subscription_count() == 1
+        assert any(m.state == FailureAlarm.STATE_UNKNOWN for m in driver.alarms)
+    finally:
+        executor.shutdown()
+        driver.destroy_node()
+        rclpy.try_shutdown(context=context)
+        os.killpg(launch.pid, signal.SIGINT)
+        out = launch.communicate(timeout=30)[0]
+    assert launch.returncode == 0, out
+    assert out.count("running in-process") == 3
