@@ -229,7 +229,27 @@ def _split(m: int, settings: ThresholdSettings) -> tuple[np.ndarray, np.ndarray]
     return order[:m1], order[m1:]
 
 
-def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:
+@dataclass(frozen=True)
+class BandStatistics:
+    """The delta-independent part of a one-sided CP band (eqs. 12-13): ``gamma_t = mu + k s``."""
+
+    mu: np.ndarray
+    """``mu(t)`` from ``I1``."""
+    scale: np.ndarray
+    """The modulation ``s(t)`` from ``I1`` (floored)."""
+    band_scores: np.ndarray
+    """``R_i = max_t sign (eta_i(t) - mu(t)) / s(t)`` for ``i in I2``."""
+    m1: int
+    m2: int
+    floor: float
+
+    def values(self, k: float) -> np.ndarray:
+        """``mu + k s``, or ``+inf`` everywhere when ``k`` is not finite."""
+        return self.mu + k * self.scale if math.isfinite(k) else np.full(self.mu.shape[0], math.inf)
+
+
+def band_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> BandStatistics:
+    """Split, ``mu``, ``s`` and the band scores of the CP band; only ``k`` depends on delta."""
     first, second = _split(len(curves), s)
     set1 = _padded([curves[i] for i in first], length)
     mu = _per_step(set1, s.min_support, "mean")
@@ -242,9 +262,13 @@ def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tup
     band_scores = np.array(
         [np.max(sign * (curves[i] - mu[: curves[i].shape[0]]) / scale[: curves[i].shape[0]]) for i in second]
     )
-    k = _quantile(band_scores, s.delta, s.conformal)
-    values = mu + k * scale if math.isfinite(k) else np.full(length, math.inf)
-    return values, {"k": float(k), "m1": int(first.shape[0]), "m2": int(second.shape[0]), "s_floor": floor}
+    return BandStatistics(mu, scale, band_scores, int(first.shape[0]), int(second.shape[0]), floor)
+
+
+def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:
+    stats = band_statistics(curves, length, s)
+    k = _quantile(stats.band_scores, s.delta, s.conformal)
+    return stats.values(k), {"k": float(k), "m1": stats.m1, "m2": stats.m2, "s_floor": stats.floor}
 
 
 def _gaussian(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:

@@ -5,7 +5,7 @@ constant, CP band) or the per-step quantile level (time-varying) depends on delt
 delta-independent statistics are computed once with the core's own helpers:
 
 - ``cp_constant``: the per-rollout maxima, then one quantile per delta;
-- ``cp_band``: the core's split, mean, spread, floor and band scores once, then ``k`` per delta;
+- ``cp_band``: the core's :func:`band_statistics` once, then ``k`` per delta;
 - ``time_varying``: the per-step quantiles for all levels at once: the calibration curves are sorted
   per step once and numpy's linear interpolation (the core's ``np.nanquantile``) is applied to the
   non-NaN order statistics with numpy's own float operations, vectorised over steps and levels.
@@ -16,7 +16,6 @@ both profiles' settings and ragged curves.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -26,11 +25,10 @@ from fiper_ros.core.thresholds import (
     ThresholdSettings,
     _carried,
     _padded,
-    _per_step,
     _quantile,
-    _split,
     _supported_length,
     _validated,
+    band_statistics,
 )
 
 GRID_KINDS = ("cp_constant", "cp_band", "time_varying")
@@ -64,24 +62,9 @@ def _time_varying(matrix: np.ndarray, levels: np.ndarray, min_support: int | Non
 
 
 def _cp_band(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings) -> np.ndarray:
-    """``mu + k(delta) s`` ``[len(deltas), length]`` (the core's ``_cp_band``, k per delta)."""
-    first, second = _split(len(curves), s)
-    set1 = _padded([curves[i] for i in first], length)
-    mu = _per_step(set1, s.min_support, "mean")
-    spread = _per_step(set1, s.min_support, "std")
-    floor = s.std_floor * float(np.mean(spread[: _supported_length(set1, s.min_support)]))
-    if floor <= 0.0:
-        floor = 1e-12 * max(1.0, float(np.max(np.abs(mu))))
-    scale = np.maximum(spread, floor)
-    sign = 1.0 if s.band_sign == "upper" else -1.0
-    band_scores = np.array(
-        [np.max(sign * (curves[i] - mu[: curves[i].shape[0]]) / scale[: curves[i].shape[0]]) for i in second]
-    )
-    out = np.empty((len(deltas), length))
-    for row, delta in enumerate(deltas):
-        k = _quantile(band_scores, delta, s.conformal)
-        out[row] = mu + k * scale if math.isfinite(k) else math.inf
-    return out
+    """``mu + k(delta) s`` ``[len(deltas), length]``: the core's band statistics once, ``k`` per delta."""
+    stats = band_statistics(curves, length, s)
+    return np.stack([stats.values(_quantile(stats.band_scores, delta, s.conformal)) for delta in deltas])
 
 
 def fit_threshold_grid(
