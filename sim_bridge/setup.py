@@ -1,4 +1,6 @@
 """ament_python package of the MuJoCo Franka stand-in."""
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "sim_bridge"
@@ -12,6 +14,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
     install_requires=["setuptools"],
     zip_safe=False,

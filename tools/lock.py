@@ -11,6 +11,11 @@ import importlib.metadata as md
 import sys
 
 
+#: Left out of the lock: pip itself, and triton (see tools/setup.sh: no GPU here, and it crashes
+#: processes that render with Mesa EGL and run rclpy).
+EXCLUDED = {"pip", "triton"}
+
+
 def pinned() -> list[str]:
     """Return sorted ``name==version`` lines of the dist-info distributions on sys.path."""
     lines = set()
@@ -19,7 +24,7 @@ def pinned() -> list[str]:
         if not path.endswith(".dist-info"):
             continue
         name = dist.metadata["Name"]
-        if name.lower() in {"pip"}:
+        if name.lower() in EXCLUDED:
             continue
         lines.add(f"{name}=={dist.version}")
     return sorted(lines, key=str.lower)

@@ -17,6 +17,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "doctor": ("fiper_ros.doctor", "check that the workspace environment is complete"),
     "launch": ("fiper_ros.launch", "start the suite's nodes from a launch YAML (processes or in-process)"),
     "echo": ("fiper_ros.echo", "print the messages of a topic"),
+    "record": ("fiper_ros.bags.record", "record the suite's topics into an MCAP bag"),
+    "replay": ("fiper_ros.bags.replay", "play bags into the node suite and report its alarms per rollout"),
+    "calibrate": ("fiper_ros.bags.calibrate_cmd", "fit a FIPER calibration on the successful rollouts of bags"),
+    "convert": ("fiper_ros.bags.convert", "convert Sentinel or FIPER rollout data into bags"),
+    "snapshot": ("fiper_ros.bags.snapshot", "black box: write a bag around every alarm rise"),
     "evaluate": ("fiper_ros.evaluation.cli", "evaluate FIPER and the baselines on rollout datasets"),
 }
 

@@ -2,7 +2,6 @@
 and a driver node that publishes rollouts and collects alarms, scores and diagnostics."""
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -18,6 +17,7 @@ from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding,
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg
+from helpers.spin import spin_until
 
 STEP_NS = 100_000_000  # 10 Hz policy
 
@@ -88,12 +88,7 @@ class Suite:
             self.executor.add_node(node)
 
     def spin_until(self, condition: Callable[[], bool], timeout: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if condition():
-                return True
-            self.executor.spin_once(timeout_sec=0.02)
-        return condition()
+        return spin_until(self.executor, condition, timeout, step=0.02)
 
     def wait_active(self) -> None:
         assert self.spin_until(lambda: all(n.lifecycle_state() == "active" for n in self.nodes[:3])), \

@@ -39,6 +39,8 @@ class AceNode(DetectorNode):
         self.declare_parameter("ee_frame", "panda_hand", describe("end-effector frame of the URDF", read_only=True))
         self.declare_parameter("joint_state_topic", "/joint_states",
                                describe("measured joint positions, for joint-velocity actions", read_only=True))
+        self.declare_parameter("joint_names", [f"panda_joint{i}" for i in range(1, 8)],
+                               describe("joints of the URDF chain, picked by name from joint_states", read_only=True))
         self._q_current: np.ndarray | None = None
         self._joint_sub: Any = None
 
@@ -59,7 +61,10 @@ class AceNode(DetectorNode):
             self._inputs.append(self._joint_sub)
 
     def _on_joint_state(self, msg: JointState) -> None:
-        self._q_current = np.asarray(msg.position, dtype=np.float64)
+        positions = dict(zip(msg.name, msg.position))
+        names = self.get_parameter("joint_names").value
+        if all(name in positions for name in names):
+            self._q_current = np.array([positions[name] for name in names], dtype=np.float64)
 
     def window(self) -> int:
         return self.calibration.settings.window_act if self.calibration else 0

@@ -1,10 +1,12 @@
 """QoS profiles of the suite's topics (docs/alarm-contract.md).
 
-Inputs and scores are RELIABLE and VOLATILE; rollout events and the alarm are TRANSIENT_LOCAL so a
-late-joining node or supervisor still gets the latest one. Score publishers offer MANUAL_BY_TOPIC
+Inputs are RELIABLE and VOLATILE (a policy starts publishing once the detectors are matched).
+Scores, rollout events and the alarm are TRANSIENT_LOCAL: a late-joining node or supervisor still
+gets the latest ones, and a score published while the fusion node's reader was still being
+discovered (start-up) is not lost. Score publishers offer MANUAL_BY_TOPIC
 liveliness and assert it from a timer (a heartbeat: Fast DDS did not keep an idle AUTOMATIC writer
 alive here), so the fusion node notices a scoring node that died or hangs within ``SCORE_LEASE``.
-Score subscribers ask only for AUTOMATIC, so third-party score publishers stay compatible.
+Score subscribers ask only for AUTOMATIC liveliness.
 """
 from __future__ import annotations
 
@@ -19,10 +21,10 @@ INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=Reliab
 #: How often a scoring node asserts its liveliness (well inside the lease).
 SCORE_HEARTBEAT_S = SCORE_LEASE.nanoseconds / 1e9 / 4
 SCORE_PUB = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE, liveliness=LivelinessPolicy.MANUAL_BY_TOPIC,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL, liveliness=LivelinessPolicy.MANUAL_BY_TOPIC,
                        liveliness_lease_duration=SCORE_LEASE)
 SCORE_SUB = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE, liveliness=LivelinessPolicy.AUTOMATIC,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL, liveliness=LivelinessPolicy.AUTOMATIC,
                        liveliness_lease_duration=SCORE_LEASE)
 EVENT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL)

@@ -1,0 +1,129 @@
+"""``fiper calibrate BAG... -o DIR``: fit a FIPER calibration on the successful rollouts of bags.
+
+Reads every rollout of the bags, keeps those whose RolloutEvent END says SUCCESS, trains RND-OE on
+their embeddings, fixes the ACE ranges ``R_d`` and fits both thresholds
+(:func:`fiper_ros.core.calibration.calibrate`), then writes the calibration directory (under a
+temporary name, renamed when complete). Too few successes: one line, exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from fiper_ros.bags.atomic import atomic_output, check_new
+from fiper_ros.bags.convert_options import parse_channels
+from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.reader import find_bags
+from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationSettings, calibrate
+from fiper_ros.core.compat import PROFILE_NAMES
+from fiper_ros.core.fusion import COMBINES
+from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
+from fiper_ros.core.rollout import Rollout, successful
+from fiper_ros.core.thresholds import KINDS
+
+RND_PRESETS = {"small": RNDConfig.small, "paper": RNDConfig.paper}
+#: Seconds between two progress lines of the RND-OE training.
+PROGRESS_PERIOD_S = 2.0
+
+
+class EpochPrinter:
+    """Prints RND-OE training progress to stderr, at most every :data:`PROGRESS_PERIOD_S` seconds."""
+
+    def __init__(self) -> None:
+        self._last = time.monotonic()
+
+    def __call__(self, report: TrainProgress) -> None:
+        now = time.monotonic()
+        if now - self._last >= PROGRESS_PERIOD_S or report.epoch == report.max_epochs:
+            self._last = now
+            print(f"  RND-OE epoch {report.epoch}/{report.max_epochs}: train loss {report.train_loss:.4g}, "
+                  f"validation loss {report.val_loss:.4g} (best {report.best_val_loss:.4g})", file=sys.stderr, flush=True)
+
+
+def load_rollouts(bags: Sequence[Path]) -> list[Rollout]:
+    """Every rollout of the bags, in order."""
+    rollouts: list[Rollout] = []
+    for bag in bags:
+        rollouts.extend(read_rollouts(bag))
+    return rollouts
+
+
+def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSettings, *, overwrite: bool = False,
+                   quiet: bool = False) -> Calibration:
+    """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``."""
+    check_new(out, overwrite)
+    rollouts = load_rollouts(bags)
+    good = successful(rollouts)
+    names = ", ".join(str(b) for b in bags)
+    if len(good) < settings.min_rollouts:
+        raise BagError(f"too few successful rollouts to calibrate: {len(good)} of {len(rollouts)} in {names} "
+                       f"(need at least {settings.min_rollouts}, see --min-rollouts)")
+    if not quiet:
+        print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
+              f"{len(rollouts)} in {names}", flush=True)
+    try:
+        calibration = calibrate(rollouts, settings, progress=None if quiet else EpochPrinter())
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
+    with atomic_output(out, overwrite) as staging:
+        calibration.save(staging)
+    return calibration
+
+
+def settings_from(args: argparse.Namespace) -> CalibrationSettings:
+    """The calibration settings of the command line."""
+    rnd = RND_PRESETS[args.rnd_preset]()
+    if args.max_epochs:
+        rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
+    dims = None if args.action_dims is None else parse_channels(args.action_dims)
+    if isinstance(dims, str):
+        raise BagError("--action-dims must be START:STOP")
+    try:
+        return CalibrationSettings(alpha=args.alpha, window_obs=args.window_obs, window_act=args.window_act,
+                                   threshold=args.threshold, delta=args.delta, combine=args.combine, rnd=rnd,
+                                   seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,
+                                   action_dims=dims)
+    except (CalibrationError, ValueError) as error:
+        raise BagError(str(error)) from error
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper calibrate``."""
+    defaults = CalibrationSettings()
+    parser.add_argument("bags", nargs="+", type=Path, help="bags (or directories of bags) with calibration rollouts")
+    parser.add_argument("-o", "--out", type=Path, required=True, help="calibration directory to write")
+    parser.add_argument("--window-obs", type=int, default=defaults.window_obs, help="RND-OE window w_O (eq. 2)")
+    parser.add_argument("--window-act", type=int, default=defaults.window_act, help="ACE window w_A (eq. 5)")
+    parser.add_argument("--threshold", choices=KINDS, default=defaults.threshold, help="threshold kind")
+    parser.add_argument("--delta", type=float, default=defaults.delta, help="target false-alarm rate")
+    parser.add_argument("--alpha", type=float, default=None, help="ACE cell size factor (default: the profile's)")
+    parser.add_argument("--combine", choices=COMBINES, default=defaults.combine, help="fusion of the two predictors")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of RND-OE and the CP split")
+    parser.add_argument("--min-rollouts", type=int, default=defaults.min_rollouts, help="fewest successes accepted")
+    parser.add_argument("--profile", choices=PROFILE_NAMES, default=defaults.profile,
+                        help="'paper' definitions or the authors' 'reference' code")
+    parser.add_argument("--rnd-preset", choices=sorted(RND_PRESETS), default="small",
+                        help="RND-OE size: 'small' (CPU default) or 'paper' (App. A.2, slow on CPU)")
+    parser.add_argument("--max-epochs", type=int, default=0, help="cap RND-OE training epochs (0: the preset's)")
+    parser.add_argument("--action-dims", default=None, help="action channels ACE uses, START:STOP (default: 0:3)")
+    parser.add_argument("--force", action="store_true", help="replace DIR if it exists")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper calibrate``."""
+    try:
+        settings = settings_from(args)
+        bags = find_bags(args.bags)
+        calibration = calibrate_bags(bags, args.out, settings, overwrite=args.force)
+    except BagError as error:
+        return fail("calibrate", error)
+    shown = {k: v for k, v in settings.to_dict().items() if k != "rnd"}
+    print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
+    print(f"layout: E={calibration.embedding_dim} H={calibration.horizon} D={calibration.action_dim} "
+          f"h={calibration.exec_steps} {calibration.action_space}; R_d={[round(float(r), 4) for r in calibration.ranges]}")
+    print(f"calibration {args.out} written (hash {calibration.content_hash})")
+    return 0

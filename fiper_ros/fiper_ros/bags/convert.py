@@ -1,0 +1,83 @@
+"""``fiper convert {sentinel,fiper} SRC -o OUT``: reference datasets -> FIPER bags.
+
+OUT becomes a directory with one bag per split, ``calibration_rollouts/`` and ``test_rollouts/``;
+rollout ids are numbered 1, 2, ... over both (calibration first) and the time line runs on from one
+bag to the next, so the two can be replayed together. Each bag's ``custom_data`` names the source
+file of every rollout. The converters unpickle their input: use them on trusted data only.
+"""
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from pathlib import Path
+
+from fiper_ros.bags import convert_fiper, convert_sentinel
+from fiper_ros.bags.atomic import atomic_output
+from fiper_ros.bags.convert_options import EXEC_STEPS, ConvertOptions, Converted, parse_channels
+from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.rollouts import DEFAULT_START_NS, write_rollouts
+from fiper_ros.bags.schema import BagInfo
+
+#: format -> (loader, description of the source in custom_data)
+FORMATS: dict[str, tuple[Callable[[Path, ConvertOptions], Converted], str]] = {
+    "sentinel": (convert_sentinel.load, "Sentinel episode DataFrames"),
+    "fiper": (convert_fiper.load, "FIPER rollout pickles"),
+}
+SPLIT_ORDER = ("calibration", "test")
+
+
+def bag_name(split: str) -> str:
+    """Directory name of a split's bag."""
+    return f"{split}_rollouts"
+
+
+def convert(fmt: str, src: Path, out: Path, options: ConvertOptions, overwrite: bool = False) -> dict[str, int]:
+    """Convert ``src`` (layout ``fmt``) into bags under ``out``; returns rollouts per written bag."""
+    loader, description = FORMATS[fmt]
+    converted = loader(Path(src), options)
+    counts: dict[str, int] = {}
+    with atomic_output(Path(out), overwrite) as staging:
+        staging.mkdir()
+        now, next_id = DEFAULT_START_NS, 1
+        for split in sorted(converted, key=lambda s: (SPLIT_ORDER.index(s) if s in SPLIT_ORDER else len(SPLIT_ORDER), s)):
+            items = converted[split]
+            ids = list(range(next_id, next_id + len(items)))
+            info = BagInfo(task=items[0][0].task, synthetic=options.synthetic, split=split,
+                           source=f"fiper convert {fmt}: {description} in {Path(src).name}",
+                           rollout_sources={str(i): name for i, (_, name) in zip(ids, items)})
+            now = write_rollouts(staging / bag_name(split), [r for r, _ in items], ids, info, start_ns=now,
+                                 env_dt_ns=round(1e9 / options.control_hz))
+            next_id += len(items)
+            counts[bag_name(split)] = len(items)
+    return counts
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper convert``."""
+    parser.add_argument("format", choices=sorted(FORMATS), help="layout of SRC (see docs/bags.md)")
+    parser.add_argument("src", type=Path, help="Sentinel data directory, or a FIPER <task> (or <task>/rollouts) directory")
+    parser.add_argument("-o", "--out", type=Path, required=True, help="output directory (one bag per split)")
+    parser.add_argument("--task", default="", help="task name (default: the source directory's name)")
+    parser.add_argument("--exec-steps", type=int, default=0,
+                        help=f"h, actions executed per chunk (default: from the data, else the paper's {EXEC_STEPS})")
+    parser.add_argument("--channels", default="auto",
+                        help="action channels kept, START:STOP, 'all' or 'auto' (Sentinel: D=7 keeps 1:4, else all)")
+    parser.add_argument("--action-space", default="ee_position", help="action space of the kept channels")
+    parser.add_argument("--control-hz", type=float, default=10.0, help="environment steps per second (bag time line)")
+    parser.add_argument("--max-steps", type=int, default=0, help="maximum policy steps of a rollout (0: unknown)")
+    parser.add_argument("--synthetic", action="store_true", help="mark the bags as synthetic data")
+    parser.add_argument("--force", action="store_true", help="replace OUT if it exists")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper convert``."""
+    try:
+        options = ConvertOptions(task=args.task, exec_steps=args.exec_steps, channels=parse_channels(args.channels),
+                                 action_space=args.action_space, control_hz=args.control_hz,
+                                 max_steps=args.max_steps, synthetic=args.synthetic)
+        counts = convert(args.format, args.src, args.out, options, args.force)
+    except BagError as error:
+        return fail("convert", error)
+    for name, count in counts.items():
+        print(f"{args.out / name}: {count} rollouts")
+    return 0

@@ -1,0 +1,351 @@
+"""``fiper replay BAG...``: play bags into the node suite and report its alarms per rollout.
+
+The policy-side topics of the bags (embeddings, action batches, rollout events, joint states) are
+published in log-time order, bag after bag (a bag that starts before the previous one ended is shifted
+later), with a ``/clock`` tick at each message's log time so nodes under ``use_sim_time`` see the
+bag's time. Before the first message the player waits until the suite subscribes to every topic.
+
+Pacing: ``--rate K`` plays at K x real time, ``--fast`` as fast as possible. Either way the player is
+flow-controlled while a fusion node publishes ``/fiper/alarm``: it sends a step's inputs only after
+the alarm of the previous step arrived (or ``--step-timeout`` passed, which is reported), so no step
+is dropped however fast the bag plays. A RolloutEvent START is waited on until every subscriber
+acknowledged it, then ``--settle`` seconds more, so that the nodes have started the rollout before
+its first step arrives.
+
+By default the suite is started here (``fiper launch`` of ``--launch CONFIG``, default the installed
+suite.yaml, with use_sim_time and ``--calibration DIR``, or the ``calibration/`` directory next to
+the bags) in a private ROS domain; ``--no-launch`` plays into a suite already running in this
+shell's domain. ``--offline`` prints what the suite would say, computed without DDS by the core.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from contextlib import ExitStack
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rclpy.duration import Duration
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from fiper_msgs.msg import FailureAlarm, RolloutEvent
+from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.reader import BagReader, find_bags
+from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult
+from fiper_ros.bags.rollouts import ROLLOUT_GAP_NS, SUCCESS_OF
+from fiper_ros.bags.schema import ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.bags.session import RosSession
+from fiper_ros.bags.suite_process import SuiteProcess, default_config, replay_config
+from fiper_ros.dds import allocate_domain
+from fiper_ros.echo import message_class
+from fiper_ros.nodes import qos
+from fiper_ros.nodes.conversions import to_stamp
+
+if TYPE_CHECKING:
+    from fiper_ros.core.calibration import Calibration
+
+STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
+#: Reasons of the fusion node's heartbeat and staleness messages: they repeat or precede a step's
+#: state and are not the state of a new step.
+NOT_A_STEP = ("stream", "waiting", "no active")
+#: Subscribers a launched suite has per topic (the scoring nodes and the fusion node).
+SUITE_SUBSCRIBERS = {EMBEDDING: 1, ACTIONS: 1, EVENTS: 3, SCORE_RND_OE: 1, SCORE_ACE: 1}
+#: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
+WARM_UP_S = 1.0
+
+
+def find_calibration(bags: Sequence[Path]) -> Path | None:
+    """A ``calibration/`` directory next to (or one level above) the first bag that has one."""
+    for bag in bags:
+        for parent in (bag.parent, bag.parent.parent):
+            if (parent / "calibration" / "calibration.yaml").is_file():
+                return parent / "calibration"
+    return None
+
+
+class Player:
+    """Publishes bag messages with /clock, flow-controlled by the suite's alarms, and collects them."""
+
+    def __init__(self, session: RosSession, args: argparse.Namespace) -> None:
+        self.session = session
+        self.node = session.node
+        self.fast = args.fast
+        self.rate = args.rate
+        self.step_timeout = args.step_timeout
+        self.settle_s = args.settle
+        self.clock_period_ns = int(1e9 / args.clock_hz)
+        self.publishers: dict[str, Any] = {}
+        self.clock = self.node.create_publisher(Clock, "/clock", QoSProfile(depth=1))
+        self.alarms: dict[tuple[int, int], FailureAlarm] = {}
+        self.node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, qos.ALARM)
+        self.results: dict[int, RolloutResult] = {}
+        self.missing: list[tuple[int, int]] = []
+        self.steps = 0
+        self._sent: dict[tuple[int, int], set[str]] = {}
+        self._pending: tuple[int, int] | None = None
+        self._sim_ns = 0
+        self.flow_controlled = False
+
+    # set-up -------------------------------------------------------------------------------------------
+    def _on_alarm(self, msg: FailureAlarm) -> None:
+        if not msg.reason.startswith(NOT_A_STEP):
+            self.alarms.setdefault((int(msg.rollout_id), int(msg.step)), msg)
+
+    def add_topic(self, topic: str, msgtype: str, transient: bool) -> None:
+        """A publisher for ``topic``: the schema's QoS, else reliable (transient-local if recorded so)."""
+        if topic in self.publishers:
+            return
+        if topic in TOPICS:
+            profile = TOPICS[topic].qos
+        else:
+            profile = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
+        try:
+            kind = message_class(msgtype)
+        except (ImportError, AttributeError, ValueError):
+            print(f"fiper replay: skipping {topic}: message type {msgtype} is not importable here", file=sys.stderr)
+            return
+        self.publishers[topic] = self.node.create_publisher(kind, topic, profile)
+
+    def wait_for_subscribers(self, needed: dict[str, int], timeout_s: float, suite: SuiteProcess | None) -> None:
+        """Wait until every topic has its subscribers (and the suite's alarm publisher, if launched)."""
+        node = self.node
+
+        def ready() -> bool:
+            counts = all(node.count_subscribers(t) >= n for t, n in needed.items())
+            matched = all(p.get_subscription_count() >= needed.get(t, 1) for t, p in self.publishers.items())
+            return counts and matched and (suite is None or node.count_publishers(ALARM_TOPIC) >= 1)
+
+        if not self.session.spin_until(lambda: ready() or (suite is not None and not suite.alive()), timeout_s) \
+                or not ready():
+            have = {t: node.count_subscribers(t) for t in needed}
+            detail = f"; suite output:\n{suite.output()}" if suite is not None else ""
+            raise BagError(f"subscribers not there after {timeout_s:g} s (have {have}, need {needed}) "
+                           f"in ROS domain {self.session.domain}{detail}")
+        self.session.spin_until(lambda: False, WARM_UP_S)  # the nodes match each other's endpoints too
+        own = 1 if ALARM_TOPIC in self.publishers else 0  # --all-topics replays recorded alarms itself
+        self.flow_controlled = node.count_publishers(ALARM_TOPIC) > own
+
+
+    # playing ------------------------------------------------------------------------------------------
+    def _tick(self, sim_ns: int) -> None:
+        if sim_ns > self._sim_ns:
+            self._sim_ns = sim_ns
+            self.clock.publish(Clock(clock=to_stamp(sim_ns)))
+
+    def _pace(self, sim_ns: int) -> None:
+        """Real-time pacing (not with --fast): sleep until the message is due, ticking /clock."""
+        if self.fast or self._sim_ns == 0:
+            return
+        start_sim, start_wall = self._sim_ns, time.monotonic()
+        due = start_wall + (sim_ns - start_sim) / 1e9 / self.rate
+        while not self.session.stop.is_set():
+            now = time.monotonic()
+            if now >= due:
+                return
+            self.session.spin_once(min(self.clock_period_ns / 1e9 / self.rate, due - now))
+            self._tick(min(sim_ns, start_sim + int((time.monotonic() - start_wall) * self.rate * 1e9)))
+
+    def _wait_pending(self) -> None:
+        key, self._pending = self._pending, None
+        if key is None:
+            return
+        if not self.session.spin_until(lambda: key in self.alarms, self.step_timeout):
+            if not self.session.stop.is_set():
+                self.missing.append(key)
+                print(f"fiper replay: no alarm for rollout {key[0]} step {key[1]} within {self.step_timeout:g} s",
+                      file=sys.stderr)
+
+    def play(self, bag: BagReader, shift_ns: int) -> int:
+        """Publish the bag's played topics; returns the (shifted) log time of its last message."""
+        last = 0
+        for message in bag.messages([t for t in bag.topics if t in self.publishers]):
+            if self.session.stop.is_set():
+                break
+            sim_ns = message.log_time_ns + shift_ns
+            key, event = None, None
+            if message.topic in (EMBEDDING, ACTIONS):
+                msg = bag.decode(message)
+                key = (int(msg.rollout_id), int(msg.step))
+            elif message.topic == EVENTS:
+                event = bag.decode(message)
+            if self._pending is not None and key != self._pending:
+                self._wait_pending()
+            if event is not None and event.event == RolloutEvent.EVENT_END:
+                self._finish(int(event.rollout_id), int(event.outcome))
+            self._pace(sim_ns)
+            self._tick(sim_ns)
+            self.publishers[message.topic].publish(message.raw)
+            last = sim_ns
+            if event is not None and event.event == RolloutEvent.EVENT_START:
+                self.results[int(event.rollout_id)] = RolloutResult(int(event.rollout_id), event.task, event.scenario)
+                # Every node has the START (reliable: acknowledged) and a moment to act on it before step 0.
+                self.publishers[EVENTS].wait_for_all_acked(Duration(seconds=self.step_timeout))
+                self.session.spin_until(lambda: False, self.settle_s)
+            if key is not None:
+                sent = self._sent.setdefault(key, set())
+                sent.add(message.topic)
+                if len(sent) == 2:
+                    self.steps += 1
+                    if self.flow_controlled:
+                        self._pending = key
+        self._wait_pending()
+        return last
+
+    def _finish(self, rollout_id: int, outcome: int) -> None:
+        """Print the rollout's line once its last step is answered."""
+        result = self.results.setdefault(rollout_id, RolloutResult(rollout_id))
+        result.outcome = OUTCOME_NAMES[SUCCESS_OF.get(outcome)]
+        result.steps = self.steps_of(rollout_id)
+        print(result.summary(), flush=True)
+
+    def steps_of(self, rollout_id: int) -> dict[int, StepResult]:
+        """The per-step states received for ``rollout_id``."""
+        return {step: StepResult(STATE_NAMES.get(m.state, UNKNOWN), bool(m.obs_exceeded), bool(m.act_exceeded),
+                                 float(m.eta_obs), float(m.eta_act))
+                for (rid, step), m in sorted(self.alarms.items()) if rid == rollout_id}
+
+    def collect(self) -> list[RolloutResult]:
+        """Every rollout's result, with the alarms that arrived until now."""
+        self.session.spin_until(lambda: False, 0.3)
+        for rollout_id in {rid for rid, _ in self._sent} | set(self.results):
+            self.results.setdefault(rollout_id, RolloutResult(rollout_id)).steps = self.steps_of(rollout_id)
+        return [self.results[r] for r in sorted(self.results)]
+
+
+def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None) -> dict[str, Any]:
+    """The live replay: launch the suite (if asked), check the calibration while it boots, wait for it,
+    play every bag, collect the alarms."""
+    with ExitStack() as stack:
+        launch = not args.no_launch
+        domain = args.domain
+        if domain is None and launch:
+            domain = stack.enter_context(allocate_domain())
+        suite = None
+        if launch:
+            assert directory is not None
+            workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
+            config = replay_config(args.launch or default_config(), directory, workdir / "suite.yaml")
+            suite = SuiteProcess(config, domain, echo=args.verbose)
+            stack.callback(suite.stop)
+        calibration = checked_calibration(directory, bags)
+        session = stack.enter_context(RosSession("fiper_replay", domain))
+        player = Player(session, args)
+        readers = [stack.enter_context(BagReader(bag)) for bag in bags]
+        for reader in readers:
+            for topic, msgtype in reader.topics.items():
+                if topic in INPUT_TOPICS or (args.all_topics and args.no_launch):
+                    player.add_topic(topic, msgtype, any(q.durability.name == "TRANSIENT_LOCAL"
+                                                         for q in reader.offered_qos(topic)))
+        needed = dict(SUITE_SUBSCRIBERS) if launch else {t: 1 for t in player.publishers}
+        print(f"waiting for the suite in ROS domain {session.domain} ...", file=sys.stderr, flush=True)
+        player.wait_for_subscribers(needed, args.wait, suite)
+        started = time.monotonic()
+        end = 0
+        for reader in readers:
+            shift = max(0, end + ROLLOUT_GAP_NS - reader.start_ns) if end else 0
+            if shift:
+                print(f"fiper replay: {reader.path} starts before the previous bag ended: shifted by {shift / 1e9:.3f} s",
+                      file=sys.stderr)
+            end = player.play(reader, shift)
+            if session.stop.is_set():
+                break
+        seconds = time.monotonic() - started
+        results = player.collect()
+    return {"rollouts": results, "missing": player.missing, "seconds": seconds, "steps": player.steps,
+            "calibration": calibration, "interrupted": session.stop.is_set()}
+
+
+def checked_calibration(directory: Path | None, bags: list[Path]) -> Calibration | None:
+    """The calibration in ``directory`` (``None`` without one), checked against every bag's shapes.
+
+    Imported here, not at the top: the core brings torch, whose import would delay the suite's start.
+    """
+    from fiper_ros.bags.offline import check_fits  # noqa: PLC0415
+    from fiper_ros.core.calibration import CalibrationError, load_calibration  # noqa: PLC0415
+
+    if directory is None:
+        return None
+    try:
+        calibration = load_calibration(directory)
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
+    for bag in bags:
+        check_fits(calibration, directory, bag)
+    return calibration
+
+
+def _offline(bags: list[Path], directory: Path) -> dict[str, Any]:
+    """The oracle's results for ``--offline``."""
+    from fiper_ros.bags.offline import predict_bag  # noqa: PLC0415 - see checked_calibration
+
+    started = time.monotonic()
+    calibration = checked_calibration(directory, bags)
+    results = [r for bag in bags for r in predict_bag(bag, calibration)]
+    for result in results:
+        print(result.summary())
+    return {"rollouts": results, "missing": [], "seconds": time.monotonic() - started,
+            "steps": sum(len(r.steps) for r in results), "calibration": calibration, "interrupted": False}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper replay``."""
+    parser.add_argument("bags", nargs="+", type=Path, help="bags, or directories holding bags")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--rate", type=float, default=1.0, help="play at this multiple of real time (default 1)")
+    pace.add_argument("--fast", action="store_true", help="as fast as the suite answers (flow-controlled)")
+    parser.add_argument("--calibration", type=Path, help="calibration directory (default: calibration/ next to the bags)")
+    suite = parser.add_mutually_exclusive_group()
+    suite.add_argument("--launch", type=Path, help="launch YAML of the suite to start (default: the installed suite.yaml)")
+    suite.add_argument("--no-launch", action="store_true", help="play into a suite already running in this domain")
+    suite.add_argument("--offline", action="store_true", help="compute the alarms with the core, without DDS")
+    parser.add_argument("--all-topics", action="store_true", help="with --no-launch: also play recorded outputs")
+    parser.add_argument("--domain", type=int, help="ROS domain (default: a free one when launching, else ROS_DOMAIN_ID)")
+    parser.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the suite's subscribers")
+    parser.add_argument("--step-timeout", type=float, default=5.0, help="seconds to wait for a step's alarm")
+    parser.add_argument("--settle", type=float, default=0.1, help="pause after each RolloutEvent START, seconds")
+    parser.add_argument("--clock-hz", type=float, default=100.0, help="/clock ticks per simulated second (--rate)")
+    parser.add_argument("--report", type=Path, help="write the per-step results as JSON to this file")
+    parser.add_argument("--verbose", action="store_true", help="show the launched suite's output")
+
+
+def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | None]:
+    """The bags (each opened once, so a bad one is refused before anything starts) and the calibration
+    directory to use."""
+    bags = find_bags(args.bags)
+    for bag in bags:
+        with BagReader(bag):
+            pass
+    directory = args.calibration or find_calibration(bags)
+    if directory is None and not args.no_launch:
+        raise BagError("no calibration: give --calibration DIR (or put calibration/ next to the bags)")
+    return bags, directory
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper replay``."""
+    if args.rate <= 0 or args.clock_hz <= 0:
+        return fail("replay", "--rate and --clock-hz must be > 0")
+    try:
+        bags, directory = _bags_and_calibration(args)
+        outcome = _offline(bags, directory) if args.offline else _play_all(args, bags, directory)
+    except BagError as error:
+        return fail("replay", error)
+    rate = outcome["steps"] / outcome["seconds"] if outcome["seconds"] > 0 else 0.0
+    print(f"{len(outcome['rollouts'])} rollouts, {outcome['steps']} steps in {outcome['seconds']:.1f} s "
+          f"({rate:.1f} steps/s); {len(outcome['missing'])} steps without an alarm")
+    if args.report:
+        calibration = outcome["calibration"]
+        report = {"bags": [str(b) for b in bags], "calibration": str(directory) if directory else None,
+                  "calibration_hash": calibration.content_hash if calibration else None,
+                  "mode": "offline" if args.offline else "live", "seconds": outcome["seconds"],
+                  "missing": outcome["missing"], "rollouts": [r.to_dict() for r in outcome["rollouts"]]}
+        args.report.write_text(json.dumps(report, indent=1))
+    if outcome["interrupted"]:
+        return 130
+    return 1 if outcome["missing"] else 0

@@ -1,0 +1,195 @@
+"""Bags <-> core :class:`~fiper_ros.core.rollout.Rollout` records.
+
+Writing lays rollouts out one after another on the bag's time line: a RolloutEvent START, then per
+policy step an ObservationEmbedding and an ActionChunkBatch with the same ``(rollout_id, step)`` and
+stamp, then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
+same code a policy node uses. Reading matches embedding and batch on ``(rollout_id, step)`` and takes
+task, scenario and outcome from the rollout's events.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rclpy.serialization import serialize_message
+
+from fiper_msgs.msg import RolloutEvent
+from fiper_ros.bags.errors import BagError
+from fiper_ros.bags.reader import BagReader
+from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, TOPICS, BagInfo, normalize_cdr
+from fiper_ros.bags.writer import BagWriter
+from fiper_ros.core.rollout import Rollout, RolloutError
+from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg
+
+LOG = logging.getLogger(__name__)
+
+#: Default start of a converted bag's time line (2023-11-14T22:13:20Z): far from 0, which means
+#: "no time yet" to a node under use_sim_time.
+DEFAULT_START_NS = 1_700_000_000 * 1_000_000_000
+#: The START event precedes step 0 by this much.
+EVENT_LEAD_NS = 1_000_000
+#: Pause between one rollout's END and the next START.
+ROLLOUT_GAP_NS = 1_000_000_000
+OUTCOME_OF = {True: RolloutEvent.OUTCOME_SUCCESS, False: RolloutEvent.OUTCOME_FAILURE, None: RolloutEvent.OUTCOME_UNKNOWN}
+SUCCESS_OF = {v: k for k, v in OUTCOME_OF.items()}
+
+
+def shape_info(rollouts: Sequence[Rollout], base: BagInfo) -> BagInfo:
+    """``base`` with the shapes and action space of ``rollouts`` (which must all agree)."""
+    def layout(r: Rollout) -> tuple[int, ...]:
+        _, b, h, d = r.actions.shape
+        return b, h, d, r.exec_steps, r.embeddings.shape[1]
+
+    first = rollouts[0]
+    for rollout in rollouts[1:]:
+        if layout(rollout) != layout(first) or rollout.action_space != first.action_space:
+            raise BagError(f"rollout {rollout.rollout_id!r} has B, H, D, h, E = {layout(rollout)} "
+                           f"({rollout.action_space}), rollout {first.rollout_id!r} {layout(first)} "
+                           f"({first.action_space}): one bag holds one layout")
+    b, h, d, exec_steps, e = layout(first)
+    return replace(base, batch_size=b, horizon=h, action_dim=d, exec_steps=exec_steps, embedding_dim=e,
+                   action_space=first.action_space)
+
+
+def _env_steps(rollout: Rollout) -> np.ndarray:
+    """Environment step of each policy step: ``metadata["env_steps"]`` or ``0, h, 2h, ...``."""
+    steps = rollout.metadata.get("env_steps")
+    if steps is None:
+        return np.arange(rollout.length, dtype=np.int64) * rollout.exec_steps
+    steps = np.asarray(steps, dtype=np.int64)
+    return steps - steps[0]
+
+
+def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], info: BagInfo, *,
+                   start_ns: int = DEFAULT_START_NS, env_dt_ns: int = 100_000_000, overwrite: bool = False) -> int:
+    """Write ``rollouts`` (with message rollout ids ``ids``) as one bag; returns the time after the last.
+
+    Args:
+        path: The bag directory to create.
+        rollouts: Rollouts of one layout (B, H, D, h, E, action space).
+        ids: ``rollout_id`` of each rollout in the messages.
+        info: ``custom_data``; the shapes are filled in from the rollouts.
+        start_ns: Time of the first START.
+        env_dt_ns: Duration of one environment (control) step; a policy step lasts ``h`` of them.
+        overwrite: Replace an existing bag.
+    """
+    if not rollouts:
+        raise BagError(f"{path}: no rollouts to write")
+    with BagWriter(path, overwrite=overwrite) as writer:
+        writer.info = shape_info(rollouts, info)
+        now = start_ns
+        for rollout, rollout_id in zip(rollouts, ids, strict=True):
+            max_steps = int(rollout.metadata.get("max_steps", 0))
+            writer.write(EVENTS, now, _cdr(rollout_event_msg(
+                rollout_id, RolloutEvent.EVENT_START, now, task=rollout.task, scenario=rollout.scenario,
+                max_steps=max_steps), EVENTS))
+            for step, offset in enumerate(_env_steps(rollout)):
+                stamp = now + EVENT_LEAD_NS + int(offset) * env_dt_ns
+                writer.write(EMBEDDING, stamp, _cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]),
+                                                    EMBEDDING))
+                writer.write(ACTIONS, stamp, _cdr(action_batch_msg(
+                    rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps, rollout.action_space), ACTIONS))
+            end = stamp + rollout.exec_steps * env_dt_ns
+            writer.write(EVENTS, end, _cdr(rollout_event_msg(
+                rollout_id, RolloutEvent.EVENT_END, end, outcome=OUTCOME_OF[rollout.success], task=rollout.task,
+                scenario=rollout.scenario, max_steps=max_steps), EVENTS))
+            now = end + ROLLOUT_GAP_NS
+    return now
+
+
+def _cdr(msg: Any, topic: str) -> bytes:
+    return normalize_cdr(serialize_message(msg), TOPICS[topic].msgtype)
+
+
+@dataclass
+class _Collected:
+    """What a bag says about one rollout."""
+
+    rollout_id: int
+    task: str = ""
+    scenario: str = "unknown"
+    outcome: int | None = None
+    max_steps: int = 0
+    embeddings: dict[int, np.ndarray] = field(default_factory=dict)
+    batches: dict[int, np.ndarray] = field(default_factory=dict)
+    exec_steps: int = 0
+    action_space: str = ""
+
+
+def _collect(bag: BagReader) -> list[_Collected]:
+    rollouts: dict[int, _Collected] = {}
+    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS]):
+        msg = bag.decode(message)
+        record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task))
+        if message.topic == EVENTS:
+            if msg.event == RolloutEvent.EVENT_START:
+                record.task, record.scenario, record.max_steps = msg.task or record.task, msg.scenario, msg.max_steps
+            elif msg.event == RolloutEvent.EVENT_END:
+                record.outcome = int(msg.outcome)
+        elif message.topic == EMBEDDING:
+            record.embeddings[int(msg.step)] = np.asarray(msg.data, dtype=np.float32).ravel()
+        else:
+            shape = (int(msg.batch_size), int(msg.horizon), int(msg.action_dim))
+            data = np.asarray(msg.data, dtype=np.float32)
+            if data.size != int(np.prod(shape)):
+                raise BagError(f"{bag.path}: rollout {record.rollout_id} step {msg.step}: action batch holds "
+                               f"{data.size} values, not B x H x D = {shape}")
+            record.batches[int(msg.step)] = data.reshape(shape)
+            record.exec_steps, record.action_space = int(msg.exec_steps), str(msg.action_space)
+    return list(rollouts.values())
+
+
+def _to_rollout(record: _Collected, path: Path) -> Rollout:
+    steps = sorted(set(record.embeddings) | set(record.batches))
+    for step in range(len(steps)):
+        for name, table in (("observation embedding", record.embeddings), ("action batch", record.batches)):
+            if step not in table:
+                raise BagError(f"{path}: rollout {record.rollout_id} has no {name} for step {step} "
+                               f"(steps {steps[0]}..{steps[-1]} present)")
+    try:
+        return Rollout(
+            rollout_id=str(record.rollout_id), task=record.task, scenario=record.scenario,
+            embeddings=np.stack([record.embeddings[s] for s in steps]),
+            actions=np.stack([record.batches[s] for s in steps]),
+            exec_steps=record.exec_steps, success=SUCCESS_OF.get(record.outcome),
+            action_space=record.action_space,
+            metadata={"bag": str(path), "max_steps": record.max_steps},
+        )
+    except (RolloutError, ValueError) as error:
+        raise BagError(f"{path}: rollout {record.rollout_id}: {error}") from error
+
+
+def read_rollouts(path: Path) -> list[Rollout]:
+    """The rollouts of one bag, in the order they start; rollouts without any step are left out."""
+    with BagReader(path) as bag:
+        collected = _collect(bag)
+    rollouts = []
+    for record in collected:
+        if not record.embeddings and not record.batches:
+            LOG.warning("%s: rollout %d has no steps; left out", path, record.rollout_id)
+            continue
+        rollouts.append(_to_rollout(record, path))
+    return rollouts
+
+
+def layout_of(bag: BagReader) -> BagInfo:
+    """The bag's ``custom_data``, with E, B, H, D, h and action space taken from its first messages
+    where ``custom_data`` does not say (e.g. a bag of another tool)."""
+    info = bag.info
+    if info.embedding_dim and info.action_dim and info.horizon and info.action_space:
+        return info
+    for topic in (EMBEDDING, ACTIONS):
+        message = next(bag.messages([topic]), None)
+        if message is None:
+            continue
+        msg = bag.decode(message)
+        if topic == EMBEDDING:
+            info = replace(info, embedding_dim=int(np.asarray(msg.data).size))
+        else:
+            info = replace(info, batch_size=int(msg.batch_size), horizon=int(msg.horizon), action_dim=int(msg.action_dim),
+                           exec_steps=int(msg.exec_steps), action_space=str(msg.action_space))
+    return info

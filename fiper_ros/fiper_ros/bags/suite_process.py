@@ -1,0 +1,87 @@
+"""The node suite started for a replay: ``fiper launch`` in a child process, under sim time.
+
+The launch YAML (default: the installed ``config/suite.yaml``) is read with the launcher's own parser
+and written again with ``use_sim_time: true`` and the replay's calibration directory set on the
+scoring nodes, so the nodes are exactly those of a normal launch.
+"""
+from __future__ import annotations
+
+import collections
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import yaml
+
+from fiper_ros.bags.errors import BagError
+from fiper_ros.dds import local_env
+from fiper_ros.launch import LaunchError, load_config
+
+#: Nodes that take ``calibration_dir``.
+DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", "fiper_ros.nodes.ace_node")
+#: Lines of the suite's output kept for an error report.
+KEPT_LINES = 200
+
+
+def default_config() -> Path:
+    """The installed ``fiper_ros/config/suite.yaml``."""
+    from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
+
+    return Path(get_package_share_directory("fiper_ros")) / "config" / "suite.yaml"
+
+
+def replay_config(config: Path, calibration: Path, out: Path) -> Path:
+    """Write ``config`` with sim time and ``calibration`` on the scoring nodes to ``out``."""
+    try:
+        parsed = load_config(config)
+    except (LaunchError, yaml.YAMLError) as error:
+        raise BagError(f"launch config {config}: {error}") from error
+    nodes = {}
+    for spec in parsed.nodes:
+        parameters = dict(spec.parameters)
+        if spec.module in DETECTOR_MODULES:
+            parameters["calibration_dir"] = str(calibration.resolve())
+        nodes[spec.name] = {"module": spec.module, "namespace": spec.namespace, "required": spec.required,
+                            "parameter_files": [str(p) for p in spec.parameter_files], "parameters": parameters}
+    out.write_text(yaml.safe_dump({"use_sim_time": True, "nodes": nodes}, sort_keys=False))
+    return out
+
+
+class SuiteProcess:
+    """``fiper launch`` of a replay config in its own process group, in ``domain``."""
+
+    def __init__(self, config: Path, domain: int, echo: bool) -> None:
+        self.lines: collections.deque[str] = collections.deque(maxlen=KEPT_LINES)
+        self._echo = echo
+        self.proc = subprocess.Popen(  # noqa: S603 - our own launcher
+            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
+            env=local_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.rstrip())
+            if self._echo:
+                print(line.rstrip(), file=sys.stderr, flush=True)
+
+    def alive(self) -> bool:
+        """Whether the launcher still runs."""
+        return self.proc.poll() is None
+
+    def output(self) -> str:
+        """The last lines of the suite's output."""
+        return "\n".join(self.lines)
+
+    def stop(self, timeout_s: float = 20.0) -> int:
+        """Ctrl-C the launcher (it stops its nodes), SIGKILL the group if it hangs; its exit status."""
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGINT)
+            try:
+                return self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+        return self.proc.wait()

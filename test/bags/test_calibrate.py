@@ -1,0 +1,50 @@
+"""``fiper calibrate``: fits on the successful rollouts of bags, writes the directory, refuses clearly."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fiper_ros.bags.calibrate_cmd import RND_PRESETS
+from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.cli import main
+from fiper_ros.core.calibration import CalibrationSettings, calibrate, load_calibration
+from fiper_ros.core.rnd_oe import RNDConfig
+
+SETTINGS = ["--window-obs", "3", "--window-act", "3", "--threshold", "cp_constant", "--delta", "0.2",
+            "--max-epochs", "4", "--seed", "3"]
+
+
+def test_calibrate_uses_the_successes_and_prints_what_it_used(
+        tmp_path: Path, small_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(small_bag), "-o", str(out), "--min-rollouts", "3", *SETTINGS]) == 0
+    printed = capsys.readouterr()
+    calibration = load_calibration(out)
+    assert calibration.num_rollouts == 3  # the failed rollout is not used
+    assert "calibrating on 3 successful rollouts (60 steps) of 4" in printed.out
+    assert f"hash {calibration.content_hash}" in printed.out
+    assert "RND-OE epoch 4/4" in printed.err  # progress of the training
+    rnd = RNDConfig.from_dict(RND_PRESETS["small"]().to_dict() | {"max_epochs": 4})
+    settings = CalibrationSettings(window_obs=3, window_act=3, threshold="cp_constant", delta=0.2, rnd=rnd, seed=3,
+                                   min_rollouts=3)
+    assert calibrate(read_rollouts(small_bag), settings).content_hash == calibration.content_hash
+
+
+def test_calibrate_refuses_too_few_successes(tmp_path: Path, small_bag: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(small_bag), "-o", str(out), *SETTINGS]) == 2  # default --min-rollouts 4
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("fiper calibrate: too few successful rollouts to calibrate: 3 of 4 in")
+    assert "need at least 4" in err
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_calibrate_refuses_an_existing_directory(tmp_path: Path, small_bag: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "calibration").mkdir()
+    assert main(["calibrate", str(small_bag), "-o", str(tmp_path / "calibration"), "--min-rollouts", "3",
+                 *SETTINGS]) == 2
+    assert "exists already" in capsys.readouterr().err
