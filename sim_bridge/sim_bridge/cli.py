@@ -23,8 +23,13 @@ def _demos(args: argparse.Namespace) -> int:
               f"steps={summary.steps} {state}; successes {successes}/{index + 1}   ", end="", file=sys.stderr,
               flush=True)
 
-    record_dataset(args.task, Path(args.out), args.episodes, args.seed, args.scenario, progress)
-    print(file=sys.stderr)
+    tasks = TASK_NAMES if args.task == "all" else (args.task,)
+    for task in tasks:
+        successes = 0
+        out = Path(args.out) / task if args.task == "all" else Path(args.out)
+        print(f"{task} -> {out}", file=sys.stderr)
+        record_dataset(task, out, args.episodes, args.seed, args.scenario, progress)
+        print(file=sys.stderr)
     return 0
 
 
@@ -63,9 +68,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     demos = sub.add_parser("demos", help="record expert demonstrations (resumable)")
-    demos.add_argument("--task", choices=TASK_NAMES, required=True)
+    demos.add_argument("--task", choices=(*TASK_NAMES, "all"), required=True,
+                       help="a task, or 'all' (then OUT/<task> per task)")
     demos.add_argument("--episodes", type=int, default=100)
-    demos.add_argument("--out", required=True, help="output folder, one .npz per episode")
+    demos.add_argument("--out", required=True, help="output folder, one .npz per episode (OUT/<task> with --task all)")
     demos.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     demos.add_argument("--scenario", default="id")
     demos.set_defaults(func=_demos)

@@ -25,3 +25,10 @@ def test_demos_cli_writes_and_resumes(tmp_path: Path) -> None:
     assert path.stat().st_mtime_ns == mtime
     assert episode_path(out, 8).exists()
     assert not list(out.glob("*.tmp.npz"))
+
+
+def test_demos_cli_makes_every_task_from_one_command(tmp_path: Path) -> None:
+    assert main(["demos", "--task", "all", "--episodes", "1", "--out", str(tmp_path), "--seed", "3"]) == 0
+    for task, dim in (("sorting", 2), ("stacking", 8), ("pusht", 2)):
+        with np.load(episode_path(tmp_path / task, 3)) as data:
+            assert data["actions"].shape[1] == dim and bool(data["success"])

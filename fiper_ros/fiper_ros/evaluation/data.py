@@ -84,23 +84,53 @@ class Dataset:
         return digest.hexdigest()
 
 
-def _files(path: Path) -> list[Path]:
+def _npz_files(path: Path) -> list[Path]:
     if path.is_dir():
         files = sorted(path.glob("*.npz"))
         if not files:
-            raise DatasetError(f"no .npz rollout files in {path}")
+            raise DatasetError(f"no .npz rollout files and no bags in {path}")
         return files
     if not path.is_file():
         raise DatasetError(f"rollout file or directory not found: {path}")
     return [path]
 
 
-def load_dataset(task: str, paths: Sequence[str | Path]) -> Dataset:
-    """Read the rollout sets at ``paths`` (files or directories) into one :class:`Dataset`."""
+def _bag_split(path: Path) -> tuple[list[Rollout], list[Rollout]]:
+    """The rollouts of the bags at ``path``, split by each bag's ``custom_data`` split."""
+    from fiper_ros.bags.errors import BagError  # noqa: PLC0415 - bags need the ROS message build
+    from fiper_ros.bags.reader import BagReader, find_bags  # noqa: PLC0415
+    from fiper_ros.bags.rollouts import read_rollouts  # noqa: PLC0415
+
     calibration: list[Rollout] = []
     test: list[Rollout] = []
-    for path in paths:
-        for file in _files(Path(path)):
+    try:
+        for bag in find_bags([path]):
+            with BagReader(bag) as reader:
+                split = reader.info.split
+            if split not in ("calibration", "test"):
+                raise DatasetError(f"{bag}: custom_data split is {split!r}; expected 'calibration' or 'test'")
+            (calibration if split == "calibration" else test).extend(read_rollouts(bag))
+    except BagError as error:
+        raise DatasetError(str(error)) from error
+    return calibration, test
+
+
+def _is_bag_input(path: Path) -> bool:
+    return path.is_dir() and (any(path.rglob("metadata.yaml")) and not any(path.glob("*.npz")))
+
+
+def load_dataset(task: str, paths: Sequence[str | Path]) -> Dataset:
+    """Read the rollout sets at ``paths`` (``.npz`` files, folders of them, or bag folders) into one
+    :class:`Dataset`. Bags are split by their ``custom_data`` split (``fiper convert`` writes it)."""
+    calibration: list[Rollout] = []
+    test: list[Rollout] = []
+    for path in map(Path, paths):
+        if _is_bag_input(path):
+            cal, tst = _bag_split(path)
+            calibration.extend(cal)
+            test.extend(tst)
+            continue
+        for file in _npz_files(path):
             try:
                 rollouts = RolloutSet.load_npz(file)
             except RolloutError as error:
