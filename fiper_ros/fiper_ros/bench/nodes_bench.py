@@ -70,7 +70,10 @@ def _launch(calibration: Path, work: Path, domain: int) -> subprocess.Popen[byte
         "namespace": "/fiper", "parameter_files": [str(CONFIG_DIR / "nodes.yaml")],
         "nodes": {"rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": params},
                   "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": params},
-                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node"}},
+                  # The alarm contract keeps only the newest state (KEEP_LAST(1)); to count every step's
+                  # alarm the benchmark deepens the history with the standard QoS override parameter.
+                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node",
+                                  "parameters": {"qos_overrides./fiper/alarm.publisher.depth": 1000}}},
     }))
     return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],  # noqa: S603
                             env=local_env(domain), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -86,6 +89,8 @@ class Driver:
         from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
         from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent  # noqa: PLC0415
+        from rclpy.qos import QoSProfile  # noqa: PLC0415
+
         from fiper_ros.nodes import qos  # noqa: PLC0415
 
         self.shape = shape
@@ -98,7 +103,8 @@ class Driver:
         self.act_pub = self.node.create_publisher(ActionChunkBatch, "action_chunks", qos.INPUT)
         self.event_pub = self.node.create_publisher(RolloutEvent, "rollout_events", qos.EVENT)
         self.received: dict[tuple[int, int], int] = {}
-        self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM)
+        deep = QoSProfile(depth=1000, reliability=qos.ALARM.reliability, durability=qos.ALARM.durability)
+        self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, deep)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
         self.actions = rng.uniform(-1, 1, (shape.batch, shape.horizon, shape.action_dim)).astype(np.float32)
