@@ -50,7 +50,7 @@ def sample_messages() -> dict[str, Any]:
         "fiper_msgs/msg/FailureAlarm": FailureAlarm(
             header=_header(15), rollout_id=7, step=3, state=FailureAlarm.STATE_ALARM, latched=True,
             obs_exceeded=True, act_exceeded=False, eta_obs=10.5, gamma_obs=9.25, eta_act=float("inf"),
-            gamma_act=-1.0, combine=FailureAlarm.COMBINE_OR, reason="rnd_oe exceeded (or) — ünïcode",
+            gamma_act=-1.0, combine=FailureAlarm.COMBINE_OR, reason="rnd_oe exceeded (or) — ünïcode", heartbeat=True,
         ),
         "fiper_msgs/msg/ActionCommand": ActionCommand(
             header=_header(16), rollout_id=7, step=3, num_actions=4, action_dim=8, data=_floats(32, 3),

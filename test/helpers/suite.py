@@ -57,11 +57,10 @@ class Driver(Node):
         self.batches.publish(action_batch_msg(rollout_id, step, stamp, actions, exec_steps, "ee_position"))
 
     def alarms_of(self, rollout_id: int) -> dict[int, FailureAlarm]:
-        """The per-step alarms of a rollout (heartbeats and UNKNOWN ticks left out)."""
+        """The per-step decisions of a rollout (heartbeats left out), the first message per step."""
         out: dict[int, FailureAlarm] = {}
         for msg in self.alarms:
-            if msg.rollout_id == rollout_id and msg.state != FailureAlarm.STATE_UNKNOWN and not msg.reason.startswith(
-                    ("stream", "waiting", "no active")):
+            if msg.rollout_id == rollout_id and not msg.heartbeat:
                 out.setdefault(msg.step, msg)
         return out
 

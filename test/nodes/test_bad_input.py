@@ -83,10 +83,7 @@ def test_each_bad_input_class_is_rejected_and_the_node_keeps_scoring(ros_domain:
         for step in range(7, 11):
             drv.step(1, step, emb[step], act[step], h)
             assert suite.spin_until(lambda s=step: any(m.step == s and m.rollout_id == 1 for m in drv.alarms)), step
-        per_step: dict[int, FailureAlarm] = {}
-        for m in drv.alarms:  # the first message of a step is its fused state; later ones are ticks
-            if m.rollout_id == 1 and m.reason != "waiting for the first scores of the rollout":
-                per_step.setdefault(m.step, m)
+        per_step = drv.alarms_of(1)
         assert per_step[0].state == FailureAlarm.STATE_OK
         assert not set(per_step) & {1, 2, 3, 4, 5, 6}  # each lacks at least one detector's score
         # w = 3: the windows of steps 7 and 8 still hold missing steps of both detectors.

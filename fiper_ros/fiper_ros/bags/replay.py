@@ -50,9 +50,6 @@ if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
 
 STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
-#: Reasons of the fusion node's heartbeat and staleness messages: they repeat or precede a step's
-#: state and are not the state of a new step.
-NOT_A_STEP = ("stream", "waiting", "no active")
 #: Subscribers a launched suite has per topic (the scoring nodes and the fusion node).
 SUITE_SUBSCRIBERS = {EMBEDDING: 1, ACTIONS: 1, EVENTS: 3, SCORE_RND_OE: 1, SCORE_ACE: 1}
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
@@ -93,7 +90,7 @@ class Player:
 
     # set-up -------------------------------------------------------------------------------------------
     def _on_alarm(self, msg: FailureAlarm) -> None:
-        if not msg.reason.startswith(NOT_A_STEP):
+        if not msg.heartbeat:
             self.alarms.setdefault((int(msg.rollout_id), int(msg.step)), msg)
 
     def add_topic(self, topic: str, msgtype: str, transient: bool) -> None:

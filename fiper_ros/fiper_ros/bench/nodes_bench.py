@@ -112,7 +112,7 @@ class Driver:
 
     def _on_alarm(self, msg: object) -> None:
         key = (msg.rollout_id, msg.step)  # type: ignore[attr-defined]
-        if key not in self.received and "waiting" not in msg.reason and "no active" not in msg.reason:  # type: ignore[attr-defined]
+        if key not in self.received and not msg.heartbeat:  # type: ignore[attr-defined]
             self.received[key] = time.monotonic_ns()
 
     def spin_for(self, seconds: float) -> None:

@@ -146,9 +146,9 @@ class FusionNode(FiperNode):
         now = self.now_ns()
         state = self.fuser.check(now, frozenset(self.lost))
         if state is not None:
-            self.publish(state)
+            self.publish(state, heartbeat=True)
         elif now - self._last_publish_ns >= self.get_parameter("heartbeat_s").value * 1e9:
-            self.publish(self.heartbeat_state(now))
+            self.publish(self.heartbeat_state(now), heartbeat=True)
 
     def heartbeat_state(self, now: int) -> AlarmState:
         """The state to repeat when nothing new happened."""
@@ -173,12 +173,13 @@ class FusionNode(FiperNode):
         self.get_logger().info(f"~/reset: {response.message}")
         return response
 
-    def publish(self, state: AlarmState) -> None:
-        """Publish one FailureAlarm."""
+    def publish(self, state: AlarmState, heartbeat: bool = False) -> None:
+        """Publish one FailureAlarm (``heartbeat``: a repeat, not a new step's decision)."""
         msg = FailureAlarm(rollout_id=state.rollout_id, step=state.step, state=STATES[state.state],
                            latched=state.latched, obs_exceeded=state.obs_exceeded, act_exceeded=state.act_exceeded,
                            eta_obs=state.eta_obs, gamma_obs=state.gamma_obs, eta_act=state.eta_act,
-                           gamma_act=state.gamma_act, combine=state.combine, reason=state.reason)
+                           gamma_act=state.gamma_act, combine=state.combine, reason=state.reason,
+                           heartbeat=heartbeat)
         msg.header.stamp = to_stamp(state.stamp_ns)
         self._alarm_pub.publish(msg)
         self.states[state.state] += 1
