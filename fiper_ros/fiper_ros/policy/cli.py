@@ -1,0 +1,108 @@
+"""Command line: ``python -m fiper_ros.policy.cli {train,eval,plot}``.
+
+Examples::
+
+    python -m fiper_ros.policy.cli train --task sorting --demos data/demos/sorting --out models/sorting
+    python -m fiper_ros.policy.cli eval --task sorting --scenario id --episodes 50 --seed 1000 --record r.npz
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+import torch
+
+from .config import PRESETS
+
+
+def _train(args: argparse.Namespace) -> int:
+    from .train import train
+
+    overrides = {"epochs": args.epochs} if args.epochs is not None else {}
+    config = PRESETS[args.task].with_overrides(**overrides)
+    run_dir = Path(args.run_dir or f"runs/policy/{args.task}_seed{args.seed}")
+    train(config, args.demos, args.out, run_dir, seed=args.seed, max_episodes=args.max_episodes)
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from .evaluate import EvaluationResult, evaluate, save_rollouts
+    from .policy import Policy
+    from .rollout import EpisodeResult
+
+    policy = Policy.load(args.model or f"models/{args.task}")
+    if policy.config.task != args.task:
+        raise SystemExit(f"model {args.model} is a {policy.config.task} policy, not {args.task}")
+    successes = 0
+
+    def progress(index: int, episode: EpisodeResult) -> None:
+        nonlocal successes
+        successes += episode.success
+        print(f"[{index + 1}/{args.episodes}] {args.scenario} seed {episode.seed}: success={episode.success} "
+              f"policy steps {episode.policy_steps}; successes {successes}/{index + 1}", file=sys.stderr, flush=True)
+
+    seeds = range(args.seed, args.seed + args.episodes)
+    result: EvaluationResult = evaluate(policy, args.scenario, seeds, record=args.record is not None,
+                                        progress=progress)
+    if args.record is not None:
+        save_rollouts([result], args.record, args.split)
+    print(f"| {args.task} | {args.scenario} | {len(result.episodes)} | {result.success_rate:.2f} | "
+          f"{result.mean_policy_steps:.1f} | seeds {args.seed}-{args.seed + args.episodes - 1} |")
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from .multimodality import plot_multimodality
+    from .policy import Policy
+
+    policy = Policy.load(args.model or f"models/{args.task}")
+    out = args.out or f"docs/img/policy_multimodality_{args.task}.png"
+    print(plot_multimodality(policy, args.seeds, out))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point."""
+    parser = argparse.ArgumentParser(prog="fiper_ros.policy.cli", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch threads (1 is fastest on the shared 2-core machine, see docs/policies.md)")
+    sub = parser.add_subparsers(dest="command", required=True)
+    train = sub.add_parser("train", help="train a policy on demonstrations (resumes from the run folder)")
+    train.add_argument("--task", choices=sorted(PRESETS), required=True)
+    train.add_argument("--demos", required=True, help="folder of episode_*.npz files")
+    train.add_argument("--out", required=True, help="model folder (policy.pt + policy.yaml)")
+    train.add_argument("--epochs", type=int, default=None, help="override the preset's epochs")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--max-episodes", type=int, default=None, help="use only the first N demo files")
+    train.add_argument("--run-dir", default=None, help="checkpoint folder (default runs/policy/<task>_seed<S>)")
+    train.set_defaults(func=_train)
+    evaluate = sub.add_parser("eval", help="closed-loop success rate in the simulation (optionally recorded)")
+    evaluate.add_argument("--task", choices=sorted(PRESETS), required=True)
+    evaluate.add_argument("--scenario", default="id")
+    evaluate.add_argument("--episodes", type=int, default=50)
+    evaluate.add_argument("--seed", type=int, default=1000, help="first episode seed (demos use 0..N-1)")
+    evaluate.add_argument("--model", default=None, help="model folder (default models/<task>)")
+    evaluate.add_argument("--record", default=None, help="save the rollouts as a core RolloutSet .npz")
+    evaluate.add_argument("--split", choices=("test", "calibration"), default="test",
+                          help="RolloutSet split of the recorded rollouts")
+    evaluate.set_defaults(func=_eval)
+    plot = sub.add_parser("plot", help="multimodality figure: sampled chunks at initial states (top view)")
+    plot.add_argument("--task", choices=sorted(PRESETS), required=True)
+    plot.add_argument("--model", default=None, help="model folder (default models/<task>)")
+    plot.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001, 1002])
+    plot.add_argument("--out", default=None, help="PNG path (default docs/img/policy_multimodality_<task>.png)")
+    plot.set_defaults(func=_plot)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    torch.set_num_threads(args.threads)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,63 @@
+"""The shipped models and in-process closed-loop rollouts in the MuJoCo tasks."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from helpers.policy_fixtures import tiny_config
+
+from fiper_ros.core.rollout import RolloutSet
+from fiper_ros.policy.evaluate import EvaluationResult, save_rollouts
+from fiper_ros.policy.multimodality import block_choice, initial_batch
+from fiper_ros.policy.normalizer import RangeNormalizer
+from fiper_ros.policy.policy import Policy
+from fiper_ros.policy.rollout import run_episode
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+@pytest.fixture(scope="module")
+def sorting_policy() -> Policy:
+    """The committed Sorting model (the demo task: it must exist)."""
+    return Policy.load(MODELS / "sorting")
+
+
+def test_shipped_sorting_model_is_finite_and_multimodal(sorting_policy: Policy) -> None:
+    config = sorting_policy.config
+    assert (config.embed_dim, config.horizon, config.exec_steps, config.sample_batch) == (128, 8, 4, 32)
+    assert (MODELS / "sorting" / "policy.pt").stat().st_size <= 10 * 2**20
+    modes = []
+    for seed in (1000, 1001, 1002):
+        state, chunks = initial_batch(sorting_policy, seed)
+        assert chunks.shape == (32, 8, 2) and np.all(np.isfinite(chunks))
+        assert np.std(chunks[:, -1], axis=0).max() > 0.01  # the samples are not one collapsed path
+        choice = block_choice(state, chunks)
+        modes.append(min(np.sum(choice == 0), np.sum(choice == 1)))
+    # where the demonstrations are bimodal (either block first), the batch covers both blocks
+    assert sum(m >= 2 for m in modes) >= 2, modes
+
+
+def test_closed_loop_rollout_is_recorded(sorting_policy: Policy, tmp_path: Path) -> None:
+    episode = run_episode(sorting_policy, "id", 1000, max_policy_steps=3)
+    rollout = episode.rollout
+    assert episode.policy_steps == 3 and episode.control_steps == 12 and not episode.success
+    assert rollout is not None and rollout.embeddings.shape == (3, 128) and rollout.actions.shape == (3, 32, 8, 2)
+    assert rollout.exec_steps == 4 and rollout.action_space == "ee_position" and rollout.scenario == "id"
+    save_rollouts([EvaluationResult("sorting", "id", [episode])], tmp_path / "r.npz", split="calibration")
+    loaded = RolloutSet.load_npz(tmp_path / "r.npz").calibration[0]
+    np.testing.assert_array_equal(loaded.actions, rollout.actions)
+
+
+def test_joint_velocity_rollouts_store_joint_positions() -> None:
+    config = tiny_config("stacking")
+    torch.manual_seed(0)
+    policy = Policy(config, RangeNormalizer(-0.05 * np.ones(8), 0.05 * np.ones(8)),
+                    RangeNormalizer(-np.ones(11), np.ones(11))).eval()
+    episode = run_episode(policy, "id", 5, max_policy_steps=2)
+    rollout = episode.rollout
+    assert rollout is not None and rollout.action_space == "joint_velocity"
+    assert rollout.actions.shape == (2, config.sample_batch, 8, 8)
+    joints = rollout.metadata["joint_positions"]
+    assert joints.shape == (2, 7) and not np.allclose(joints[0], joints[1])  # the arm moved between steps
