@@ -2,10 +2,11 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test demo bench-core bench-eval bench-nodes lock clean distclean
+.PHONY: help setup test demo study bench-core bench-eval bench-nodes lock clean distclean
 
 help:
-	@echo "make demo        the main job (arrives with the demo issue; see README)"
+	@echo "make demo        the main job: sim bridge, policy and FIPER nodes live, 2 rollouts (runs/demo/)"
+	@echo "make study       the FIPER-vs-baselines study on sim rollouts (long; docs/results.md)"
 	@echo "make test        set up the workspace if needed, then run the whole test suite"
 	@echo "make setup       venv with pinned wheels, Debian packages, colcon build (idempotent)"
 	@echo "make bench-core  latency of the FIPER core (ACE, RND-OE, fusion)"
@@ -21,9 +22,10 @@ test: setup
 	@bash tools/run_tests.sh
 
 demo: setup
-	@echo "make demo: the end-to-end demo (sim + policy + FIPER nodes) is not built yet." >&2
-	@echo "What runs today: make test, make bench-core, bin/fiper doctor. See README.md." >&2
-	@exit 2
+	@$(RUN) fiper demo
+
+study: setup
+	@bash tools/study.sh
 
 bench-core: setup
 	@$(RUN) python -m fiper_ros.bench.core_bench

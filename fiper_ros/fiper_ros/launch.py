@@ -85,6 +85,15 @@ def load_config(path: Path) -> LaunchConfig:
     return LaunchConfig(tuple(nodes), bool(data.get("use_sim_time", False)))
 
 
+def dump_config(config: LaunchConfig, path: Path) -> Path:
+    """Write ``config`` as a launch YAML that :func:`load_config` reads back unchanged (absolute paths)."""
+    nodes = {spec.name: {"module": spec.module, "namespace": spec.namespace, "required": spec.required,
+                         "parameter_files": [str(p) for p in spec.parameter_files],
+                         "parameters": dict(spec.parameters)} for spec in config.nodes}
+    path.write_text(yaml.safe_dump({"use_sim_time": config.use_sim_time, "nodes": nodes}, sort_keys=False))
+    return path
+
+
 class ProcessGroup:
     """The launched processes, their output and their shutdown."""
 

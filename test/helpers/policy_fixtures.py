@@ -1,11 +1,14 @@
-"""Tiny policy configs and synthetic demonstrations for the policy tests (test/policy)."""
+"""Tiny policies, random observations and synthetic demonstrations for the policy tests."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from fiper_ros.policy.config import PRESETS, PolicyConfig
+from fiper_ros.policy.normalizer import RangeNormalizer
+from fiper_ros.policy.policy import Policy
 
 
 def tiny_config(task: str = "sorting", **changes: object) -> PolicyConfig:
@@ -15,6 +18,24 @@ def tiny_config(task: str = "sorting", **changes: object) -> PolicyConfig:
     small = {"image_size": 16, "encoder_channels": (4, 8), "embed_dim": 16, "batch_size": 8, "epochs": 1,
              "sample_batch": 6, **head}
     return PRESETS[task].with_overrides(**{**small, **changes})
+
+
+def tiny_policy(task: str = "sorting", seed: int = 0, **changes: object) -> Policy:
+    """An untrained policy of :func:`tiny_config` with random action statistics (eval mode)."""
+    config = tiny_config(task, **changes)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    low = rng.normal(size=config.action_dim)
+    return Policy(config, RangeNormalizer(low, low + 1.0 + rng.random(config.action_dim)),
+                  RangeNormalizer(-np.ones(config.proprio_dim), np.ones(config.proprio_dim))).eval()
+
+
+def random_observation(config: PolicyConfig, seed: int = 0) -> dict[str, np.ndarray]:
+    """A random observation as the sim produces it: two 96x96 rgb8 cameras and the proprio vector."""
+    rng = np.random.default_rng(seed)
+    return {"wrist_rgb": rng.integers(0, 255, (96, 96, 3), dtype=np.uint8),
+            "third_rgb": rng.integers(0, 255, (96, 96, 3), dtype=np.uint8),
+            "proprio": rng.normal(size=config.proprio_dim).astype(np.float32)}
 
 
 def write_demos(directory: Path, config: PolicyConfig, episodes: int = 3, length: int = 12) -> Path:

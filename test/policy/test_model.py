@@ -4,33 +4,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from helpers.policy_fixtures import tiny_config
+from helpers.policy_fixtures import random_observation, tiny_policy
 
 from fiper_ros.policy.normalizer import RangeNormalizer
 from fiper_ros.policy.policy import Policy
 
 
-def _policy(task: str, seed: int = 0) -> Policy:
-    config = tiny_config(task)
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    low = rng.normal(size=config.action_dim)
-    return Policy(config, RangeNormalizer(low, low + 1.0 + rng.random(config.action_dim)),
-                  RangeNormalizer(-np.ones(config.proprio_dim), np.ones(config.proprio_dim))).eval()
-
-
-def _obs(config, seed: int = 0) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    return {"wrist_rgb": rng.integers(0, 255, (96, 96, 3), dtype=np.uint8),
-            "third_rgb": rng.integers(0, 255, (96, 96, 3), dtype=np.uint8),
-            "proprio": rng.normal(size=config.proprio_dim).astype(np.float32)}
-
-
 @pytest.mark.parametrize("task", ["sorting", "stacking", "pusht"])
 def test_shapes_and_dtypes(task: str) -> None:
-    policy = _policy(task)
+    policy = tiny_policy(task)
     config = policy.config
-    embedding = policy.embed([_obs(config)] * config.obs_horizon)
+    embedding = policy.embed([random_observation(config)] * config.obs_horizon)
     assert embedding.shape == (config.embed_dim,) and embedding.dtype == np.float32
     chunks = policy.sample(embedding, 5, torch.Generator().manual_seed(0))
     assert chunks.shape == (5, config.horizon, config.action_dim) and chunks.dtype == np.float32
@@ -39,16 +23,16 @@ def test_shapes_and_dtypes(task: str) -> None:
 
 
 def test_short_history_is_padded_with_the_first_frame() -> None:
-    policy = _policy("stacking")
-    obs = _obs(policy.config)
+    policy = tiny_policy("stacking")
+    obs = random_observation(policy.config)
     assert policy.config.obs_horizon == 2
     np.testing.assert_array_equal(policy.embed([obs]), policy.embed([obs, obs]))
 
 
 @pytest.mark.parametrize("task", ["sorting", "pusht"])
 def test_sampling_is_deterministic_per_seed_and_diverse(task: str) -> None:
-    policy = _policy(task)
-    embedding = policy.embed([_obs(policy.config)])
+    policy = tiny_policy(task)
+    embedding = policy.embed([random_observation(policy.config)])
     first = policy.sample(embedding, 8, torch.Generator().manual_seed(3))
     again = policy.sample(embedding, 8, torch.Generator().manual_seed(3))
     other = policy.sample(embedding, 8, torch.Generator().manual_seed(4))
@@ -59,12 +43,12 @@ def test_sampling_is_deterministic_per_seed_and_diverse(task: str) -> None:
 
 @pytest.mark.parametrize("task", ["sorting", "pusht"])
 def test_batch_is_sampled_in_one_batched_pass(task: str) -> None:
-    policy = _policy(task)
+    policy = tiny_policy(task)
     calls: list[int] = []
     policy.net.register_forward_hook(lambda _m, inputs, _o: calls.append(inputs[0].shape[0]))
     encoder_calls: list[int] = []
     policy.encoder.register_forward_hook(lambda _m, inputs, _o: encoder_calls.append(inputs[1].shape[0]))
-    policy.act([_obs(policy.config)], 7, torch.Generator().manual_seed(0))
+    policy.act([random_observation(policy.config)], 7, torch.Generator().manual_seed(0))
     steps = policy.config.integration_steps if task == "sorting" else policy.config.diffusion_sample_steps
     assert encoder_calls == [1]
     assert calls == [7] * steps
@@ -82,11 +66,11 @@ def test_normalisation_round_trip() -> None:
 
 
 def test_save_load_round_trip(tmp_path) -> None:
-    policy = _policy("pusht", seed=2)
+    policy = tiny_policy("pusht", seed=2)
     policy.save(tmp_path, {"note": "test"})
     loaded = Policy.load(tmp_path)
     assert loaded.config == policy.config
-    obs = [_obs(policy.config)]
+    obs = [random_observation(policy.config)]
     np.testing.assert_array_equal(policy.embed(obs), loaded.embed(obs))
     embedding = policy.embed(obs)
     np.testing.assert_array_equal(policy.sample(embedding, 4, torch.Generator().manual_seed(1)),

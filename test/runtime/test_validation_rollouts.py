@@ -89,3 +89,25 @@ def test_tracker_auto_start_takes_a_new_rollout_id() -> None:
     assert started and record.rollout_id == 9
     record2, started2 = tracker.admit(10, 0)
     assert started2 and record2.rollout_id == 10 and record2 is not record
+
+
+def test_rgb8_images_are_checked() -> None:
+    pixels = np.arange(4 * 5 * 3, dtype=np.uint8)
+    image = validation.rgb8_image(pixels.tobytes(), 4, 5, "rgb8", 15, (4, 5), "wrist_rgb")
+    assert image.shape == (4, 5, 3) and image.dtype == np.uint8 and image[1, 0, 0] == 15
+    padded = np.zeros((4, 16), np.uint8)
+    padded[:, :15] = pixels.reshape(4, 15)
+    np.testing.assert_array_equal(validation.rgb8_image(padded.tobytes(), 4, 5, "rgb8", 16, (4, 5), "x"), image)
+    def reason(data: bytes, encoding: str = "rgb8", step: int = 15, expected: tuple[int, int] = (4, 5)) -> str:
+        return _reason(lambda: validation.rgb8_image(data, 4, 5, encoding, step, expected, "x"))
+
+    assert reason(pixels.tobytes(), encoding="bgr8") == validation.ENCODING
+    assert reason(pixels.tobytes(), expected=(5, 5)) == validation.SHAPE
+    assert reason(pixels[:-1].tobytes()) == validation.SHAPE
+    assert reason(pixels.tobytes(), step=12) == validation.SHAPE
+
+
+def test_vectors_are_checked() -> None:
+    assert validation.vector([1.0, 2.0], 2, "proprio").dtype == np.float32
+    assert _reason(lambda: validation.vector([1.0, 2.0, 3.0], 2, "proprio")) == validation.SHAPE
+    assert _reason(lambda: validation.vector([1.0, float("nan")], 2, "proprio")) == validation.NON_FINITE

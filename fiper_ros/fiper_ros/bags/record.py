@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from fiper_ros.bags.capture import InfoTracker, TopicTap
@@ -20,35 +21,69 @@ from fiper_ros.bags.writer import BagWriter
 GRAPH_POLL_S = 0.5
 
 
+class Recorder:
+    """Records wanted topics of a session into a bag as they appear (``poll`` regularly).
+
+    Args:
+        session: The rclpy session whose node subscribes.
+        out: Bag directory to create.
+        topics: Topics to record; empty: the bag schema's topics.
+        overwrite: Replace an existing bag.
+        source: ``custom_data`` source of the bag.
+    """
+
+    def __init__(self, session: RosSession, out: Path, topics: Sequence[str], overwrite: bool,
+                 source: str = "fiper record") -> None:
+        self.out = out
+        self.writer = BagWriter(out, overwrite=overwrite)
+        self.tracker = InfoTracker(session, source)
+        self.tap = TopicTap(session, topics, self._sink)
+        self._next_poll = 0.0
+
+    def _sink(self, topic: str, msgtype: str, log_time_ns: int, raw: bytes) -> None:
+        if not self.writer.has_topic(topic):
+            self.writer.add_topic(topic, msgtype, self.tap.offered[topic])
+        self.writer.write(topic, log_time_ns, raw)
+        self.tracker.see(topic, msgtype, raw)
+
+    def poll(self) -> list[str]:
+        """Subscribe to wanted topics that appeared (at most every :data:`GRAPH_POLL_S`); the new ones."""
+        if time.monotonic() < self._next_poll:
+            return []
+        self._next_poll = time.monotonic() + GRAPH_POLL_S
+        return self.tap.poll()
+
+    def missing(self) -> set[str]:
+        """Wanted topics not subscribed yet."""
+        return self.tap.wanted - set(self.tap.types)
+
+    def close(self) -> int:
+        """Finish the bag (it appears complete under its name); the number of messages written."""
+        self.writer.info = self.tracker.info
+        self.writer.close()
+        return self.writer.count
+
+    def abort(self) -> None:
+        """Drop the unfinished bag."""
+        self.writer.abort()
+
+
 def record(out: Path, topics: list[str], duration: float | None, domain: int | None, overwrite: bool) -> int:
     """Record until stopped; returns the number of messages written."""
     with RosSession("fiper_record", domain) as session:
-        writer = BagWriter(out, overwrite=overwrite)
-        tracker = InfoTracker(session, "fiper record")
-
-        def sink(topic: str, msgtype: str, log_time_ns: int, raw: bytes) -> None:
-            if not writer.has_topic(topic):
-                writer.add_topic(topic, msgtype, tap.offered[topic])
-            writer.write(topic, log_time_ns, raw)
-            tracker.see(topic, msgtype, raw)
-
-        tap = TopicTap(session, topics, sink)
-        print(f"recording {', '.join(sorted(tap.wanted))} in ROS domain {session.domain} to {out} "
+        recorder = Recorder(session, out, topics, overwrite)
+        print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:
-            started = next_poll = time.monotonic()
+            started = time.monotonic()
             while not session.stop.is_set() and (duration is None or time.monotonic() - started < duration):
-                if time.monotonic() >= next_poll:
-                    for topic in tap.poll():
-                        print(f"  subscribed to {topic} ({tap.types[topic]})", flush=True)
-                    next_poll = time.monotonic() + GRAPH_POLL_S
+                for topic in recorder.poll():
+                    print(f"  subscribed to {topic} ({recorder.tap.types[topic]})", flush=True)
                 session.spin_once(0.05)
         except BaseException:
-            writer.abort()
+            recorder.abort()
             raise
-        writer.info = tracker.info
-        writer.close()
-        return writer.count
+        return recorder.close()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

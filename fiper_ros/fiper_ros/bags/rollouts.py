@@ -3,8 +3,11 @@
 Writing lays rollouts out one after another on the bag's time line: a RolloutEvent START, then per
 policy step an ObservationEmbedding and an ActionChunkBatch with the same ``(rollout_id, step)`` and
 stamp, then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
-same code a policy node uses. Reading matches embedding and batch on ``(rollout_id, step)`` and takes
-task, scenario and outcome from the rollout's events.
+same code a policy node uses. A rollout with ``metadata["joint_positions"]`` (``[T, 7]``, the measured
+arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at each step's stamp, written
+before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
+takes task, scenario and outcome from the rollout's events, and restores ``joint_positions`` as the
+ace_node sees them: per step, the arm joints of the latest ``/joint_states`` up to the step's batch.
 """
 from __future__ import annotations
 
@@ -20,9 +23,20 @@ from rclpy.serialization import serialize_message
 from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, TOPICS, BagInfo, normalize_cdr
+from fiper_ros.bags.schema import (
+    ACTIONS,
+    ARM_JOINT_NAMES,
+    EMBEDDING,
+    EVENTS,
+    JOINT_STATES,
+    TOPICS,
+    BagInfo,
+    normalize_cdr,
+    typestore,
+)
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.rollout import Rollout, RolloutError
+from fiper_ros.core.scores import JOINT_POSITIONS_KEY
 from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg
 
 LOG = logging.getLogger(__name__)
@@ -64,6 +78,33 @@ def _env_steps(rollout: Rollout) -> np.ndarray:
     return steps - steps[0]
 
 
+def _joint_positions(rollout: Rollout, path: Path) -> np.ndarray | None:
+    """``metadata["joint_positions"]`` as ``[T, 7]`` float64, or None if the rollout has none."""
+    joints = rollout.metadata.get(JOINT_POSITIONS_KEY)
+    if joints is None:
+        return None
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.shape != (rollout.length, len(ARM_JOINT_NAMES)):
+        raise BagError(f"{path}: rollout {rollout.rollout_id!r}: metadata['{JOINT_POSITIONS_KEY}'] has shape "
+                       f"{joints.shape}, expected ({rollout.length}, {len(ARM_JOINT_NAMES)})")
+    return joints
+
+
+def _joint_state_cdr(stamp: int, positions: np.ndarray) -> bytes:
+    """A ``/joint_states`` message of the arm joints (:data:`ARM_JOINT_NAMES`) at ``stamp``, as CDR.
+
+    Built with ``rosbags``: rclpy's ``serialize_message`` appends bytes after a JointState that a CDR
+    reader rejects (a JointState received over DDS has none).
+    """
+    store = typestore()
+    types = store.types
+    header = types["std_msgs/msg/Header"](types["builtin_interfaces/msg/Time"](*divmod(stamp, 1_000_000_000)), "")
+    empty = np.zeros(0, dtype=np.float64)
+    msg = types[TOPICS[JOINT_STATES].msgtype](header, list(ARM_JOINT_NAMES), np.asarray(positions, np.float64),
+                                              empty, empty)
+    return bytes(store.serialize_cdr(msg, TOPICS[JOINT_STATES].msgtype))
+
+
 def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], info: BagInfo, *,
                    start_ns: int = DEFAULT_START_NS, env_dt_ns: int = 100_000_000, overwrite: bool = False) -> int:
     """Write ``rollouts`` (with message rollout ids ``ids``) as one bag; returns the time after the last.
@@ -74,7 +115,8 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
         ids: ``rollout_id`` of each rollout in the messages.
         info: ``custom_data``; the shapes are filled in from the rollouts.
         start_ns: Time of the first START.
-        env_dt_ns: Duration of one environment (control) step; a policy step lasts ``h`` of them.
+        env_dt_ns: Duration of one environment (control) step; a policy step lasts ``h`` of them, and a
+            rollout with ``metadata["control_steps"]`` ends that many control steps after step 0.
         overwrite: Replace an existing bag.
     """
     if not rollouts:
@@ -87,13 +129,18 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
             writer.write(EVENTS, now, _cdr(rollout_event_msg(
                 rollout_id, RolloutEvent.EVENT_START, now, task=rollout.task, scenario=rollout.scenario,
                 max_steps=max_steps), EVENTS))
+            joints = _joint_positions(rollout, path)
             for step, offset in enumerate(_env_steps(rollout)):
                 stamp = now + EVENT_LEAD_NS + int(offset) * env_dt_ns
+                if joints is not None:
+                    writer.write(JOINT_STATES, stamp, _joint_state_cdr(stamp, joints[step]))
                 writer.write(EMBEDDING, stamp, _cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]),
                                                     EMBEDDING))
                 writer.write(ACTIONS, stamp, _cdr(action_batch_msg(
                     rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps, rollout.action_space), ACTIONS))
-            end = stamp + rollout.exec_steps * env_dt_ns
+            control_steps = rollout.metadata.get("control_steps")
+            end = (stamp + rollout.exec_steps * env_dt_ns if control_steps is None
+                   else now + EVENT_LEAD_NS + int(control_steps) * env_dt_ns)
             writer.write(EVENTS, end, _cdr(rollout_event_msg(
                 rollout_id, RolloutEvent.EVENT_END, end, outcome=OUTCOME_OF[rollout.success], task=rollout.task,
                 scenario=rollout.scenario, max_steps=max_steps), EVENTS))
@@ -118,12 +165,23 @@ class _Collected:
     batches: dict[int, np.ndarray] = field(default_factory=dict)
     exec_steps: int = 0
     action_space: str = ""
+    joints: dict[int, np.ndarray] = field(default_factory=dict)
+
+
+def _arm_joints(msg: Any) -> np.ndarray:
+    """The arm joint positions (:data:`ARM_JOINT_NAMES`, in that order) of a JointState message that has them."""
+    positions = dict(zip(msg.name, np.asarray(msg.position, dtype=np.float64)))
+    return np.array([positions[name] for name in ARM_JOINT_NAMES], dtype=np.float64)
 
 
 def _collect(bag: BagReader) -> list[_Collected]:
     rollouts: dict[int, _Collected] = {}
-    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS]):
+    joints: np.ndarray | None = None
+    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS, JOINT_STATES]):
         msg = bag.decode(message)
+        if message.topic == JOINT_STATES:
+            joints = _arm_joints(msg) if all(name in msg.name for name in ARM_JOINT_NAMES) else joints
+            continue
         record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task))
         if message.topic == EVENTS:
             if msg.event == RolloutEvent.EVENT_START:
@@ -140,6 +198,8 @@ def _collect(bag: BagReader) -> list[_Collected]:
                                f"{data.size} values, not B x H x D = {shape}")
             record.batches[int(msg.step)] = data.reshape(shape)
             record.exec_steps, record.action_space = int(msg.exec_steps), str(msg.action_space)
+            if joints is not None:
+                record.joints[int(msg.step)] = joints
     return list(rollouts.values())
 
 
@@ -150,14 +210,20 @@ def _to_rollout(record: _Collected, path: Path) -> Rollout:
             if step not in table:
                 raise BagError(f"{path}: rollout {record.rollout_id} has no {name} for step {step} "
                                f"(steps {steps[0]}..{steps[-1]} present)")
+    metadata: dict[str, Any] = {"bag": str(path), "max_steps": record.max_steps}
+    if all(step in record.joints for step in steps):
+        metadata[JOINT_POSITIONS_KEY] = np.stack([record.joints[s] for s in steps])
+    elif record.action_space == "joint_velocity":
+        LOG.warning("%s: rollout %d: no /joint_states with %s before step %d: ACE cannot score its joint "
+                    "velocities", path, record.rollout_id, ", ".join(ARM_JOINT_NAMES),
+                    min(set(steps) - set(record.joints)))
     try:
         return Rollout(
             rollout_id=str(record.rollout_id), task=record.task, scenario=record.scenario,
             embeddings=np.stack([record.embeddings[s] for s in steps]),
             actions=np.stack([record.batches[s] for s in steps]),
             exec_steps=record.exec_steps, success=SUCCESS_OF.get(record.outcome),
-            action_space=record.action_space,
-            metadata={"bag": str(path), "max_steps": record.max_steps},
+            action_space=record.action_space, metadata=metadata,
         )
     except (RolloutError, ValueError) as error:
         raise BagError(f"{path}: rollout {record.rollout_id}: {error}") from error

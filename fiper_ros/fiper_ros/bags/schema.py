@@ -33,6 +33,9 @@ SCORE_RND_OE = "/fiper/scores/rnd_oe"
 SCORE_ACE = "/fiper/scores/ace"
 ALARM = "/fiper/alarm"
 JOINT_STATES = "/joint_states"
+#: The arm joints ACE integrates joint velocities from, picked by name from ``/joint_states``
+#: (the ace_node's default ``joint_names``; the simulated Franka's arm joints).
+ARM_JOINT_NAMES: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,10 @@ class BagInfo:
         source: Where the data came from (converter and source path, ``fiper record``, ...).
         split: ``calibration``, ``test`` or "" (mixed / unknown).
         rollout_sources: Rollout id -> source file name (converters), for traceability.
+        policy: Model folder of the policy that produced the rollouts (``fiper collect``; "" otherwise).
+        policy_hash: SHA-256 of that model's files (``policy.pt``, ``policy.yaml``).
+        policy_data_hash: The model's training-data hash (``data_hash`` in its ``policy.yaml``).
+        seed: Episode seed of a one-rollout bag (``fiper collect``; "" otherwise).
         code_version: ``fiper_ros.__version__`` of the writer.
     """
 
@@ -114,6 +121,10 @@ class BagInfo:
     source: str = ""
     split: str = ""
     rollout_sources: dict[str, str] = field(default_factory=dict)
+    policy: str = ""
+    policy_hash: str = ""
+    policy_data_hash: str = ""
+    seed: str = ""
     code_version: str = __version__
 
     def to_custom_data(self) -> dict[str, str]:

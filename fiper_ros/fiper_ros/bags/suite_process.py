@@ -12,13 +12,14 @@ import signal
 import subprocess
 import sys
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import yaml
 
 from fiper_ros.bags.errors import BagError
 from fiper_ros.dds import local_env
-from fiper_ros.launch import LaunchError, load_config
+from fiper_ros.launch import LaunchError, dump_config, load_config
 
 #: Nodes that take ``calibration_dir``.
 DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", "fiper_ros.nodes.ace_node")
@@ -39,32 +40,32 @@ def replay_config(config: Path, calibration: Path, out: Path) -> Path:
         parsed = load_config(config)
     except (LaunchError, yaml.YAMLError) as error:
         raise BagError(f"launch config {config}: {error}") from error
-    nodes = {}
-    for spec in parsed.nodes:
-        parameters = dict(spec.parameters)
-        if spec.module in DETECTOR_MODULES:
-            parameters["calibration_dir"] = str(calibration.resolve())
-        nodes[spec.name] = {"module": spec.module, "namespace": spec.namespace, "required": spec.required,
-                            "parameter_files": [str(p) for p in spec.parameter_files], "parameters": parameters}
-    out.write_text(yaml.safe_dump({"use_sim_time": True, "nodes": nodes}, sort_keys=False))
-    return out
+    nodes = tuple(replace(spec, parameters=spec.parameters | {"calibration_dir": str(calibration.resolve())})
+                  if spec.module in DETECTOR_MODULES else spec for spec in parsed.nodes)
+    return dump_config(replace(parsed, nodes=nodes, use_sim_time=True), out)
 
 
 class SuiteProcess:
     """``fiper launch`` of a replay config in its own process group, in ``domain``."""
 
-    def __init__(self, config: Path, domain: int, echo: bool) -> None:
+    def __init__(self, config: Path, domain: int, echo: bool, log: Path | None = None) -> None:
+        """``echo``: copy the suite's output to stderr; ``log``: and write all of it to this file."""
         self.lines: collections.deque[str] = collections.deque(maxlen=KEPT_LINES)
         self._echo = echo
+        self._log = log.open("w") if log is not None else None
         self.proc = subprocess.Popen(  # noqa: S603 - our own launcher
             [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
             env=local_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-        threading.Thread(target=self._read, daemon=True).start()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
 
     def _read(self) -> None:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
             self.lines.append(line.rstrip())
+            if self._log is not None:
+                self._log.write(line)
+                self._log.flush()
             if self._echo:
                 print(line.rstrip(), file=sys.stderr, flush=True)
 
@@ -81,7 +82,11 @@ class SuiteProcess:
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGINT)
             try:
-                return self.proc.wait(timeout=timeout_s)
+                self.proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
                 os.killpg(self.proc.pid, signal.SIGKILL)
-        return self.proc.wait()
+        status = self.proc.wait()
+        self._reader.join(timeout=5.0)
+        if self._log is not None:
+            self._log.close()
+        return status

@@ -117,8 +117,8 @@ class Driver:
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.001)
+        while (left := end - time.monotonic()) > 0:
+            self.executor.spin_once(timeout_sec=min(left, 0.05))
 
     def wait_ready(self, timeout: float = 120.0) -> None:
         end = time.monotonic() + timeout
@@ -141,8 +141,9 @@ class Driver:
         period = 1e9 / rate_hz
         start = time.monotonic_ns()
         for step in range(steps):
-            while time.monotonic_ns() < start + step * period:
-                self.executor.spin_once(timeout_sec=0)
+            # Sleep in the executor until the step is due: a busy loop here would take a core from the nodes.
+            while (wait_ns := start + step * period - time.monotonic_ns()) > 0:
+                self.executor.spin_once(timeout_sec=wait_ns / 1e9)
             stamp = (step + 1) * 100_000_000
             emb = embedding_msg(rollout_id, step, stamp, self.embedding)
             act = action_batch_msg(rollout_id, step, stamp, self.actions, self.shape.exec_steps, "ee_position")

@@ -6,7 +6,7 @@ import array
 import numpy as np
 from builtin_interfaces.msg import Time
 
-from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent
+from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
 
 
 def float_array(values: np.ndarray) -> array.array:
@@ -48,6 +48,16 @@ def action_batch_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray
     b, h, d = actions.shape
     msg = ActionChunkBatch(rollout_id=rollout_id, step=step, batch_size=b, horizon=h, action_dim=d,
                            exec_steps=exec_steps, data=float_array(actions), action_space=action_space)
+    msg.header.stamp = to_stamp(stamp)
+    return msg
+
+
+def action_command_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray,
+                       action_space: str) -> ActionCommand:
+    """An ActionCommand of the ``[n, D]`` actions to execute."""
+    n, d = actions.shape
+    msg = ActionCommand(rollout_id=rollout_id, step=step, num_actions=n, action_dim=d, data=float_array(actions),
+                        action_space=action_space)
     msg.header.stamp = to_stamp(stamp)
     return msg
 

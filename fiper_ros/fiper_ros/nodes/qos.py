@@ -16,7 +16,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 #: Lease of the score streams' liveliness: a dead scoring process is noticed within this time.
 SCORE_LEASE = Duration(seconds=1)
 
-INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+INPUT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.VOLATILE)
 #: How often a scoring node asserts its liveliness (well inside the lease).
 SCORE_HEARTBEAT_S = SCORE_LEASE.nanoseconds / 1e9 / 4

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 from sim_bridge.env import make_env
 
+from .noise import sampling_generator
 from .policy import Policy
-from .rollout import sampling_generator
 
 SORTING_COLORS = {"red": "tab:red", "blue": "tab:blue"}
 

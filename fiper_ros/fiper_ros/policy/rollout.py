@@ -11,10 +11,10 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 from sim_bridge.env import make_env
 
 from ..core.rollout import Rollout
+from .noise import sampling_generator
 from .policy import Policy
 
 LOG = logging.getLogger(__name__)
@@ -30,11 +30,6 @@ class EpisodeResult:
     policy_steps: int
     control_steps: int
     rollout: Rollout | None
-
-
-def sampling_generator(seed: int) -> torch.Generator:
-    """The policy's noise stream of the episode with ``seed`` (rollouts are reproducible per seed)."""
-    return torch.Generator().manual_seed(int(seed) + 7_919)
 
 
 def run_episode(policy: Policy, scenario: str, seed: int, record: bool = True, batch: int | None = None,

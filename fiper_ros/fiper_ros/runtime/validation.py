@@ -1,6 +1,7 @@
 """Checks of incoming arrays: a bad message is rejected with a reason, never passed on silently."""
 from __future__ import annotations
 
+import array
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,10 +19,13 @@ NEGATIVE_STEP = "negative_step"
 ACTION_SPACE = "action_space"
 NO_JOINT_STATE = "no_joint_state"
 INTERNAL = "internal_error"
+ENCODING = "encoding"
 REASONS = (
     SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT,
-    DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL,
+    DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
 )
+#: The one image encoding the policies take (sensor_msgs/Image ``encoding``).
+RGB8 = "rgb8"
 
 #: Default cap on the number of floats in one message (256 x 64 x 64 actions, or a 4M embedding).
 DEFAULT_MAX_ELEMENTS = 1 << 22
@@ -87,3 +91,28 @@ def action_batch(data: Sequence[float] | np.ndarray, batch_size: int, horizon: i
     if not 0 < exec_steps <= horizon:
         raise InputRejected(SHAPE, f"exec_steps {exec_steps} outside 1..H={horizon}")
     return _finite(values.reshape(batch_size, horizon, action_dim), "action batch")
+
+
+def vector(data: Sequence[float] | np.ndarray, size: int, what: str) -> np.ndarray:
+    """Return ``data`` as a float32 vector of exactly ``size`` finite values, or raise :class:`InputRejected`."""
+    values = np.asarray(data, dtype=np.float32)
+    if values.shape != (size,):
+        raise InputRejected(SHAPE, f"{what} has {values.size} values, expected {size}")
+    return _finite(values, what)
+
+
+def rgb8_image(data: bytes | array.array, height: int, width: int, encoding: str, step: int,
+               expected: tuple[int, int], what: str) -> np.ndarray:
+    """Return an ``rgb8`` image as a uint8 array ``[height, width, 3]`` (rows may be padded to ``step``).
+
+    Raises :class:`InputRejected`: ``encoding`` for any other encoding, ``shape`` when the size is not
+    ``expected`` (height, width) or ``data`` / ``step`` disagree with it.
+    """
+    if encoding != RGB8:
+        raise InputRejected(ENCODING, f"{what} has encoding {encoding!r}, expected {RGB8!r}")
+    if (height, width) != expected:
+        raise InputRejected(SHAPE, f"{what} is {height}x{width}, expected {expected[0]}x{expected[1]}")
+    if step < 3 * width or len(data) != height * step:
+        raise InputRejected(SHAPE, f"{what} has {len(data)} bytes with step {step} for {height}x{width} rgb8")
+    rows = np.frombuffer(data, dtype=np.uint8).reshape(height, step)
+    return rows[:, : 3 * width].reshape(height, width, 3)

@@ -1,0 +1,328 @@
+"""``fiper collect``: closed-loop rollouts of a trained policy in the simulation, one MCAP bag each.
+
+Runs the policy in-process (:func:`fiper_ros.policy.rollout.run_episode`: no ROS, no DDS) on seeded
+episodes of each scenario and writes every rollout as its own bag,
+``DIR/<scenario>/<task>_<scenario>_<seed>/``, with the messages a policy node publishes
+(:func:`fiper_ros.bags.rollouts.write_rollouts`) on the task's control clock. ``--episodes N`` runs the
+seeds ``S .. S+N-1``; ``--successes M`` runs seeds from ``S`` on until ``M`` of them succeeded (at most
+``--max-episodes``). A bag appears complete or not at all, and a rollout is a function of its seed, so a
+rerun skips the finished bags and runs the rest: a resumed folder holds the same bags as an
+uninterrupted run. ``DIR/collect.json`` indexes the rollouts (:mod:`fiper_ros.bags.collect_index`).
+"""
+from __future__ import annotations
+
+import argparse
+import fcntl
+import math
+import os
+import sys
+import time
+import zlib
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import torch
+import yaml
+from sim_bridge.scenarios import TASK_NAMES, get_scenario
+from sim_bridge.tasks import TASKS
+
+from fiper_ros.bags.atomic import remove
+from fiper_ros.bags.collect_index import INDEX_FILE, CollectIndex, CollectSetup, IndexEntry
+from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.reader import METADATA, find_bags
+from fiper_ros.bags.rollouts import write_rollouts
+from fiper_ros.bags.schema import BagInfo
+from fiper_ros.policy.dataset import files_hash
+from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
+from fiper_ros.policy.rollout import run_episode
+
+SOURCE = "fiper collect (sim, in-process)"
+LOCK_FILE = ".collect.lock"
+#: ``--max-episodes`` default of ``--successes M``: this many episodes per wanted success.
+DEFAULT_EPISODES_PER_SUCCESS = 4
+SPLITS = ("test", "calibration")
+
+
+def bag_name(task: str, scenario: str, seed: int) -> str:
+    """Directory name of a rollout's bag (the seed zero-padded, so names sort by seed)."""
+    return f"{task}_{scenario}_{seed:06d}"
+
+
+def rollout_id_of(scenario: str, seed: int) -> int:
+    """Message ``rollout_id``: a hash of the scenario name in the high 32 bits (below 2^63), the seed in the low
+    32 bits: unique over a collected data set and the same in every run."""
+    return ((zlib.crc32(scenario.encode()) & 0x7FFF_FFFF) << 32) | seed
+
+
+@dataclass(frozen=True)
+class Target:
+    """How far to run each scenario: ``max_episodes`` episodes, or until ``successes`` succeeded (at most
+    ``max_episodes``)."""
+
+    max_episodes: int
+    successes: int | None = None
+
+    def reached(self, episodes: int, successes: int) -> bool:
+        """Whether a scenario with these counts is finished (the goal met or the cap hit)."""
+        return episodes >= self.max_episodes or (self.successes is not None and successes >= self.successes)
+
+    def remaining(self, known: dict[tuple[str, int], IndexEntry], scenario: str, start: int, rate: float) -> int:
+        """Estimated episodes still to run for ``scenario`` (``rate``: the success rate seen so far)."""
+        if self.successes is None:
+            return sum((scenario, seed) not in known for seed in range(start, start + self.max_episodes))
+        episodes = successes = 0
+        while not self.reached(episodes, successes) and (scenario, start + episodes) in known:
+            successes += known[(scenario, start + episodes)].success
+            episodes += 1
+        if self.reached(episodes, successes):
+            return 0
+        left = self.max_episodes - episodes
+        return left if rate <= 0 else min(left, math.ceil((self.successes - successes) / rate))
+
+
+@dataclass(frozen=True)
+class Model:
+    """A policy model folder and what identifies it."""
+
+    policy: Policy
+    path: str
+    hash: str
+    data_hash: str
+
+
+def default_model(task: str) -> Path:
+    """``models/<task>`` of the checkout (``$FIPER_ROOT``), or of the working directory."""
+    return Path(os.environ.get("FIPER_ROOT", ".")) / "models" / task
+
+
+def shown_path(path: Path) -> str:
+    """``path`` relative to the checkout when inside it (the same in every clone), else absolute."""
+    path = path.resolve()
+    root = Path(os.environ.get("FIPER_ROOT", ".")).resolve()
+    return str(path.relative_to(root)) if path.is_relative_to(root) else str(path)
+
+
+def load_model(directory: Path, task: str) -> Model:
+    """Load a model folder (``policy.pt`` + ``policy.yaml``) and check that it is a ``task`` policy."""
+    files = [directory / WEIGHTS_FILE, directory / CONFIG_FILE]
+    missing = [f.name for f in files if not f.is_file()]
+    if missing:
+        raise BagError(f"{directory}: no {' and '.join(missing)}: not a policy model folder "
+                       f"(train one first, docs/policies.md)")
+    try:
+        policy = Policy.load(directory)
+        info = yaml.safe_load(files[1].read_text()).get("info") or {}
+    except (OSError, ValueError, KeyError, RuntimeError, yaml.YAMLError) as error:
+        raise BagError(f"{directory}: cannot load the policy ({type(error).__name__}: {error})") from error
+    if policy.config.task != task:
+        raise BagError(f"{directory}: a {policy.config.task} policy, not {task}")
+    return Model(policy, shown_path(directory), files_hash(files), str(info.get("data_hash", "")))
+
+
+@contextmanager
+def locked(directory: Path) -> Iterator[None]:
+    """Hold ``directory``'s lock file: one ``fiper collect`` at a time writes into a folder."""
+    directory.mkdir(parents=True, exist_ok=True)
+    with (directory / LOCK_FILE).open("w") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError as error:
+            raise BagError(f"{directory}: another fiper collect is writing into this folder") from error
+        yield
+
+
+def open_index(out: Path, setup: CollectSetup, model: Model) -> CollectIndex:
+    """The folder's index, new or resumed; a folder made with another setup is refused."""
+    index = CollectIndex.load(out)
+    if index is None:
+        try:
+            find_bags([out])
+        except BagError:
+            return CollectIndex(setup, model.path, model.data_hash)
+        raise BagError(f"{out}: holds bags but no {INDEX_FILE}: not a fiper collect folder (choose another --out)")
+    differences = index.setup.differences(setup)
+    if differences:
+        raise BagError(f"{out / INDEX_FILE}: the folder was collected with other settings "
+                       f"({'; '.join(differences)}, folder != this run): choose another --out")
+    return index
+
+
+def duration(seconds: float) -> str:
+    """``42 s``, ``3 min 5 s`` or ``2 h 7 min``."""
+    seconds = round(seconds)
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60} min"
+
+
+class Collector:
+    """Runs and records the episodes of one ``fiper collect`` into one folder."""
+
+    def __init__(self, policy: Policy, out: Path, index: CollectIndex, *, seed: int, target: Target) -> None:
+        self.policy = policy
+        self.out = out
+        self.index = index
+        self.seed = seed
+        self.target = target
+        task = TASKS[index.setup.task]
+        cap = index.setup.max_policy_steps
+        self.env_dt_ns = round(1e9 / task.control_hz)
+        self.max_steps = task.max_policy_steps if cap is None else min(task.max_policy_steps, cap)
+        self.seconds: list[float] = []
+
+    def info(self, seed: int) -> BagInfo:
+        """``custom_data`` of a rollout's bag (shapes are added by the writer)."""
+        setup = self.index.setup
+        return BagInfo(task=setup.task, synthetic=False, source=SOURCE, split=setup.split, policy=self.index.policy,
+                       policy_hash=setup.policy_hash, policy_data_hash=self.index.policy_data_hash, seed=str(seed))
+
+    def episode(self, scenario: str, seed: int) -> tuple[IndexEntry, bool]:
+        """The rollout of ``(scenario, seed)``: from its finished bag, or run and written now. True if run now."""
+        task = self.index.setup.task
+        relative = f"{scenario}/{bag_name(task, scenario, seed)}"
+        path = self.out / relative
+        if (path / METADATA).is_file():
+            entry = self.index.rollouts.get((scenario, seed))
+            if entry is None:
+                raise BagError(f"{path}: a bag that {self.out / INDEX_FILE} does not list (not written by "
+                               f"fiper collect into this folder): remove it or choose another --out")
+            return entry, False
+        started = time.monotonic()
+        result = run_episode(self.policy, scenario, seed, batch=self.index.setup.batch,
+                             max_policy_steps=self.index.setup.max_policy_steps)
+        assert result.rollout is not None  # run_episode records by default
+        rollout = replace(result.rollout, metadata={**result.rollout.metadata, "max_steps": self.max_steps})
+        rollout_id = rollout_id_of(scenario, seed)
+        entry = IndexEntry(scenario, seed, result.success, result.policy_steps, result.control_steps, relative,
+                           rollout_id, round(time.monotonic() - started, 3))
+        self.index.rollouts[(scenario, seed)] = entry
+        self.index.save(self.out)  # before the bag: an index entry without its bag is dropped on reading
+        for stale in path.parent.glob(f".{path.name}.partial-*"):  # left by a killed run (we hold the lock)
+            remove(stale)
+        write_rollouts(path, [rollout], [rollout_id], self.info(seed), env_dt_ns=self.env_dt_ns)
+        self.seconds.append(time.monotonic() - started)
+        return entry, True
+
+    def eta(self, scenarios: Sequence[str]) -> str:
+        """Time left: episodes still to run (estimated for ``--successes``) x mean seconds per episode."""
+        known = self.index.rollouts
+        if not self.seconds:
+            return "?"
+        rate = sum(e.success for e in known.values()) / len(known) if known else 0.0
+        left = sum(self.target.remaining(known, scenario, self.seed, rate) for scenario in scenarios)
+        return duration(left * sum(self.seconds) / len(self.seconds))
+
+    def scenario(self, scenario: str, scenarios: Sequence[str]) -> tuple[int, int]:
+        """Run ``scenario`` to its target, one progress line per episode; ``(episodes, successes)``."""
+        episodes = successes = 0
+        goal = f"/{self.target.successes} wanted" if self.target.successes is not None else ""
+        while not self.target.reached(episodes, successes):
+            seed = self.seed + episodes
+            entry, ran = self.episode(scenario, seed)
+            episodes += 1
+            successes += entry.success
+            timing = f"{entry.seconds:.1f} s, ETA {self.eta(scenarios)}" if ran else "bag exists, skipped"
+            print(f"[{scenario} {episodes}/{self.target.max_episodes}] seed {seed}: "
+                  f"{'success' if entry.success else 'failure'}, {entry.policy_steps} policy steps | "
+                  f"successes {successes}{goal} | {timing}", file=sys.stderr, flush=True)
+        return episodes, successes
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper collect``."""
+    parser.add_argument("--task", choices=TASK_NAMES, required=True, help="sim task")
+    parser.add_argument("--scenarios", nargs="+", default=["id"], metavar="SCENARIO",
+                        help="scenarios to run (docs/sim.md; default: id)")
+    count = parser.add_mutually_exclusive_group(required=True)
+    count.add_argument("--episodes", type=int, help="episodes per scenario: seeds S .. S+N-1")
+    count.add_argument("--successes", type=int,
+                       help="run seeds S, S+1, ... until this many succeeded per scenario (calibration sets)")
+    parser.add_argument("--max-episodes", type=int, default=None,
+                        help=f"cap of --successes per scenario (default {DEFAULT_EPISODES_PER_SUCCESS} x M)")
+    parser.add_argument("--seed", type=int, default=1000, help="first episode seed (the demos use 0 ..)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="output folder: DIR/<scenario>/<task>_<scenario>_<seed>/ bags and DIR/collect.json")
+    parser.add_argument("--model", type=Path, default=None, help="policy model folder (default models/<task>)")
+    parser.add_argument("--split", choices=SPLITS, default="test", help="custom_data split of the bags")
+    parser.add_argument("--batch", type=int, default=None,
+                        help="B, chunks sampled per policy step (default: the model's; smaller for tests/smoke runs)")
+    parser.add_argument("--max-policy-steps", type=int, default=None,
+                        help="stop episodes after this many policy steps, as a failure (tests/smoke runs only)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared machine)")
+
+
+def _target(args: argparse.Namespace) -> Target:
+    """The per-scenario target of ``--episodes`` or ``--successes`` / ``--max-episodes``."""
+    if args.successes is None:
+        if args.max_episodes is not None:
+            raise BagError("--max-episodes caps --successes; with --episodes N give N only")
+        if args.episodes < 1:
+            raise BagError(f"--episodes must be at least 1, got {args.episodes}")
+        return Target(args.episodes)
+    if args.successes < 1:
+        raise BagError(f"--successes must be at least 1, got {args.successes}")
+    cap = args.max_episodes if args.max_episodes is not None else DEFAULT_EPISODES_PER_SUCCESS * args.successes
+    if cap < args.successes:
+        raise BagError(f"--max-episodes {cap} is below --successes {args.successes}")
+    return Target(cap, args.successes)
+
+
+def _scenarios(task: str, names: Sequence[str]) -> list[str]:
+    """The scenario names, checked against the sim's registry, each once."""
+    for name in names:
+        try:
+            get_scenario(task, name)
+        except KeyError as error:
+            raise BagError(error.args[0]) from error
+    return list(dict.fromkeys(names))
+
+
+def _check_sizes(args: argparse.Namespace, episodes: int) -> None:
+    """Refuse seeds outside ``uint32`` (the low half of a rollout id) and sizes below 1."""
+    last = args.seed + episodes - 1
+    if args.seed < 0 or last >= 2**32:
+        raise BagError(f"seeds must lie in 0 .. 2^32 - 1, got {args.seed} .. {last}")
+    for option in ("batch", "max_policy_steps", "threads"):
+        value = getattr(args, option)
+        if value is not None and value < 1:
+            raise BagError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper collect``."""
+    try:
+        target = _target(args)
+        scenarios = _scenarios(args.task, args.scenarios)
+        _check_sizes(args, target.max_episodes)
+        torch.set_num_threads(args.threads)
+        model = load_model(args.model or default_model(args.task), args.task)
+        setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
+                             args.max_policy_steps)
+        with locked(args.out):
+            index = open_index(args.out, setup, model)
+            index.add_run({"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
+                           "successes": args.successes, "max_episodes": target.max_episodes})
+            index.save(args.out)
+            collector = Collector(model.policy, args.out, index, seed=args.seed, target=target)
+            print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}) into "
+                  f"{args.out}", file=sys.stderr, flush=True)
+            started = time.monotonic()
+            counts = {scenario: collector.scenario(scenario, scenarios) for scenario in scenarios}
+    except BagError as error:
+        return fail("collect", error)
+    for scenario, (episodes, successes) in counts.items():
+        print(f"{scenario}: {episodes} rollouts (seeds {args.seed}-{args.seed + episodes - 1}), {successes} "
+              f"successes ({successes / episodes:.2f}) in {args.out / scenario}")
+    ran = collector.seconds
+    per_episode = f", {sum(ran) / len(ran):.1f} s per episode" if ran else ""
+    print(f"{len(ran)} new rollouts in {duration(time.monotonic() - started)}{per_episode}; index "
+          f"{args.out / INDEX_FILE}")
+    short = [(s, n, k) for s, (n, k) in counts.items() if target.successes is not None and k < target.successes]
+    for scenario, episodes, successes in short:
+        print(f"fiper collect: {scenario}: only {successes} of {target.successes} successes after {episodes} "
+              f"episodes: --max-episodes {target.max_episodes} reached", file=sys.stderr)
+    return 1 if short else 0

@@ -1,0 +1,217 @@
+"""Policy node: a trained generative policy (``fiper_ros.policy``) driving a robot over ROS 2.
+
+A thin shell: the observation parts (both cameras, proprioception) are checked and grouped by stamp
+(:class:`~fiper_ros.runtime.observation_sync.ObservationSync`), rollouts and policy steps are
+:class:`~fiper_ros.policy.session.PolicySession`'s business. Per step of the running rollout the node
+publishes the ObservationEmbedding and the ActionChunkBatch FIPER monitors (same stamp and step as
+the observation) and then the ActionCommand the robot executes (the first ``h`` actions of sample 0).
+Topics, QoS and parameters: docs/nodes.md, "The policy node".
+"""
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from sensor_msgs.msg import Image, JointState
+
+from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
+from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.nodes import qos
+from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.conversions import OUTCOMES, action_batch_msg, action_command_msg, embedding_msg, stamp_ns
+from fiper_ros.nodes.main import run_node
+from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
+from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
+from fiper_ros.policy.session import PolicySession
+from fiper_ros.runtime import validation
+from fiper_ros.runtime.observation_sync import ObservationSync
+from fiper_ros.runtime.validation import INTERNAL, InputRejected
+
+PROPRIO = "proprio"
+#: Observation key -> parameter naming its image topic.
+IMAGE_TOPIC_PARAMS = {"wrist_rgb": "wrist_image_topic", "third_rgb": "third_image_topic"}
+
+
+class PolicyNode(FiperNode):
+    """Acts on every observation of the running rollout: embedding, sampled batch, command."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("policy_node", **kwargs)
+        declare = self.declare_parameter
+        declare("model", "models/sorting", describe("policy folder (policy.yaml + policy.pt)", read_only=True))
+        declare("batch", 0, describe("action chunks sampled per step; 0 = the model's B", read_only=True,
+                                     low=0, high=65536, integer=True))
+        declare("torch_threads", 1, describe("torch intra-op threads", read_only=True, low=1, high=256, integer=True))
+        declare("start_wait_s", 1.0, describe("how long an observation may wait for its rollout's START",
+                                              read_only=True, low=0.0, high=60.0))
+        declare("events_topic", EVENTS, describe("RolloutEvent input", read_only=True))
+        declare("wrist_image_topic", "/camera/wrist/image_raw", describe("wrist camera, rgb8", read_only=True))
+        declare("third_image_topic", "/camera/third/image_raw", describe("third-person camera, rgb8",
+                                                                         read_only=True))
+        declare("proprio_topic", "/sim/proprio", describe("proprioception (sensor_msgs/JointState positions)",
+                                                          read_only=True))
+        declare("embedding_topic", EMBEDDING, describe("ObservationEmbedding output", read_only=True))
+        declare("action_chunks_topic", ACTIONS, describe("ActionChunkBatch output", read_only=True))
+        declare("action_topic", "/sim/action", describe("ActionCommand output (the robot's input)", read_only=True))
+        self.policy: Policy | None = None
+        self.session: PolicySession | None = None
+        self.sync: ObservationSync[np.ndarray] = ObservationSync((*CAMERAS, PROPRIO))
+        self.published = 0
+        self._events_sub: Any = None
+        self._inputs: list[Any] = []
+
+        def publisher(msg_type: Any, parameter: str) -> Any:
+            topic = self.get_parameter(parameter).value
+            return self.create_publisher(msg_type, topic, qos.INPUT, event_callbacks=self.publisher_events(topic))
+
+        self._embedding_pub = publisher(ObservationEmbedding, "embedding_topic")
+        self._chunks_pub = publisher(ActionChunkBatch, "action_chunks_topic")
+        self._command_pub = publisher(ActionCommand, "action_topic")
+
+    # lifecycle ----------------------------------------------------------------------------------------
+    def configure(self) -> None:
+        model = Path(self.get_parameter("model").value)
+        missing = [name for name in (CONFIG_FILE, WEIGHTS_FILE) if not (model / name).is_file()]
+        if missing:
+            raise FileNotFoundError(f"policy folder {model.resolve()} lacks {' and '.join(missing)} (parameter model)")
+        torch.set_num_threads(self.get_parameter("torch_threads").value)
+        policy = Policy.load(model)
+        self.session = PolicySession(policy, self.get_parameter("batch").value or None, self.reject,
+                                     int(self.get_parameter("start_wait_s").value * 1e9))
+        self.policy = policy
+        c = policy.config
+        self.get_logger().info(f"policy {model} loaded: {c.task} ({c.head}), B x H x D = {self.batch_size} x "
+                               f"{c.horizon} x {c.action_dim}, E = {c.embed_dim}, T_h = {c.obs_horizon}, "
+                               f"h = {c.exec_steps}, {c.action_space}")
+        # Followed from here on in every state: a rollout started before activation is known.
+        topic = self.get_parameter("events_topic").value
+        self._events_sub = self.create_subscription(RolloutEvent, topic, self._on_event, qos.EVENT,
+                                                    event_callbacks=self.subscription_events(topic))
+
+    def activate(self) -> None:
+        for key, parameter in IMAGE_TOPIC_PARAMS.items():
+            self._subscribe(Image, parameter, lambda msg, key=key: self._on_image(key, msg))
+        self._subscribe(JointState, "proprio_topic", self._on_proprio)
+
+    def deactivate(self) -> None:
+        for subscription in self._inputs:
+            self.destroy_subscription(subscription)
+        self._inputs.clear()
+        self.sync.restart()
+
+    def cleanup(self) -> None:
+        if self._events_sub is not None:
+            self.destroy_subscription(self._events_sub)
+        self._events_sub = None
+        self.session = None
+        self.policy = None
+
+    def _subscribe(self, msg_type: Any, parameter: str, callback: Callable[[Any], None]) -> None:
+        topic = self.get_parameter(parameter).value
+        self._inputs.append(self.create_subscription(msg_type, topic, callback, qos.INPUT,
+                                                     event_callbacks=self.subscription_events(topic)))
+
+    @property
+    def batch_size(self) -> int:
+        """``B`` of the published batches (0 before configure)."""
+        if self.policy is None:
+            return 0
+        return self.get_parameter("batch").value or self.policy.config.sample_batch
+
+    # callbacks ----------------------------------------------------------------------------------------
+    def _on_event(self, msg: RolloutEvent) -> None:
+        assert self.session is not None
+        session, stamp = self.session, stamp_ns(msg.header.stamp)
+        if msg.event == RolloutEvent.EVENT_START:
+            previous = session.running
+            act_now = session.start(msg.rollout_id, stamp, msg.task, msg.scenario)
+            if previous is not None and previous is not session.running:
+                self.get_logger().warning(f"{previous.summary()} (no END before rollout {msg.rollout_id} started)")
+            self.sync.restart(stamp)
+            if act_now:
+                self._act()
+        elif msg.event == RolloutEvent.EVENT_END:
+            ended = session.end(msg.rollout_id, stamp, OUTCOMES.get(msg.outcome, "unknown"))
+            if ended is not None:
+                self.get_logger().info(ended.summary())
+
+    def _on_image(self, key: str, msg: Image) -> None:
+        self.tick(key)
+        try:
+            image = validation.rgb8_image(msg.data, msg.height, msg.width, msg.encoding, msg.step,
+                                          (RAW_IMAGE_SIZE, RAW_IMAGE_SIZE), key)
+        except InputRejected as error:
+            self.reject(error)
+            return
+        self._add(stamp_ns(msg.header.stamp), key, image)
+
+    def _on_proprio(self, msg: JointState) -> None:
+        self.tick(PROPRIO)
+        assert self.policy is not None
+        try:
+            proprio = validation.vector(msg.position, self.policy.config.proprio_dim, PROPRIO)
+        except InputRejected as error:
+            self.reject(error)
+            return
+        self._add(stamp_ns(msg.header.stamp), PROPRIO, proprio)
+
+    def _add(self, stamp: int, key: str, part: np.ndarray) -> None:
+        assert self.session is not None
+        observation = self.sync.add(stamp, key, part)
+        if observation is not None and self.session.observe(stamp, observation, self.steady.now().nanoseconds):
+            self._act()
+
+    def _act(self) -> None:
+        assert self.session is not None and self.policy is not None
+        started = self.timed()
+        try:
+            action = self.session.act()
+        except Exception as error:  # noqa: BLE001 - a policy error is reported, never fatal
+            self.reject(InputRejected(INTERNAL, f"policy step failed: {error!r}"))
+            return
+        self.record_latency(started)
+        config = self.policy.config
+        self._embedding_pub.publish(embedding_msg(action.rollout_id, action.step, action.stamp, action.embedding))
+        self._chunks_pub.publish(action_batch_msg(action.rollout_id, action.step, action.stamp, action.chunks,
+                                                  config.exec_steps, config.action_space))
+        self._command_pub.publish(action_command_msg(action.rollout_id, action.step, action.stamp, action.command,
+                                                     config.action_space))
+        self.published += 1
+
+    # diagnostics --------------------------------------------------------------------------------------
+    def diagnostic_values(self) -> dict[str, str]:
+        sync = self.sync
+        values = {"model": self.get_parameter("model").value, "published": str(self.published),
+                  "ticks.complete": str(sync.completed), "ticks.partial_dropped": str(sync.dropped_partial),
+                  "ticks.stale": str(sync.stale), "ticks.duplicate": str(sync.duplicates)}
+        session, policy = self.session, self.policy
+        if session is None or policy is None:
+            return values
+        session.expire(self.steady.now().nanoseconds)
+        c = policy.config
+        running = session.running
+        values |= {"task": c.task, "head": c.head, "batch_size": str(self.batch_size), "horizon": str(c.horizon),
+                   "action_dim": str(c.action_dim), "embed_dim": str(c.embed_dim), "exec_steps": str(c.exec_steps),
+                   "obs_horizon": str(c.obs_horizon), "action_space": c.action_space,
+                   "rollouts_seen": str(session.rollouts_seen), "ticks.late": str(session.late),
+                   "waiting_for_start": str(int(session.waiting)),
+                   "rollout_id": "" if running is None else str(running.rollout_id),
+                   "policy_step": "" if running is None else str(running.steps)}
+        return values
+
+
+#: The node class, for in-process launching.
+NODE_CLASS = PolicyNode
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``python -m fiper_ros.nodes.policy_node --ros-args ...``."""
+    return run_node(PolicyNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

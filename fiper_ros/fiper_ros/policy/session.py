@@ -1,0 +1,200 @@
+"""A policy acting in a robot driver's rollouts, without ROS: the logic of the ROS ``policy_node``.
+
+The driver (the sim bridge, docs/sim.md) announces a rollout with a RolloutEvent START stamped like
+the rollout's first observation, publishes one complete observation (a "tick") per policy step and
+waits for the command computed from it, and announces the END. For each complete tick the session
+decides:
+
+- **act**: the tick is stamped at or after the running rollout's START. It joins the rollout's last
+  ``T_h`` ticks, and :meth:`PolicySession.act` samples the batch with the rollout's noise stream
+  (:func:`~fiper_ros.policy.noise.sampling_generator` of the seed in the rollout id's low 32 bits, as
+  the in-process ``run_episode(seed)`` does) and numbers the step 0, 1, 2, ... within the rollout;
+- **late** (ignored, counted): the tick belongs to the rollout that ended last (stamped within its
+  START..END), e.g. one that overtook that rollout's END;
+- **wait**: no rollout runs. Events and observations travel on different topics, so a rollout's
+  first tick may overtake its START: the newest such tick waits up to ``start_wait_ns`` for it;
+- **unknown rollout** (rejected): anything else, including a waiting tick whose START never came.
+
+``T_h`` > 1: the history holds the last ``T_h`` *ticks* (one per policy step), while the in-process
+loop keeps the last ``T_h`` control-step observations (docs/policies.md).
+"""
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..runtime.validation import UNKNOWN_ROLLOUT, InputRejected
+from .noise import sampling_generator
+from .policy import Observation, Policy
+
+#: How long a tick may wait for its rollout's START by default.
+DEFAULT_START_WAIT_NS = 1_000_000_000
+
+
+@dataclass
+class PolicyRollout:
+    """A rollout the policy acts (or acted) in."""
+
+    rollout_id: int
+    start_stamp: int
+    history: deque[Observation]
+    generator: torch.Generator
+    task: str = ""
+    scenario: str = ""
+    #: Policy steps acted so far: the number of the next step.
+    steps: int = 0
+    #: Stamp of the newest tick in ``history``.
+    last_stamp: int = 0
+    end_stamp: int | None = None
+    outcome: str = "unknown"
+
+    def summary(self) -> str:
+        """One line for the log at the rollout's END."""
+        where = f" {self.task}/{self.scenario}" if self.task or self.scenario else ""
+        return f"rollout {self.rollout_id}{where}: {self.steps} policy steps, outcome {self.outcome}"
+
+
+@dataclass(frozen=True)
+class PolicyAction:
+    """What the policy computed from one tick."""
+
+    rollout_id: int
+    step: int
+    #: Stamp of the tick the action was computed from.
+    stamp: int
+    #: ``O^e``, float32 ``[E]``.
+    embedding: np.ndarray
+    #: The sampled batch, float32 ``[B, H, D]``.
+    chunks: np.ndarray
+    #: What the robot executes: the first ``h`` actions of sample 0, ``[h, D]``.
+    command: np.ndarray
+
+
+@dataclass(frozen=True)
+class _WaitingTick:
+    """A tick that waits for its rollout's START, since ``since_ns`` (steady time)."""
+
+    stamp: int
+    observation: Observation
+    since_ns: int
+
+
+class PolicySession:
+    """Follows START / END and turns the running rollout's ticks into policy steps.
+
+    Args:
+        policy: The loaded policy.
+        batch: Chunks sampled per step (``None``: the config's ``B``).
+        reject: Called with every rejected tick (the node counts and logs them).
+        start_wait_ns: How long a tick waits for its rollout's START (steady time).
+    """
+
+    def __init__(self, policy: Policy, batch: int | None, reject: Callable[[InputRejected], None],
+                 start_wait_ns: int = DEFAULT_START_WAIT_NS) -> None:
+        self.policy = policy
+        self.batch = batch
+        self.reject = reject
+        self.start_wait_ns = start_wait_ns
+        self.running: PolicyRollout | None = None
+        self.last_ended: PolicyRollout | None = None
+        #: STARTs of new rollouts seen.
+        self.rollouts_seen = 0
+        #: Ticks of an ended rollout, ignored.
+        self.late = 0
+        self._waiting: _WaitingTick | None = None
+
+    @property
+    def waiting(self) -> bool:
+        """Whether a tick waits for its rollout's START."""
+        return self._waiting is not None
+
+    def start(self, rollout_id: int, stamp: int, task: str = "", scenario: str = "") -> bool:
+        """A START: the rollout runs from ``stamp`` on (fresh history, step 0, fresh noise stream).
+
+        A repeated START of the running rollout changes nothing; a START while another rollout runs
+        (its END was lost) ends that one at ``stamp``, outcome unknown. Returns whether to :meth:`act`
+        now (a tick that overtook this START was waiting for it).
+        """
+        previous = self.running
+        if previous is not None:
+            if previous.rollout_id == rollout_id:
+                return False
+            previous.end_stamp = stamp
+            self.last_ended = previous
+        self.running = PolicyRollout(rollout_id, stamp, deque(maxlen=self.policy.config.obs_horizon),
+                                     sampling_generator(rollout_id & 0xFFFFFFFF), task, scenario)
+        self.rollouts_seen += 1
+        waiting, self._waiting = self._waiting, None
+        if waiting is None:
+            return False
+        return self._admit(waiting.stamp, waiting.observation)
+
+    def end(self, rollout_id: int, stamp: int, outcome: str) -> PolicyRollout | None:
+        """An END: stop acting in ``rollout_id``; returns it if it was the running rollout."""
+        ended = self.running
+        if ended is None or ended.rollout_id != rollout_id:
+            return None
+        ended.end_stamp = stamp
+        ended.outcome = outcome
+        self.running, self.last_ended = None, ended
+        return ended
+
+    def observe(self, stamp: int, observation: Observation, now_ns: int) -> bool:
+        """A complete tick; returns whether to :meth:`act` on it now (see the module docstring)."""
+        self.expire(now_ns)
+        if self.running is not None:
+            return self._admit(stamp, observation)
+        if self._is_late(stamp):
+            self.late += 1
+            return False
+        waiting = self._waiting
+        if waiting is not None and waiting.stamp > stamp:
+            self._discard(stamp)
+            return False
+        if waiting is not None:
+            self._discard(waiting.stamp)
+        self._waiting = _WaitingTick(stamp, observation, now_ns)
+        return False
+
+    def expire(self, now_ns: int) -> None:
+        """Reject a tick that waited longer than ``start_wait_ns`` for its START."""
+        if self._waiting is not None and now_ns - self._waiting.since_ns > self.start_wait_ns:
+            waiting, self._waiting = self._waiting, None
+            self._discard(waiting.stamp)
+
+    def act(self) -> PolicyAction:
+        """Run the policy on the running rollout's history (after ``start`` / ``observe`` said so)."""
+        rollout = self.running
+        if rollout is None or not rollout.history:
+            raise RuntimeError("act() needs a running rollout with an observation")
+        embedding, chunks = self.policy.act(list(rollout.history), self.batch, rollout.generator)
+        step = rollout.steps
+        rollout.steps += 1
+        return PolicyAction(rollout.rollout_id, step, rollout.last_stamp, embedding, chunks,
+                            chunks[0, : self.policy.config.exec_steps])
+
+    def _admit(self, stamp: int, observation: Observation) -> bool:
+        rollout = self.running
+        assert rollout is not None
+        if stamp < rollout.start_stamp:
+            self._discard(stamp)
+            return False
+        rollout.history.append(observation)
+        rollout.last_stamp = stamp
+        return True
+
+    def _is_late(self, stamp: int) -> bool:
+        ended = self.last_ended
+        return ended is not None and ended.end_stamp is not None and ended.start_stamp <= stamp <= ended.end_stamp
+
+    def _discard(self, stamp: int) -> None:
+        if self._is_late(stamp):
+            self.late += 1
+            return
+        running = "none" if self.running is None else str(self.running.rollout_id)
+        self.reject(InputRejected(UNKNOWN_ROLLOUT, f"observation stamped {stamp} ns belongs to no known rollout "
+                                                   f"(running: {running})"))

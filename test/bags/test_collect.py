@@ -1,0 +1,192 @@
+"""``fiper collect``: one bag per closed-loop rollout, resume, ``--successes``, the index, joint states.
+
+Short episodes keep it fast: the shipped Sorting model with B = 4 and 2 policy steps (every episode is
+then a timeout failure; ``--successes`` is tested with outcomes assigned per seed), and a tiny untrained
+Stacking model for the joint-velocity path.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from helpers.policy_fixtures import tiny_policy
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
+
+from fiper_ros.bags import collect
+from fiper_ros.bags.collect import bag_name, rollout_id_of
+from fiper_ros.bags.reader import BagReader, find_bags
+from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bags.schema import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
+from fiper_ros.cli import main
+from fiper_ros.evaluation.data import load_dataset
+from fiper_ros.policy.policy import Policy
+from fiper_ros.policy.rollout import EpisodeResult, run_episode
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+SMALL = ["--batch", "4", "--max-policy-steps", "2"]
+ARGS = ["collect", "--task", "sorting", "--scenarios", "id", "camera_moved", "--episodes", "2", "--seed", "1000",
+        *SMALL]
+
+
+def _bag_bytes(folder: Path) -> dict[str, bytes]:
+    """Relative path -> content of every file of every bag in ``folder``."""
+    return {str(f.relative_to(folder)): f.read_bytes() for bag in find_bags([folder]) for f in bag.iterdir()}
+
+
+@pytest.fixture(scope="module")
+def collected(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two short episodes each of Sorting id and camera_moved (seeds 1000, 1001), test split."""
+    out = tmp_path_factory.mktemp("collect") / "sorting"
+    assert main([*ARGS, "--out", str(out)]) == 0
+    return out
+
+
+def test_collect_writes_one_readable_bag_per_rollout(collected: Path) -> None:
+    bags = find_bags([collected])
+    assert [b.relative_to(collected).as_posix() for b in bags] == [
+        f"{scenario}/{bag_name('sorting', scenario, seed)}" for scenario in ("camera_moved", "id") for seed in (1000, 1001)]
+    for bag in bags:
+        scenario, seed = bag.parent.name, int(bag.name.rsplit("_", 1)[1])
+        with BagReader(bag) as reader:
+            counts = Counter(m.topic for m in reader.messages())
+            events = [reader.decode(m) for m in reader.messages([EVENTS])]
+            stamps = [m.log_time_ns for m in reader.messages([ACTIONS])]
+            info = reader.info
+        assert counts == {EVENTS: 2, EMBEDDING: 2, ACTIONS: 2}  # no /joint_states for an ee_position task
+        assert [(e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in events] == [
+            (0, 0, "sorting", scenario, 2), (1, 2, "sorting", scenario, 2)]  # START, END with FAILURE
+        assert {e.rollout_id for e in events} == {rollout_id_of(scenario, seed)}
+        assert stamps[1] - stamps[0] == 4 * 100_000_000  # h = 4 control steps at the sim's 10 Hz
+        assert (info.task, info.split, info.synthetic, info.seed, info.policy) == (
+            "sorting", "test", False, str(seed), "models/sorting")
+        assert (info.batch_size, info.horizon, info.action_dim, info.embedding_dim) == (4, 8, 2, 128)
+        assert info.policy_data_hash == yaml.safe_load((MODELS / "sorting" / "policy.yaml").read_text())["info"][
+            "data_hash"]
+        (rollout,) = read_rollouts(bag)
+        assert (rollout.scenario, rollout.success, rollout.length, rollout.actions.shape) == (scenario, False, 2,
+                                                                                              (2, 4, 8, 2))
+    # the bag holds exactly the in-process rollout of that seed
+    episode = run_episode(Policy.load(MODELS / "sorting"), "id", 1001, batch=4, max_policy_steps=2)
+    (rollout,) = read_rollouts(collected / "id" / bag_name("sorting", "id", 1001))
+    assert episode.rollout is not None
+    np.testing.assert_array_equal(rollout.embeddings, episode.rollout.embeddings)
+    np.testing.assert_array_equal(rollout.actions, episode.rollout.actions)
+    index = json.loads((collected / "collect.json").read_text())
+    assert (index["task"], index["split"], index["batch"], index["max_policy_steps"]) == ("sorting", "test", 4, 2)
+    assert [(r["scenario"], r["seed"], r["success"], r["policy_steps"], r["bag"]) for r in index["rollouts"]] == [
+        (b.parent.name, int(b.name[-6:]), False, 2, b.relative_to(collected).as_posix()) for b in bags]
+
+
+def test_resume_skips_finished_bags_and_completes_a_killed_run_identically(
+        collected: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sorting"
+    shutil.copytree(collected, out)
+    # a run killed while writing seed 1001's id bag: its index entry was written, the bag only half
+    victim = out / "id" / bag_name("sorting", "id", 1001)
+    shutil.copytree(victim, victim.parent / f".{victim.name}.partial-999999")
+    shutil.rmtree(victim)
+    (victim.parent / f".{victim.name}.partial-999999" / "metadata.yaml").write_text("truncated")
+    assert main([*ARGS, "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("bag exists, skipped") == 3 and "seed 1001: failure, 2 policy steps" in err
+    assert _bag_bytes(out) == _bag_bytes(collected)  # the same bags, byte for byte
+    assert sorted(p.name for p in victim.parent.iterdir()) == [f"sorting_id_{s:06d}" for s in (1000, 1001)]
+
+    def entries(folder: Path) -> list[dict]:
+        return [{k: v for k, v in r.items() if k != "seconds"}
+                for r in json.loads((folder / "collect.json").read_text())["rollouts"]]
+
+    assert entries(out) == entries(collected)
+
+
+def _outcome_by_seed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Episodes with an even seed succeed (short episodes never do on their own)."""
+    def episode(*args: object, **kwargs: object) -> EpisodeResult:
+        result = run_episode(*args, **kwargs)  # type: ignore[arg-type]
+        success = result.seed % 2 == 0
+        assert result.rollout is not None
+        return replace(result, success=success, rollout=replace(result.rollout, success=success))
+
+    monkeypatch.setattr(collect, "run_episode", episode)
+
+
+def test_successes_stop_at_m_or_at_the_cap_and_the_folders_calibrate_and_evaluate(
+        collected: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    _outcome_by_seed(monkeypatch)
+    out = tmp_path / "calibration"
+    args = ["collect", "--task", "sorting", "--seed", "1000", "--split", "calibration", "--out", str(out), *SMALL]
+    assert main([*args, "--successes", "2"]) == 0  # seeds 1000 (success), 1001, 1002 (success)
+    assert [b.name for b in find_bags([out])] == [bag_name("sorting", "id", s) for s in (1000, 1001, 1002)]
+    assert "successes 2/2 wanted" in capsys.readouterr().err
+    assert main([*args, "--successes", "3", "--max-episodes", "4"]) == 1  # seed 1003 fails: cap reached
+    captured = capsys.readouterr()
+    assert captured.err.count("bag exists, skipped") == 3
+    assert "fiper collect: id: only 2 of 3 successes after 4 episodes: --max-episodes 4 reached" in captured.err
+    assert "id: 4 rollouts (seeds 1000-1003), 2 successes (0.50)" in captured.out
+    assert len(json.loads((out / "collect.json").read_text())["runs"]) == 2
+
+    dataset = load_dataset("sorting", [out, collected])
+    assert [r.success for r in dataset.calibration] == [True, False, True, False]
+    assert len(dataset.test) == 4 and set(dataset.categories) == {"Fail-ID", "Fail-OOD"}
+    calibration = tmp_path / "fiper_calibration"
+    assert main(["calibrate", str(out), "-o", str(calibration), "--min-rollouts", "2", "--window-obs", "1",
+                 "--window-act", "1", "--threshold", "cp_constant", "--delta", "0.4", "--max-epochs", "2"]) == 0
+    assert "calibrating on 2 successful rollouts (4 steps) of 4" in capsys.readouterr().out
+
+
+def _tiny_model(directory: Path, task: str) -> Path:
+    """An untrained tiny ``task`` model folder."""
+    tiny_policy(task).save(directory, {"data_hash": f"tiny-{task}"})
+    return directory
+
+
+def test_a_folder_of_other_settings_is_refused(collected: Path, tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    def refusal(*extra: str, out: Path = collected) -> str:
+        assert main([*ARGS[:-len(SMALL)], "--out", str(out), *extra]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("fiper collect: ")
+        return err
+
+    err = refusal("--batch", "3", "--max-policy-steps", "2")
+    assert f"{collected / 'collect.json'}: the folder was collected with other settings (batch 4 != 3" in err
+    assert "policy_hash" in refusal("--model", str(_tiny_model(tmp_path / "tiny_sorting", "sorting")), *SMALL)
+    stacking = ["collect", "--task", "stacking", "--episodes", "1", "--out", str(collected), "--model"]
+    assert main([*stacking, str(_tiny_model(tmp_path / "tiny_stacking", "stacking"))]) == 2
+    assert "(task 'sorting' != 'stacking'; policy_hash" in capsys.readouterr().err
+    assert main([*stacking, str(tmp_path / "tiny_sorting")]) == 2
+    assert "tiny_sorting: a sorting policy, not stacking" in capsys.readouterr().err
+    foreign = tmp_path / "foreign"
+    shutil.copytree(collected / "id", foreign / "id")
+    assert "holds bags but no collect.json" in refusal(*SMALL, out=foreign)
+    assert "unknown scenario 'moon'" in refusal(*SMALL, "--scenarios", "moon", out=tmp_path / "z")
+    assert not (tmp_path / "z").exists()
+
+
+def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_path: Path) -> None:
+    model = _tiny_model(tmp_path / "tiny_stacking", "stacking")
+    out = tmp_path / "stacking"
+    assert main(["collect", "--task", "stacking", "--episodes", "1", "--seed", "5", "--model", str(model),
+                 "--out", str(out), "--max-policy-steps", "2"]) == 0
+    (bag,) = find_bags([out])
+    with BagReader(bag) as reader:
+        joint_states = [(m.log_time_ns, reader.decode(m)) for m in reader.messages([JOINT_STATES])]
+        raw = next(reader.messages([JOINT_STATES])).raw
+        batches = [m.log_time_ns for m in reader.messages([ACTIONS])]
+        order = [m.topic for m in reader.messages()]
+    assert [t for t, _ in joint_states] == batches  # one per policy step, at the step's stamp
+    assert order[1:4] == [JOINT_STATES, EMBEDDING, ACTIONS]  # before the step's batch
+    assert all(list(msg.name) == list(ARM_JOINT_NAMES) for _, msg in joint_states)
+    assert list(deserialize_message(raw, JointState).name) == list(ARM_JOINT_NAMES)  # what a replayed ace_node gets
+    (rollout,) = read_rollouts(bag)
+    episode = run_episode(Policy.load(model), "id", 5, max_policy_steps=2)
+    assert episode.rollout is not None and rollout.action_space == "joint_velocity"
+    np.testing.assert_array_equal(rollout.metadata["joint_positions"], episode.rollout.metadata["joint_positions"])
+    assert rollout.metadata["joint_positions"].shape == (2, 7)

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# The FIPER-vs-baselines study on closed-loop sim rollouts (docs/results.md): `make study` or
+#   bash tools/study.sh [TASK...]          (default: every task with a shipped model in models/)
+# Per task: a calibration set of M = 50 successful ID rollouts (seeds 2000, 2001, ...), a test set of
+# 50 rollouts per scenario (ID, benign and harmful OOD; seeds 1000..1049), each rollout an MCAP bag
+# written by `fiper collect` under data/study/<task>/ (resumable: a rerun skips finished bags), then
+# `fiper evaluate` with all seven methods, 5 seeds, the paper's and the clean protocol into runs/study/.
+# Environment: STUDY_EPISODES (50), STUDY_SEEDS (0-4), STUDY_OUT (runs/study).
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+cd "$ROOT"
+# shellcheck disable=SC1091
+source ./env.sh
+EPISODES="${STUDY_EPISODES:-50}"
+SEEDS="${STUDY_SEEDS:-0-4}"
+OUT="${STUDY_OUT:-runs/study}"
+if [ "$#" -gt 0 ]; then TASKS=("$@"); else
+  TASKS=(); for task in sorting stacking pusht; do [ -f "models/$task/policy.yaml" ] && TASKS+=("$task"); done
+fi
+started=$(date +%s)
+data_args=()
+for task in "${TASKS[@]}"; do
+  scenarios=$(python -c "from sim_bridge.scenarios import SCENARIOS; print(' '.join(SCENARIOS['$task']))")
+  echo "[study] $task: calibration set (50 ID successes from seed 2000), test set ($EPISODES per scenario: $scenarios)"
+  fiper collect --task "$task" --scenarios id --successes 50 --seed 2000 --split calibration \
+    --out "data/study/$task/calibration"
+  # shellcheck disable=SC2086
+  fiper collect --task "$task" --scenarios $scenarios --episodes "$EPISODES" --seed 1000 --split test \
+    --out "data/study/$task/test"
+  # the evaluation's name of the PushT task is push_t (the paper's tables)
+  name="$task"; [ "$task" = pusht ] && name=push_t
+  data_args+=(--data "$name=data/study/$task")
+done
+fiper evaluate "${data_args[@]}" --seeds "$SEEDS" --protocol paper,clean --out "$OUT"
+echo "[study] done in $(( $(date +%s) - started )) s: $OUT/results.md"
