@@ -49,6 +49,7 @@ def collected(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_collect_writes_one_readable_bag_per_rollout(collected: Path) -> None:
+    assert sorted(p.name for p in collected.iterdir()) == ["camera_moved", "collect.json", "id"]  # no lock left
     bags = find_bags([collected])
     assert [b.relative_to(collected).as_posix() for b in bags] == [
         f"{scenario}/{bag_name('sorting', scenario, seed)}" for scenario in ("camera_moved", "id") for seed in (1000, 1001)]

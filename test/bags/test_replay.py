@@ -32,13 +32,15 @@ def _offline(bags: list[Path], calibration: Path) -> list[dict]:
 
 
 def test_sample_sets_exist() -> None:
-    assert [p.name for p in SETS] == ["pretzel_synthetic", "pushchair_synthetic"]
+    assert [p.name for p in SETS] == ["pretzel_synthetic", "pushchair_synthetic", "sorting_sim"]
     size = sum(f.stat().st_size for f in SAMPLES.rglob("*") if f.is_file())
     assert size <= 30e6, f"bags/ holds {size / 1e6:.1f} MB"
 
 
 #: How each sample set is played: as fast as the suite answers, and at a multiple of real time.
-PACING = {"pretzel_synthetic": ["--fast"], "pushchair_synthetic": ["--rate", "25"]}
+PACING = {"pretzel_synthetic": ["--fast"], "pushchair_synthetic": ["--rate", "25"], "sorting_sim": ["--fast"]}
+#: Rollouts in each set's bags (calibration and test).
+ROLLOUTS = {"pretzel_synthetic": 20, "pushchair_synthetic": 20, "sorting_sim": 9}
 
 
 def _bag_seconds(bags: list[Path]) -> float:
@@ -56,8 +58,10 @@ def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_do
     report = _replay([str(sample_set), *pacing], ros_domain, tmp_path / "report.json")
     expected = _offline([sample_set], sample_set / "calibration")
     assert report["missing"] == []
-    assert len(report["rollouts"]) == len(expected) == 20
-    for live, offline in zip(report["rollouts"], expected):
+    assert len(report["rollouts"]) == len(expected) == ROLLOUTS[sample_set.name]
+    by_id = {r["rollout_id"]: r for r in expected}
+    for live in report["rollouts"]:
+        offline = by_id[live["rollout_id"]]
         assert live == offline, (live["rollout_id"], [(a, b) for a, b in zip(live["steps"], offline["steps"]) if a != b][:3])
     assert any(r["first_alarm"] is not None for r in expected)  # the failures are predicted
     if pacing[0] == "--rate":  # played on the bag's clock: no faster than bag time / rate

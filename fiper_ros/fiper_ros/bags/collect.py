@@ -123,14 +123,19 @@ def load_model(directory: Path, task: str) -> Model:
 
 @contextmanager
 def locked(directory: Path) -> Iterator[None]:
-    """Hold ``directory``'s lock file: one ``fiper collect`` at a time writes into a folder."""
+    """Hold ``directory``'s lock file: one ``fiper collect`` at a time writes into a folder. The file is
+    removed (still locked) when done, so a finished folder holds only the index and the bags."""
     directory.mkdir(parents=True, exist_ok=True)
-    with (directory / LOCK_FILE).open("w") as handle:
+    path = directory / LOCK_FILE
+    with path.open("w") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError as error:
             raise BagError(f"{directory}: another fiper collect is writing into this folder") from error
-        yield
+        try:
+            yield
+        finally:
+            path.unlink(missing_ok=True)
 
 
 def open_index(out: Path, setup: CollectSetup, model: Model) -> CollectIndex:

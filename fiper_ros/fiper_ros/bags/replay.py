@@ -57,9 +57,10 @@ WARM_UP_S = 1.0
 
 
 def find_calibration(bags: Sequence[Path]) -> Path | None:
-    """A ``calibration/`` directory next to (or one level above) the first bag that has one."""
+    """A ``calibration/`` directory next to, or up to two levels above, the first bag that has one
+    (``SET/calibration`` for ``SET/test_rollouts/BAG`` and for ``fiper collect``'s ``SET/test_rollouts/SCENARIO/BAG``)."""
     for bag in bags:
-        for parent in (bag.parent, bag.parent.parent):
+        for parent in list(bag.parents)[:3]:
             if (parent / "calibration" / "calibration.yaml").is_file():
                 return parent / "calibration"
     return None
