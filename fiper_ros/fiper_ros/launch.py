@@ -176,6 +176,7 @@ def run_processes(config: LaunchConfig, grace_s: float) -> int:
 def run_in_process(config: LaunchConfig) -> int:
     """Run every node in this process on one multi-threaded executor."""
     import rclpy  # noqa: PLC0415 - only this mode needs rclpy in the launcher itself
+    from rclpy._rclpy_pybind11 import RCLError  # noqa: PLC0415
     from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor  # noqa: PLC0415
     from rclpy.parameter import Parameter, parameter_dict_from_yaml_file  # noqa: PLC0415
 
@@ -197,6 +198,11 @@ def run_in_process(config: LaunchConfig) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        # Ctrl-C shuts the context down from rclpy's signal handler; if that lands while the executor
+        # builds its wait set, rcl reports an invalid context instead of ExternalShutdownException.
+        if rclpy.ok():
+            raise
     finally:
         for node in nodes:
             node.destroy_node()

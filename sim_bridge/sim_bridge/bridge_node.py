@@ -54,6 +54,9 @@ class BridgeNode(FiperNode):
         declare("start_on_activate", False, describe("start a rollout (task, scenario, seed) on activation",
                                                      read_only=True))
         declare("images", True, describe("render and publish the two 96x96 rgb8 cameras", read_only=True))
+        declare("max_policy_steps", 0, describe("end every rollout after this many policy steps (a timeout "
+                                                "failure); 0 = the task's time limit", read_only=True, low=0,
+                                                high=1_000_000, integer=True))
         declare("realtime_factor", 1.0, describe("simulated / wall time while actions execute; 0 = as fast as "
                                                  "possible", read_only=True, low=0.0, high=1000.0))
         declare("sim_time", False, describe("publish /clock and stamp everything with simulated time",
@@ -97,7 +100,8 @@ class BridgeNode(FiperNode):
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
         get_scenario(self.get_parameter("task").value, self.get_parameter("scenario").value)  # fail early
-        self.session = BridgeSession(images=bool(self._image_pubs))
+        self.session = BridgeSession(images=bool(self._image_pubs),
+                                     max_policy_steps=int(self.get_parameter("max_policy_steps").value))
         self._publish_clock()
 
     def activate(self) -> None:

@@ -48,7 +48,7 @@ class Rollout:
     scenario: str
     seed: int
     max_steps: int
-    """The task's time limit in policy steps."""
+    """The time limit in policy steps: the task's, or the session's lower cap."""
     policy_step: int = 0
     """Commands accepted so far (policy steps); the next command must carry this ``step``."""
 
@@ -78,9 +78,12 @@ def rollout_id_of(counter: int, seed: int) -> int:
 class BridgeSession:
     """Rollouts of the simulated tasks, fed with action commands one control step at a time."""
 
-    def __init__(self, images: bool) -> None:
-        """``images``: render the wrist and third-person cameras into observations."""
+    def __init__(self, images: bool, max_policy_steps: int = 0) -> None:
+        """``images``: render the wrist and third-person cameras into observations; ``max_policy_steps``:
+        end every rollout after this many policy steps as a ``timeout`` failure, like
+        ``run_episode(max_policy_steps=...)`` (0: the task's time limit only)."""
         self.images = images
+        self.max_policy_steps = max_policy_steps
         self.env: TaskEnv | None = None
         self.rollout: Rollout | None = None
         self.started = 0
@@ -114,7 +117,8 @@ class BridgeSession:
         self._dof_adr = np.array([env.model.joint(j).dofadr[0] for j in JOINT_NAMES])
         env.reset()
         self.started += 1
-        self.rollout = Rollout(rollout_id_of(self.started, seed), task, scenario, int(seed), env.max_policy_steps)
+        limit = min(env.max_policy_steps, self.max_policy_steps) if self.max_policy_steps else env.max_policy_steps
+        self.rollout = Rollout(rollout_id_of(self.started, seed), task, scenario, int(seed), limit)
         return self.rollout, aborted
 
     def end(self, reason: str) -> Ended | None:
@@ -164,6 +168,8 @@ class BridgeSession:
             if info["success"]:
                 return self._finish(SUCCESS, "success")
             return self._finish(FAILURE, "failed" if info["failed"] else "timeout")
+        if self.max_policy_steps and not self._pending and self.rollout.policy_step >= self.rollout.max_steps:
+            return self._finish(FAILURE, "timeout")  # the session's cap: the last command was executed
         return None
 
     def observation(self) -> Obs:

@@ -98,6 +98,29 @@ def test_outcomes(session: BridgeSession) -> None:
     assert session.rollout is None and not session.busy
 
 
+def test_a_policy_step_cap_ends_rollouts_as_a_timeout_after_the_last_command() -> None:
+    session = BridgeSession(images=False, max_policy_steps=2)
+    try:
+        rollout, _ = session.start("sorting", "id", 4)
+        assert rollout.max_steps == 2
+        tcp = session.observation()["proprio"][:2]
+        ended = None
+        for step in range(2):
+            assert ended is None
+            session.accept(rollout.rollout_id, step, "ee_position", 4, 2, np.tile(tcp, 4))
+            while ended is None and session.busy:
+                ended = session.execute_one()
+        assert ended is not None
+        assert (ended.outcome, ended.reason, ended.policy_step, ended.control_step) == ("failure", "timeout", 2, 8)
+    finally:
+        session.close()
+    loose = BridgeSession(images=False, max_policy_steps=500)
+    try:
+        assert loose.start("pusht", "id", 0)[0].max_steps == 38  # a cap above the task's limit changes nothing
+    finally:
+        loose.close()
+
+
 def test_launch_file_names_declared_parameters(ros_domain: int) -> None:
     from sim_bridge.bridge_node import NODE_CLASS  # noqa: PLC0415
 

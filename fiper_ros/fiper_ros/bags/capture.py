@@ -56,14 +56,15 @@ class TopicTap:
         self.types: dict[str, str] = {}
         self.offered: dict[str, list[Qos]] = {}
         self._subscriptions: dict[str, Any] = {}
-        self._skipped: set[str] = set()
+        self.skipped: set[str] = set()
+        """Wanted topics left out: their type is unknown here."""
 
     def poll(self) -> list[str]:
         """Subscribe to wanted topics that got a publisher; returns the newly subscribed ones."""
         node = self.session.node
         new = []
         for topic, types in node.get_topic_names_and_types():
-            if topic not in self.wanted or topic in self._subscriptions or topic in self._skipped:
+            if topic not in self.wanted or topic in self._subscriptions or topic in self.skipped:
                 continue
             publishers = node.get_publishers_info_by_topic(topic)
             if not publishers:
@@ -75,7 +76,7 @@ class TopicTap:
                 kind = None
             if kind is None or msgtype not in typestore().fielddefs:
                 print(f"fiper: not capturing {topic}: type {msgtype} is unknown here", file=sys.stderr)
-                self._skipped.add(topic)
+                self.skipped.add(topic)
                 continue
             self.types[topic] = msgtype
             self.offered[topic] = [bag_qos(p.qos_profile) for p in publishers]

@@ -1,13 +1,15 @@
 """``fiper collect``: closed-loop rollouts of a trained policy in the simulation, one MCAP bag each.
 
-Runs the policy in-process (:func:`fiper_ros.policy.rollout.run_episode`: no ROS, no DDS) on seeded
-episodes of each scenario and writes every rollout as its own bag,
-``DIR/<scenario>/<task>_<scenario>_<seed>/``, with the messages a policy node publishes
-(:func:`fiper_ros.bags.rollouts.write_rollouts`) on the task's control clock. ``--episodes N`` runs the
-seeds ``S .. S+N-1``; ``--successes M`` runs seeds from ``S`` on until ``M`` of them succeeded (at most
-``--max-episodes``). A bag appears complete or not at all, and a rollout is a function of its seed, so a
-rerun skips the finished bags and runs the rest: a resumed folder holds the same bags as an
-uninterrupted run. ``DIR/collect.json`` indexes the rollouts (:mod:`fiper_ros.bags.collect_index`).
+Runs the policy on seeded episodes of each scenario and writes every rollout as its own bag,
+``DIR/<scenario>/<task>_<scenario>_<seed>/``. In-process (default, :class:`InProcessRunner`:
+:func:`fiper_ros.policy.rollout.run_episode`, no ROS, no DDS) a bag holds the messages a policy node
+publishes (:func:`fiper_ros.bags.rollouts.write_rollouts`) on the task's control clock; with ``--ros``
+(:class:`fiper_ros.bags.collect_ros.RosRunner`) the episodes run through the live node suite and the bag
+holds what was recorded from DDS. ``--episodes N`` runs the seeds ``S .. S+N-1``; ``--successes M`` runs
+seeds from ``S`` on until ``M`` of them succeeded (at most ``--max-episodes``). A bag appears complete or
+not at all, and a rollout is a function of its seed, so a rerun skips the finished bags and runs the rest:
+a resumed folder holds the same rollouts as an uninterrupted run. ``DIR/collect.json`` indexes the
+rollouts (:mod:`fiper_ros.bags.collect_index`).
 """
 from __future__ import annotations
 
@@ -18,10 +20,11 @@ import os
 import sys
 import time
 import zlib
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any, Protocol
 
 import torch
 import yaml
@@ -29,7 +32,7 @@ from sim_bridge.scenarios import TASK_NAMES, get_scenario
 from sim_bridge.tasks import TASKS
 
 from fiper_ros.bags.atomic import remove
-from fiper_ros.bags.collect_index import INDEX_FILE, CollectIndex, CollectSetup, IndexEntry
+from fiper_ros.bags.collect_index import INDEX_FILE, IN_PROCESS, ROS, CollectIndex, CollectSetup, IndexEntry
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import METADATA, find_bags
 from fiper_ros.bags.rollouts import write_rollouts
@@ -164,26 +167,86 @@ def duration(seconds: float) -> str:
     return f"{seconds // 3600} h {seconds % 3600 // 60} min"
 
 
-class Collector:
-    """Runs and records the episodes of one ``fiper collect`` into one folder."""
+@dataclass(frozen=True)
+class RanEpisode:
+    """An episode that ran; its bag is not there yet.
 
-    def __init__(self, policy: Policy, out: Path, index: CollectIndex, *, seed: int, target: Target) -> None:
+    Attributes:
+        success: The episode's outcome.
+        policy_steps: ``T``, policy steps of the rollout.
+        control_steps: Control steps executed.
+        rollout_id: ``rollout_id`` of the bag's messages.
+        write: Makes the episode's bag appear, complete, at its path.
+    """
+
+    success: bool
+    policy_steps: int
+    control_steps: int
+    rollout_id: int
+    write: Callable[[], None]
+
+
+class Runner(Protocol):
+    """Runs the episodes of a ``fiper collect``: in this process, or through the live ROS suite."""
+
+    #: ``custom_data`` source of the bags.
+    source: str
+
+    def prepare(self) -> None:
+        """Get ready to run an episode (not counted in the episode's time)."""
+
+    def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
+        """Run ``(scenario, seed)`` for a bag at ``path`` whose ``custom_data`` holds ``fields``."""
+
+
+class InProcessRunner:
+    """Episodes run in this process (:func:`run_episode`: no ROS, no DDS); the bag is written from the
+    recorded rollout on the sim's control clock, with ids from :func:`rollout_id_of`."""
+
+    source = SOURCE
+
+    def __init__(self, policy: Policy, setup: CollectSetup) -> None:
         self.policy = policy
+        self.setup = setup
+        task = TASKS[setup.task]
+        cap = setup.max_policy_steps
+        self.env_dt_ns = round(1e9 / task.control_hz)
+        self.max_steps = task.max_policy_steps if cap is None else min(task.max_policy_steps, cap)
+
+    def prepare(self) -> None:
+        """Nothing to start."""
+
+    def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
+        """Run the episode; its bag is written by ``write``."""
+        result = run_episode(self.policy, scenario, seed, batch=self.setup.batch,
+                             max_policy_steps=self.setup.max_policy_steps)
+        assert result.rollout is not None  # run_episode records by default
+        rollout = replace(result.rollout, metadata={**result.rollout.metadata, "max_steps": self.max_steps})
+        rollout_id = rollout_id_of(scenario, seed)
+
+        def write() -> None:
+            write_rollouts(path, [rollout], [rollout_id], BagInfo(**fields), env_dt_ns=self.env_dt_ns)
+
+        return RanEpisode(result.success, result.policy_steps, result.control_steps, rollout_id, write)
+
+
+class Collector:
+    """Runs (through a :class:`Runner`) and records the episodes of one ``fiper collect`` into one folder."""
+
+    def __init__(self, runner: Runner, out: Path, index: CollectIndex, *, seed: int, target: Target) -> None:
+        self.runner = runner
         self.out = out
         self.index = index
         self.seed = seed
         self.target = target
-        task = TASKS[index.setup.task]
-        cap = index.setup.max_policy_steps
-        self.env_dt_ns = round(1e9 / task.control_hz)
-        self.max_steps = task.max_policy_steps if cap is None else min(task.max_policy_steps, cap)
         self.seconds: list[float] = []
 
-    def info(self, seed: int) -> BagInfo:
-        """``custom_data`` of a rollout's bag (shapes are added by the writer)."""
+    def bag_fields(self, seed: int) -> dict[str, Any]:
+        """``custom_data`` of a rollout's bag that collect knows (the shapes come from the rollout)."""
         setup = self.index.setup
-        return BagInfo(task=setup.task, synthetic=False, source=SOURCE, split=setup.split, policy=self.index.policy,
-                       policy_hash=setup.policy_hash, policy_data_hash=self.index.policy_data_hash, seed=str(seed))
+        return {"task": setup.task, "synthetic": False, "source": self.runner.source, "split": setup.split,
+                "policy": self.index.policy, "policy_hash": setup.policy_hash,
+                "policy_data_hash": self.index.policy_data_hash, "seed": str(seed)}
 
     def episode(self, scenario: str, seed: int) -> tuple[IndexEntry, bool]:
         """The rollout of ``(scenario, seed)``: from its finished bag, or run and written now. True if run now."""
@@ -196,19 +259,16 @@ class Collector:
                 raise BagError(f"{path}: a bag that {self.out / INDEX_FILE} does not list (not written by "
                                f"fiper collect into this folder): remove it or choose another --out")
             return entry, False
-        started = time.monotonic()
-        result = run_episode(self.policy, scenario, seed, batch=self.index.setup.batch,
-                             max_policy_steps=self.index.setup.max_policy_steps)
-        assert result.rollout is not None  # run_episode records by default
-        rollout = replace(result.rollout, metadata={**result.rollout.metadata, "max_steps": self.max_steps})
-        rollout_id = rollout_id_of(scenario, seed)
-        entry = IndexEntry(scenario, seed, result.success, result.policy_steps, result.control_steps, relative,
-                           rollout_id, round(time.monotonic() - started, 3))
-        self.index.rollouts[(scenario, seed)] = entry
-        self.index.save(self.out)  # before the bag: an index entry without its bag is dropped on reading
         for stale in path.parent.glob(f".{path.name}.partial-*"):  # left by a killed run (we hold the lock)
             remove(stale)
-        write_rollouts(path, [rollout], [rollout_id], self.info(seed), env_dt_ns=self.env_dt_ns)
+        self.runner.prepare()
+        started = time.monotonic()
+        ran = self.runner.run(scenario, seed, path, self.bag_fields(seed))
+        entry = IndexEntry(scenario, seed, ran.success, ran.policy_steps, ran.control_steps, relative,
+                           ran.rollout_id, round(time.monotonic() - started, 3))
+        self.index.rollouts[(scenario, seed)] = entry
+        self.index.save(self.out)  # before the bag: an index entry without its bag is dropped on reading
+        ran.write()
         self.seconds.append(time.monotonic() - started)
         return entry, True
 
@@ -258,6 +318,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-policy-steps", type=int, default=None,
                         help="stop episodes after this many policy steps, as a failure (tests/smoke runs only)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared machine)")
+    parser.add_argument("--ros", action="store_true",
+                        help="run the episodes through the live node suite (sim bridge + policy node over DDS, "
+                             "each its own process) and record each from DDS, instead of in-process")
+    parser.add_argument("--calibration", type=Path, default=None,
+                        help="with --ros: also run RND-OE, ACE and fusion on this calibration folder (the bags "
+                             "then hold scores and alarms)")
 
 
 def _target(args: argparse.Namespace) -> Target:
@@ -297,24 +363,51 @@ def _check_sizes(args: argparse.Namespace, episodes: int) -> None:
             raise BagError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
 
 
+def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: CollectSetup, stack: ExitStack) -> Runner:
+    """The runner of ``--ros`` (entered into ``stack``: it stops its suite) or the in-process one."""
+    if setup.runner == IN_PROCESS:
+        return InProcessRunner(model.policy, setup)
+    from fiper_ros.bags.collect_ros import LiveSettings, RosRunner  # noqa: PLC0415 - it imports this module
+
+    settings = LiveSettings(args.task, model_dir.resolve(), setup.batch, args.threads, setup.max_policy_steps,
+                            args.calibration.resolve() if args.calibration else None)
+    return stack.enter_context(RosRunner(settings, args.out, model.policy.config.exec_steps))
+
+
+def _check_calibration(args: argparse.Namespace) -> None:
+    """``--calibration`` only with ``--ros``, and only a calibration folder."""
+    if args.calibration is None:
+        return
+    if not args.ros:
+        raise BagError("--calibration runs the scoring nodes: it needs --ros")
+    if not (args.calibration / "calibration.yaml").is_file():
+        raise BagError(f"{args.calibration}: no calibration.yaml: not a calibration folder")
+
+
 def run(args: argparse.Namespace) -> int:
     """``fiper collect``."""
     try:
         target = _target(args)
         scenarios = _scenarios(args.task, args.scenarios)
         _check_sizes(args, target.max_episodes)
+        _check_calibration(args)
         torch.set_num_threads(args.threads)
-        model = load_model(args.model or default_model(args.task), args.task)
+        model_dir = args.model or default_model(args.task)
+        model = load_model(model_dir, args.task)
         setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
-                             args.max_policy_steps)
-        with locked(args.out):
+                             args.max_policy_steps, ROS if args.ros else IN_PROCESS)
+        with locked(args.out), ExitStack() as stack:
             index = open_index(args.out, setup, model)
-            index.add_run({"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
-                           "successes": args.successes, "max_episodes": target.max_episodes})
+            settings = {"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
+                        "successes": args.successes, "max_episodes": target.max_episodes}
+            if args.calibration is not None:
+                settings["calibration"] = shown_path(args.calibration)
+            index.add_run(settings)
             index.save(args.out)
-            collector = Collector(model.policy, args.out, index, seed=args.seed, target=target)
-            print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}) into "
-                  f"{args.out}", file=sys.stderr, flush=True)
+            runner = _runner(args, model_dir, model, setup, stack)
+            collector = Collector(runner, args.out, index, seed=args.seed, target=target)
+            print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}, "
+                  f"{setup.runner}) into {args.out}", file=sys.stderr, flush=True)
             started = time.monotonic()
             counts = {scenario: collector.scenario(scenario, scenarios) for scenario in scenarios}
     except BagError as error:

@@ -1,16 +1,16 @@
 """The index of a ``fiper collect`` folder: ``DIR/collect.json``.
 
 It names what produced the folder's bags (task, policy model and its hash, split, batch size, policy-step
-cap: :class:`CollectSetup`, which a resumed run must match), the settings of every run into the folder,
-and one entry per rollout (scenario, seed, outcome, steps, bag path). An entry is written before its bag,
-and the file is replaced atomically, so after a kill the index lists every complete bag; entries whose
-bag never appeared are dropped when the index is read.
+cap, in-process or through ROS: :class:`CollectSetup`, which a resumed run must match), the settings of
+every run into the folder, and one entry per rollout (scenario, seed, outcome, steps, bag path). An entry
+is written before its bag, and the file is replaced atomically, so after a kill the index lists every
+complete bag; entries whose bag never appeared are dropped when the index is read.
 """
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,8 @@ from fiper_ros.bags.reader import METADATA
 INDEX_FILE = "collect.json"
 #: Version of the index layout, stored as ``"format"``.
 INDEX_FORMAT = 1
+#: How the rollouts were produced: in the collecting process, or through the live ROS node suite.
+IN_PROCESS, ROS = "in-process", "ros"
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,8 @@ class CollectSetup:
         split: ``calibration`` or ``test`` (the bags' ``custom_data`` split).
         batch: ``B``, chunks sampled per policy step.
         max_policy_steps: Policy-step cap of a smoke run (None: the task's time limit).
+        runner: :data:`IN_PROCESS` or :data:`ROS` (an index without the key is from before ``--ros``:
+            in-process).
     """
 
     task: str
@@ -40,6 +44,7 @@ class CollectSetup:
     split: str
     batch: int
     max_policy_steps: int | None
+    runner: str = IN_PROCESS
 
     def differences(self, other: CollectSetup) -> list[str]:
         """``name: ours != theirs`` for every field that differs."""
@@ -110,7 +115,8 @@ class CollectIndex:
             document = json.loads(path.read_text())
             if document.get("format") != INDEX_FORMAT:
                 raise BagError(f"{path}: index format {document.get('format')!r}, this code reads {INDEX_FORMAT}")
-            setup = CollectSetup(**{item.name: document[item.name] for item in fields(CollectSetup)})
+            setup = CollectSetup(**{item.name: document[item.name] for item in fields(CollectSetup)
+                                    if item.default is MISSING or item.name in document})
             entries = [IndexEntry(**entry) for entry in document["rollouts"]]
             index = cls(setup, str(document["policy"]), str(document["policy_data_hash"]), list(document["runs"]))
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:

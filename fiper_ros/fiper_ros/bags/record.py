@@ -3,17 +3,20 @@
 Subscribes to the given topics (default: every topic of the bag schema, as soon as it has a
 publisher) with raw subscriptions and writes the CDR bytes as received, with each connection's
 offered QoS and the receive time as log time, until Ctrl-C / SIGTERM or ``--duration``. The bag is
-written under a temporary name and appears complete when recording stops.
+written under a temporary name and appears complete when recording stops. :class:`Recorder` also
+serves ``fiper demo`` (one bag) and ``fiper collect --ros`` (a bag per rollout).
 """
 from __future__ import annotations
 
 import argparse
 import time
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
 from fiper_ros.bags.capture import InfoTracker, TopicTap
 from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.schema import BagInfo
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.writer import BagWriter
 
@@ -22,29 +25,47 @@ GRAPH_POLL_S = 0.5
 
 
 class Recorder:
-    """Records wanted topics of a session into a bag as they appear (``poll`` regularly).
+    """Records wanted topics of a session into bags as they appear (``poll`` regularly).
+
+    The subscriptions live as long as the recorder; bags come and go: :meth:`start` opens one,
+    :meth:`finish` completes it (it appears under its name) or :meth:`abort` drops it. Messages that
+    arrive while no bag is open are dropped, so one recorder writes a bag per rollout without
+    missing the first messages of the next one (a new subscription would, during discovery).
 
     Args:
         session: The rclpy session whose node subscribes.
-        out: Bag directory to create.
         topics: Topics to record; empty: the bag schema's topics.
-        overwrite: Replace an existing bag.
-        source: ``custom_data`` source of the bag.
+        source: ``custom_data`` source of the bags.
     """
 
-    def __init__(self, session: RosSession, out: Path, topics: Sequence[str], overwrite: bool,
-                 source: str = "fiper record") -> None:
-        self.out = out
-        self.writer = BagWriter(out, overwrite=overwrite)
+    def __init__(self, session: RosSession, topics: Sequence[str], source: str = "fiper record") -> None:
         self.tracker = InfoTracker(session, source)
         self.tap = TopicTap(session, topics, self._sink)
+        self.writer: BagWriter | None = None
+        self.counts: Counter[str] = Counter()
+        """Messages per topic written into the open bag."""
         self._next_poll = 0.0
 
     def _sink(self, topic: str, msgtype: str, log_time_ns: int, raw: bytes) -> None:
+        self.tracker.see(topic, msgtype, raw)
+        if self.writer is None:
+            return
         if not self.writer.has_topic(topic):
             self.writer.add_topic(topic, msgtype, self.tap.offered[topic])
         self.writer.write(topic, log_time_ns, raw)
-        self.tracker.see(topic, msgtype, raw)
+        self.counts[topic] += 1
+
+    @property
+    def info(self) -> BagInfo:
+        """``custom_data`` learned so far (shapes, task, calibration hash, source)."""
+        return self.tracker.info
+
+    def start(self, out: Path, overwrite: bool = False) -> None:
+        """Open a bag at ``out`` (``overwrite``: replace an existing one when finished)."""
+        if self.writer is not None:
+            raise BagError(f"{out}: the bag {self.writer.path} is still open")
+        self.writer = BagWriter(out, overwrite=overwrite)
+        self.counts = Counter()
 
     def poll(self) -> list[str]:
         """Subscribe to wanted topics that appeared (at most every :data:`GRAPH_POLL_S`); the new ones."""
@@ -54,24 +75,34 @@ class Recorder:
         return self.tap.poll()
 
     def missing(self) -> set[str]:
-        """Wanted topics not subscribed yet."""
-        return self.tap.wanted - set(self.tap.types)
+        """Wanted topics not subscribed yet (those of an unknown type are never subscribed)."""
+        return self.tap.wanted - set(self.tap.types) - self.tap.skipped
 
-    def close(self) -> int:
-        """Finish the bag (it appears complete under its name); the number of messages written."""
-        self.writer.info = self.tracker.info
-        self.writer.close()
-        return self.writer.count
+    def finish(self, info: BagInfo | None = None) -> int:
+        """Complete the open bag with ``info`` as ``custom_data`` (default :attr:`info`); it appears under its
+        name. Returns the number of messages written."""
+        writer = self._take()
+        writer.info = self.info if info is None else info
+        writer.close()
+        return writer.count
 
     def abort(self) -> None:
-        """Drop the unfinished bag."""
-        self.writer.abort()
+        """Drop the open bag, if any."""
+        if self.writer is not None:
+            self._take().abort()
+
+    def _take(self) -> BagWriter:
+        if self.writer is None:
+            raise BagError("no bag is open")
+        writer, self.writer = self.writer, None
+        return writer
 
 
 def record(out: Path, topics: list[str], duration: float | None, domain: int | None, overwrite: bool) -> int:
     """Record until stopped; returns the number of messages written."""
     with RosSession("fiper_record", domain) as session:
-        recorder = Recorder(session, out, topics, overwrite)
+        recorder = Recorder(session, topics)
+        recorder.start(out, overwrite)
         print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:
@@ -83,7 +114,7 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
         except BaseException:
             recorder.abort()
             raise
-        return recorder.close()
+        return recorder.finish()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -40,7 +40,7 @@ from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutRes
 from fiper_ros.bags.rollouts import ROLLOUT_GAP_NS, SUCCESS_OF
 from fiper_ros.bags.schema import ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.bags.session import RosSession
-from fiper_ros.bags.suite_process import SuiteProcess, default_config, replay_config
+from fiper_ros.bags.suite_process import SuiteProcess, installed_config, replay_config
 from fiper_ros.dds import allocate_domain
 from fiper_ros.echo import message_class
 from fiper_ros.nodes import qos
@@ -228,7 +228,7 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
         if launch:
             assert directory is not None
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
-            config = replay_config(args.launch or default_config(), directory, workdir / "suite.yaml")
+            config = replay_config(args.launch or installed_config(), directory, workdir / "suite.yaml")
             suite = SuiteProcess(config, domain, echo=args.verbose)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)

@@ -1,8 +1,9 @@
-"""The node suite started for a replay: ``fiper launch`` in a child process, under sim time.
+"""The node suite started for a replay (and for ``fiper demo`` and ``fiper collect --ros``): ``fiper launch``
+in a child process.
 
-The launch YAML (default: the installed ``config/suite.yaml``) is read with the launcher's own parser
-and written again with ``use_sim_time: true`` and the replay's calibration directory set on the
-scoring nodes, so the nodes are exactly those of a normal launch.
+For a replay the launch YAML (default: the installed ``config/suite.yaml``) is read with the launcher's
+own parser and written again with ``use_sim_time: true`` and the replay's calibration directory set on
+the scoring nodes, so the nodes are exactly those of a normal launch.
 """
 from __future__ import annotations
 
@@ -27,11 +28,11 @@ DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", "fiper_ros.nodes.ace_node")
 KEPT_LINES = 200
 
 
-def default_config() -> Path:
-    """The installed ``fiper_ros/config/suite.yaml``."""
+def installed_config(name: str = "suite.yaml") -> Path:
+    """The installed ``fiper_ros/config/<name>`` (default: the scoring suite)."""
     from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
 
-    return Path(get_package_share_directory("fiper_ros")) / "config" / "suite.yaml"
+    return Path(get_package_share_directory("fiper_ros")) / "config" / name
 
 
 def replay_config(config: Path, calibration: Path, out: Path) -> Path:
@@ -76,6 +77,13 @@ class SuiteProcess:
     def output(self) -> str:
         """The last lines of the suite's output."""
         return "\n".join(self.lines)
+
+    def node_exits(self) -> list[str]:
+        """The launcher's reports of nodes that exited, e.g. ``rnd_oe_node exited with code -9``."""
+        if self.proc.poll() is not None:
+            self._reader.join(timeout=1.0)  # the launcher's last lines
+        return [line.removeprefix("[launch] ") for line in list(self.lines)
+                if line.startswith("[launch] ") and " exited with code " in line]
 
     def stop(self, timeout_s: float = 20.0) -> int:
         """Ctrl-C the launcher (it stops its nodes), SIGKILL the group if it hangs; its exit status."""

@@ -19,42 +19,29 @@ from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, RolloutEvent, Score
-from fiper_msgs.srv import ResetRollout
+from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.record import Recorder
-from fiper_ros.bags.schema import ACTIONS, ALARM, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.bags.schema import TOPICS
 from fiper_ros.bags.session import RosSession
-from fiper_ros.bags.suite_process import SuiteProcess
+from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain
+from fiper_ros.demo.driver import Driver, SuiteFailed, alarm_line, state_name
 from fiper_ros.demo.figure import plot_trace
 from fiper_ros.demo.trace import ACE, RND_OE, RolloutTrace
 from fiper_ros.launch import LaunchError, dump_config, load_config
-from fiper_ros.nodes import qos
 
 #: Nodes that must report ``lifecycle_state: active`` on /diagnostics before the first reset.
 MANAGED_NODES = ("/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
                  "/fiper/fusion_node")
 #: The supervisor is a plain node: it must be visible in the graph.
-SUPERVISOR = ("supervisor_node", "/fiper")
+SUPERVISOR = "/fiper/supervisor_node"
 #: Recorded besides the bag schema's topics.
 EXTRA_TOPICS = ("/camera/wrist/image_raw", "/camera/third/image_raw", "/sim/proprio", "/sim/action", "/clock")
-#: Deep history for what the driver displays (the contract's KEEP_LAST(1) would skip steps here).
-DISPLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE_NAMES = {FailureAlarm.STATE_OK: "OK", FailureAlarm.STATE_ALARM: "ALARM", FailureAlarm.STATE_UNKNOWN: "UNKNOWN"}
-OUTCOMES = {RolloutEvent.OUTCOME_SUCCESS: "success", RolloutEvent.OUTCOME_FAILURE: "failure"}
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
 PROGRESS_EVERY = 5
 #: Seconds to wait for the last scores of a rollout after its END.
 SETTLE_S = 2.0
-
-
-class DemoFailed(RuntimeError):
-    """A part of the suite did not do its job."""
 
 
 @dataclass(frozen=True)
@@ -66,139 +53,39 @@ class Plan:
     seed: int
 
 
-class Driver:
-    """The operator: readiness, resets, live display and recording, in one rclpy session."""
+class Display:
+    """The demo's live output: a progress line per policy step (on a terminal, rewritten in place) and
+    every alarm and UNKNOWN on a line of its own."""
 
-    def __init__(self, session: RosSession, bag: Path, task: str, tty: bool) -> None:
-        self.session = session
-        self.task = task
+    def __init__(self, tty: bool) -> None:
         self.tty = tty
-        node = session.node
-        assert node is not None
-        self.node = node
-        self.recorder = Recorder(session, bag, (*TOPICS, *EXTRA_TOPICS), overwrite=False, source="fiper demo")
-        self.states: dict[str, str] = {}
-        self.traces: dict[int, RolloutTrace] = {}
-        self._reset = node.create_client(ResetRollout, "/sim/reset")
-        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
-        node.create_subscription(Score, SCORE_RND_OE, self._on_score, DISPLAY_QOS)
-        node.create_subscription(Score, SCORE_ACE, self._on_score, DISPLAY_QOS)
-        node.create_subscription(FailureAlarm, ALARM, self._on_alarm, DISPLAY_QOS)
-        node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
-        node.create_subscription(ActionChunkBatch, ACTIONS, self._on_actions, qos.INPUT)
 
-    # callbacks ----------------------------------------------------------------------------------------
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            values = {v.key: v.value for v in status.values}
-            if "lifecycle_state" in values:
-                self.states[status.hardware_id] = values["lifecycle_state"]
+    def say(self, line: str) -> None:
+        """Print ``line`` on a line of its own."""
+        print(("\r" if self.tty else "") + line + " " * 8, flush=True)
 
-    def _on_score(self, msg: Score) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is not None and msg.detector in trace.scores:
-            trace.scores[msg.detector].add(msg.step, msg.windowed_score, msg.threshold, msg.exceeded)
-
-    def _on_actions(self, msg: ActionChunkBatch) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is not None:
-            trace.steps_started = max(trace.steps_started, msg.step + 1)
-
-    def _on_event(self, msg: RolloutEvent) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is not None and msg.event == RolloutEvent.EVENT_END:
-            trace.outcome = OUTCOMES.get(msg.outcome, "unknown")
-
-    def _on_alarm(self, msg: FailureAlarm) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is None or msg.heartbeat:
-            return
-        state = STATE_NAMES.get(msg.state, "UNKNOWN")
-        line = (f"step {msg.step:3d} | RND-OE {msg.eta_obs:8.3f} / {msg.gamma_obs:8.3f} "
-                f"{'>' if msg.obs_exceeded else ' '} | ACE {msg.eta_act:8.3f} / {msg.gamma_act:8.3f} "
-                f"{'>' if msg.act_exceeded else ' '} | {state}")
+    def alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
+        """Show one alarm decision of ``trace``'s rollout."""
+        state, line = state_name(msg), alarm_line(msg)
         if state == "UNKNOWN":
-            trace.unknown_steps.add(msg.step)
-            self._say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
-        elif state == "ALARM" and trace.alarm_step is None:
-            trace.alarm_step = msg.step
-            trace.alarm_text = line
-            self._say(f"  ALARM  {line}")
+            self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
+        elif state == "ALARM" and trace.alarm_step == msg.step:
+            self.say(f"  ALARM  {line}")
         elif self.tty:
             print(f"\r  {line}", end="", flush=True)
         elif msg.step % PROGRESS_EVERY == 0:
             print(f"  {line}", flush=True)
 
-    def _say(self, line: str) -> None:
-        print(("\r" if self.tty else "") + line + " " * 8, flush=True)
 
-    # driving ------------------------------------------------------------------------------------------
-    def spin(self, seconds: float, suite: SuiteProcess) -> None:
-        """Spin (and record) for ``seconds``, failing if the suite died."""
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self._check(suite)
-            self.session.spin_once(0.02)
-
-    def _check(self, suite: SuiteProcess) -> None:
-        self.recorder.poll()
-        if not suite.alive():
-            raise DemoFailed("the suite's launcher exited (a required node died); its last output:\n"
-                             + suite.output())
-        if self.session.stop.is_set():
-            raise KeyboardInterrupt
-
-    def wait_ready(self, suite: SuiteProcess, timeout_s: float) -> None:
-        """Until every managed node is active, the supervisor runs and the bridge's reset is served."""
-        deadline = time.monotonic() + timeout_s
-
-        def missing() -> list[str]:
-            names = set(self.node.get_node_names_and_namespaces())
-            waiting = [n for n in MANAGED_NODES if self.states.get(n) != "active"]
-            waiting += ["/fiper/supervisor_node"] if SUPERVISOR not in names else []
-            waiting += ["/sim/reset service"] if not self._reset.service_is_ready() else []
-            return waiting
-
-        while missing():
-            if time.monotonic() > deadline:
-                states = ", ".join(f"{n}: {self.states.get(n, 'no diagnostics')}" for n in MANAGED_NODES)
-                raise DemoFailed(f"not ready after {timeout_s:g} s, waiting for {', '.join(missing())} ({states})")
-            self.spin(0.1, suite)
-        self.spin(1.0, suite)  # discovery of the policy node's subscriptions by the bridge
-
-    def run_rollout(self, plan: Plan, suite: SuiteProcess, timeout_s: float) -> RolloutTrace:
-        """Reset the bridge into ``plan`` and follow the rollout to its end."""
-        request = ResetRollout.Request(task=self.task, scenario=plan.scenario, seed=plan.seed)
-        future = self._reset.call_async(request)
-        deadline = time.monotonic() + 30.0
-        while not future.done():
-            if time.monotonic() > deadline:
-                raise DemoFailed("/sim/reset did not answer within 30 s")
-            self.spin(0.02, suite)
-        response = future.result()
-        if response is None or not response.success:
-            raise DemoFailed(f"/sim/reset refused {plan}: {response.message if response else 'no response'}")
-        trace = RolloutTrace(plan.label, plan.scenario, plan.seed, rollout_id=response.rollout_id)
-        self.traces[response.rollout_id] = trace
-        self._say(f"rollout {response.rollout_id}: {self.task}/{plan.scenario} seed {plan.seed} ({plan.label}), "
-                  f"at most {response.max_steps} policy steps")
-        deadline = time.monotonic() + timeout_s
-        last_progress, progress_at = -1, time.monotonic()
-        while not trace.ended:
-            if trace.steps_started != last_progress:
-                last_progress, progress_at = trace.steps_started, time.monotonic()
-            if time.monotonic() > deadline:
-                raise DemoFailed(f"rollout {response.rollout_id} did not end within {timeout_s:g} s "
-                                 f"({trace.steps_started} policy steps)")
-            if time.monotonic() - progress_at > 30.0:
-                raise DemoFailed(f"rollout {response.rollout_id}: no action-chunk batch for 30 s after step "
-                                 f"{trace.steps_started} (is the policy node running?)")
-            self.spin(0.05, suite)
-        settle = time.monotonic() + SETTLE_S
-        while trace.scored_steps() < trace.steps_started and time.monotonic() < settle:
-            self.spin(0.05, suite)
-        self._say(f"  ended: {trace.outcome} after {trace.steps_started} policy steps; {trace.verdict()}")
-        return trace
+def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
+    """Reset the bridge into ``plan``, follow the rollout to its end and wait for its last scores."""
+    trace = driver.reset(plan.scenario, plan.seed, plan.label)
+    display.say(f"rollout {trace.rollout_id}: {driver.task}/{plan.scenario} seed {plan.seed} ({plan.label}), "
+                f"at most {trace.max_steps} policy steps")
+    driver.follow(trace, timeout_s)
+    driver.settle(lambda: trace.scored_steps() >= trace.steps_started, SETTLE_S)
+    display.say(f"  ended: {trace.outcome} after {trace.steps_started} policy steps; {trace.verdict()}")
+    return trace
 
 
 def problems_of(trace: RolloutTrace) -> list[str]:
@@ -224,13 +111,6 @@ def demo_config(source: Path, model: Path, calibration: Path, out: Path) -> Path
     return dump_config(replace(config, nodes=nodes), out)
 
 
-def installed_config() -> Path:
-    """The installed ``fiper_ros/config/demo.yaml``."""
-    from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
-
-    return Path(get_package_share_directory("fiper_ros")) / "config" / "demo.yaml"
-
-
 def run_demo(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit status."""
     model, calibration = args.model.resolve(), (args.calibration or args.model / "calibration").resolve()
@@ -242,7 +122,7 @@ def run_demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     plans = [Plan("in-distribution", "id", args.id_seed), Plan("harmful OOD", args.ood_scenario, args.ood_seed)]
     started = time.monotonic()
-    config = demo_config(args.config or installed_config(), model, calibration, out / "launch.yaml")
+    config = demo_config(args.config or installed_config("demo.yaml"), model, calibration, out / "launch.yaml")
     traces: list[RolloutTrace] = []
     problems: list[str] = []
     with allocate_domain() as domain:
@@ -250,17 +130,20 @@ def run_demo(args: argparse.Namespace) -> int:
         suite = SuiteProcess(config, domain, echo=args.verbose, log=out / "suite.log")
         try:
             with RosSession("fiper_demo", domain) as session:
-                driver = Driver(session, out / "bag", args.task, sys.stdout.isatty())
+                display = Display(sys.stdout.isatty())
+                recorder = Recorder(session, (*TOPICS, *EXTRA_TOPICS), source="fiper demo")
+                recorder.start(out / "bag")
+                driver = Driver(session, suite, args.task, recorder=recorder, display=display.alarm)
                 try:
                     print("starting bridge, policy, RND-OE, ACE, fusion and supervisor nodes ...", flush=True)
-                    driver.wait_ready(suite, args.ready_timeout)
+                    driver.wait_ready(MANAGED_NODES, args.ready_timeout, plain=(SUPERVISOR,))
                     print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
                     for plan in plans:
-                        traces.append(driver.run_rollout(plan, suite, args.rollout_timeout))
-                except DemoFailed as error:
-                    problems.append(str(error))
+                        traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
+                except SuiteFailed as error:
+                    problems.append(f"{error}; its last output:\n{error.output}" if error.output else str(error))
                 finally:
-                    count = driver.recorder.close()
+                    count = recorder.finish()
                     print(f"bag {out / 'bag'}: {count} messages", flush=True)
         finally:
             status = suite.stop()

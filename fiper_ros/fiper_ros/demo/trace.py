@@ -1,7 +1,8 @@
-"""What the demo saw of one rollout: both windowed scores against their thresholds, the alarm, the outcome.
+"""What the driver saw of one rollout: both windowed scores against their thresholds, the alarm, the outcome.
 
-Pure bookkeeping (no rclpy): the demo driver feeds it the values of the Score, FailureAlarm and
-RolloutEvent messages of one rollout; the figure and the summary read it back.
+Pure bookkeeping (no rclpy): the driver (:mod:`fiper_ros.demo.driver`) feeds it the values of the Score,
+FailureAlarm, ActionChunkBatch and RolloutEvent messages of one rollout; the demo's figure and summary
+and ``fiper collect --ros`` read it back.
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ class ScoreSeries:
 
 @dataclass
 class RolloutTrace:
-    """The demo's record of one rollout.
+    """The driver's record of one rollout.
 
     Attributes:
         label: What the rollout is meant to show, e.g. ``"in-distribution"``.
@@ -52,6 +53,9 @@ class RolloutTrace:
         unknown_steps: Steps reported UNKNOWN.
         outcome: ``"success"``, ``"failure"`` or ``""`` while running.
         steps_started: Policy steps for which an action-chunk batch was seen.
+        max_steps: The bridge's limit of policy steps for the rollout.
+        started_ns: Stamp of the START event (the bridge's clock).
+        ended_ns: Stamp of the END event.
     """
 
     label: str
@@ -64,6 +68,9 @@ class RolloutTrace:
     unknown_steps: set[int] = field(default_factory=set)
     outcome: str = ""
     steps_started: int = 0
+    max_steps: int = 0
+    started_ns: int = 0
+    ended_ns: int = 0
 
     @property
     def ended(self) -> bool:

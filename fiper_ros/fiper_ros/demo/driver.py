@@ -1,0 +1,220 @@
+"""The operator of a live sim suite: waits for its nodes, resets the sim bridge, follows rollouts to their END.
+
+Shared by ``fiper demo`` and ``fiper collect --ros``. It runs in one rclpy session beside a suite that
+:class:`~fiper_ros.bags.suite_process.SuiteProcess` started: it reads the nodes' lifecycle states from
+``/diagnostics``, calls ``/sim/reset`` and keeps a :class:`~fiper_ros.demo.trace.RolloutTrace` per
+rollout it started (action batches, both scores, the alarm, START / END stamps, the outcome) from its own
+subscriptions. A :class:`~fiper_ros.bags.record.Recorder` given to it is polled whenever it spins; an
+alarm display given to it sees every alarm decision. Nothing waits forever: a node process that died
+(the launcher exited), a node that never became active, a reset that was not answered and a rollout
+that stopped making progress end in :class:`SuiteFailed`; Ctrl-C / SIGTERM (the session's stop) in
+:class:`KeyboardInterrupt`.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, RolloutEvent, Score
+from fiper_msgs.srv import ResetRollout
+from fiper_ros.bags.record import Recorder
+from fiper_ros.bags.schema import ACTIONS, ALARM, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.bags.session import RosSession
+from fiper_ros.bags.suite_process import SuiteProcess
+from fiper_ros.demo.trace import RolloutTrace
+from fiper_ros.nodes import qos
+from fiper_ros.nodes.conversions import stamp_ns
+
+#: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
+TRACE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATE_NAMES = {FailureAlarm.STATE_OK: "OK", FailureAlarm.STATE_ALARM: "ALARM", FailureAlarm.STATE_UNKNOWN: "UNKNOWN"}
+OUTCOMES = {RolloutEvent.OUTCOME_SUCCESS: "success", RolloutEvent.OUTCOME_FAILURE: "failure"}
+#: Seconds ``/sim/reset`` may take to answer.
+RESET_TIMEOUT_S = 30.0
+#: Seconds a running rollout may go without a new action-chunk batch.
+STALL_TIMEOUT_S = 30.0
+#: Seconds the driver keeps spinning once every node is ready, so that the nodes discover each other's
+#: (and the recorder's) subscriptions before the first reset.
+DISCOVERY_S = 1.0
+
+#: Called with every alarm decision (not heartbeats) of a rollout the driver follows, after its bookkeeping.
+AlarmDisplay = Callable[[RolloutTrace, FailureAlarm], None]
+
+
+class SuiteFailed(RuntimeError):
+    """A part of the live suite did not do its job.
+
+    Args:
+        message: What went wrong, one line.
+        output: The last lines of the suite's output when they tell why (a node died), else empty.
+    """
+
+    def __init__(self, message: str, output: str = "") -> None:
+        super().__init__(message)
+        self.output = output
+
+
+def state_name(msg: FailureAlarm) -> str:
+    """``OK``, ``ALARM`` or ``UNKNOWN``."""
+    return STATE_NAMES.get(msg.state, "UNKNOWN")
+
+
+def alarm_line(msg: FailureAlarm) -> str:
+    """One alarm decision on one line: both windowed scores against their thresholds, the state."""
+    return (f"step {msg.step:3d} | RND-OE {msg.eta_obs:8.3f} / {msg.gamma_obs:8.3f} "
+            f"{'>' if msg.obs_exceeded else ' '} | ACE {msg.eta_act:8.3f} / {msg.gamma_act:8.3f} "
+            f"{'>' if msg.act_exceeded else ' '} | {state_name(msg)}")
+
+
+class Driver:
+    """Readiness, resets and rollouts of a live sim suite, in one rclpy session.
+
+    Args:
+        session: The rclpy session (its node subscribes and calls the bridge).
+        suite: The suite's launcher process (checked whenever the driver spins).
+        task: Sim task of the resets.
+        recorder: Polled for new topics whenever the driver spins (it records what the session receives).
+        display: Sees every alarm decision.
+    """
+
+    def __init__(self, session: RosSession, suite: SuiteProcess, task: str, *, recorder: Recorder | None = None,
+                 display: AlarmDisplay | None = None) -> None:
+        self.session = session
+        self.suite = suite
+        self.task = task
+        self.recorder = recorder
+        self.display = display
+        node = session.node
+        assert node is not None
+        self.node = node
+        self.states: dict[str, str] = {}
+        self.traces: dict[int, RolloutTrace] = {}
+        self._starts: dict[int, int] = {}
+        self._reset = node.create_client(ResetRollout, "/sim/reset")
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
+        node.create_subscription(Score, SCORE_RND_OE, self._on_score, TRACE_QOS)
+        node.create_subscription(Score, SCORE_ACE, self._on_score, TRACE_QOS)
+        node.create_subscription(FailureAlarm, ALARM, self._on_alarm, TRACE_QOS)
+        node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
+        node.create_subscription(ActionChunkBatch, ACTIONS, self._on_actions, qos.INPUT)
+
+    # callbacks ----------------------------------------------------------------------------------------
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            values = {v.key: v.value for v in status.values}
+            if "lifecycle_state" in values:
+                self.states[status.hardware_id] = values["lifecycle_state"]
+
+    def _on_score(self, msg: Score) -> None:
+        trace = self.traces.get(msg.rollout_id)
+        if trace is not None and msg.detector in trace.scores:
+            trace.scores[msg.detector].add(msg.step, msg.windowed_score, msg.threshold, msg.exceeded)
+
+    def _on_actions(self, msg: ActionChunkBatch) -> None:
+        trace = self.traces.get(msg.rollout_id)
+        if trace is not None:
+            trace.steps_started = max(trace.steps_started, msg.step + 1)
+
+    def _on_event(self, msg: RolloutEvent) -> None:
+        if msg.event == RolloutEvent.EVENT_START:
+            self._starts[msg.rollout_id] = stamp_ns(msg.header.stamp)  # may come before the reset's answer
+            return
+        trace = self.traces.get(msg.rollout_id)
+        if trace is not None and msg.event == RolloutEvent.EVENT_END:
+            trace.started_ns = self._starts.pop(msg.rollout_id, 0)
+            trace.ended_ns = stamp_ns(msg.header.stamp)
+            trace.outcome = OUTCOMES.get(msg.outcome, "unknown")
+
+    def _on_alarm(self, msg: FailureAlarm) -> None:
+        trace = self.traces.get(msg.rollout_id)
+        if trace is None or msg.heartbeat:
+            return
+        state = state_name(msg)
+        if state == "UNKNOWN":
+            trace.unknown_steps.add(msg.step)
+        elif state == "ALARM" and trace.alarm_step is None:
+            trace.alarm_step = msg.step
+            trace.alarm_text = alarm_line(msg)
+        if self.display is not None:
+            self.display(trace, msg)
+
+    # driving ------------------------------------------------------------------------------------------
+    def spin(self, seconds: float) -> None:
+        """Spin (and record) for ``seconds``, failing if the suite died."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self._check()
+            self.session.spin_once(0.02)
+
+    def _check(self) -> None:
+        if self.recorder is not None:
+            self.recorder.poll()
+        if not self.suite.alive():
+            exits = "; ".join(self.suite.node_exits()) or "a required node died"
+            raise SuiteFailed(f"the suite's launcher exited ({exits})", self.suite.output())
+        if self.session.stop.is_set():
+            raise KeyboardInterrupt
+
+    def wait_ready(self, managed: Sequence[str], timeout_s: float, plain: Sequence[str] = ()) -> None:
+        """Until every ``managed`` node (``/ns/name``) reports ``active`` on /diagnostics, every ``plain`` node
+        is in the graph, the bridge's reset is served and the recorder (if any) subscribed to all its topics;
+        then :data:`DISCOVERY_S` more."""
+        deadline = time.monotonic() + timeout_s
+
+        def missing() -> list[str]:
+            names = {f"{namespace.rstrip('/')}/{name}" for name, namespace in self.node.get_node_names_and_namespaces()}
+            waiting = [n for n in managed if self.states.get(n) != "active"]
+            waiting += [n for n in plain if n not in names]
+            waiting += ["/sim/reset service"] if not self._reset.service_is_ready() else []
+            waiting += sorted(self.recorder.missing()) if self.recorder is not None else []
+            return waiting
+
+        while missing():
+            if time.monotonic() > deadline:
+                states = ", ".join(f"{n}: {self.states.get(n, 'no diagnostics')}" for n in managed)
+                raise SuiteFailed(f"not ready after {timeout_s:g} s, waiting for {', '.join(missing())} ({states})")
+            self.spin(0.1)
+        self.spin(DISCOVERY_S)
+
+    def reset(self, scenario: str, seed: int, label: str = "") -> RolloutTrace:
+        """Reset the bridge into ``(task, scenario, seed)``; the trace of the new rollout."""
+        future = self._reset.call_async(ResetRollout.Request(task=self.task, scenario=scenario, seed=seed))
+        deadline = time.monotonic() + RESET_TIMEOUT_S
+        while not future.done():
+            if time.monotonic() > deadline:
+                raise SuiteFailed(f"/sim/reset did not answer within {RESET_TIMEOUT_S:g} s")
+            self.spin(0.02)
+        response = future.result()
+        if response is None or not response.success:
+            raise SuiteFailed(f"/sim/reset refused {self.task}/{scenario} seed {seed}: "
+                              f"{response.message if response else 'no response'}")
+        trace = RolloutTrace(label, scenario, seed, rollout_id=response.rollout_id, max_steps=response.max_steps)
+        self.traces[response.rollout_id] = trace
+        return trace
+
+    def follow(self, trace: RolloutTrace, timeout_s: float) -> None:
+        """Spin until ``trace``'s rollout ended; fail after ``timeout_s`` or :data:`STALL_TIMEOUT_S` without
+        a new action-chunk batch."""
+        deadline = time.monotonic() + timeout_s
+        last_progress, progress_at = -1, time.monotonic()
+        while not trace.ended:
+            if trace.steps_started != last_progress:
+                last_progress, progress_at = trace.steps_started, time.monotonic()
+            if time.monotonic() > deadline:
+                raise SuiteFailed(f"rollout {trace.rollout_id} did not end within {timeout_s:g} s "
+                                  f"({trace.steps_started} policy steps)")
+            if time.monotonic() - progress_at > STALL_TIMEOUT_S:
+                raise SuiteFailed(f"rollout {trace.rollout_id}: no action-chunk batch for {STALL_TIMEOUT_S:g} s "
+                                  f"after step {trace.steps_started} (is the policy node running?)")
+            self.spin(0.05)
+
+    def settle(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        """Spin until ``done()`` (what a rollout left in flight landed) or ``timeout_s`` passed; ``done()``."""
+        deadline = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < deadline:
+            self.spin(0.05)
+        return done()

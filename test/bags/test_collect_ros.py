@@ -1,0 +1,156 @@
+"""``fiper collect --ros``: the episodes through the live suite (sim bridge, policy node, RND-OE, ACE and fusion
+as separate processes over loopback DDS), one bag per rollout recorded from DDS.
+
+One ``--ros`` collect (2 short Sorting episodes: the shipped model with B = 4 and 3 policy steps, with the
+shipped calibration) serves the whole module; the rest needs no suite: a rerun finds every bag and
+starts none, and a run of the other kind is refused before anything starts.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fiper_msgs.msg import RolloutEvent
+from fiper_ros.bags import collect_ros
+from fiper_ros.bags.collect import bag_name
+from fiper_ros.bags.collect_ros import SOURCE, WORK_DIR
+from fiper_ros.bags.offline import predict_bag
+from fiper_ros.bags.reader import BagReader, find_bags
+from fiper_ros.bags.replay import STATE_NAMES
+from fiper_ros.bags.results import StepResult
+from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.cli import main
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.policy.policy import Policy
+from fiper_ros.policy.rollout import run_episode
+
+MODELS = Path(__file__).resolve().parents[2] / "models"
+CALIBRATION = MODELS / "sorting" / "calibration"
+SEEDS = (1000, 1001)
+STEPS = 3
+
+
+def collect_args(episodes: int = len(SEEDS)) -> list[str]:
+    """``fiper collect`` of short Sorting id episodes from seed 1000 (without ``--out`` and the runner)."""
+    return ["collect", "--task", "sorting", "--episodes", str(episodes), "--seed", str(SEEDS[0]), "--batch", "4",
+            "--max-policy-steps", str(STEPS)]
+
+
+@pytest.fixture(scope="module")
+def collected(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Sorting id seeds 1000 and 1001 collected through the live suite, with scores and alarms."""
+    out = tmp_path_factory.mktemp("collect_ros") / "sorting"
+    assert main([*collect_args(), "--ros", "--calibration", str(CALIBRATION), "--out", str(out)]) == 0
+    return out
+
+
+def _alarm_steps(reader: BagReader, rollout_id: int) -> dict[int, StepResult]:
+    """The recorded FailureAlarm decisions (not heartbeats) of ``rollout_id``, per step."""
+    alarms = (reader.decode(m) for m in reader.messages([ALARM]))
+    return {int(m.step): StepResult(STATE_NAMES[m.state], bool(m.obs_exceeded), bool(m.act_exceeded), float(m.eta_obs),
+                                    float(m.eta_act)) for m in alarms if m.rollout_id == rollout_id and not m.heartbeat}
+
+
+def test_each_rollout_is_a_bag_of_the_live_run_equal_to_the_in_process_episode(collected: Path) -> None:
+    assert sorted(p.name for p in collected.iterdir()) == ["collect.json", "id"]  # no lock, no work folder left
+    bags = find_bags([collected])
+    assert [b.relative_to(collected).as_posix() for b in bags] == [f"id/{bag_name('sorting', 'id', s)}" for s in SEEDS]
+    index = json.loads((collected / "collect.json").read_text())
+    assert (index["runner"], index["batch"], index["max_policy_steps"]) == ("ros", 4, STEPS)
+    entries = {entry["seed"]: entry for entry in index["rollouts"]}
+    policy = Policy.load(MODELS / "sorting")
+    calibration = load_calibration(CALIBRATION)
+    for seed, bag in zip(SEEDS, bags):
+        entry = entries[seed]
+        rollout_id = entry["rollout_id"]
+        assert rollout_id & 0xFFFFFFFF == seed and rollout_id >> 32 >= 1  # the bridge's id: reset counter, seed
+        with BagReader(bag) as reader:
+            counts = Counter(m.topic for m in reader.messages())
+            events = [reader.decode(m) for m in reader.messages([EVENTS])]
+            info = reader.info
+            recorded = _alarm_steps(reader, rollout_id)
+        assert counts[EMBEDDING] == counts[ACTIONS] == STEPS
+        assert [(e.rollout_id, e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in events] == [
+            (rollout_id, RolloutEvent.EVENT_START, RolloutEvent.OUTCOME_UNKNOWN, "sorting", "id", STEPS),
+            (rollout_id, RolloutEvent.EVENT_END, RolloutEvent.OUTCOME_FAILURE, "", "", 0)]
+        # a scoring node drops a step that arrives after the END it saw: the last step's scores may be missing
+        assert counts[SCORE_RND_OE] >= STEPS - 1 and counts[SCORE_ACE] >= STEPS - 1
+        assert set(range(STEPS - 1)) <= set(recorded)
+        assert (info.source, info.seed, info.split, info.task, info.policy) == (SOURCE, str(seed), "test", "sorting",
+                                                                                "models/sorting")
+        assert (info.batch_size, info.horizon, info.action_dim, info.exec_steps, info.embedding_dim) == (4, 8, 2, 4, 128)
+        assert info.calibration_hash == calibration.content_hash and info.policy_hash == index["policy_hash"]
+        # the live rollout is the in-process episode of the seed, bit for bit
+        (rollout,) = read_rollouts(bag)
+        episode = run_episode(policy, "id", seed, batch=4, max_policy_steps=STEPS)
+        assert episode.rollout is not None
+        np.testing.assert_array_equal(rollout.embeddings, episode.rollout.embeddings)
+        np.testing.assert_array_equal(rollout.actions, episode.rollout.actions)
+        assert (rollout.success, entry["success"]) == (episode.success, episode.success) == (False, False)
+        assert (entry["policy_steps"], entry["control_steps"]) == (episode.policy_steps, episode.control_steps)
+        # the alarms the fusion node published are those of the offline oracle on the recorded data
+        (offline,) = predict_bag(bag, calibration)
+        assert offline.rollout_id == rollout_id and len(offline.steps) == STEPS
+        assert recorded == {step: offline.steps[step] for step in recorded}
+
+
+def test_a_rerun_skips_every_finished_bag_without_starting_the_suite(
+        collected: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sorting"
+    shutil.copytree(collected, out)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main([*collect_args(), "--ros", "--calibration", str(CALIBRATION), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("bag exists, skipped") == len(SEEDS) and "starting" not in err
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after.keys() == before.keys() and all(after[p] == before[p] for p in before if p.name != "collect.json")
+    assert not (out / WORK_DIR).exists()
+
+
+def test_a_folder_of_the_other_runner_is_refused(collected: Path, tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    in_process = tmp_path / "in_process"
+    assert main([*collect_args(1), "--out", str(in_process)]) == 0
+    capsys.readouterr()
+
+    def refused(*args: str) -> str:
+        assert main(list(args)) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("fiper collect: ")
+        return err
+
+    err = refused(*collect_args(), "--ros", "--out", str(in_process))
+    assert f"{in_process / 'collect.json'}: the folder was collected with other settings (runner 'in-process' != " \
+           "'ros', folder != this run)" in err
+    assert "(runner 'ros' != 'in-process', folder" in refused(*collect_args(), "--out", str(collected))
+    # an index from before --ros (no runner key) is an in-process folder
+    index = json.loads((in_process / "collect.json").read_text())
+    del index["runner"]
+    (in_process / "collect.json").write_text(json.dumps(index))
+    assert "(runner 'in-process' != 'ros', folder" in refused(*collect_args(), "--ros", "--out", str(in_process))
+    assert main([*collect_args(1), "--out", str(in_process)]) == 0
+    assert "bag exists, skipped" in capsys.readouterr().err
+    assert "--calibration runs the scoring nodes: it needs --ros" in refused(
+        *collect_args(), "--calibration", str(CALIBRATION), "--out", str(tmp_path / "z"))
+    assert not (tmp_path / "z").exists()
+
+
+def test_a_node_that_dies_ends_the_collect_with_one_line_and_keeps_its_output(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("namespace: /fiper\nnodes:\n  bridge_node: {module: fiper_ros.nodes.no_such_node, namespace: /sim}\n"
+                      "  policy_node: {module: fiper_ros.nodes.no_such_node}\n")
+    monkeypatch.setattr(collect_ros, "installed_config", lambda name: broken)
+    out = tmp_path / "sorting"
+    assert main([*collect_args(), "--ros", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1].startswith("fiper collect: the suite's launcher exited (") and "exited with code 1" in err[-1]
+    assert err[-1].endswith(f"the nodes' output: {out / WORK_DIR / 'suite.log'}")
+    assert "No module named fiper_ros.nodes.no_such_node" in (out / WORK_DIR / "suite.log").read_text()
+    assert json.loads((out / "collect.json").read_text())["rollouts"] == []
