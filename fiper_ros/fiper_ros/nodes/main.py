@@ -1,6 +1,12 @@
-"""Running one node in its own process: init, spin, clean shutdown on SIGINT / SIGTERM."""
+"""Running one node in its own process: init, spin, clean shutdown on SIGINT / SIGTERM.
+
+After start-up every object that exists (rclpy, numpy, torch, the node) is moved out of the garbage
+collector's reach (``gc.freeze``): a full collection then only walks what the callbacks allocate, so it
+no longer stalls a callback for milliseconds (the tail of the node benchmark, docs/benchmarks.md).
+"""
 from __future__ import annotations
 
+import gc
 import signal
 import sys
 from collections.abc import Callable
@@ -19,6 +25,8 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None) -> int:
         node = factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
+        gc.collect()
+        gc.freeze()
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
