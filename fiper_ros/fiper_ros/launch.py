@@ -176,9 +176,10 @@ def run_processes(config: LaunchConfig, grace_s: float) -> int:
 def run_in_process(config: LaunchConfig) -> int:
     """Run every node in this process on one multi-threaded executor."""
     import rclpy  # noqa: PLC0415 - only this mode needs rclpy in the launcher itself
-    from rclpy._rclpy_pybind11 import RCLError  # noqa: PLC0415
-    from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor  # noqa: PLC0415
+    from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
     from rclpy.parameter import Parameter, parameter_dict_from_yaml_file  # noqa: PLC0415
+
+    from fiper_ros.nodes.main import spin_until_shutdown  # noqa: PLC0415
 
     rclpy.init()
     nodes = []
@@ -195,14 +196,9 @@ def run_in_process(config: LaunchConfig) -> int:
             nodes.append(node)
             executor.add_node(node)
             print(f"[launch] {spec.name} running in-process ({spec.module})", flush=True)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(executor)
+    except KeyboardInterrupt:  # while the nodes start
         pass
-    except RCLError:
-        # Ctrl-C shuts the context down from rclpy's signal handler; if that lands while the executor
-        # builds its wait set, rcl reports an invalid context instead of ExternalShutdownException.
-        if rclpy.ok():
-            raise
     finally:
         for node in nodes:
             node.destroy_node()

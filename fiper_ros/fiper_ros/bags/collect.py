@@ -110,13 +110,11 @@ def shown_path(path: Path) -> str:
 def load_model(directory: Path, task: str) -> Model:
     """Load a model folder (``policy.pt`` + ``policy.yaml``) and check that it is a ``task`` policy."""
     files = [directory / WEIGHTS_FILE, directory / CONFIG_FILE]
-    missing = [f.name for f in files if not f.is_file()]
-    if missing:
-        raise BagError(f"{directory}: no {' and '.join(missing)}: not a policy model folder "
-                       f"(train one first, docs/policies.md)")
     try:
         policy = Policy.load(directory)
         info = yaml.safe_load(files[1].read_text()).get("info") or {}
+    except FileNotFoundError as error:
+        raise BagError(f"{error}: not a policy model folder (train one first, docs/policies.md)") from error
     except (OSError, ValueError, KeyError, RuntimeError, yaml.YAMLError) as error:
         raise BagError(f"{directory}: cannot load the policy ({type(error).__name__}: {error})") from error
     if policy.config.task != task:

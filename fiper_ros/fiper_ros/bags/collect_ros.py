@@ -37,7 +37,7 @@ from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_R
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain
-from fiper_ros.demo.driver import Driver, SuiteFailed
+from fiper_ros.demo.driver import Driver, SuiteFailed, node_path
 from fiper_ros.demo.trace import RolloutTrace
 from fiper_ros.launch import LaunchConfig, LaunchError, dump_config, load_config
 
@@ -95,11 +95,6 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     nodes = tuple(replace(spec, required=True, parameters=spec.parameters | parameters.get(spec.name, {}))
                   for spec in config.nodes if spec.name in keep)
     return replace(config, nodes=nodes)
-
-
-def node_path(namespace: str, name: str) -> str:
-    """``/namespace/name`` of a node."""
-    return f"{namespace.rstrip('/')}/{name}"
 
 
 class RosRunner:

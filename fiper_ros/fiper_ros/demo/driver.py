@@ -58,6 +58,11 @@ class SuiteFailed(RuntimeError):
         self.output = output
 
 
+def node_path(namespace: str, name: str) -> str:
+    """``/namespace/name`` of a node."""
+    return f"{namespace.rstrip('/')}/{name}"
+
+
 def state_name(msg: FailureAlarm) -> str:
     """``OK``, ``ALARM`` or ``UNKNOWN``."""
     return STATE_NAMES.get(msg.state, "UNKNOWN")
@@ -166,7 +171,7 @@ class Driver:
         deadline = time.monotonic() + timeout_s
 
         def missing() -> list[str]:
-            names = {f"{namespace.rstrip('/')}/{name}" for name, namespace in self.node.get_node_names_and_namespaces()}
+            names = {node_path(namespace, name) for name, namespace in self.node.get_node_names_and_namespaces()}
             waiting = [n for n in managed if self.states.get(n) != "active"]
             waiting += [n for n in plain if n not in names]
             waiting += ["/sim/reset service"] if not self._reset.service_is_ready() else []

@@ -13,7 +13,21 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy._rclpy_pybind11 import RCLError
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+
+
+def spin_until_shutdown(executor: Executor) -> None:
+    """Spin until Ctrl-C / SIGTERM shuts rclpy down, however rclpy reports the shutdown."""
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RCLError:
+        # rclpy's signal handler shuts the context down; if that lands while the executor builds its wait
+        # set, rcl reports an invalid context instead of ExternalShutdownException.
+        if rclpy.ok():
+            raise
 
 
 def run_node(factory: Callable[..., Any], args: list[str] | None = None) -> int:
@@ -27,8 +41,8 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None) -> int:
         executor.add_node(node)
         gc.collect()
         gc.freeze()
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(executor)
+    except KeyboardInterrupt:  # during start-up
         pass
     finally:
         if node is not None:

@@ -25,7 +25,7 @@ from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES, action_batch_msg, action_command_msg, embedding_msg, stamp_ns
 from fiper_ros.nodes.main import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
-from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
+from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.session import PolicySession
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.observation_sync import ObservationSync
@@ -75,11 +75,8 @@ class PolicyNode(FiperNode):
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
         model = Path(self.get_parameter("model").value)
-        missing = [name for name in (CONFIG_FILE, WEIGHTS_FILE) if not (model / name).is_file()]
-        if missing:
-            raise FileNotFoundError(f"policy folder {model.resolve()} lacks {' and '.join(missing)} (parameter model)")
         torch.set_num_threads(self.get_parameter("torch_threads").value)
-        policy = Policy.load(model)
+        policy = Policy.load(model)  # a missing file is named in the error (the parameter is `model`)
         self.session = PolicySession(policy, self.get_parameter("batch").value or None, self.reject,
                                      int(self.get_parameter("start_wait_s").value * 1e9))
         self.policy = policy

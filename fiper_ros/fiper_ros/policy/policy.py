@@ -120,8 +120,15 @@ class Policy(nn.Module):
 
     @classmethod
     def load(cls, directory: str | Path) -> Policy:
-        """Read a policy written by :meth:`save` (eval mode)."""
+        """Read a policy written by :meth:`save` (eval mode).
+
+        Raises:
+            FileNotFoundError: ``directory`` lacks ``policy.yaml`` or ``policy.pt`` (the message names them).
+        """
         directory = Path(directory)
+        missing = [name for name in (CONFIG_FILE, WEIGHTS_FILE) if not (directory / name).is_file()]
+        if missing:
+            raise FileNotFoundError(f"policy folder {directory.resolve()} lacks {' and '.join(missing)}")
         document = yaml.safe_load((directory / CONFIG_FILE).read_text())
         config = PolicyConfig.from_dict(document["config"])
         policy = cls(config, RangeNormalizer(**document["action_stats"]), RangeNormalizer(**document["proprio_stats"]))
