@@ -18,7 +18,8 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +60,11 @@ class LaunchConfig:
 
     nodes: tuple[NodeSpec, ...]
     use_sim_time: bool
+
+    def with_parameters(self, parameters: Callable[[NodeSpec], Mapping[str, Any]]) -> LaunchConfig:
+        """This config with ``parameters(node)`` merged over each node's inline parameters."""
+        return replace(self, nodes=tuple(replace(spec, parameters=spec.parameters | dict(parameters(spec)))
+                                         for spec in self.nodes))
 
 
 def load_config(path: Path) -> LaunchConfig:

@@ -92,9 +92,8 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     policy = {"model": str(settings.model), "batch": settings.batch, "torch_threads": settings.threads}
     scoring = {"calibration_dir": str(settings.calibration)}
     parameters = {"bridge_node": bridge, "policy_node": policy, "rnd_oe_node": scoring, "ace_node": scoring}
-    nodes = tuple(replace(spec, required=True, parameters=spec.parameters | parameters.get(spec.name, {}))
-                  for spec in config.nodes if spec.name in keep)
-    return replace(config, nodes=nodes)
+    nodes = tuple(replace(spec, required=True) for spec in config.nodes if spec.name in keep)
+    return replace(config, nodes=nodes).with_parameters(lambda spec: parameters.get(spec.name, {}))
 
 
 class RosRunner:

@@ -41,9 +41,9 @@ def replay_config(config: Path, calibration: Path, out: Path) -> Path:
         parsed = load_config(config)
     except (LaunchError, yaml.YAMLError) as error:
         raise BagError(f"launch config {config}: {error}") from error
-    nodes = tuple(replace(spec, parameters=spec.parameters | {"calibration_dir": str(calibration.resolve())})
-                  if spec.module in DETECTOR_MODULES else spec for spec in parsed.nodes)
-    return dump_config(replace(parsed, nodes=nodes, use_sim_time=True), out)
+    detector = {"calibration_dir": str(calibration.resolve())}
+    parsed = parsed.with_parameters(lambda spec: detector if spec.module in DETECTOR_MODULES else {})
+    return dump_config(replace(parsed, use_sim_time=True), out)
 
 
 class SuiteProcess:

@@ -15,7 +15,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -104,11 +104,9 @@ def problems_of(trace: RolloutTrace) -> list[str]:
 
 def demo_config(source: Path, model: Path, calibration: Path, out: Path) -> Path:
     """``source`` with the model and calibration paths made absolute, written to ``out``."""
-    config = load_config(source)
     paths = {"model": str(model), "calibration_dir": str(calibration)}
-    nodes = tuple(replace(spec, parameters=spec.parameters | {k: v for k, v in paths.items() if k in spec.parameters})
-                  for spec in config.nodes)
-    return dump_config(replace(config, nodes=nodes), out)
+    config = load_config(source).with_parameters(lambda spec: {k: v for k, v in paths.items() if k in spec.parameters})
+    return dump_config(config, out)
 
 
 def run_demo(args: argparse.Namespace) -> int:
