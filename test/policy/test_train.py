@@ -1,4 +1,5 @@
-"""Training on (synthetic) demonstrations: the loss falls, runs are deterministic per seed, resume is exact."""
+"""Training on (synthetic) demonstrations: the loss falls, runs are deterministic per seed, resume is exact;
+the open-loop fit check against the demonstrations."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,9 +8,10 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from helpers.policy_fixtures import tiny_config, write_demos
+from helpers.policy_fixtures import tiny_config, tiny_policy, write_demos
 
 from fiper_ros.policy.dataset import DemoDataset
+from fiper_ros.policy.fit import open_loop_fit
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.train import Progress, train
 
@@ -70,3 +72,25 @@ def test_training_is_deterministic_and_resumes_exactly(tmp_path: Path, demo_dir:
     resumed = _state(train(two, demo_dir, tmp_path / "d", tmp_path / "run_d", seed=5, progress=_quiet))
     for key in full:
         torch.testing.assert_close(full[key], resumed[key], rtol=0, atol=0)
+
+
+def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(demo_dir: Path) -> None:
+    policy = tiny_policy()
+    episode = sorted(demo_dir.glob("episode_*.npz"))[0]
+    with np.load(episode) as data:
+        frames = [{key: data[key][t] for key in ("wrist_rgb", "third_rgb", "proprio")}
+                  for t in range(len(data["actions"]))]
+        actions = data["actions"]
+    last = len(actions) - 1
+    report = open_loop_fit(policy, [episode], batch=5, stride=last, seed=3)  # states 0 and the last one
+    expected_errors, expected_spreads = [], []
+    for t, target in ((0, actions[:policy.config.horizon]), (last, np.repeat(actions[-1:], policy.config.horizon, 0))):
+        _, chunks = policy.act([frames[t]], 5, torch.Generator().manual_seed(3))
+        expected_errors.append(np.abs(chunks.mean(0) - target).mean(0))
+        expected_spreads.append(chunks.std(0).mean(0))
+    assert report.states == 2
+    np.testing.assert_allclose(report.error, np.mean(expected_errors, 0), rtol=1e-6)
+    np.testing.assert_allclose(report.spread, np.mean(expected_spreads, 0), rtol=1e-6)
+    np.testing.assert_allclose(report.magnitude, np.abs(actions).mean(0), rtol=1e-6)
+    with pytest.raises(ValueError, match="stride"):
+        open_loop_fit(policy, [episode], stride=0)

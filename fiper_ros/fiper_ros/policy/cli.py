@@ -1,9 +1,10 @@
-"""Command line: ``python -m fiper_ros.policy.cli {train,eval,plot}``.
+"""Command line: ``python -m fiper_ros.policy.cli {train,eval,plot,fit}``.
 
 Examples::
 
     python -m fiper_ros.policy.cli train --task sorting --demos data/demos/sorting --out models/sorting
     python -m fiper_ros.policy.cli eval --task sorting --scenario id --episodes 50 --seed 1000 --record r.npz
+    python -m fiper_ros.policy.cli fit --task stacking --model runs/models/stacking --demos data/demos/stacking
 """
 from __future__ import annotations
 
@@ -64,6 +65,23 @@ def _plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fit(args: argparse.Namespace) -> int:
+    from .dataset import episode_files
+    from .fit import open_loop_fit
+    from .policy import Policy
+
+    policy = Policy.load(args.model or f"models/{args.task}")
+    files = episode_files(args.demos)
+    chosen = [files[i] for i in args.episodes if i < len(files)]
+    report = open_loop_fit(policy, chosen, args.batch, args.stride, args.seed)
+    print(f"{args.task}: {report.states} states of {len(chosen)} demonstration episodes, B = {args.batch}")
+    print("| action dim | error of the sample mean | sample spread (std) | expert magnitude | error / magnitude |")
+    print("| ---: | ---: | ---: | ---: | ---: |")
+    for d, (err, spread, mag) in enumerate(zip(report.error, report.spread, report.magnitude, strict=True)):
+        print(f"| {d} | {err:.3f} | {spread:.3f} | {mag:.3f} | {err / max(mag, 1e-9):.2f} |")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point."""
     parser = argparse.ArgumentParser(prog="fiper_ros.policy.cli", description=__doc__,
@@ -97,6 +115,15 @@ def main(argv: list[str] | None = None) -> int:
     plot.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001, 1002])
     plot.add_argument("--out", default=None, help="PNG path (default docs/img/policy_multimodality_<task>.png)")
     plot.set_defaults(func=_plot)
+    fit = sub.add_parser("fit", help="open-loop fit: sampled chunks against the expert's on demonstration states")
+    fit.add_argument("--task", choices=sorted(PRESETS), required=True)
+    fit.add_argument("--model", default=None, help="model folder (default models/<task>)")
+    fit.add_argument("--demos", required=True, help="folder of episode_*.npz files")
+    fit.add_argument("--episodes", type=int, nargs="+", default=[0, 50, 100, 150], help="indices of episode files")
+    fit.add_argument("--stride", type=int, default=4, help="every stride-th state of an episode")
+    fit.add_argument("--batch", type=int, default=16, help="chunks sampled per state")
+    fit.add_argument("--seed", type=int, default=0, help="noise seed of every state")
+    fit.set_defaults(func=_fit)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")

@@ -1,0 +1,64 @@
+"""Open-loop fit: how far a policy's sampled chunks are from the expert's on demonstration states.
+
+A policy that fails in closed loop is either underfitted (its chunks already miss the expert's on the
+states it was trained on) or meets states it never saw. This check tells the two apart: at states ``t``
+of demonstration episodes it samples ``B`` chunks from the observation history the dataset gives that
+state (frames ``t - T_h + 1 .. t``, clamped at the start) and compares their mean with the expert's chunk
+``actions[t : t + H]`` (padded with the last action), as :mod:`.dataset` builds training samples.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .encoder import CAMERAS
+from .policy import Policy
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """Per action dimension, averaged over the visited states (all float ``[D]``)."""
+
+    states: int
+    error: np.ndarray
+    """Mean absolute difference between the mean of the ``B`` sampled chunks and the expert's chunk."""
+    spread: np.ndarray
+    """Mean standard deviation over the ``B`` sampled chunks."""
+    magnitude: np.ndarray
+    """Mean absolute expert action (the scale ``error`` is to be read against)."""
+
+
+def expert_chunk(actions: np.ndarray, t: int, horizon: int) -> np.ndarray:
+    """``actions[t : t + horizon]`` padded with the episode's last action (the training target)."""
+    return actions[np.clip(np.arange(t, t + horizon), 0, len(actions) - 1)]
+
+
+def open_loop_fit(policy: Policy, episodes: list[Path], batch: int = 16, stride: int = 1,
+                  seed: int = 0) -> FitReport:
+    """Compare ``policy`` with the expert at every ``stride``-th state of each episode file.
+
+    The noise of each state comes from ``torch.Generator().manual_seed(seed)``, so a report is a function
+    of its arguments.
+    """
+    if stride < 1:
+        raise ValueError(f"stride must be >= 1, got {stride}")
+    errors, spreads, magnitudes = [], [], []
+    config = policy.config
+    for path in episodes:
+        with np.load(path) as data:
+            frames = {key: data[key] for key in (*CAMERAS, "proprio")}
+            actions = np.asarray(data["actions"], dtype=np.float32)
+        for t in range(0, len(actions), stride):
+            history = [{key: frames[key][k] for key in frames}
+                       for k in np.clip(np.arange(t - config.obs_horizon + 1, t + 1), 0, None)]
+            _, chunks = policy.act(history, batch, torch.Generator().manual_seed(seed))
+            errors.append(np.abs(chunks.mean(axis=0) - expert_chunk(actions, t, config.horizon)).mean(axis=0))
+            spreads.append(chunks.std(axis=0).mean(axis=0))
+        magnitudes.append(np.abs(actions))
+    if not errors:
+        raise ValueError("no demonstration states to compare")
+    return FitReport(len(errors), np.mean(errors, axis=0), np.mean(spreads, axis=0),
+                     np.abs(np.concatenate(magnitudes)).mean(axis=0))
