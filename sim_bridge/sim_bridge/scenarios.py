@@ -63,7 +63,7 @@ def _common(task: str) -> list[Scenario]:
     return [
         Scenario("id", task, "id", "in-distribution: the demonstrations' distribution"),
         Scenario("lighting", task, "benign", "dimmer main light from a side direction",
-                 {"light_scale": (0.55, 0.75), "light_azimuth": (0.6, 1.0)}),
+                 {"light_scale": (0.75, 0.9), "light_azimuth": (0.3, 0.6)}),
         Scenario("camera_shift", task, "benign", "third-person camera moved by 1.5-2.5 cm",
                  {"camera_shift": (0.015, 0.025)}),
         Scenario("camera_moved", task, "harmful", "third-person camera moved by 25-30 cm",
@@ -80,8 +80,8 @@ SCENARIOS: dict[str, dict[str, Scenario]] = {
                      {"block_scale": (1.5, 1.7)}),
             Scenario("box_pos", "sorting", "harmful", "both boxes 22-28 cm closer to the robot",
                      {"box_shift": (0.22, 0.28)}),
-            Scenario("friction_low", "sorting", "harmful", "slippery table and blocks (mu 0.04-0.06)",
-                     {"friction": (0.04, 0.06)}),
+            Scenario("friction_low", "sorting", "harmful", "slippery table and blocks (mu 0.01-0.02)",
+                     {"friction": (0.01, 0.02)}),
         ],
         "stacking": _common("stacking") + [
             Scenario("block_size", "stacking", "harmful", "blocks 1.45-1.6x larger", {"block_scale": (1.45, 1.6)}),

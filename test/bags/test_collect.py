@@ -171,6 +171,24 @@ def test_a_folder_of_other_settings_is_refused(collected: Path, tmp_path: Path,
     assert not (tmp_path / "z").exists()
 
 
+def test_a_scenario_whose_knobs_changed_is_refused(collected: Path, tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    index = json.loads((collected / "collect.json").read_text())
+    assert index["scenarios"] == {"id": {}, "camera_moved": {"camera_shift": [0.25, 0.3]}}
+    folder = tmp_path / "sorting"
+    shutil.copytree(collected, folder)
+    index["scenarios"]["camera_moved"]["camera_shift"] = [0.2, 0.25]  # as if collected before a retune
+    (folder / "collect.json").write_text(json.dumps(index))
+    assert main([*ARGS, "--out", str(folder)]) == 2
+    assert ("fiper collect: scenario 'camera_moved' has changed since its rollouts in this folder were collected "
+            "(knobs {'camera_shift': [0.2, 0.25]} then, {'camera_shift': [0.25, 0.3]} now)") in capsys.readouterr().err
+    del index["scenarios"]  # an index from before the knobs were recorded: resumed, knobs recorded from now on
+    (folder / "collect.json").write_text(json.dumps(index))
+    assert main([*ARGS, "--out", str(folder)]) == 0
+    recorded = json.loads((folder / "collect.json").read_text())["scenarios"]
+    assert recorded["camera_moved"] == {"camera_shift": [0.25, 0.3]}
+
+
 def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_path: Path) -> None:
     model = _tiny_model(tmp_path / "tiny_stacking", "stacking")
     out = tmp_path / "stacking"

@@ -396,6 +396,9 @@ def run(args: argparse.Namespace) -> int:
                              args.max_policy_steps, ROS if args.ros else IN_PROCESS)
         with locked(args.out), ExitStack() as stack:
             index = open_index(args.out, setup, model)
+            for name in scenarios:
+                knobs = get_scenario(args.task, name).knobs
+                index.use_scenario(name, {knob: list(bounds) for knob, bounds in knobs.items()})
             settings = {"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
                         "successes": args.successes, "max_episodes": target.max_episodes}
             if args.calibration is not None:

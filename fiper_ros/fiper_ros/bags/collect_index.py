@@ -1,8 +1,9 @@
 """The index of a ``fiper collect`` folder: ``DIR/collect.json``.
 
 It names what produced the folder's bags (task, policy model and its hash, split, batch size, policy-step
-cap, in-process or through ROS: :class:`CollectSetup`, which a resumed run must match), the settings of
-every run into the folder, and one entry per rollout (scenario, seed, outcome, steps, bag path). An entry
+cap, in-process or through ROS: :class:`CollectSetup`, which a resumed run must match), the knobs of every
+scenario collected (a resumed scenario must have the same ones), the settings of every run into the
+folder, and one entry per rollout (scenario, seed, outcome, steps, bag path). An entry
 is written before its bag, and the file is replaced atomically, so after a kill the index lists every
 complete bag; entries whose bag never appeared are dropped when the index is read.
 """
@@ -23,6 +24,8 @@ INDEX_FILE = "collect.json"
 INDEX_FORMAT = 1
 #: How the rollouts were produced: in the collecting process, or through the live ROS node suite.
 IN_PROCESS, ROS = "in-process", "ros"
+#: A scenario's knob ranges as JSON stores them: knob -> [low, high].
+Knobs = dict[str, list[float]]
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,16 @@ class CollectIndex:
     policy_data_hash: str
     runs: list[dict[str, Any]] = field(default_factory=list)
     rollouts: dict[tuple[str, int], IndexEntry] = field(default_factory=dict)
+    scenarios: dict[str, Knobs] = field(default_factory=dict)
+    """Knob ranges of each scenario collected into the folder (an index from before this field: empty)."""
+
+    def use_scenario(self, name: str, knobs: Knobs) -> None:
+        """Record ``name``'s knobs, or refuse if the folder's rollouts of ``name`` had other ones."""
+        knobs = {key: [float(v) for v in bounds] for key, bounds in sorted(knobs.items())}
+        recorded = self.scenarios.setdefault(name, knobs)
+        if recorded != knobs:
+            raise BagError(f"scenario {name!r} has changed since its rollouts in this folder were collected "
+                           f"(knobs {recorded} then, {knobs} now): remove its folder or choose another --out")
 
     def add_run(self, settings: dict[str, Any]) -> None:
         """Record the settings of a run (a rerun with the same settings is recorded once)."""
@@ -95,7 +108,7 @@ class CollectIndex:
     def to_json(self) -> dict[str, Any]:
         """The JSON document."""
         return {"format": INDEX_FORMAT, **asdict(self.setup), "policy": self.policy,
-                "policy_data_hash": self.policy_data_hash, "runs": self.runs,
+                "policy_data_hash": self.policy_data_hash, "scenarios": self.scenarios, "runs": self.runs,
                 "rollouts": [asdict(self.rollouts[key]) for key in sorted(self.rollouts)]}
 
     def save(self, directory: Path) -> None:
@@ -118,7 +131,8 @@ class CollectIndex:
             setup = CollectSetup(**{item.name: document[item.name] for item in fields(CollectSetup)
                                     if item.default is MISSING or item.name in document})
             entries = [IndexEntry(**entry) for entry in document["rollouts"]]
-            index = cls(setup, str(document["policy"]), str(document["policy_data_hash"]), list(document["runs"]))
+            index = cls(setup, str(document["policy"]), str(document["policy_data_hash"]), list(document["runs"]),
+                        scenarios=dict(document.get("scenarios", {})))
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
             raise BagError(f"{path}: not a readable fiper collect index ({type(error).__name__}: {error})") from error
         index.rollouts = {(e.scenario, e.seed): e for e in entries if (directory / e.bag / METADATA).is_file()}
