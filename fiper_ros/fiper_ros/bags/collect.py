@@ -397,8 +397,7 @@ def run(args: argparse.Namespace) -> int:
         with locked(args.out), ExitStack() as stack:
             index = open_index(args.out, setup, model)
             for name in scenarios:
-                knobs = get_scenario(args.task, name).knobs
-                index.use_scenario(name, {knob: list(bounds) for knob, bounds in knobs.items()})
+                index.use_scenario(name, get_scenario(args.task, name).knobs)
             settings = {"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
                         "successes": args.successes, "max_episodes": target.max_episodes}
             if args.calibration is not None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -92,9 +93,9 @@ class CollectIndex:
     scenarios: dict[str, Knobs] = field(default_factory=dict)
     """Knob ranges of each scenario collected into the folder (an index from before this field: empty)."""
 
-    def use_scenario(self, name: str, knobs: Knobs) -> None:
-        """Record ``name``'s knobs, or refuse if the folder's rollouts of ``name`` had other ones."""
-        knobs = {key: [float(v) for v in bounds] for key, bounds in sorted(knobs.items())}
+    def use_scenario(self, name: str, ranges: Mapping[str, Sequence[float]]) -> None:
+        """Record ``name``'s knob ranges, or refuse if the folder's rollouts of ``name`` had other ones."""
+        knobs = {key: [float(v) for v in bounds] for key, bounds in sorted(ranges.items())}
         recorded = self.scenarios.setdefault(name, knobs)
         if recorded != knobs:
             raise BagError(f"scenario {name!r} has changed since its rollouts in this folder were collected "

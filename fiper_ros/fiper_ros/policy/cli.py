@@ -72,7 +72,10 @@ def _fit(args: argparse.Namespace) -> int:
 
     policy = Policy.load(args.model or f"models/{args.task}")
     files = episode_files(args.demos)
-    chosen = [files[i] for i in args.episodes if i < len(files)]
+    outside = [i for i in args.episodes if not 0 <= i < len(files)]
+    if outside:
+        raise SystemExit(f"--episodes {outside}: {args.demos} has episodes 0..{len(files) - 1}")
+    chosen = [files[i] for i in args.episodes]
     report = open_loop_fit(policy, chosen, args.batch, args.stride, args.seed)
     print(f"{args.task}: {report.states} states of {len(chosen)} demonstration episodes, B = {args.batch}")
     print("| action dim | error of the sample mean | sample spread (std) | expert magnitude | error / magnitude |")

@@ -37,6 +37,15 @@ def files_hash(files: list[Path]) -> str:
     return digest.hexdigest()
 
 
+def sample_indices(length: int, obs_horizon: int, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per control step ``t`` of an episode of ``length`` steps: the frames of its observation history
+    ``[length, T_h]`` (``t - T_h + 1 .. t``, clamped at the start) and of its action chunk ``[length, H]``
+    (``t .. t + H - 1``, clamped at the end: padded with the last action)."""
+    steps = np.arange(length)[:, None]
+    return (np.clip(steps + np.arange(1 - obs_horizon, 1)[None], 0, length - 1),
+            np.clip(steps + np.arange(horizon)[None], 0, length - 1))
+
+
 @dataclass
 class Batch:
     """A training batch: images (one uint8 ``[N, T_h, 3, S, S]`` per camera), proprio ``[N, T_h, P]``,
@@ -70,9 +79,9 @@ class DemoDataset:
                     images[cam].append(preprocess_images(data[cam], image_size))
                 proprio.append(np.asarray(data["proprio"], dtype=np.float32))
                 actions.append(np.asarray(data["actions"], dtype=np.float32))
-            steps = np.arange(length)
-            obs_index.append(offset + np.clip(steps[:, None] + np.arange(1 - obs_horizon, 1)[None], 0, length - 1))
-            chunk_index.append(offset + np.clip(steps[:, None] + np.arange(horizon)[None], 0, length - 1))
+            frames, chunk = sample_indices(length, obs_horizon, horizon)
+            obs_index.append(offset + frames)
+            chunk_index.append(offset + chunk)
             offset += length
         if not proprio:
             raise ValueError(f"no successful demonstrations in {directory}")

@@ -2,9 +2,8 @@
 
 A policy that fails in closed loop is either underfitted (its chunks already miss the expert's on the
 states it was trained on) or meets states it never saw. This check tells the two apart: at states ``t``
-of demonstration episodes it samples ``B`` chunks from the observation history the dataset gives that
-state (frames ``t - T_h + 1 .. t``, clamped at the start) and compares their mean with the expert's chunk
-``actions[t : t + H]`` (padded with the last action), as :mod:`.dataset` builds training samples.
+of demonstration episodes it samples ``B`` chunks from the observation history of that state and compares
+their mean with the expert's chunk, both as :func:`.dataset.sample_indices` gives them to training.
 """
 from __future__ import annotations
 
@@ -14,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .dataset import sample_indices
 from .encoder import CAMERAS
 from .policy import Policy
 
@@ -31,11 +31,6 @@ class FitReport:
     """Mean absolute expert action (the scale ``error`` is to be read against)."""
 
 
-def expert_chunk(actions: np.ndarray, t: int, horizon: int) -> np.ndarray:
-    """``actions[t : t + horizon]`` padded with the episode's last action (the training target)."""
-    return actions[np.clip(np.arange(t, t + horizon), 0, len(actions) - 1)]
-
-
 def open_loop_fit(policy: Policy, episodes: list[Path], batch: int = 16, stride: int = 1,
                   seed: int = 0) -> FitReport:
     """Compare ``policy`` with the expert at every ``stride``-th state of each episode file.
@@ -51,13 +46,13 @@ def open_loop_fit(policy: Policy, episodes: list[Path], batch: int = 16, stride:
         with np.load(path) as data:
             frames = {key: data[key] for key in (*CAMERAS, "proprio")}
             actions = np.asarray(data["actions"], dtype=np.float32)
+        history_index, chunk_index = sample_indices(len(actions), config.obs_horizon, config.horizon)
         for t in range(0, len(actions), stride):
-            history = [{key: frames[key][k] for key in frames}
-                       for k in np.clip(np.arange(t - config.obs_horizon + 1, t + 1), 0, None)]
+            history = [{key: frames[key][k] for key in frames} for k in history_index[t]]
             _, chunks = policy.act(history, batch, torch.Generator().manual_seed(seed))
-            errors.append(np.abs(chunks.mean(axis=0) - expert_chunk(actions, t, config.horizon)).mean(axis=0))
+            errors.append(np.abs(chunks.mean(axis=0) - actions[chunk_index[t]]).mean(axis=0))
             spreads.append(chunks.std(axis=0).mean(axis=0))
-        magnitudes.append(np.abs(actions))
+        magnitudes.append(actions)
     if not errors:
         raise ValueError("no demonstration states to compare")
     return FitReport(len(errors), np.mean(errors, axis=0), np.mean(spreads, axis=0),
