@@ -4,8 +4,11 @@ A thin shell around :class:`sim_bridge.bridge_session.BridgeSession`: ``/sim/res
 (RolloutEvent START, then the first observation), ``/sim/action`` commands (the first ``h`` actions of
 a chunk) are executed one per control step at the task's control rate times ``realtime_factor``
 (0: as fast as possible), and after every executed command the observation "tick" is published:
-``/joint_states``, both camera images and ``/sim/proprio`` with one ``header.stamp``. The rollout
-ends with a RolloutEvent END (success, failure, time limit, ``/sim/halt``, a new reset). In sim-time
+``/joint_states``, both camera images and ``/sim/proprio`` with one ``header.stamp``. While no command
+for a tick has arrived, its images and proprioception are re-published unchanged every
+``observation_resend_s``: a policy whose subscriptions were matched after the tick (discovery under
+load, a policy node started late) still gets it, and one that already has it drops the repetition
+(same stamp). The rollout ends with a RolloutEvent END (success, failure, time limit, ``/sim/halt``, a new reset). In sim-time
 mode the bridge publishes ``/clock``: simulated time, which only advances while actions execute.
 """
 from __future__ import annotations
@@ -63,6 +66,9 @@ class BridgeNode(FiperNode):
                                             read_only=True))
         declare("publish_rate_hz", 10.0, describe("re-publish /joint_states (and /clock) at this rate while "
                                                   "idle; 0 = off", read_only=True, low=0.0, high=1000.0))
+        declare("observation_resend_s", 2.0, describe("re-publish a tick's images and proprioception at this period "
+                                                      "until its command arrives; 0 = off", read_only=True,
+                                                      low=0.0, high=3600.0))
         declare("joint_state_topic", "/joint_states", describe("sensor_msgs/JointState of the 9 joints",
                                                                 read_only=True))
         declare("wrist_image_topic", "/camera/wrist/image_raw", describe("wrist camera image", read_only=True))
@@ -80,6 +86,11 @@ class BridgeNode(FiperNode):
         self._period_ns = 0
         self._step_timer: Any = None
         self._action_sub: Any = None
+        #: The running rollout's newest tick (images, proprioception) while its command has not arrived.
+        self._unanswered: list[tuple[Any, Any]] = []
+        self._unanswered_since = 0
+        self._resend_ns = round(float(self.get_parameter("observation_resend_s").value) * 1e9)
+        self.observation_resends = 0
 
         def publisher(msg_type: Any, parameter: str, profile: QoSProfile) -> Any:
             topic = self.get_parameter(parameter).value
@@ -96,6 +107,8 @@ class BridgeNode(FiperNode):
         rate = float(self.get_parameter("publish_rate_hz").value)
         if rate > 0:
             self.create_timer(1.0 / rate, self._on_idle, clock=self.steady)
+        if self._resend_ns > 0:
+            self.create_timer(self._resend_ns / 4e9, self._on_resend, clock=self.steady)
 
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
@@ -193,6 +206,7 @@ class BridgeNode(FiperNode):
         self._step_timer.cancel()
 
     def _stop_stepping(self) -> None:
+        self._unanswered = []
         if self._step_timer is not None:
             self._step_timer.cancel()
 
@@ -206,6 +220,7 @@ class BridgeNode(FiperNode):
         except InputRejected as error:
             self.reject(error)
             return
+        self._unanswered = []
         self._execute_step()  # the first action at once, the others on the step timer
         if self.session.rollout is not None:
             self._step_timer.reset()
@@ -256,17 +271,31 @@ class BridgeNode(FiperNode):
         assert self.session is not None and self.session.rollout is not None
         obs = self.session.observation()
         self._publish_joint_state(stamp)
+        parts: list[tuple[Any, Any]] = []
         for key, pub in self._image_pubs.items():
             image = obs[key]
             msg = Image(height=image.shape[0], width=image.shape[1], encoding="rgb8", is_bigendian=0,
                         step=image.shape[1] * 3, data=image.tobytes())
             msg.header.stamp = to_stamp(stamp)
             msg.header.frame_id = CAMERAS[key]
-            pub.publish(msg)
+            parts.append((pub, msg))
         proprio = JointState(name=list(PROPRIO_NAMES[self.session.rollout.task]), position=obs["proprio"].tolist())
         proprio.header.stamp = to_stamp(stamp)
-        self._proprio_pub.publish(proprio)
+        parts.append((self._proprio_pub, proprio))
+        for pub, msg in parts:
+            pub.publish(msg)
+        self._unanswered, self._unanswered_since = parts, self.steady.now().nanoseconds
         self.tick("observation")
+
+    def _on_resend(self) -> None:
+        """Re-publish the tick whose command has not arrived (see the module docstring)."""
+        now = self.steady.now().nanoseconds
+        if not self._unanswered or now - self._unanswered_since < self._resend_ns:
+            return
+        for pub, msg in self._unanswered:
+            pub.publish(msg)
+        self._unanswered_since = now
+        self.observation_resends += 1
 
     def _on_idle(self) -> None:
         """Keep /joint_states (and /clock) alive while the world waits for the policy."""
@@ -285,6 +314,7 @@ class BridgeNode(FiperNode):
             "sim_time_s": f"{self.sim_ns / 1e9:.3f}",
             "rollouts_started": str(self.session.started if self.session is not None else 0),
             "rollout_id": str(rollout.rollout_id) if rollout else "",
+            "observation_resends": str(self.observation_resends),
         }
         if rollout is not None and env is not None:
             values |= {"task": rollout.task, "scenario": rollout.scenario, "seed": str(rollout.seed),

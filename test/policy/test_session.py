@@ -36,7 +36,7 @@ def test_steps_and_noise_follow_the_rollout(session: PolicySession, policy: Poli
     generator = sampling_generator(SEED)  # run_episode(seed=42) draws the same noise
     for step, stamp in enumerate((1000 * MS, 1400 * MS, 1800 * MS)):
         assert session.observe(stamp, obs[step], 0)
-        action = session.act()
+        action = session.compute(session.begin())
         embedding, chunks = policy.act([obs[step]], None, generator)
         assert (action.rollout_id, action.step, action.stamp) == (RID, step, stamp)
         np.testing.assert_array_equal(action.embedding, embedding)
@@ -48,7 +48,7 @@ def test_steps_and_noise_follow_the_rollout(session: PolicySession, policy: Poli
     # a new rollout of the same seed starts over: step 0, the same noise
     assert not session.start(RID + (1 << 32), 2100 * MS)
     assert session.observe(2100 * MS, obs[0], 0)
-    again = session.act()
+    again = session.compute(session.begin())
     first = policy.act([obs[0]], None, sampling_generator(SEED))[1]
     assert again.step == 0 and np.array_equal(again.chunks, first)
     assert session.rollouts_seen == 2
@@ -58,7 +58,23 @@ def test_batch_override(policy: Policy) -> None:
     session = PolicySession(policy, 3, lambda error: None)
     session.start(RID, 0)
     assert session.observe(0, random_observation(policy.config), 0)
-    assert session.act().chunks.shape[0] == 3
+    assert session.compute(session.begin()).chunks.shape[0] == 3
+
+
+def test_a_step_taken_before_an_end_is_computed_but_its_rollout_no_longer_runs(session: PolicySession,
+                                                                              policy: Policy) -> None:
+    obs = random_observation(policy.config)
+    session.start(RID, 1000 * MS)
+    assert session.observe(1000 * MS, obs, 0)
+    step = session.begin()
+    assert session.is_running(RID) and not session.is_running(RID + 1)
+    ended = session.end(RID, 1100 * MS, "failure")  # while the step computes
+    assert ended is not None and ended.steps == 1 and not session.is_running(RID)
+    action = session.compute(step)
+    assert (action.rollout_id, action.step, action.stamp) == (RID, 0, 1000 * MS)
+    np.testing.assert_array_equal(action.chunks, policy.act([obs], None, sampling_generator(SEED))[1])
+    with pytest.raises(RuntimeError):
+        session.begin()  # no rollout runs
 
 
 def test_late_and_unknown_ticks_are_not_acted_on(session: PolicySession, policy: Policy,
@@ -66,7 +82,7 @@ def test_late_and_unknown_ticks_are_not_acted_on(session: PolicySession, policy:
     obs = random_observation(policy.config)
     session.start(RID, 1000 * MS)
     assert session.observe(1000 * MS, obs, 0)
-    session.act()
+    session.compute(session.begin())
     assert session.end(RID + 1, 1500 * MS, "failure") is None  # not the running rollout: ignored
     assert session.end(RID, 1500 * MS, "failure") is not None
     assert not session.observe(1400 * MS, obs, 0)  # overtook the END: late, ignored
@@ -76,7 +92,7 @@ def test_late_and_unknown_ticks_are_not_acted_on(session: PolicySession, policy:
     assert not session.observe(1900 * MS, obs, 0)  # after the END, before the START: nobody's
     assert session.late == 2 and [e.reason for e in rejected] == [UNKNOWN_ROLLOUT]
     with pytest.raises(RuntimeError):
-        PolicySession(policy, None, rejected.append).act()  # nothing to act on
+        PolicySession(policy, None, rejected.append).begin()  # nothing to act on
 
 
 def test_a_tick_waits_for_its_start(session: PolicySession, policy: Policy, rejected: list[InputRejected]) -> None:
@@ -84,7 +100,7 @@ def test_a_tick_waits_for_its_start(session: PolicySession, policy: Policy, reje
     assert not session.observe(1000 * MS, obs, now_ns=0)  # overtook its START
     assert session.waiting and not rejected
     assert session.start(RID, 1000 * MS)  # act on it now
-    assert not session.waiting and session.act().stamp == 1000 * MS
+    assert not session.waiting and session.compute(session.begin()).stamp == 1000 * MS
     session.end(RID, 1200 * MS, "failure")
     # without a START the waiting tick expires as unknown_rollout
     assert not session.observe(3000 * MS, obs, now_ns=0)
@@ -106,7 +122,7 @@ def test_a_start_without_end_replaces_the_running_rollout(session: PolicySession
     session.start(RID, 1000 * MS)
     assert not session.start(RID, 1000 * MS)  # repeated START: nothing changes
     assert session.observe(1000 * MS, obs, 0)
-    session.act()
+    session.compute(session.begin())
     assert session.running is not None and session.running.steps == 1
     session.start(RID + (1 << 32), 2000 * MS)  # the END was lost
     assert session.last_ended is not None and session.last_ended.rollout_id == RID
@@ -121,7 +137,7 @@ def test_history_holds_the_last_t_h_ticks() -> None:
     embeddings = []
     for step in range(3):
         assert session.observe(step * MS, obs[step], 0)
-        embeddings.append(session.act().embedding)
+        embeddings.append(session.compute(session.begin()).embedding)
     np.testing.assert_array_equal(embeddings[0], policy.embed([obs[0]]))  # the first tick repeated
     np.testing.assert_allclose(embeddings[2], policy.embed([obs[1], obs[2]]), atol=1e-6)
     assert session.running is not None and len(session.running.history) == 2

@@ -1,6 +1,6 @@
 """The bridge node as its own process over DDS on loopback: an expert rollout round trip, halt (by a
 call and by the example supervisor on ALARM), bad commands, sim time and determinism of the first
-observation."""
+observation, and re-publication of an unanswered tick."""
 from __future__ import annotations
 
 import time
@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from sensor_msgs.msg import JointState
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.nodes import qos
@@ -178,3 +179,27 @@ def test_same_seed_gives_the_same_first_observation(bridge: BridgeHarness) -> No
         assert end.outcome == RolloutEvent.OUTCOME_FAILURE
         order = [(e.rollout_id, e.event) for e in bridge.client.events]
         assert order.index((previous, RolloutEvent.EVENT_END)) < order.index((current, RolloutEvent.EVENT_START))
+
+
+@pytest.mark.parametrize("bridge", [{"realtime_factor": 0.0, "images": False, "observation_resend_s": 0.4}],
+                         indirect=True)
+def test_an_unanswered_tick_reaches_a_late_subscriber(bridge: BridgeHarness) -> None:
+    response = bridge.reset("sorting", "id", 6)
+    first = bridge.first_tick(response.rollout_id)
+    client = bridge.client
+    late: list[int] = []  # stamps on a subscription made after the first tick was published
+    subscription = client.create_subscription(JointState, "/sim/proprio",
+                                              lambda m: late.append(stamp_ns(m.header.stamp)), qos.INPUT)
+    try:
+        assert bridge.spin_until(lambda: first.stamp in late, timeout=5), late
+        assert bridge.spin_until(lambda: int(client.diagnostics.get("observation_resends", "0")) >= 1)
+        x, y = first.observation()["proprio"][:2]
+        client.actions.publish(client.command(response.rollout_id, 0, np.tile([x, y], (4, 1)), "ee_position"))
+        second = bridge.next_tick(first.stamp)
+        assert bridge.spin_until(lambda: second.stamp in late, timeout=5)
+        repeats = late.count(first.stamp)
+        bridge.spin_until(lambda: False, timeout=1.2)  # three resend periods: the answered tick is not repeated
+        assert late.count(first.stamp) == repeats
+        assert late.count(second.stamp) >= 2  # but the unanswered second one is
+    finally:
+        client.destroy_subscription(subscription)

@@ -1,6 +1,6 @@
 """The policy node over DDS on loopback: beside the bridge process (one step, a closed-loop rollout that
 matches the in-process run_episode) and beside a fake driver (bad input, missing model), plus its
-launch file."""
+launch file. A step whose rollout ends while it computes is not published."""
 from __future__ import annotations
 
 import os
@@ -14,7 +14,7 @@ import rclpy
 import yaml
 from helpers.policy_fixtures import tiny_policy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import RolloutEvent
@@ -165,6 +165,32 @@ def test_bad_input_is_rejected_and_the_node_keeps_acting(ros_context: tuple[Cont
         policy.close()
         executor.remove_node(driver)
         driver.destroy_node()
+
+
+def test_a_step_whose_rollout_ends_while_it_computes_is_not_published(ros_domain: int) -> None:
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    executor = MultiThreadedExecutor(num_threads=3, context=context)  # as the node's own process spins
+    policy = PolicyHarness(context, executor, model=str(SORTING), batch=1024)  # seconds per step
+    driver = FakeDriver(context, proprio_dim=4)
+    executor.add_node(driver)
+    try:
+        policy.wait_ready()
+        node, probe, rid = policy.node, policy.probe, 5
+        driver.event(rid, RolloutEvent.EVENT_START, 10 * SECOND)
+        driver.tick(10 * SECOND)
+        assert policy.spin_until(lambda: node.session.running is not None and node.session.running.steps == 1)
+        driver.event(rid, RolloutEvent.EVENT_END, 11 * SECOND)  # the supervisor halted: step 0 is computing
+        assert policy.spin_until(lambda: node.session.running is None, timeout=2)  # seen during the computation
+        assert policy.spin_until(lambda: probe.diagnostics.get("steps_dropped_after_end") == "1", timeout=60), \
+            probe.diagnostics
+        assert node.published == 0 and not probe.embeddings and not probe.batches and not probe.commands
+    finally:
+        policy.close()
+        executor.remove_node(driver)
+        driver.destroy_node()
+        executor.shutdown()
+        rclpy.try_shutdown(context=context)
 
 
 def test_a_missing_model_keeps_the_node_alive_until_it_appears(ros_context: tuple[Context, SingleThreadedExecutor],

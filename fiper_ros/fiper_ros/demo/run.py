@@ -22,7 +22,7 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.record import Recorder
-from fiper_ros.bags.schema import TOPICS
+from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain
@@ -138,6 +138,8 @@ def run_demo(args: argparse.Namespace) -> int:
                     print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
                     for plan in plans:
                         traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
+                    # a step published just before the END it crossed: both of its messages into the bag
+                    driver.settle(lambda: recorder.counts[EMBEDDING] == recorder.counts[ACTIONS], SETTLE_S)
                 except SuiteFailed as error:
                     problems.append(f"{error}; its last output:\n{error.output}" if error.output else str(error))
                 finally:

@@ -14,7 +14,7 @@ from typing import Any
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
 
 def spin_until_shutdown(executor: Executor) -> None:
@@ -30,14 +30,15 @@ def spin_until_shutdown(executor: Executor) -> None:
             raise
 
 
-def run_node(factory: Callable[..., Any], args: list[str] | None = None) -> int:
-    """Create the node from ``factory`` and spin it until interrupted; returns the exit status."""
+def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1) -> int:
+    """Create the node from ``factory`` and spin it (in ``threads`` threads: callback groups of its own run
+    beside the default group) until interrupted; returns the exit status."""
     rclpy.init(args=sys.argv if args is None else args)
     signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     node = None
     try:
         node = factory()
-        executor = SingleThreadedExecutor()
+        executor = SingleThreadedExecutor() if threads == 1 else MultiThreadedExecutor(num_threads=threads)
         executor.add_node(node)
         gc.collect()
         gc.freeze()

@@ -5,17 +5,22 @@ A thin shell: the observation parts (both cameras, proprioception) are checked a
 :class:`~fiper_ros.policy.session.PolicySession`'s business. Per step of the running rollout the node
 publishes the ObservationEmbedding and the ActionChunkBatch FIPER monitors (same stamp and step as
 the observation) and then the ActionCommand the robot executes (the first ``h`` actions of sample 0).
+RolloutEvents are followed in a callback group of their own (the process spins two threads), so an END
+that arrives while a step computes is seen at once: that step is not published (its rollout is over;
+``steps_dropped_after_end`` on /diagnostics). A lock guards the session and the observation buffer.
 Topics, QoS and parameters: docs/nodes.md, "The policy node".
 """
 from __future__ import annotations
 
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from sensor_msgs.msg import Image, JointState
 
 from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
@@ -26,7 +31,7 @@ from fiper_ros.nodes.conversions import OUTCOMES, action_batch_msg, action_comma
 from fiper_ros.nodes.main import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
-from fiper_ros.policy.session import PolicySession
+from fiper_ros.policy.session import PolicySession, PolicyStep
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.observation_sync import ObservationSync
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
@@ -61,6 +66,13 @@ class PolicyNode(FiperNode):
         self.session: PolicySession | None = None
         self.sync: ObservationSync[np.ndarray] = ObservationSync((*CAMERAS, PROPRIO))
         self.published = 0
+        #: Steps computed for a rollout whose END arrived meanwhile (not published).
+        self.dropped_after_end = 0
+        self._lock = threading.Lock()
+        self._events_group = MutuallyExclusiveCallbackGroup()
+        #: A step taken when a waiting tick's START came; computed in the inputs' callback group.
+        self._started_step: PolicyStep | None = None
+        self._compute_started = self.create_guard_condition(self._on_started_step)
         self._events_sub: Any = None
         self._inputs: list[Any] = []
 
@@ -87,6 +99,7 @@ class PolicyNode(FiperNode):
         # Followed from here on in every state: a rollout started before activation is known.
         topic = self.get_parameter("events_topic").value
         self._events_sub = self.create_subscription(RolloutEvent, topic, self._on_event, qos.EVENT,
+                                                    callback_group=self._events_group,
                                                     event_callbacks=self.subscription_events(topic))
 
     def activate(self) -> None:
@@ -98,14 +111,16 @@ class PolicyNode(FiperNode):
         for subscription in self._inputs:
             self.destroy_subscription(subscription)
         self._inputs.clear()
-        self.sync.restart()
+        with self._lock:
+            self.sync.restart()
 
     def cleanup(self) -> None:
         if self._events_sub is not None:
             self.destroy_subscription(self._events_sub)
         self._events_sub = None
-        self.session = None
-        self.policy = None
+        with self._lock:
+            self.session = None
+            self.policy = None
 
     def _subscribe(self, msg_type: Any, parameter: str, callback: Callable[[Any], None]) -> None:
         topic = self.get_parameter(parameter).value
@@ -121,20 +136,31 @@ class PolicyNode(FiperNode):
 
     # callbacks ----------------------------------------------------------------------------------------
     def _on_event(self, msg: RolloutEvent) -> None:
-        assert self.session is not None
-        session, stamp = self.session, stamp_ns(msg.header.stamp)
-        if msg.event == RolloutEvent.EVENT_START:
-            previous = session.running
-            act_now = session.start(msg.rollout_id, stamp, msg.task, msg.scenario)
-            if previous is not None and previous is not session.running:
-                self.get_logger().warning(f"{previous.summary()} (no END before rollout {msg.rollout_id} started)")
-            self.sync.restart(stamp)
-            if act_now:
-                self._act()
-        elif msg.event == RolloutEvent.EVENT_END:
-            ended = session.end(msg.rollout_id, stamp, OUTCOMES.get(msg.outcome, "unknown"))
-            if ended is not None:
-                self.get_logger().info(ended.summary())
+        stamp = stamp_ns(msg.header.stamp)
+        with self._lock:
+            session = self.session
+            if session is None:
+                return
+            if msg.event == RolloutEvent.EVENT_START:
+                previous = session.running
+                act_now = session.start(msg.rollout_id, stamp, msg.task, msg.scenario)
+                if previous is not None and previous is not session.running:
+                    self.get_logger().warning(f"{previous.summary()} (no END before rollout {msg.rollout_id} "
+                                              "started)")
+                self.sync.restart(stamp)
+                if act_now:
+                    self._started_step = session.begin()
+                    self._compute_started.trigger()
+            elif msg.event == RolloutEvent.EVENT_END:
+                ended = session.end(msg.rollout_id, stamp, OUTCOMES.get(msg.outcome, "unknown"))
+                if ended is not None:
+                    self.get_logger().info(ended.summary())
+
+    def _on_started_step(self) -> None:
+        with self._lock:
+            step, self._started_step = self._started_step, None
+        if step is not None:
+            self._act(step)
 
     def _on_image(self, key: str, msg: Image) -> None:
         self.tick(key)
@@ -157,32 +183,52 @@ class PolicyNode(FiperNode):
         self._add(stamp_ns(msg.header.stamp), PROPRIO, proprio)
 
     def _add(self, stamp: int, key: str, part: np.ndarray) -> None:
-        assert self.session is not None
-        observation = self.sync.add(stamp, key, part)
-        if observation is not None and self.session.observe(stamp, observation, self.steady.now().nanoseconds):
-            self._act()
+        with self._lock:
+            session = self.session
+            if session is None:
+                return
+            observation = self.sync.add(stamp, key, part)
+            if observation is None or not session.observe(stamp, observation, self.steady.now().nanoseconds):
+                return
+            step = session.begin()
+        self._act(step)
 
-    def _act(self) -> None:
-        assert self.session is not None and self.policy is not None
+    def _act(self, step: PolicyStep) -> None:
+        """Compute ``step`` (without the lock: START / END are followed meanwhile) and publish it if its
+        rollout still runs."""
+        session, policy = self.session, self.policy
+        assert session is not None and policy is not None
         started = self.timed()
         try:
-            action = self.session.act()
+            action = session.compute(step)
         except Exception as error:  # noqa: BLE001 - a policy error is reported, never fatal
             self.reject(InputRejected(INTERNAL, f"policy step failed: {error!r}"))
             return
         self.record_latency(started)
-        config = self.policy.config
-        self._embedding_pub.publish(embedding_msg(action.rollout_id, action.step, action.stamp, action.embedding))
-        self._chunks_pub.publish(action_batch_msg(action.rollout_id, action.step, action.stamp, action.chunks,
-                                                  config.exec_steps, config.action_space))
-        self._command_pub.publish(action_command_msg(action.rollout_id, action.step, action.stamp, action.command,
-                                                     config.action_space))
-        self.published += 1
+        with self._lock:
+            if not session.is_running(action.rollout_id):
+                self.dropped_after_end += 1
+                self.get_logger().info(f"rollout {action.rollout_id} step {action.step} not published: the "
+                                       "rollout ended while it was computed")
+                return
+            config = policy.config
+            self._embedding_pub.publish(embedding_msg(action.rollout_id, action.step, action.stamp,
+                                                      action.embedding))
+            self._chunks_pub.publish(action_batch_msg(action.rollout_id, action.step, action.stamp, action.chunks,
+                                                      config.exec_steps, config.action_space))
+            self._command_pub.publish(action_command_msg(action.rollout_id, action.step, action.stamp,
+                                                         action.command, config.action_space))
+            self.published += 1
 
     # diagnostics --------------------------------------------------------------------------------------
     def diagnostic_values(self) -> dict[str, str]:
+        with self._lock:
+            return self._values()
+
+    def _values(self) -> dict[str, str]:
         sync = self.sync
         values = {"model": self.get_parameter("model").value, "published": str(self.published),
+                  "steps_dropped_after_end": str(self.dropped_after_end),
                   "ticks.complete": str(sync.completed), "ticks.partial_dropped": str(sync.dropped_partial),
                   "ticks.stale": str(sync.stale), "ticks.duplicate": str(sync.duplicates)}
         session, policy = self.session, self.policy
@@ -207,7 +253,7 @@ NODE_CLASS = PolicyNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.policy_node --ros-args ...``."""
-    return run_node(PolicyNode, args)
+    return run_node(PolicyNode, args, threads=2)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@ waits for the command computed from it, and announces the END. For each complete
 decides:
 
 - **act**: the tick is stamped at or after the running rollout's START. It joins the rollout's last
-  ``T_h`` ticks, and :meth:`PolicySession.act` samples the batch with the rollout's noise stream
+  ``T_h`` ticks; :meth:`PolicySession.begin` takes the step and :meth:`PolicySession.compute` samples
+  the batch with the rollout's noise stream
   (:func:`~fiper_ros.policy.noise.sampling_generator` of the seed in the rollout id's low 32 bits, as
   the in-process ``run_episode(seed)`` does) and numbers the step 0, 1, 2, ... within the rollout;
 - **late** (ignored, counted): the tick belongs to the rollout that ended last (stamped within its
@@ -56,6 +57,19 @@ class PolicyRollout:
         """One line for the log at the rollout's END."""
         where = f" {self.task}/{self.scenario}" if self.task or self.scenario else ""
         return f"rollout {self.rollout_id}{where}: {self.steps} policy steps, outcome {self.outcome}"
+
+
+@dataclass(frozen=True)
+class PolicyStep:
+    """A policy step taken from the running rollout, to be computed."""
+
+    rollout_id: int
+    step: int
+    #: Stamp of the newest tick in ``history``.
+    stamp: int
+    history: tuple[Observation, ...]
+    #: The rollout's noise stream (steps of one rollout are computed in order).
+    generator: torch.Generator
 
 
 @dataclass(frozen=True)
@@ -166,16 +180,26 @@ class PolicySession:
             waiting, self._waiting = self._waiting, None
             self._discard(waiting.stamp)
 
-    def act(self) -> PolicyAction:
-        """Run the policy on the running rollout's history (after ``start`` / ``observe`` said so)."""
+    def begin(self) -> PolicyStep:
+        """Take the next step of the running rollout (after ``start`` / ``observe`` said to act): what
+        :meth:`compute` needs, so that START / END may be followed while it runs."""
         rollout = self.running
         if rollout is None or not rollout.history:
-            raise RuntimeError("act() needs a running rollout with an observation")
-        embedding, chunks = self.policy.act(list(rollout.history), self.batch, rollout.generator)
-        step = rollout.steps
+            raise RuntimeError("a policy step needs a running rollout with an observation")
+        step = PolicyStep(rollout.rollout_id, rollout.steps, rollout.last_stamp, tuple(rollout.history),
+                          rollout.generator)
         rollout.steps += 1
-        return PolicyAction(rollout.rollout_id, step, rollout.last_stamp, embedding, chunks,
+        return step
+
+    def compute(self, step: PolicyStep) -> PolicyAction:
+        """Run the policy on ``step``'s history with its rollout's noise stream."""
+        embedding, chunks = self.policy.act(list(step.history), self.batch, step.generator)
+        return PolicyAction(step.rollout_id, step.step, step.stamp, embedding, chunks,
                             chunks[0, : self.policy.config.exec_steps])
+
+    def is_running(self, rollout_id: int) -> bool:
+        """Whether ``rollout_id`` is the running rollout (a step of one that ended meanwhile is not published)."""
+        return self.running is not None and self.running.rollout_id == rollout_id
 
     def _admit(self, stamp: int, observation: Observation) -> bool:
         rollout = self.running
