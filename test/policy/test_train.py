@@ -1,4 +1,5 @@
-"""Training on (synthetic) demonstrations: the loss falls, runs are deterministic per seed, resume is exact;
+"""Training on (synthetic) demonstrations: the loss falls, runs are deterministic per seed, resume is exact
+(also after a stop at an earlier epoch of the schedule);
 the open-loop fit check against the demonstrations."""
 from __future__ import annotations
 
@@ -72,6 +73,22 @@ def test_training_is_deterministic_and_resumes_exactly(tmp_path: Path, demo_dir:
     resumed = _state(train(two, demo_dir, tmp_path / "d", tmp_path / "run_d", seed=5, progress=_quiet))
     for key in full:
         torch.testing.assert_close(full[key], resumed[key], rtol=0, atol=0)
+
+
+def test_stop_after_writes_the_model_of_that_epoch_and_the_schedule_goes_on(tmp_path: Path, demo_dir: Path) -> None:
+    three = tiny_config(epochs=3)
+    full = train(three, demo_dir, tmp_path / "full", tmp_path / "run_full", seed=2, progress=_quiet)
+    one = train(three, demo_dir, tmp_path / "one", tmp_path / "run", seed=2, progress=_quiet, stop_after=1)
+    info = yaml.safe_load((tmp_path / "one" / "policy.yaml").read_text())["info"]
+    assert (info["epochs"], info["epochs_trained"]) == (3, 1)
+    assert any(not torch.equal(a, b) for a, b in zip(one.state_dict().values(), full.state_dict().values()))
+    with pytest.raises(ValueError, match="cannot stop after epoch 4"):
+        train(three, demo_dir, tmp_path / "x", tmp_path / "run", seed=2, progress=_quiet, stop_after=4)
+    rest = _state(train(three, demo_dir, tmp_path / "rest", tmp_path / "run", seed=2, progress=_quiet))
+    for key, value in _state(full).items():
+        torch.testing.assert_close(value, rest[key], rtol=0, atol=0)  # the same schedule, resumed
+    with pytest.raises(ValueError, match="holds 3"):
+        train(three, demo_dir, tmp_path / "y", tmp_path / "run", seed=2, progress=_quiet, stop_after=2)
 
 
 def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(demo_dir: Path) -> None:

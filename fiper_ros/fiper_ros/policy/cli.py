@@ -24,7 +24,8 @@ def _train(args: argparse.Namespace) -> int:
     overrides = {"epochs": args.epochs} if args.epochs is not None else {}
     config = PRESETS[args.task].with_overrides(**overrides)
     run_dir = Path(args.run_dir or f"runs/policy/{args.task}_seed{args.seed}")
-    train(config, args.demos, args.out, run_dir, seed=args.seed, max_episodes=args.max_episodes)
+    train(config, args.demos, args.out, run_dir, seed=args.seed, max_episodes=args.max_episodes,
+          stop_after=args.stop_after)
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
@@ -100,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     train.add_argument("--epochs", type=int, default=None, help="override the preset's epochs")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--max-episodes", type=int, default=None, help="use only the first N demo files")
+    train.add_argument("--stop-after", type=int, default=None,
+                       help="write the model after this many epochs of the schedule (rerun without it to go on)")
     train.add_argument("--run-dir", default=None, help="checkpoint folder (default runs/policy/<task>_seed<S>)")
     train.set_defaults(func=_train)
     evaluate = sub.add_parser("eval", help="closed-loop success rate in the simulation (optionally recorded)")

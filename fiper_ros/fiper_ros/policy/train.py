@@ -91,10 +91,15 @@ def _save_checkpoint(path: Path, state: dict[str, Any]) -> None:
 
 def train(config: PolicyConfig, demos: str | Path, out: str | Path, run_dir: str | Path, seed: int = 0,
           max_episodes: int | None = None, progress: Callable[[Progress], None] = print_progress,
-          report_every: int = 20) -> Policy:
+          report_every: int = 20, stop_after: int | None = None) -> Policy:
     """Train a policy on the demos, checkpointing to ``run_dir`` every epoch; write the EMA weights to ``out``.
 
     Resumes from ``run_dir/checkpoint.pt`` if it exists and was written with the same config and seed.
+    ``stop_after``: end after this many epochs of the ``config.epochs`` schedule (the learning rate follows
+    the whole schedule); a later call without it continues from the checkpoint.
+
+    Raises:
+        ValueError: ``stop_after`` is not in 1..epochs, or the checkpoint is already past it.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -112,10 +117,14 @@ def train(config: PolicyConfig, demos: str | Path, out: str | Path, run_dir: str
     data_hash = dataset.hash()
     start_epoch, elapsed = _restore(run_dir / CHECKPOINT_FILE, config, seed, data_hash,
                                     model, ema, optimizer, scheduler)
+    last_epoch = config.epochs if stop_after is None else stop_after
+    if not 1 <= last_epoch <= config.epochs or start_epoch > last_epoch:
+        raise ValueError(f"cannot stop after epoch {last_epoch}: the schedule has {config.epochs} epochs and "
+                         f"{run_dir / CHECKPOINT_FILE} holds {start_epoch}")
     LOG.info("training %s: %d parameters, %d samples, %d steps", config.task,
              sum(p.numel() for p in model.parameters()), len(dataset), total_steps)
     loss_value = float("nan")
-    for epoch in range(start_epoch, config.epochs):
+    for epoch in range(start_epoch, last_epoch):
         began = time.perf_counter()
         generator = epoch_generator(seed, epoch)
         order = torch.randperm(len(dataset), generator=generator)
@@ -144,7 +153,8 @@ def train(config: PolicyConfig, demos: str | Path, out: str | Path, run_dir: str
             "config": config.to_dict(), "seed": seed, "data_hash": data_hash, "epoch": epoch + 1, "elapsed": elapsed,
             "model": model.state_dict(), "ema": ema.state_dict(), "optimizer": optimizer.state_dict(),
             "scheduler": scheduler.state_dict()})
-    ema.save(out, {"seed": seed, "epochs": config.epochs, "training_seconds": round(elapsed, 1),
+    ema.save(out, {"seed": seed, "epochs": config.epochs, "epochs_trained": last_epoch,
+                   "training_seconds": round(elapsed, 1),
                    "training_samples": len(dataset), "training_episodes": dataset.episodes,
                    "demos": str(demos), "data_hash": data_hash, "final_loss": round(loss_value, 5),
                    "parameters": sum(p.numel() for p in ema.parameters()), "torch": str(torch.__version__),
