@@ -39,6 +39,21 @@ def test_shipped_sorting_model_is_finite_and_multimodal(sorting_policy: Policy) 
     assert sum(m >= 2 for m in modes) >= 2, modes
 
 
+def test_shipped_pusht_model_pushes_the_t_from_its_first_observation() -> None:
+    policy = Policy.load(MODELS / "pusht")
+    config = policy.config
+    assert (config.head, config.embed_dim, config.horizon, config.exec_steps, config.sample_batch) == \
+        ("diffusion", 64, 16, 8, 256)
+    assert (MODELS / "pusht" / "policy.pt").stat().st_size <= 10 * 2**20
+    for seed in (1000, 1001):
+        state, chunks = initial_batch(policy, seed)
+        assert chunks.shape == (256, 16, 2) and np.all(np.isfinite(chunks))
+        assert np.std(chunks[:, -1], axis=0).max() > 0.005  # the samples are not one collapsed path
+        # the median chunk ends nearer the T than the TCP starts: the pusher approaches it
+        t_xy, tcp = np.asarray(state["t_pose"])[:2], np.asarray(state["tcp"])[:2]
+        assert np.linalg.norm(np.median(chunks[:, -1], axis=0) - t_xy) < np.linalg.norm(tcp - t_xy)
+
+
 def test_closed_loop_rollout_is_recorded(sorting_policy: Policy, tmp_path: Path) -> None:
     episode = run_episode(sorting_policy, "id", 1000, max_policy_steps=3)
     rollout = episode.rollout
