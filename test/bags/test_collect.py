@@ -209,3 +209,33 @@ def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_pat
     assert episode.rollout is not None and rollout.action_space == "joint_velocity"
     np.testing.assert_array_equal(rollout.metadata["joint_positions"], episode.rollout.metadata["joint_positions"])
     assert rollout.metadata["joint_positions"].shape == (2, 7)
+
+
+def test_jobs_write_the_folder_one_process_writes(collected: Path, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "sorting"
+    assert main([*ARGS, "--jobs", "2", "--out", str(out)]) == 0
+    assert _bag_bytes(out) == _bag_bytes(collected)  # the same bags, byte for byte
+    capped = tmp_path / "capped"  # every short episode fails: --successes runs to its cap, in seed order
+    assert main(["collect", "--task", "sorting", "--seed", "1000", "--successes", "1", "--max-episodes", "3",
+                 "--jobs", "2", "--out", str(capped), *SMALL]) == 1
+    assert [b.name for b in find_bags([capped])] == [bag_name("sorting", "id", s) for s in (1000, 1001, 1002)]
+    assert main([*ARGS, "--jobs", "2", "--ros", "--out", str(tmp_path / "ros")]) == 2
+    assert "--jobs runs episodes in worker processes" in capsys.readouterr().err
+
+
+def test_workers_run_ahead_and_drop_episodes_no_longer_wanted() -> None:
+    policy = Policy.load(MODELS / "sorting")
+    setup = collect.CollectSetup("sorting", "hash", "test", 4, 2, collect.IN_PROCESS)
+    runner = collect.InProcessRunner(policy, setup, jobs=2, model_dir=MODELS / "sorting")
+    try:
+        runner.ahead("id", iter([1000, 1001, 1002]))  # the first two start
+        assert sorted(runner._started) == [("id", 1000), ("id", 1001)]
+        runner.ahead("camera_moved", [1005])  # a success ended "id" early: both are dropped
+        assert runner.discarded == 2 and list(runner._started) == [("camera_moved", 1005)]
+        ran = runner.run("camera_moved", 1005, Path("unused"), {})
+        expected = run_episode(policy, "camera_moved", 1005, batch=4, max_policy_steps=2)
+        assert (ran.policy_steps, ran.control_steps) == (expected.policy_steps, expected.control_steps) == (2, 8)
+        assert not runner._started
+    finally:
+        runner.close()

@@ -9,18 +9,24 @@ holds what was recorded from DDS. ``--episodes N`` runs the seeds ``S .. S+N-1``
 seeds from ``S`` on until ``M`` of them succeeded (at most ``--max-episodes``). A bag appears complete or
 not at all, and a rollout is a function of its seed, so a rerun skips the finished bags and runs the rest:
 a resumed folder holds the same rollouts as an uninterrupted run. ``DIR/collect.json`` indexes the
-rollouts (:mod:`fiper_ros.bags.collect_index`).
+rollouts (:mod:`fiper_ros.bags.collect_index`). In-process, ``--jobs N`` runs the next ``N`` episodes in
+``N`` worker processes while this process writes the index and the bags in seed order, so the folder is
+the one a single process writes; with ``--successes`` a worker may run an episode past the M-th success,
+which is thrown away.
 """
 from __future__ import annotations
 
 import argparse
 import fcntl
+import itertools
 import math
+import multiprocessing
 import os
 import sys
 import time
 import zlib
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -39,7 +45,7 @@ from fiper_ros.bags.rollouts import write_rollouts
 from fiper_ros.bags.schema import BagInfo
 from fiper_ros.policy.dataset import files_hash
 from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
-from fiper_ros.policy.rollout import run_episode
+from fiper_ros.policy.rollout import EpisodeResult, run_episode
 
 SOURCE = "fiper collect (sim, in-process)"
 LOCK_FILE = ".collect.lock"
@@ -196,28 +202,96 @@ class Runner(Protocol):
     def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
         """Run ``(scenario, seed)`` for a bag at ``path`` whose ``custom_data`` holds ``fields``."""
 
+    def ahead(self, scenario: str, seeds: Iterable[int]) -> None:
+        """The episodes of ``scenario`` that come next, in order (the first one runs next): a runner may
+        start some of them early."""
+
+
+#: The policy of a ``--jobs`` worker process (loaded once by :func:`_start_worker`).
+_worker_policy: Policy | None = None
+
+
+def _start_worker(model_dir: str, threads: int) -> None:
+    global _worker_policy  # noqa: PLW0603 - one policy per worker process
+    torch.set_num_threads(threads)
+    _worker_policy = Policy.load(model_dir)
+
+
+def _run_in_worker(scenario: str, seed: int, batch: int, max_policy_steps: int | None) -> EpisodeResult:
+    assert _worker_policy is not None
+    return run_episode(_worker_policy, scenario, seed, batch=batch, max_policy_steps=max_policy_steps)
+
 
 class InProcessRunner:
-    """Episodes run in this process (:func:`run_episode`: no ROS, no DDS); the bag is written from the
-    recorded rollout on the sim's control clock, with ids from :func:`rollout_id_of`."""
+    """Episodes run without ROS (:func:`run_episode`: no DDS), in this process or in ``jobs`` worker
+    processes; the bag is written from the recorded rollout on the sim's control clock, with ids from
+    :func:`rollout_id_of`.
+
+    Args:
+        policy: The loaded policy.
+        setup: The collect's setup (batch, policy-step cap).
+        jobs: Worker processes (1: episodes run in this process).
+        model_dir: The policy's folder, which the workers load.
+        threads: Torch threads of each worker.
+    """
 
     source = SOURCE
 
-    def __init__(self, policy: Policy, setup: CollectSetup) -> None:
+    def __init__(self, policy: Policy, setup: CollectSetup, jobs: int = 1, model_dir: Path | None = None,
+                 threads: int = 1) -> None:
         self.policy = policy
         self.setup = setup
         task = TASKS[setup.task]
         cap = setup.max_policy_steps
         self.env_dt_ns = round(1e9 / task.control_hz)
         self.max_steps = task.max_policy_steps if cap is None else min(task.max_policy_steps, cap)
+        self.jobs = jobs
+        #: Episodes a worker ran or started that were not needed after all.
+        self.discarded = 0
+        self._pool: ProcessPoolExecutor | None = None
+        if jobs > 1:
+            if model_dir is None:
+                raise ValueError("worker processes need the model folder")
+            self._pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("spawn"), _start_worker,
+                                             (str(model_dir), threads))
+        self._started: dict[tuple[str, int], Future[EpisodeResult]] = {}
 
     def prepare(self) -> None:
         """Nothing to start."""
 
+    def ahead(self, scenario: str, seeds: Iterable[int]) -> None:
+        """Keep the workers busy with the first ``jobs`` of ``seeds``; drop started episodes not among them."""
+        if self._pool is None:
+            return
+        wanted = [(scenario, seed) for seed in itertools.islice(seeds, self.jobs)]
+        for key in [k for k in self._started if k not in wanted]:
+            self._started.pop(key).cancel()
+            self.discarded += 1
+        for scenario_seed in wanted:
+            self._start(*scenario_seed)
+
+    def _start(self, scenario: str, seed: int) -> None:
+        assert self._pool is not None
+        if (scenario, seed) not in self._started:
+            self._started[(scenario, seed)] = self._pool.submit(_run_in_worker, scenario, seed, self.setup.batch,
+                                                                self.setup.max_policy_steps)
+
+    def close(self) -> None:
+        """Stop the worker processes (episodes started for nothing are dropped)."""
+        if self._pool is not None:
+            self.discarded += len(self._started)
+            self._started.clear()
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
     def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
-        """Run the episode; its bag is written by ``write``."""
-        result = run_episode(self.policy, scenario, seed, batch=self.setup.batch,
-                             max_policy_steps=self.setup.max_policy_steps)
+        """Run the episode (or take it from the worker that ran it); its bag is written by ``write``."""
+        if self._pool is None:
+            result = run_episode(self.policy, scenario, seed, batch=self.setup.batch,
+                                 max_policy_steps=self.setup.max_policy_steps)
+        else:
+            self._start(scenario, seed)
+            result = self._started.pop((scenario, seed)).result()
         assert result.rollout is not None  # run_episode records by default
         rollout = replace(result.rollout, metadata={**result.rollout.metadata, "max_steps": self.max_steps})
         rollout_id = rollout_id_of(scenario, seed)
@@ -246,12 +320,17 @@ class Collector:
                 "policy": self.index.policy, "policy_hash": setup.policy_hash,
                 "policy_data_hash": self.index.policy_data_hash, "seed": str(seed)}
 
+    def _relative(self, scenario: str, seed: int) -> str:
+        return f"{scenario}/{bag_name(self.index.setup.task, scenario, seed)}"
+
+    def _finished(self, scenario: str, seed: int) -> bool:
+        return (self.out / self._relative(scenario, seed) / METADATA).is_file()
+
     def episode(self, scenario: str, seed: int) -> tuple[IndexEntry, bool]:
         """The rollout of ``(scenario, seed)``: from its finished bag, or run and written now. True if run now."""
-        task = self.index.setup.task
-        relative = f"{scenario}/{bag_name(task, scenario, seed)}"
+        relative = self._relative(scenario, seed)
         path = self.out / relative
-        if (path / METADATA).is_file():
+        if self._finished(scenario, seed):
             entry = self.index.rollouts.get((scenario, seed))
             if entry is None:
                 raise BagError(f"{path}: a bag that {self.out / INDEX_FILE} does not list (not written by "
@@ -285,6 +364,8 @@ class Collector:
         goal = f"/{self.target.successes} wanted" if self.target.successes is not None else ""
         while not self.target.reached(episodes, successes):
             seed = self.seed + episodes
+            self.runner.ahead(scenario, (s for s in range(seed, self.seed + self.target.max_episodes)
+                                         if not self._finished(scenario, s)))
             entry, ran = self.episode(scenario, seed)
             episodes += 1
             successes += entry.success
@@ -316,6 +397,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-policy-steps", type=int, default=None,
                         help="stop episodes after this many policy steps, as a failure (tests/smoke runs only)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared machine)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="in-process: run this many episodes at once in worker processes (one per core)")
     parser.add_argument("--ros", action="store_true",
                         help="run the episodes through the live node suite (sim bridge + policy node over DDS, "
                              "each its own process) and record each from DDS, instead of in-process")
@@ -355,7 +438,7 @@ def _check_sizes(args: argparse.Namespace, episodes: int) -> None:
     last = args.seed + episodes - 1
     if args.seed < 0 or last >= 2**32:
         raise BagError(f"seeds must lie in 0 .. 2^32 - 1, got {args.seed} .. {last}")
-    for option in ("batch", "max_policy_steps", "threads"):
+    for option in ("batch", "max_policy_steps", "threads", "jobs"):
         value = getattr(args, option)
         if value is not None and value < 1:
             raise BagError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
@@ -364,7 +447,11 @@ def _check_sizes(args: argparse.Namespace, episodes: int) -> None:
 def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: CollectSetup, stack: ExitStack) -> Runner:
     """The runner of ``--ros`` (entered into ``stack``: it stops its suite) or the in-process one."""
     if setup.runner == IN_PROCESS:
-        return InProcessRunner(model.policy, setup)
+        runner = InProcessRunner(model.policy, setup, args.jobs, model_dir, args.threads)
+        stack.callback(runner.close)
+        return runner
+    if args.jobs != 1:
+        raise BagError("--jobs runs episodes in worker processes: --ros runs them through the one node suite")
     from fiper_ros.bags.collect_ros import LiveSettings, RosRunner  # noqa: PLC0415 - it imports this module
 
     settings = LiveSettings(args.task, model_dir.resolve(), setup.batch, args.threads, setup.max_policy_steps,

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -150,6 +150,9 @@ class RosRunner:
             driver.wait_ready([node_path(spec.namespace, spec.name) for spec in config.nodes], READY_TIMEOUT_S)
         print(f"all nodes active after {time.monotonic() - started:.1f} s", file=sys.stderr, flush=True)
         self._driver, self._recorder = driver, recorder
+
+    def ahead(self, scenario: str, seeds: Iterable[int]) -> None:
+        """Nothing: the episodes run one at a time through the one suite."""
 
     def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
         """Record ``(scenario, seed)`` into a bag at ``path``, from the reset to the last message after its END."""
