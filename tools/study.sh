@@ -5,7 +5,8 @@
 # 50 rollouts per scenario (ID, benign and harmful OOD; seeds 1000..1049), each rollout an MCAP bag
 # written by `fiper collect` under data/study/<task>/ (resumable: a rerun skips finished bags), then
 # `fiper evaluate` with all seven methods, 5 seeds, the paper's and the clean protocol into runs/study/.
-# Environment: STUDY_EPISODES (50), STUDY_SEEDS (0-4), STUDY_OUT (runs/study).
+# Environment: STUDY_EPISODES (50), STUDY_SEEDS (0-4), STUDY_OUT (runs/study), STUDY_JOBS (episodes at
+# once, default: the number of cores; the bags are the same for any number).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$ROOT"
@@ -14,6 +15,7 @@ source ./env.sh
 EPISODES="${STUDY_EPISODES:-50}"
 SEEDS="${STUDY_SEEDS:-0-4}"
 OUT="${STUDY_OUT:-runs/study}"
+JOBS="${STUDY_JOBS:-$(nproc)}"
 if [ "$#" -gt 0 ]; then TASKS=("$@"); else
   TASKS=(); for task in sorting stacking pusht; do [ -f "models/$task/policy.yaml" ] && TASKS+=("$task"); done
 fi
@@ -22,10 +24,10 @@ data_args=()
 for task in "${TASKS[@]}"; do
   scenarios=$(python -c "from sim_bridge.scenarios import SCENARIOS; print(' '.join(SCENARIOS['$task']))")
   echo "[study] $task: calibration set (50 ID successes from seed 2000), test set ($EPISODES per scenario: $scenarios)"
-  fiper collect --task "$task" --scenarios id --successes 50 --seed 2000 --split calibration \
+  fiper collect --task "$task" --scenarios id --successes 50 --seed 2000 --split calibration --jobs "$JOBS" \
     --out "data/study/$task/calibration"
   # shellcheck disable=SC2086
-  fiper collect --task "$task" --scenarios $scenarios --episodes "$EPISODES" --seed 1000 --split test \
+  fiper collect --task "$task" --scenarios $scenarios --episodes "$EPISODES" --seed 1000 --split test --jobs "$JOBS" \
     --out "data/study/$task/test"
   # the evaluation's name of the PushT task is push_t (the paper's tables)
   name="$task"; [ "$task" = pusht ] && name=push_t
