@@ -7,7 +7,12 @@ Stacking model for the joint-velocity path.
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
@@ -239,3 +244,44 @@ def test_workers_run_ahead_and_drop_episodes_no_longer_wanted() -> None:
         assert not runner._started
     finally:
         runner.close()
+
+
+def _workers_of(pid: int) -> list[int]:
+    """The pids of ``pid``'s spawned worker processes (multiprocessing's ``spawn_main``)."""
+    workers = []
+    for child in Path("/proc").glob("[0-9]*"):
+        try:
+            ppid = int((child / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            command = (child / "cmdline").read_bytes()
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == pid and b"spawn_main" in command:
+            workers.append(int(child.name))
+    return workers
+
+
+def test_killing_a_collect_stops_its_workers(tmp_path: Path) -> None:
+    # PushT episodes at B = 256 take tens of seconds: a worker left alone would keep running for that long
+    collect_cmd = [sys.executable, "-m", "fiper_ros.cli", "collect", "--task", "pusht", "--episodes", "10",
+                   "--jobs", "2", "--out", str(tmp_path / "out")]
+    proc = subprocess.Popen(collect_cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_workers_of(proc.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        workers = _workers_of(proc.pid)
+        assert len(workers) == 2 and proc.poll() is None
+        first = tmp_path / "out" / "id" / bag_name("pusht", "id", 1000) / "metadata.yaml"
+        while not first.is_file() and time.monotonic() < deadline:  # then both workers are in an episode
+            time.sleep(0.2)
+        assert first.is_file()
+    finally:
+        proc.kill()  # no clean-up at all
+        proc.wait()
+    deadline = time.monotonic() + 10
+    while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+    for pid in alive:
+        os.kill(pid, signal.SIGKILL)
+    assert not alive, "workers outlived their collect"

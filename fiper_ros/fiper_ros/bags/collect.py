@@ -17,11 +17,13 @@ which is thrown away.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import fcntl
 import itertools
 import math
 import multiprocessing
 import os
+import signal
 import sys
 import time
 import zlib
@@ -211,8 +213,16 @@ class Runner(Protocol):
 _worker_policy: Policy | None = None
 
 
-def _start_worker(model_dir: str, threads: int) -> None:
+#: ``prctl`` option: the signal a process gets when its parent dies (Linux).
+PR_SET_PDEATHSIG = 1
+
+
+def _start_worker(parent: int, model_dir: str, threads: int) -> None:
     global _worker_policy  # noqa: PLW0603 - one policy per worker process
+    # a collect that is killed takes its workers with it (they would run their episodes for nobody)
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != parent:  # the parent died before the line above
+        os._exit(1)
     torch.set_num_threads(threads)
     _worker_policy = Policy.load(model_dir)
 
@@ -253,7 +263,7 @@ class InProcessRunner:
             if model_dir is None:
                 raise ValueError("worker processes need the model folder")
             self._pool = ProcessPoolExecutor(jobs, multiprocessing.get_context("spawn"), _start_worker,
-                                             (str(model_dir), threads))
+                                             (os.getpid(), str(model_dir), threads))
         self._started: dict[tuple[str, int], Future[EpisodeResult]] = {}
 
     def prepare(self) -> None:
