@@ -8,8 +8,9 @@ a chunk) are executed one per control step at the task's control rate times ``re
 for a tick has arrived, its images and proprioception are re-published unchanged every
 ``observation_resend_s``: a policy whose subscriptions were matched after the tick (discovery under
 load, a policy node started late) still gets it, and one that already has it drops the repetition
-(same stamp). The rollout ends with a RolloutEvent END (success, failure, time limit, ``/sim/halt``, a new reset). In sim-time
-mode the bridge publishes ``/clock``: simulated time, which only advances while actions execute.
+(same stamp). The rollout ends with a RolloutEvent END (success, failure, time limit, ``/sim/halt``,
+a new reset). In sim-time mode the bridge publishes ``/clock``: simulated time, which only advances
+while actions execute.
 """
 from __future__ import annotations
 
