@@ -77,3 +77,12 @@ def test_block_off_table_fails() -> None:
             if done:
                 break
         assert info["failed"] and not info["success"]
+
+
+def test_stacking_expert_places_the_red_block_on_every_seed() -> None:
+    """The block choice must be visible to a policy: always red, never a seed-drawn colour."""
+    for seed in range(4):
+        with make_env("stacking", "id", seed, images=False) as env:
+            info = run_expert(env)
+            assert info["success"], seed
+            assert env.placed("red") and not env.placed("green") and not env.placed("blue"), seed

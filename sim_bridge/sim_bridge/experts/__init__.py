@@ -19,11 +19,11 @@ class Expert(Protocol):
 
 
 def make_expert(env: TaskEnv) -> Expert:
-    """Create the task's expert; its mode choices (block order, block, contact side) follow ``env.seed``."""
+    """Create the task's expert; its mode choices (Sorting's block order, PushT's contact side) follow ``env.seed``."""
     if env.name == "sorting":
         return SortingExpert(env.seed)
     if env.name == "stacking":
-        return StackingExpert(env.seed, env.model, env.control_hz)
+        return StackingExpert(env.model, env.control_hz)
     if env.name == "pusht":
         return PushTExpert(env.seed)
     raise KeyError(f"no expert for task {env.name!r}")

@@ -1,4 +1,8 @@
-"""Scripted Stacking-1 expert: pick one block (drawn from the seed) and place it in the target area.
+"""Scripted Stacking-1 expert: pick the red block and place it in the target area.
+
+The expert always takes the same block colour (``BLOCK``), so the choice is visible in the cameras. An
+earlier version drew the block from the seed; a policy cloned from it could not tell which block to
+take and descended between blocks (ID success 0.06, docs/policies.md).
 
 The expert tracks a sequence of TCP waypoints (above the block, grasp height, lift, above the target,
 place height, lift) with the hand pointing down and its yaw aligned to the block. A Cartesian
@@ -24,15 +28,16 @@ REACHED = 0.008
 GRIP_WAIT = 6
 RELEASE_WAIT = 5
 LAST_PHASE = 7
+BLOCK = COLORS[0]
+"""The block the expert carries (red)."""
 
 
 class StackingExpert:
     """Privileged-state expert of the Stacking-1 task; ``act(state)`` returns the next 8-D action."""
 
-    def __init__(self, seed: int, model: mujoco.MjModel, control_hz: float) -> None:
-        """Draw the block from ``seed``; ``model`` is the environment's model (for IK)."""
-        rng = np.random.default_rng([seed, 2])
-        self.color = COLORS[int(rng.integers(len(COLORS)))]
+    def __init__(self, model: mujoco.MjModel, control_hz: float) -> None:
+        """``model`` is the environment's model (for IK)."""
+        self.color = BLOCK
         self._ik = DiffIK(model)
         self._hz = control_hz
         self._phase = 0
