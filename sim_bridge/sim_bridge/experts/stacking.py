@@ -37,7 +37,6 @@ class StackingExpert:
 
     def __init__(self, model: mujoco.MjModel, control_hz: float) -> None:
         """``model`` is the environment's model (for IK)."""
-        self.color = BLOCK
         self._ik = DiffIK(model)
         self._hz = control_hz
         self._phase = 0
@@ -49,7 +48,7 @@ class StackingExpert:
     def _waypoint(self, state: dict[str, Any]) -> tuple[np.ndarray | None, float]:
         """Active waypoint (None while waiting) and gripper opening of the current phase."""
         if self._phase < 2:
-            self._grasp_xy = state["blocks"][self.color]["pos"][:2].copy()
+            self._grasp_xy = state["blocks"][BLOCK]["pos"][:2].copy()
         block = self._grasp_xy
         target = state["target"]
         grasp_z = max(state["block_half"], 0.018)
@@ -71,7 +70,7 @@ class StackingExpert:
             self._ref = state["tcp"].copy()
         if self._phase < 2:
             # Align the hand with the block's faces (blocks are symmetric under quarter turns).
-            block_yaw = state["blocks"][self.color]["yaw"]
+            block_yaw = state["blocks"][BLOCK]["yaw"]
             self._yaw = float(wrap_angle(4.0 * block_yaw) / 4.0)
         waypoint, gripper = self._waypoint(state)
         if waypoint is None:
