@@ -21,6 +21,7 @@ from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.launch import load_config
 from fiper_ros.nodes.conversions import floats_of, stamp_ns
+from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
 from fiper_ros.policy.encoder import CAMERAS
 from fiper_ros.policy.rollout import run_episode
@@ -186,10 +187,10 @@ def test_a_step_whose_rollout_ends_while_it_computes_is_not_published(ros_domain
             probe.diagnostics
         assert node.published == 0 and not probe.embeddings and not probe.batches and not probe.commands
     finally:
+        stop_executor(executor)
         policy.close()
         executor.remove_node(driver)
         driver.destroy_node()
-        executor.shutdown()
         rclpy.try_shutdown(context=context)
 
 

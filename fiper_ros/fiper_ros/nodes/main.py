@@ -16,9 +16,13 @@ import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
+CALLBACK_DRAIN_S = 30.0
+"""Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
+
 
 def spin_until_shutdown(executor: Executor) -> None:
-    """Spin until Ctrl-C / SIGTERM shuts rclpy down, however rclpy reports the shutdown."""
+    """Spin until Ctrl-C / SIGTERM shuts rclpy down, however rclpy reports the shutdown; return once the
+    callbacks in flight have finished (``stop_executor``)."""
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -28,6 +32,18 @@ def spin_until_shutdown(executor: Executor) -> None:
         # set, rcl reports an invalid context instead of ExternalShutdownException.
         if rclpy.ok():
             raise
+    finally:
+        stop_executor(executor)
+
+
+def stop_executor(executor: Executor) -> None:
+    """Shut ``executor`` down and wait (at most ``CALLBACK_DRAIN_S``) for the callbacks still running in its
+    threads, so that its nodes may be destroyed (a callback that outlives its node fails on a destroyed
+    handle)."""
+    executor.shutdown()
+    # rclpy 7.1 (Jazzy) sets its shutdown flag before testing it, so Executor.shutdown() never waits for
+    # the callbacks in flight; wait on the executor's own work tracker instead.
+    executor._work_tracker.wait(CALLBACK_DRAIN_S)  # noqa: SLF001
 
 
 def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1) -> int:
