@@ -6,7 +6,9 @@ import pytest
 
 from sim_bridge.env import make_env
 from sim_bridge.experts import make_expert, run_expert
+from sim_bridge.robot import TCP_SITE
 from sim_bridge.scenarios import TASK_NAMES
+from sim_bridge.transforms import wrap_angle
 
 ACTION_DIM = {"sorting": 2, "stacking": 8, "pusht": 2}
 PROPRIO_DIM = {"sorting": 4, "stacking": 11, "pusht": 4}
@@ -86,3 +88,22 @@ def test_stacking_expert_places_the_red_block_on_every_seed() -> None:
             info = run_expert(env)
             assert info["success"], seed
             assert env.placed("red") and not env.placed("green") and not env.placed("blue"), seed
+
+
+def test_stacking_expert_turns_the_hand_over_several_policy_steps_before_it_descends() -> None:
+    """Seed 1003's red block stands at 42 degrees: the turn must span policy steps and finish before the grasp."""
+    with make_env("stacking", "id", 1003, images=False) as env:
+        env.reset()
+        expert, site = make_expert(env), env.model.site(TCP_SITE).id
+        block_yaw = float(env.state()["blocks"]["red"]["yaw"])
+        yaws, heights = [], []
+        while env.state()["gripper_width"] > 0.07:  # until the fingers close on the block
+            env.step(expert.act(env.state()))
+            rotation = env.data.site_xmat[site].reshape(3, 3)
+            yaws.append(np.arctan2(rotation[1, 0], rotation[0, 0]))
+            heights.append(env.tcp_pos()[2])
+    turn = np.abs(wrap_angle(4.0 * (np.array(yaws) - block_yaw)) / 4.0)  # misalignment up to quarter turns
+    aligned_at = int(np.argmax(turn < np.radians(1.0)))
+    assert turn[aligned_at] < np.radians(1.0) and aligned_at >= 3 * 4  # at least three policy steps of h = 4
+    assert np.all(turn[aligned_at:] < np.radians(1.0))  # it stays aligned through the grasp
+    assert min(heights[:aligned_at]) > 0.08  # no descent towards the block before the hand is aligned

@@ -5,9 +5,15 @@ earlier version drew the block from the seed; a policy cloned from it could not 
 take and descended between blocks (ID success 0.06, docs/policies.md).
 
 The expert tracks a sequence of TCP waypoints (above the block, grasp height, lift, above the target,
-place height, lift) with the hand pointing down and its yaw aligned to the block. A Cartesian
-reference moves towards the active waypoint at bounded speed; differential IK turns it into joint
-positions and the action is the joint velocity reaching them in one control step.
+place height, lift) with the hand pointing down. A Cartesian reference moves towards the active
+waypoint at bounded speed; differential IK turns it into joint positions and the action is the joint
+velocity reaching them in one control step.
+
+The hand's yaw turns to the block's faces at a bounded rate (``YAW_STEP``) and the expert descends
+only once it is aligned, so the turn spans several policy steps and every demonstrated state shows the
+turn still left to do. An earlier expert turned the hand as fast as the joint limits allowed, within
+the first policy step; a policy cloned from it turned its hand once, too little at large block yaws,
+and never corrected it (docs/policies.md).
 """
 from __future__ import annotations
 
@@ -25,6 +31,8 @@ CARRY_HEIGHT = 0.12
 CART_STEP = 0.02
 """Largest reference TCP displacement per control step [m]."""
 REACHED = 0.008
+YAW_STEP = float(np.radians(3.0))
+"""Largest change of the hand's yaw reference per control step [rad]."""
 GRIP_WAIT = 6
 RELEASE_WAIT = 5
 LAST_PHASE = 7
@@ -42,7 +50,8 @@ class StackingExpert:
         self._phase = 0
         self._wait = 0
         self._ref: np.ndarray | None = None
-        self._yaw: float | None = None
+        self._yaw = 0.0
+        self._target_yaw = 0.0
         self._grasp_xy: np.ndarray | None = None
 
     def _waypoint(self, state: dict[str, Any]) -> tuple[np.ndarray | None, float]:
@@ -69,9 +78,11 @@ class StackingExpert:
         if self._ref is None:
             self._ref = state["tcp"].copy()
         if self._phase < 2:
-            # Align the hand with the block's faces (blocks are symmetric under quarter turns).
+            # The block's face direction nearest the hand's (blocks are symmetric under quarter turns).
             block_yaw = state["blocks"][BLOCK]["yaw"]
-            self._yaw = float(wrap_angle(4.0 * block_yaw) / 4.0)
+            self._target_yaw = self._yaw + float(wrap_angle(4.0 * (block_yaw - self._yaw)) / 4.0)
+        self._yaw += float(np.clip(self._target_yaw - self._yaw, -YAW_STEP, YAW_STEP))
+        aligned = abs(self._target_yaw - self._yaw) < 1e-6
         waypoint, gripper = self._waypoint(state)
         if waypoint is None:
             self._wait += 1
@@ -79,7 +90,7 @@ class StackingExpert:
                 self._phase, self._wait = min(self._phase + 1, LAST_PHASE), 0
         else:
             self._ref = step_towards(self._ref, waypoint, CART_STEP)
-            if np.linalg.norm(state["tcp"] - waypoint) < REACHED:
+            if np.linalg.norm(state["tcp"] - waypoint) < REACHED and (self._phase > 0 or aligned):
                 self._phase = min(self._phase + 1, LAST_PHASE)
         q_des = self._ik.solve(state["q_cmd"], self._ref, hand_down_quat(self._yaw), iterations=8)
         qdot = np.clip((q_des - state["q_cmd"]) * self._hz, -MAX_JOINT_VEL, MAX_JOINT_VEL)
