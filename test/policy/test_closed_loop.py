@@ -54,6 +54,17 @@ def test_shipped_pusht_model_pushes_the_t_from_its_first_observation() -> None:
         assert np.linalg.norm(np.median(chunks[:, -1], axis=0) - t_xy) < np.linalg.norm(tcp - t_xy)
 
 
+def test_shipped_stacking_model_turns_its_hand_and_places_the_red_block() -> None:
+    """ID seed 1003: the red block stands at 42 degrees, the largest hand turn (docs/policies.md)."""
+    policy = Policy.load(MODELS / "stacking")
+    config = policy.config
+    assert (config.head, config.action_space, config.horizon, config.exec_steps, config.sample_batch) == \
+        ("flow", "joint_velocity", 8, 4, 32)
+    assert (MODELS / "stacking" / "policy.pt").stat().st_size <= 10 * 2**20
+    episode = run_episode(policy, "id", 1003, record=False)
+    assert episode.success and episode.policy_steps < 40, episode
+
+
 def test_closed_loop_rollout_is_recorded(sorting_policy: Policy, tmp_path: Path) -> None:
     episode = run_episode(sorting_policy, "id", 1000, max_policy_steps=3)
     rollout = episode.rollout
