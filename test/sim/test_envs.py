@@ -97,7 +97,7 @@ def test_stacking_expert_turns_the_hand_over_several_policy_steps_before_it_desc
         expert, site = make_expert(env), env.model.site(TCP_SITE).id
         block_yaw = float(env.state()["blocks"]["red"]["yaw"])
         yaws, heights = [], []
-        while env.state()["gripper_width"] > 0.07:  # until the fingers close on the block
+        while not env.done and env.state()["gripper_width"] > 0.07:  # until the fingers close on the block
             env.step(expert.act(env.state()))
             rotation = env.data.site_xmat[site].reshape(3, 3)
             yaws.append(np.arctan2(rotation[1, 0], rotation[0, 0]))
