@@ -33,5 +33,7 @@ for task in "${TASKS[@]}"; do
   name="$task"; [ "$task" = pusht ] && name=push_t
   data_args+=(--data "$name=data/study/$task")
 done
-fiper evaluate "${data_args[@]}" --seeds "$SEEDS" --protocol paper,clean --out "$OUT"
+# Stacking's actions are joint velocities: ACE maps them through the sim's Panda (10 Hz control)
+fiper evaluate "${data_args[@]}" --seeds "$SEEDS" --protocol paper,clean --out "$OUT" \
+  --urdf sim_bridge/sim_bridge/assets/panda/urdf/panda.urdf --control-dt 0.1
 echo "[study] done in $(( $(date +%s) - started )) s: $OUT/results.md"

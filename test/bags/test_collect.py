@@ -26,10 +26,13 @@ from sensor_msgs.msg import JointState
 
 from fiper_ros.bags import collect
 from fiper_ros.bags.collect import bag_name, rollout_id_of
+from fiper_ros.bags.offline import predict_bag
 from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.rollouts import read_rollouts
 from fiper_ros.bags.schema import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
 from fiper_ros.cli import main
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.evaluation.data import load_dataset
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.rollout import EpisodeResult, run_episode
@@ -285,3 +288,46 @@ def test_killing_a_collect_stops_its_workers(tmp_path: Path) -> None:
     for pid in alive:
         os.kill(pid, signal.SIGKILL)
     assert not alive, "workers outlived their collect"
+
+
+PANDA_URDF = Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge" / "assets" / "panda" / "urdf" / "panda.urdf"
+
+
+def test_joint_velocity_bags_calibrate_and_replay_through_the_panda_fk_and_are_refused_without_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    _outcome_by_seed(monkeypatch)
+    model = _tiny_model(tmp_path / "tiny_stacking", "stacking")
+    out = tmp_path / "stacking"
+    assert main(["collect", "--task", "stacking", "--episodes", "4", "--seed", "1000", "--model", str(model),
+                 "--split", "calibration", "--out", str(out), "--max-policy-steps", "3"]) == 0
+    calibrate = ["calibrate", str(out), "--min-rollouts", "2", "--window-obs", "1", "--window-act", "1",
+                 "--threshold", "cp_constant", "--delta", "0.4", "--max-epochs", "2"]
+    capsys.readouterr()
+    assert main([*calibrate, "-o", str(tmp_path / "refused")]) == 2
+    assert "give the robot model with --urdf, --ee-frame and --control-dt" in capsys.readouterr().err
+    assert not (tmp_path / "refused").exists()
+    assert main([*calibrate, "-o", str(tmp_path / "refused"), "--urdf", str(PANDA_URDF)]) == 2  # velocities: no dt
+    assert "'joint_velocity' needs dt > 0" in capsys.readouterr().err
+
+    calibration = tmp_path / "calibration"
+    assert main([*calibrate, "-o", str(calibration), "--urdf", str(PANDA_URDF), "--control-dt", "0.1"]) == 0
+    cal = load_calibration(calibration)
+    assert cal.action_space == "joint_velocity" and cal.settings.control_dt == 0.1
+    assert cal.ranges.shape == (3,) and np.all(cal.ranges > 0) and np.all(cal.ranges < 1.8)  # hand positions: within twice the reach (0.855 m)
+
+    replay = ["replay", "--offline", "--calibration", str(calibration), str(out)]
+    capsys.readouterr()
+    assert main(replay) == 2
+    assert "give the robot model with --urdf" in capsys.readouterr().err
+    assert main([*replay, "--urdf", str(PANDA_URDF), "--report", str(tmp_path / "report.json")]) == 0
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert [len(r["steps"]) for r in report["rollouts"]] == [3, 3, 3, 3]
+    expected = [r.to_dict() for r in predict_bag(find_bags([out])[0], cal, PinocchioFK(PANDA_URDF, "panda_hand"))]
+    assert report["rollouts"][0] == expected[0]
+
+    test = tmp_path / "stacking_test"
+    assert main(["collect", "--task", "stacking", "--episodes", "2", "--seed", "1004", "--model", str(model),
+                 "--out", str(test), "--max-policy-steps", "3"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "--data", f"stacking={out},{test}", "--tiny", "--no-cache", "--out", str(tmp_path / "eval")]) == 2
+    assert "task 'stacking' has joint_velocity actions: ACE needs the robot's URDF" in capsys.readouterr().err

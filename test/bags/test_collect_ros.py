@@ -154,3 +154,16 @@ def test_a_node_that_dies_ends_the_collect_with_one_line_and_keeps_its_output(
     assert err[-1].endswith(f"the nodes' output: {out / WORK_DIR / 'suite.log'}")
     assert "No module named fiper_ros.nodes.no_such_node" in (out / WORK_DIR / "suite.log").read_text()
     assert json.loads((out / "collect.json").read_text())["rollouts"] == []
+
+
+def test_the_collect_suite_gives_the_ace_node_the_sims_urdf(tmp_path: Path) -> None:
+    from sim_bridge.robot import URDF_PATH
+
+    from fiper_ros.bags.collect_ros import LiveSettings, collect_config
+    from fiper_ros.bags.suite_process import installed_config
+
+    settings = LiveSettings(task="stacking", model=MODELS / "stacking", batch=4, threads=1, max_policy_steps=2,
+                            calibration=tmp_path)
+    nodes = {spec.name: spec.parameters for spec in collect_config(installed_config("demo.yaml"), settings).nodes}
+    assert nodes["ace_node"]["urdf_path"] == str(URDF_PATH) and nodes["ace_node"]["calibration_dir"] == str(tmp_path)
+    assert "urdf_path" not in nodes["rnd_oe_node"]

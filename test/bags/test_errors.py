@@ -90,3 +90,22 @@ def test_calibration_of_another_shape_is_refused(small_bag: Path, capsys: pytest
 def test_missing_calibration_is_refused(small_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["replay", str(small_bag), "--fast"]) == 2
     assert "no calibration: give --calibration DIR" in capsys.readouterr().err
+
+
+def test_a_replayed_suite_gets_the_robot_model_on_its_ace_node_only(tmp_path: Path) -> None:
+    from fiper_ros.bags.suite_process import ACE_MODULE, installed_config, replay_config
+    from fiper_ros.core.kinematics import RobotModel
+    from fiper_ros.launch import load_config
+
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text("<robot name='r'/>")
+    plain = load_config(replay_config(installed_config(), tmp_path, tmp_path / "plain.yaml"))
+    config = load_config(replay_config(installed_config(), tmp_path, tmp_path / "suite.yaml",
+                                       RobotModel(str(urdf), "tool0", 0.1)))
+    assert config.use_sim_time
+    for spec, before in zip(config.nodes, plain.nodes):
+        if spec.module == ACE_MODULE:
+            assert spec.parameters == before.parameters | {"urdf_path": str(urdf.resolve()), "ee_frame": "tool0"}
+        else:
+            assert spec.parameters == before.parameters
+    assert [s.module for s in config.nodes].count(ACE_MODULE) == 1

@@ -55,7 +55,9 @@ def _bag_seconds(bags: list[Path]) -> float:
 @pytest.mark.parametrize("sample_set", SETS, ids=[p.name for p in SETS])
 def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_domain: int, tmp_path: Path) -> None:
     pacing = PACING[sample_set.name]
-    report = _replay([str(sample_set), *pacing], ros_domain, tmp_path / "report.json")
+    # Equality is the point here, not latency: a step whose alarm is late on a loaded machine must not
+    # count as missing (the default --step-timeout is 5 s); a dropped alarm still does.
+    report = _replay([str(sample_set), *pacing, "--step-timeout", "30"], ros_domain, tmp_path / "report.json")
     expected = _offline([sample_set], sample_set / "calibration")
     assert report["missing"] == []
     assert len(report["rollouts"]) == len(expected) == ROLLOUTS[sample_set.name]

@@ -85,3 +85,39 @@ def fk_path(directory: Path) -> Path:
     path = directory / "planar2.urdf"
     path.write_text(PLANAR_URDF)
     return path
+
+
+PANDA_URDF = Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge" / "assets" / "panda" / "urdf" / "panda.urdf"
+
+
+def test_panda_takes_its_seven_arm_joints_or_the_whole_model_and_agrees_with_pinocchio() -> None:
+    import pinocchio
+
+    fk = PinocchioFK(PANDA_URDF, "panda_hand_tcp")
+    assert (fk.joints, fk.model.nq) == (7, 9)  # two finger joints are off the chain to the TCP
+    rng = np.random.default_rng(3)
+    arm = rng.uniform(-1.5, 1.5, size=(20, 7))
+    whole = np.concatenate([arm, rng.uniform(0.0, 0.04, size=(20, 2))], axis=1)
+    data = fk.model.createData()
+    frame = fk.model.getFrameId("panda_hand_tcp")
+    expected = []
+    for config in whole:
+        pinocchio.forwardKinematics(fk.model, data, config)
+        expected.append(pinocchio.updateFramePlacement(fk.model, data, frame).translation.copy())
+    assert np.allclose(fk(arm), expected, atol=1e-12)
+    assert np.allclose(fk(whole), expected, atol=1e-12)
+    with pytest.raises(KinematicsError, match=r"\[N, 7\].*\[N, 9\]"):
+        fk(whole[:, :8])
+
+
+def test_panda_velocity_actions_default_to_the_arm_channels_and_ignore_the_gripper() -> None:
+    fk = PinocchioFK(PANDA_URDF, "panda_hand")
+    rng = np.random.default_rng(4)
+    actions = rng.uniform(-0.3, 0.3, size=(4, 8, 8))  # B = 4, H = 8: 7 joint velocities + gripper opening
+    q0 = np.array([0.0, -0.5, 0.0, -2.2, 0.0, 1.7, 0.8])
+    positions = ActionProjection("joint_velocity", fk=fk, dt=0.1)(actions, q0)
+    assert positions.shape == (4, 8, 3)
+    moved = actions.copy()
+    moved[..., 7] += 1.0
+    assert np.array_equal(ActionProjection("joint_velocity", fk=fk, dt=0.1)(moved, q0), positions)
+    assert np.allclose(positions[:, 0], fk(q0 + 0.1 * actions[:, 0, :7]), atol=1e-12)

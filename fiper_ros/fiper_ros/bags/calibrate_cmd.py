@@ -13,12 +13,14 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from fiper_ros.bags import robot_options
 from fiper_ros.bags.atomic import atomic_output, check_new
 from fiper_ros.bags.convert_options import parse_channels
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.rollouts import read_rollouts
 from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationSettings, calibrate
+from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.compat import PROFILE_NAMES
 from fiper_ros.core.fusion import COMBINES
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
@@ -53,8 +55,9 @@ def load_rollouts(bags: Sequence[Path]) -> list[Rollout]:
 
 
 def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSettings, *, overwrite: bool = False,
-                   quiet: bool = False) -> Calibration:
-    """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``."""
+                   quiet: bool = False, fk: ForwardKinematics | None = None) -> Calibration:
+    """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``
+    (``fk``: the robot's forward kinematics, for joint-space actions)."""
     check_new(out, overwrite)
     rollouts = load_rollouts(bags)
     good = successful(rollouts)
@@ -66,9 +69,11 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
         print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
               f"{len(rollouts)} in {names}", flush=True)
     try:
-        calibration = calibrate(rollouts, settings, progress=None if quiet else EpochPrinter())
+        calibration = calibrate(rollouts, settings, fk=fk, progress=None if quiet else EpochPrinter())
     except CalibrationError as error:
         raise BagError(str(error)) from error
+    except KinematicsError as error:
+        raise BagError(f"{error}: give the robot model with --urdf, --ee-frame and --control-dt") from error
     with atomic_output(out, overwrite) as staging:
         calibration.save(staging)
     return calibration
@@ -86,7 +91,7 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
         return CalibrationSettings(alpha=args.alpha, window_obs=args.window_obs, window_act=args.window_act,
                                    threshold=args.threshold, delta=args.delta, combine=args.combine, rnd=rnd,
                                    seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,
-                                   action_dims=dims)
+                                   action_dims=dims, control_dt=args.control_dt)
     except (CalibrationError, ValueError) as error:
         raise BagError(str(error)) from error
 
@@ -111,14 +116,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-epochs", type=int, default=0, help="cap RND-OE training epochs (0: the preset's)")
     parser.add_argument("--action-dims", default=None, help="action channels ACE uses, START:STOP (default: 0:3)")
     parser.add_argument("--force", action="store_true", help="replace DIR if it exists")
+    robot_options.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """``fiper calibrate``."""
     try:
         settings = settings_from(args)
+        fk = robot_options.fk_of(robot_options.robot_from(args))
         bags = find_bags(args.bags)
-        calibration = calibrate_bags(bags, args.out, settings, overwrite=args.force)
+        calibration = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
     except BagError as error:
         return fail("calibrate", error)
     shown = {k: v for k, v in settings.to_dict().items() if k != "rnd"}

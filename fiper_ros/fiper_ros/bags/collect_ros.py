@@ -27,6 +27,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from sim_bridge.robot import URDF_PATH
 from sim_bridge.tasks import TASKS
 
 from fiper_ros.bags.atomic import remove
@@ -91,7 +92,8 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     bridge = {"task": settings.task, "max_policy_steps": settings.max_policy_steps or 0}
     policy = {"model": str(settings.model), "batch": settings.batch, "torch_threads": settings.threads}
     scoring = {"calibration_dir": str(settings.calibration)}
-    parameters = {"bridge_node": bridge, "policy_node": policy, "rnd_oe_node": scoring, "ace_node": scoring}
+    ace = scoring | {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
+    parameters = {"bridge_node": bridge, "policy_node": policy, "rnd_oe_node": scoring, "ace_node": ace}
     nodes = tuple(replace(spec, required=True) for spec in config.nodes if spec.name in keep)
     return replace(config, nodes=nodes).with_parameters(lambda spec: parameters.get(spec.name, {}))
 

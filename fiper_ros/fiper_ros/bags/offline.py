@@ -14,6 +14,7 @@ from fiper_ros.bags.reader import BagReader
 from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, RolloutResult, StepResult, as_float32
 from fiper_ros.bags.rollouts import layout_of, read_rollouts
 from fiper_ros.core.calibration import Calibration, CalibrationMismatch
+from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.monitor import predict_rollout
 
 
@@ -30,14 +31,17 @@ def check_fits(calibration: Calibration, calibration_dir: Path, bag: Path) -> No
         raise BagError(f"calibration {calibration_dir} does not fit bag {bag}: {error}") from error
 
 
-def predict_bag(bag: Path, calibration: Calibration) -> list[RolloutResult]:
-    """FIPER over every rollout of ``bag``."""
+def predict_bag(bag: Path, calibration: Calibration, fk: ForwardKinematics | None = None) -> list[RolloutResult]:
+    """FIPER over every rollout of ``bag`` (``fk``: the robot's FK, for joint-space actions)."""
     results = []
     for rollout in read_rollouts(bag):
         try:
-            prediction = predict_rollout(rollout, calibration)
+            prediction = predict_rollout(rollout, calibration, fk)
         except CalibrationMismatch as error:
             raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}") from error
+        except KinematicsError as error:
+            raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}; give the robot model with --urdf "
+                           "and --ee-frame") from error
         latched = np.logical_or.accumulate(prediction.alarms)
         steps = {
             t: StepResult(ALARM if latched[t] else OK, bool(prediction.obs_exceeded[t]), bool(prediction.act_exceeded[t]),

@@ -34,6 +34,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
+from fiper_ros.bags import robot_options
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult
@@ -228,7 +229,8 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
         if launch:
             assert directory is not None
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
-            config = replay_config(args.launch or installed_config(), directory, workdir / "suite.yaml")
+            config = replay_config(args.launch or installed_config(), directory, workdir / "suite.yaml",
+                                   robot_options.robot_from(args))
             suite = SuiteProcess(config, domain, echo=args.verbose)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)
@@ -278,13 +280,14 @@ def checked_calibration(directory: Path | None, bags: list[Path]) -> Calibration
     return calibration
 
 
-def _offline(bags: list[Path], directory: Path) -> dict[str, Any]:
+def _offline(bags: list[Path], directory: Path, args: argparse.Namespace) -> dict[str, Any]:
     """The oracle's results for ``--offline``."""
     from fiper_ros.bags.offline import predict_bag  # noqa: PLC0415 - see checked_calibration
 
     started = time.monotonic()
     calibration = checked_calibration(directory, bags)
-    results = [r for bag in bags for r in predict_bag(bag, calibration)]
+    fk = robot_options.fk_of(robot_options.robot_from(args))
+    results = [r for bag in bags for r in predict_bag(bag, calibration, fk)]
     for result in results:
         print(result.summary())
     return {"rollouts": results, "missing": [], "seconds": time.monotonic() - started,
@@ -310,6 +313,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clock-hz", type=float, default=100.0, help="/clock ticks per simulated second (--rate)")
     parser.add_argument("--report", type=Path, help="write the per-step results as JSON to this file")
     parser.add_argument("--verbose", action="store_true", help="show the launched suite's output")
+    robot_options.add_arguments(parser, control_dt=False)
 
 
 def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | None]:
@@ -331,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
         return fail("replay", "--rate and --clock-hz must be > 0")
     try:
         bags, directory = _bags_and_calibration(args)
-        outcome = _offline(bags, directory) if args.offline else _play_all(args, bags, directory)
+        outcome = _offline(bags, directory, args) if args.offline else _play_all(args, bags, directory)
     except BagError as error:
         return fail("replay", error)
     rate = outcome["steps"] / outcome["seconds"] if outcome["seconds"] > 0 else 0.0

@@ -19,11 +19,13 @@ from pathlib import Path
 import yaml
 
 from fiper_ros.bags.errors import BagError
+from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import local_env
 from fiper_ros.launch import LaunchError, dump_config, load_config
 
 #: Nodes that take ``calibration_dir``.
-DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", "fiper_ros.nodes.ace_node")
+ACE_MODULE = "fiper_ros.nodes.ace_node"
+DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", ACE_MODULE)
 #: Lines of the suite's output kept for an error report.
 KEPT_LINES = 200
 
@@ -35,14 +37,17 @@ def installed_config(name: str = "suite.yaml") -> Path:
     return Path(get_package_share_directory("fiper_ros")) / "config" / name
 
 
-def replay_config(config: Path, calibration: Path, out: Path) -> Path:
-    """Write ``config`` with sim time and ``calibration`` on the scoring nodes to ``out``."""
+def replay_config(config: Path, calibration: Path, out: Path, robot: RobotModel | None = None) -> Path:
+    """Write ``config`` with sim time and ``calibration`` on the scoring nodes to ``out``, and the
+    ``robot``'s URDF and EE frame on the ACE node (for joint-space actions)."""
     try:
         parsed = load_config(config)
     except (LaunchError, yaml.YAMLError) as error:
         raise BagError(f"launch config {config}: {error}") from error
     detector = {"calibration_dir": str(calibration.resolve())}
-    parsed = parsed.with_parameters(lambda spec: detector if spec.module in DETECTOR_MODULES else {})
+    ace = {} if robot is None else {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
+    parsed = parsed.with_parameters(
+        lambda spec: (detector | (ace if spec.module == ACE_MODULE else {})) if spec.module in DETECTOR_MODULES else {})
     return dump_config(replace(parsed, use_sim_time=True), out)
 
 

@@ -8,6 +8,7 @@ authors' code does (``q_{k+1} = q_k + dt * qdot_k``, cumulative over the chunk).
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -20,7 +21,12 @@ class KinematicsError(ValueError):
 
 
 class ForwardKinematics(Protocol):
-    """Maps joint configurations ``[N, nq]`` to EE positions ``[N, 3]``."""
+    """Maps joint configurations ``[N, joints]`` to EE positions ``[N, 3]``."""
+
+    @property
+    def joints(self) -> int:
+        """Joint values per configuration (the action channels a joint-space projection takes)."""
+        ...
 
     def __call__(self, q: np.ndarray) -> np.ndarray: ...
 
@@ -59,6 +65,10 @@ class PinocchioFK:
     configurations at once with numpy (``oMj = oMparent * placement_j * motion_j(q_j)``), which
     agrees with pinocchio to rounding (tested). URDF models have revolute and prismatic joints
     (aligned or not) on that chain; continuous and planar joints (``nq != nv``) are refused.
+
+    A configuration holds either the values of the chain's joints, root first (:attr:`joints`
+    columns: a Panda's seven arm joints, as a joint-space policy commands them), or the model's
+    whole ``q`` (``model.nq`` columns, e.g. with the two finger joints).
     """
 
     def __init__(self, urdf_path: str | Path, frame: str) -> None:
@@ -104,23 +114,25 @@ class PinocchioFK:
         return chain[::-1]
 
     @property
-    def nq(self) -> int:
-        """Number of joint values the model expects."""
-        return int(self.model.nq)
+    def joints(self) -> int:
+        """Number of joints on the chain from the root to the frame."""
+        return len(self._chain)
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, dtype=np.float64)
-        if q.ndim != 2 or q.shape[1] != self.nq:
-            raise KinematicsError(f"expected joint configurations [N, {self.nq}], got shape {q.shape}")
+        if q.ndim != 2 or q.shape[1] not in (self.joints, self.model.nq):
+            raise KinematicsError(f"expected joint configurations [N, {self.joints}] (the chain to {self.frame!r}) "
+                                  f"or [N, {self.model.nq}] (the whole model), got shape {q.shape}")
+        columns = range(self.joints) if q.shape[1] == self.joints else [j.q_index for j in self._chain]
         n = q.shape[0]
         # Each sample's rotation is kept as 3 rows of a [N*3, 3] array: a product with a constant
         # matrix is one GEMM, and [N*3, 3] viewed as [N, 9] scales each sample by its own factor.
         rotation = np.tile(np.eye(3), (n, 1))
         position = np.zeros((n, 3))
-        for joint in self._chain:
+        for joint, column in zip(self._chain, columns):
             position += (rotation @ joint.translation).reshape(n, 3)
             placed, placed_k, placed_kk = joint.basis
-            values = q[:, joint.q_index]
+            values = q[:, column]
             rotated = rotation @ placed
             if joint.revolute:
                 flat = rotated.reshape(n, 9)
@@ -155,7 +167,8 @@ class ActionProjection:
         action_space: ``"ee_position"``, ``"joint_position"`` or ``"joint_velocity"``.
         dims: ``(start, stop)`` of the action channels used: the EE position channels for
             ``"ee_position"``, the joint channels for joint-space actions (a gripper channel after
-            the joints is thus ignored). Default: the first three channels / all channels.
+            the joints is thus ignored). Default: the first three channels / the first
+            ``fk.joints`` channels.
         fk: Forward kinematics, required for joint-space actions.
         dt: Seconds per action, required for ``"joint_velocity"``.
     """
@@ -172,7 +185,10 @@ class ActionProjection:
             raise KinematicsError("action_space 'joint_velocity' needs dt > 0")
 
     def _channels(self, actions: np.ndarray) -> np.ndarray:
-        start, stop = self.dims if self.dims is not None else (0, 3 if self.action_space == "ee_position" else None)
+        if self.dims is not None:
+            start, stop = self.dims
+        else:
+            start, stop = 0, 3 if self.fk is None or self.action_space == "ee_position" else self.fk.joints
         picked = actions[..., start:stop]
         if picked.shape[-1] == 0:
             raise KinematicsError(f"channel range {self.dims} selects nothing from {actions.shape[-1]} channels")
@@ -198,3 +214,27 @@ class ActionProjection:
             channels = integrate_velocities(channels, q_current, float(self.dt))  # type: ignore[arg-type]
         batch, horizon, nq = channels.shape
         return np.asarray(self.fk(channels.reshape(batch * horizon, nq))).reshape(batch, horizon, 3)
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """What maps a joint-space policy's actions to EE positions: a URDF, its EE frame, the period.
+
+    Attributes:
+        urdf: Path of the robot's URDF.
+        ee_frame: The URDF frame whose position ACE bins.
+        control_dt: Seconds per action, required for ``"joint_velocity"`` actions.
+    """
+
+    urdf: str
+    ee_frame: str = "panda_hand"
+    control_dt: float | None = None
+
+    def forward_kinematics(self) -> PinocchioFK:
+        """The batched FK of :attr:`ee_frame` (raises :class:`KinematicsError` on a bad URDF or frame)."""
+        return PinocchioFK(self.urdf, self.ee_frame)
+
+    def to_dict(self) -> dict[str, str | float | None]:
+        """Plain data: the URDF by its content hash, so that a moved file keeps its meaning."""
+        digest = hashlib.sha256(Path(self.urdf).read_bytes()).hexdigest() if Path(self.urdf).is_file() else None
+        return {"urdf_sha256": digest, "ee_frame": self.ee_frame, "control_dt": self.control_dt}

@@ -24,14 +24,18 @@ import argparse  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from fiper_ros.bags import robot_options  # noqa: E402
+from fiper_ros.bags.errors import BagError  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.methods import METHODS, MethodSettings  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
 from fiper_ros.evaluation.report import config_text, write_reports  # noqa: E402
+from fiper_ros.evaluation.scoring import robot_for  # noqa: E402
 from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
 from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
 
@@ -101,6 +105,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     methods = parser.add_argument_group("methods")
     methods.add_argument("--profile", choices=("paper", "reference"), default="paper")
     methods.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke tests only)")
+    robot_options.add_arguments(methods)
     output = parser.add_argument_group("output")
     output.add_argument("--out", type=Path, required=True, help="output directory")
     output.add_argument("--cache-dir", type=Path, default=DEFAULT_DIRECTORY)
@@ -130,6 +135,7 @@ def settings_from(args: argparse.Namespace) -> EngineSettings:
     if args.default_window not in args.windows:
         raise ValueError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
+    method_settings = replace(method_settings, robot=robot_options.robot_from(args))
     sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
                           kinds=args.thresholds, combines=args.combines, pairs=args.pairs)
     return EngineSettings(methods=args.methods, seeds=args.seeds, sweep=sweep, method_settings=method_settings,
@@ -158,7 +164,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         datasets = datasets_from(args)
         settings = settings_from(args)
-    except (DatasetError, ValueError) as error:
+        robot_options.fk_of(settings.method_settings.robot)
+        for dataset in datasets:
+            robot_for(dataset, settings.method_settings)
+    except (DatasetError, BagError, ValueError) as error:
         print(f"fiper evaluate: {error}", file=sys.stderr)
         return 2
     cache = None if args.no_cache else ScoreCache(args.cache_dir)

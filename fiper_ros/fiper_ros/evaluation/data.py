@@ -42,6 +42,11 @@ class Dataset:
             raise DatasetError(f"task {self.task!r}: no test rollouts")
 
     @property
+    def action_space(self) -> str:
+        """The policy's action space (every rollout of a task shares it)."""
+        return self.calibration[0].action_space
+
+    @property
     def calibration_successes(self) -> list[Rollout]:
         """The calibration data ``D_c`` (Sec. 4.3): successful calibration rollouts."""
         return successful(self.calibration)

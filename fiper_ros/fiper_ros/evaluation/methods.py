@@ -15,6 +15,7 @@ from fiper_ros.baselines.logpzo import LogpZOConfig
 from fiper_ros.baselines.pca_kmeans import PCAKMeansConfig
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.compat import get_profile
+from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.rnd_oe import RNDConfig
 
 
@@ -55,6 +56,8 @@ class MethodSettings:
         alpha: ACE cell size factor; ``None`` uses the profile's.
         rnd: RND-OE network and training.
         pca_kmeans, logpzo, rnd_a: The baselines' configurations.
+        robot: FK and control period for ACE on joint-space actions (App. A.1); ``None`` for
+            end-effector actions.
     """
 
     profile: str = "paper"
@@ -63,6 +66,7 @@ class MethodSettings:
     pca_kmeans: PCAKMeansConfig = field(default_factory=PCAKMeansConfig)
     logpzo: LogpZOConfig = field(default_factory=LogpZOConfig)
     rnd_a: RNDAConfig = field(default_factory=RNDAConfig)
+    robot: RobotModel | None = None
 
     def __post_init__(self) -> None:
         get_profile(self.profile)
@@ -79,13 +83,15 @@ class MethodSettings:
             rnd_a=RNDAConfig(channels=8, train_samples=2, score_samples=8, rnd=tiny_rnd),
         )
 
-    def stream_settings(self, stream: str) -> dict[str, Any]:
-        """The settings that determine ``stream`` (plain data, for the cache key)."""
+    def stream_settings(self, stream: str, joint_space: bool = False) -> dict[str, Any]:
+        """The settings that determine ``stream`` (plain data, for the cache key); the robot model
+        only for ACE on a task with ``joint_space`` actions."""
         common: dict[str, Any] = {"profile": self.profile}
         if stream == "rnd_oe":
             return {**common, "rnd": self.rnd.to_dict()}
         if stream == "ace":
-            return {**common, "alpha": self.alpha}
+            robot = {"robot": self.robot.to_dict()} if joint_space and self.robot is not None else {}
+            return {**common, "alpha": self.alpha, **robot}
         if stream == "stac":
             return common
         if stream == "pca_kmeans":

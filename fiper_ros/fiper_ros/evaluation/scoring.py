@@ -28,7 +28,8 @@ from fiper_ros.core.compat import get_profile
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores, cache_key, code_version
-from fiper_ros.evaluation.data import Dataset
+from fiper_ros.core.kinematics import RobotModel
+from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.methods import SEEDLESS_STREAMS, MethodSettings
 
 LOG = logging.getLogger(__name__)
@@ -62,12 +63,26 @@ def _apply(score: Callable[[Rollout], np.ndarray], dataset: Dataset, epsilon: fl
     return StreamScores(calibration, [np.asarray(score(r), dtype=np.float64) + epsilon for r in dataset.test])
 
 
+def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
+    """The robot model ACE needs for ``dataset``: ``None`` for end-effector actions; for joint-space
+    actions ``settings.robot``, else :class:`DatasetError`."""
+    if dataset.action_space == "ee_position":
+        return None
+    if settings.robot is None:
+        raise DatasetError(f"task {dataset.task!r} has {dataset.action_space} actions: ACE needs the robot's "
+                           "URDF and EE frame (and the control period for velocities)")
+    return settings.robot
+
+
 def fiper_streams(dataset: Dataset, settings: MethodSettings, seed: int) -> dict[str, StreamScores]:
     """RND-OE and ACE scores through the core calibration (``core.scores``; epsilon included there)."""
+    robot = robot_for(dataset, settings)
     calibration_settings = CalibrationSettings(alpha=settings.alpha, rnd=settings.rnd, seed=seed,
-                                               profile=settings.profile)
-    calibration = calibrate(dataset.calibration, calibration_settings)
-    projection = calibration.projection()
+                                               profile=settings.profile,
+                                               control_dt=None if robot is None else robot.control_dt)
+    fk = None if robot is None else robot.forward_kinematics()
+    calibration = calibrate(dataset.calibration, calibration_settings, fk=fk)
+    projection = calibration.projection(fk)
     profile = calibration.profile
 
     def ace(rollout: Rollout) -> np.ndarray:
@@ -99,7 +114,9 @@ def compute_streams(
     """
     data_digest = dataset.digest() if cache is not None else ""
     version = code_version() if cache is not None else ""
-    keys = {s: cache_key(data_digest, s, settings.stream_settings(s), None if s in SEEDLESS_STREAMS else seed, version)
+    joint_space = dataset.action_space != "ee_position"
+    keys = {s: cache_key(data_digest, s, settings.stream_settings(s, joint_space),
+                         None if s in SEEDLESS_STREAMS else seed, version)
             for s in streams}
     out: dict[str, StreamScores] = {}
     seconds: dict[str, float] = {}
