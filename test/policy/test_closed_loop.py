@@ -8,6 +8,12 @@ import pytest
 import torch
 from helpers.policy_fixtures import tiny_config
 
+from sim_bridge.robot import URDF_PATH
+from sim_bridge.tasks import TASKS as SIM_TASKS
+
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.kinematics import PinocchioFK
+from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.core.rollout import RolloutSet
 from fiper_ros.policy.evaluate import EvaluationResult, save_rollouts
 from fiper_ros.policy.multimodality import block_choice, initial_batch
@@ -61,8 +67,25 @@ def test_shipped_stacking_model_turns_its_hand_and_places_the_red_block() -> Non
     assert (config.head, config.action_space, config.horizon, config.exec_steps, config.sample_batch) == \
         ("flow", "joint_velocity", 8, 4, 32)
     assert (MODELS / "stacking" / "policy.pt").stat().st_size <= 10 * 2**20
-    episode = run_episode(policy, "id", 1003, record=False)
+    episode = run_episode(policy, "id", 1003)
     assert episode.success and episode.policy_steps < 40, episode
+    # FIPER on it with the shipped calibration: joint velocities -> Panda FK -> ACE
+    assert episode.rollout is not None
+    calibration = load_calibration(MODELS / "stacking" / "calibration")
+    prediction = predict_rollout(episode.rollout, calibration, PinocchioFK(URDF_PATH, "panda_hand"))
+    assert prediction.act_scores.shape == (episode.policy_steps,) and np.all(np.isfinite(prediction.act_scores))
+    assert np.all(prediction.act_scores >= 0) and np.median(prediction.act_scores) > 1.0  # bits: the 32 spread
+    assert prediction.first_alarm_step is None  # a success, and the shipped AND stays quiet on it
+
+
+@pytest.mark.parametrize("task", ["sorting", "stacking", "pusht"])
+def test_every_shipped_calibration_fits_its_policy(task: str) -> None:
+    config = Policy.load(MODELS / task).config
+    calibration = load_calibration(MODELS / task / "calibration")
+    calibration.check_compatible(embedding_dim=config.embed_dim, action_dim=config.action_dim, horizon=config.horizon)
+    assert (calibration.action_space, calibration.exec_steps) == (config.action_space, config.exec_steps)
+    if config.action_space == "joint_velocity":
+        assert calibration.settings.control_dt == pytest.approx(1.0 / SIM_TASKS[task].control_hz)
 
 
 def test_closed_loop_rollout_is_recorded(sorting_policy: Policy, tmp_path: Path) -> None:

@@ -81,7 +81,7 @@ class Player:
         self.publishers: dict[str, Any] = {}
         self.clock = self.node.create_publisher(Clock, "/clock", QoSProfile(depth=1))
         self.alarms: dict[tuple[int, int], FailureAlarm] = {}
-        self.node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, qos.ALARM)
+        self.node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, qos.ALARM_EVERY)
         self.results: dict[int, RolloutResult] = {}
         self.missing: list[tuple[int, int]] = []
         self.steps = 0

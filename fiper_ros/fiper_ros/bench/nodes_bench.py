@@ -89,7 +89,6 @@ class Driver:
         from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
         from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent  # noqa: PLC0415
-        from rclpy.qos import QoSProfile  # noqa: PLC0415
 
         from fiper_ros.nodes import qos  # noqa: PLC0415
 
@@ -103,8 +102,7 @@ class Driver:
         self.act_pub = self.node.create_publisher(ActionChunkBatch, "action_chunks", qos.INPUT)
         self.event_pub = self.node.create_publisher(RolloutEvent, "rollout_events", qos.EVENT)
         self.received: dict[tuple[int, int], int] = {}
-        deep = QoSProfile(depth=1000, reliability=qos.ALARM.reliability, durability=qos.ALARM.durability)
-        self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, deep)
+        self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM_EVERY)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
         self.actions = rng.uniform(-1, 1, (shape.batch, shape.horizon, shape.action_dim)).astype(np.float32)

@@ -30,4 +30,9 @@ EVENT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=Reliab
                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 ALARM = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: For a subscriber that needs every step's alarm, not only the latest state (the bag replay, benchmarks):
+#: a heartbeat can follow a step's alarm within milliseconds, and a depth-1 reader keeps only the newer
+#: of two samples that arrive before its callback runs. Compatible with :data:`ALARM` publishers.
+ALARM_EVERY = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DIAGNOSTICS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
