@@ -24,9 +24,10 @@ from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.replay import STATE_NAMES
 from fiper_ros.bags.results import StepResult
 from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.cli import main
 from fiper_ros.core.calibration import load_calibration
+from fiper_ros.nodes.conversions import stamp_ns
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.rollout import run_episode
 
@@ -167,3 +168,30 @@ def test_the_collect_suite_gives_the_ace_node_the_sims_urdf(tmp_path: Path) -> N
     nodes = {spec.name: spec.parameters for spec in collect_config(installed_config("demo.yaml"), settings).nodes}
     assert nodes["ace_node"]["urdf_path"] == str(URDF_PATH) and nodes["ace_node"]["calibration_dir"] == str(tmp_path)
     assert "urdf_path" not in nodes["rnd_oe_node"]
+
+
+def test_a_live_stacking_rollout_scores_its_joint_velocities_as_the_bag_says(tmp_path: Path) -> None:
+    """The ACE node integrates each batch from the joint state stamped with it (not the later states of
+    the control steps that run meanwhile), so the live alarms equal the offline oracle's on the bag."""
+    from sim_bridge.robot import URDF_PATH
+
+    from fiper_ros.core.kinematics import PinocchioFK
+
+    out = tmp_path / "stacking"
+    calibration_dir = MODELS / "stacking" / "calibration"
+    steps = 6
+    assert main(["collect", "--task", "stacking", "--episodes", "1", "--seed", "1003", "--batch", "8",
+                 "--max-policy-steps", str(steps), "--ros", "--calibration", str(calibration_dir),
+                 "--out", str(out)]) == 0
+    (bag,) = find_bags([out])
+    with BagReader(bag) as reader:
+        (event, *_) = [reader.decode(m) for m in reader.messages([EVENTS])]
+        recorded = _alarm_steps(reader, event.rollout_id)
+        states = {stamp_ns(m.header.stamp): m for m in (reader.decode(r) for r in reader.messages([JOINT_STATES]))}
+        batch_stamps = [stamp_ns(reader.decode(m).header.stamp) for m in reader.messages([ACTIONS])]
+    assert len(states) > steps and set(range(steps - 1)) <= set(recorded)  # the control steps' states as well
+    (rollout,) = read_rollouts(bag)
+    np.testing.assert_array_equal(rollout.metadata["joint_positions"],
+                                  [np.asarray(states[stamp].position[:7]) for stamp in batch_stamps])
+    (offline,) = predict_bag(bag, load_calibration(calibration_dir), PinocchioFK(URDF_PATH, "panda_hand"))
+    assert recorded == {step: offline.steps[step] for step in recorded}

@@ -33,7 +33,7 @@ class Driver(Node):
         self.alarms: list[FailureAlarm] = []
         self.scores: list[Score] = []
         self.diagnostics: dict[str, dict[str, str]] = {}
-        self.create_subscription(FailureAlarm, "alarm", self.alarms.append, qos.ALARM)
+        self.create_subscription(FailureAlarm, "alarm", self.alarms.append, qos.ALARM_EVERY)
         for detector in ("rnd_oe", "ace"):
             self.create_subscription(Score, f"scores/{detector}", self.scores.append, qos.SCORE_SUB)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)

@@ -7,7 +7,9 @@ same code a policy node uses. A rollout with ``metadata["joint_positions"]`` (``
 arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at each step's stamp, written
 before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
 takes task, scenario and outcome from the rollout's events, and restores ``joint_positions`` as the
-ace_node sees them: per step, the arm joints of the latest ``/joint_states`` up to the step's batch.
+ace_node sees them: per step, the arm joints of the ``/joint_states`` with the latest stamp not after
+the batch's (:mod:`fiper_ros.runtime.joint_history`; a live recording also holds the states of the
+control steps that ran while the batch travelled).
 """
 from __future__ import annotations
 
@@ -37,7 +39,8 @@ from fiper_ros.bags.schema import (
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.rollout import Rollout, RolloutError
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg
+from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg, stamp_ns
+from fiper_ros.runtime.joint_history import JointHistory
 
 LOG = logging.getLogger(__name__)
 
@@ -176,11 +179,12 @@ def _arm_joints(msg: Any) -> np.ndarray:
 
 def _collect(bag: BagReader) -> list[_Collected]:
     rollouts: dict[int, _Collected] = {}
-    joints: np.ndarray | None = None
+    joints = JointHistory()  # the ACE node's rule: the latest stamp not after the batch's
     for message in bag.messages([EMBEDDING, ACTIONS, EVENTS, JOINT_STATES]):
         msg = bag.decode(message)
         if message.topic == JOINT_STATES:
-            joints = _arm_joints(msg) if all(name in msg.name for name in ARM_JOINT_NAMES) else joints
+            if all(name in msg.name for name in ARM_JOINT_NAMES):
+                joints.add(stamp_ns(msg.header.stamp), _arm_joints(msg))
             continue
         record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task))
         if message.topic == EVENTS:
@@ -198,8 +202,9 @@ def _collect(bag: BagReader) -> list[_Collected]:
                                f"{data.size} values, not B x H x D = {shape}")
             record.batches[int(msg.step)] = data.reshape(shape)
             record.exec_steps, record.action_space = int(msg.exec_steps), str(msg.action_space)
-            if joints is not None:
-                record.joints[int(msg.step)] = joints
+            position = joints.at(stamp_ns(msg.header.stamp))
+            if position is not None:
+                record.joints[int(msg.step)] = position
     return list(rollouts.values())
 
 

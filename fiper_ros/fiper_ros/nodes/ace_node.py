@@ -1,7 +1,8 @@
 """ACE node: ActionChunkBatch -> Score on ``scores/ace`` (paper eqs. 4-6).
 
 Joint-space batches are mapped to end-effector positions with pinocchio (parameters ``urdf_path``
-and ``ee_frame``); joint-velocity batches are integrated from the latest ``joint_states`` first.
+and ``ee_frame``); joint-velocity batches are integrated first from the ``joint_states`` position
+with the latest stamp not after the batch's (:mod:`fiper_ros.runtime.joint_history`).
 """
 from __future__ import annotations
 
@@ -17,10 +18,11 @@ from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import ActionMonitor, StepScore
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import describe
-from fiper_ros.nodes.conversions import floats_of
+from fiper_ros.nodes.conversions import floats_of, stamp_ns
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation
+from fiper_ros.runtime.joint_history import JointHistory
 from fiper_ros.runtime.validation import InputRejected
 
 JOINT_SPACES = (ActionChunkBatch.ACTION_SPACE_JOINT_POSITION, ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY)
@@ -41,7 +43,8 @@ class AceNode(DetectorNode):
                                describe("measured joint positions, for joint-velocity actions", read_only=True))
         self.declare_parameter("joint_names", [f"panda_joint{i}" for i in range(1, 8)],
                                describe("joints of the URDF chain, picked by name from joint_states", read_only=True))
-        self._q_current: np.ndarray | None = None
+        self._joints = JointHistory()
+        self._q_batch: np.ndarray | None = None  # the joint position of the batch being scored
         self._joint_sub: Any = None
 
     def make_monitor(self, calibration: Calibration) -> ActionMonitor:
@@ -64,7 +67,7 @@ class AceNode(DetectorNode):
         positions = dict(zip(msg.name, msg.position))
         names = self.get_parameter("joint_names").value
         if all(name in positions for name in names):
-            self._q_current = np.array([positions[name] for name in names], dtype=np.float64)
+            self._joints.add(stamp_ns(msg.header.stamp), np.array([positions[name] for name in names], dtype=np.float64))
 
     def window(self) -> int:
         return self.calibration.settings.window_act if self.calibration else 0
@@ -79,12 +82,15 @@ class AceNode(DetectorNode):
         if (msg.horizon, msg.action_dim) != (cal.horizon, cal.action_dim):
             raise InputRejected(validation.CALIBRATION_MISMATCH,
                                 f"H x D = {msg.horizon} x {msg.action_dim} != calibration's {cal.horizon} x {cal.action_dim}")
-        if cal.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY and self._q_current is None:
-            raise InputRejected(validation.NO_JOINT_STATE, "joint-velocity actions need a joint_states message first")
+        if cal.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
+            self._q_batch = self._joints.at(stamp_ns(msg.header.stamp))
+            if self._q_batch is None:
+                raise InputRejected(validation.NO_JOINT_STATE, "joint-velocity actions need a joint_states message "
+                                                               "stamped at or before the batch")
         return actions
 
     def score(self, step: int, value: np.ndarray) -> StepScore:
-        return self.monitor.update(step, value, self._q_current)
+        return self.monitor.update(step, value, self._q_batch)
 
 
 #: The node class, for in-process launching.
