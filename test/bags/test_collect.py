@@ -23,6 +23,7 @@ import yaml
 from helpers.policy_fixtures import tiny_policy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from sim_bridge.robot import URDF_PATH
 
 from fiper_ros.bags import collect
 from fiper_ros.bags.collect import bag_name, rollout_id_of
@@ -290,8 +291,6 @@ def test_killing_a_collect_stops_its_workers(tmp_path: Path) -> None:
     assert not alive, "workers outlived their collect"
 
 
-PANDA_URDF = Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge" / "assets" / "panda" / "urdf" / "panda.urdf"
-
 
 def test_joint_velocity_bags_calibrate_and_replay_through_the_panda_fk_and_are_refused_without_it(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
@@ -306,11 +305,11 @@ def test_joint_velocity_bags_calibrate_and_replay_through_the_panda_fk_and_are_r
     assert main([*calibrate, "-o", str(tmp_path / "refused")]) == 2
     assert "give the robot model with --urdf, --ee-frame and --control-dt" in capsys.readouterr().err
     assert not (tmp_path / "refused").exists()
-    assert main([*calibrate, "-o", str(tmp_path / "refused"), "--urdf", str(PANDA_URDF)]) == 2  # velocities: no dt
+    assert main([*calibrate, "-o", str(tmp_path / "refused"), "--urdf", str(URDF_PATH)]) == 2  # velocities: no dt
     assert "'joint_velocity' needs dt > 0" in capsys.readouterr().err
 
     calibration = tmp_path / "calibration"
-    assert main([*calibrate, "-o", str(calibration), "--urdf", str(PANDA_URDF), "--control-dt", "0.1"]) == 0
+    assert main([*calibrate, "-o", str(calibration), "--urdf", str(URDF_PATH), "--control-dt", "0.1"]) == 0
     cal = load_calibration(calibration)
     assert cal.action_space == "joint_velocity" and cal.settings.control_dt == 0.1
     assert cal.ranges.shape == (3,) and np.all(cal.ranges > 0) and np.all(cal.ranges < 1.8)  # hand positions: within twice the reach (0.855 m)
@@ -319,10 +318,10 @@ def test_joint_velocity_bags_calibrate_and_replay_through_the_panda_fk_and_are_r
     capsys.readouterr()
     assert main(replay) == 2
     assert "give the robot model with --urdf" in capsys.readouterr().err
-    assert main([*replay, "--urdf", str(PANDA_URDF), "--report", str(tmp_path / "report.json")]) == 0
+    assert main([*replay, "--urdf", str(URDF_PATH), "--report", str(tmp_path / "report.json")]) == 0
     report = json.loads((tmp_path / "report.json").read_text())
     assert [len(r["steps"]) for r in report["rollouts"]] == [3, 3, 3, 3]
-    expected = [r.to_dict() for r in predict_bag(find_bags([out])[0], cal, PinocchioFK(PANDA_URDF, "panda_hand"))]
+    expected = [r.to_dict() for r in predict_bag(find_bags([out])[0], cal, PinocchioFK(URDF_PATH, "panda_hand"))]
     assert report["rollouts"][0] == expected[0]
 
     test = tmp_path / "stacking_test"

@@ -9,6 +9,7 @@ import pytest
 
 from fiper_ros.core.kinematics import ActionProjection, KinematicsError, PinocchioFK, integrate_velocities
 from helpers.urdfs import L1, L2, PLANAR_URDF, SPATIAL_URDF
+from sim_bridge.robot import URDF_PATH
 
 def analytic(q: np.ndarray) -> np.ndarray:
     q1, q2 = q[..., 0], q[..., 1]
@@ -87,13 +88,10 @@ def fk_path(directory: Path) -> Path:
     return path
 
 
-PANDA_URDF = Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge" / "assets" / "panda" / "urdf" / "panda.urdf"
-
-
 def test_panda_takes_its_seven_arm_joints_or_the_whole_model_and_agrees_with_pinocchio() -> None:
     import pinocchio
 
-    fk = PinocchioFK(PANDA_URDF, "panda_hand_tcp")
+    fk = PinocchioFK(URDF_PATH, "panda_hand_tcp")
     assert (fk.joints, fk.model.nq) == (7, 9)  # two finger joints are off the chain to the TCP
     rng = np.random.default_rng(3)
     arm = rng.uniform(-1.5, 1.5, size=(20, 7))
@@ -111,7 +109,7 @@ def test_panda_takes_its_seven_arm_joints_or_the_whole_model_and_agrees_with_pin
 
 
 def test_panda_velocity_actions_default_to_the_arm_channels_and_ignore_the_gripper() -> None:
-    fk = PinocchioFK(PANDA_URDF, "panda_hand")
+    fk = PinocchioFK(URDF_PATH, "panda_hand")
     rng = np.random.default_rng(4)
     actions = rng.uniform(-0.3, 0.3, size=(4, 8, 8))  # B = 4, H = 8: 7 joint velocities + gripper opening
     q0 = np.array([0.0, -0.5, 0.0, -2.2, 0.0, 1.7, 0.8])

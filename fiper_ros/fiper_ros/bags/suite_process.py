@@ -45,9 +45,10 @@ def replay_config(config: Path, calibration: Path, out: Path, robot: RobotModel 
     except (LaunchError, yaml.YAMLError) as error:
         raise BagError(f"launch config {config}: {error}") from error
     detector = {"calibration_dir": str(calibration.resolve())}
-    ace = {} if robot is None else {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
-    parsed = parsed.with_parameters(
-        lambda spec: (detector | (ace if spec.module == ACE_MODULE else {})) if spec.module in DETECTOR_MODULES else {})
+    parameters = {module: detector for module in DETECTOR_MODULES}
+    if robot is not None:
+        parameters[ACE_MODULE] = detector | {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
+    parsed = parsed.with_parameters(lambda spec: parameters.get(spec.module, {}))
     return dump_config(replace(parsed, use_sim_time=True), out)
 
 

@@ -44,7 +44,6 @@ class AceNode(DetectorNode):
         self.declare_parameter("joint_names", [f"panda_joint{i}" for i in range(1, 8)],
                                describe("joints of the URDF chain, picked by name from joint_states", read_only=True))
         self._joints = JointHistory()
-        self._q_batch: np.ndarray | None = None  # the joint position of the batch being scored
         self._joint_sub: Any = None
 
     def make_monitor(self, calibration: Calibration) -> ActionMonitor:
@@ -72,7 +71,8 @@ class AceNode(DetectorNode):
     def window(self) -> int:
         return self.calibration.settings.window_act if self.calibration else 0
 
-    def to_array(self, msg: ActionChunkBatch) -> np.ndarray:
+    def to_array(self, msg: ActionChunkBatch) -> tuple[np.ndarray, np.ndarray | None]:
+        """The batch and, for joint velocities, the joint position it integrates from."""
         actions = validation.action_batch(floats_of(msg.data), msg.batch_size, msg.horizon, msg.action_dim,
                                           msg.exec_steps, self.get_parameter("max_elements").value)
         cal = self.calibration
@@ -82,15 +82,16 @@ class AceNode(DetectorNode):
         if (msg.horizon, msg.action_dim) != (cal.horizon, cal.action_dim):
             raise InputRejected(validation.CALIBRATION_MISMATCH,
                                 f"H x D = {msg.horizon} x {msg.action_dim} != calibration's {cal.horizon} x {cal.action_dim}")
-        if cal.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
-            self._q_batch = self._joints.at(stamp_ns(msg.header.stamp))
-            if self._q_batch is None:
-                raise InputRejected(validation.NO_JOINT_STATE, "joint-velocity actions need a joint_states message "
-                                                               "stamped at or before the batch")
-        return actions
+        if cal.action_space != ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
+            return actions, None
+        q_current = self._joints.at(stamp_ns(msg.header.stamp))
+        if q_current is None:
+            raise InputRejected(validation.NO_JOINT_STATE, "joint-velocity actions need a joint_states message "
+                                                           "stamped at or before the batch")
+        return actions, q_current
 
-    def score(self, step: int, value: np.ndarray) -> StepScore:
-        return self.monitor.update(step, value, self._q_batch)
+    def score(self, step: int, value: tuple[np.ndarray, np.ndarray | None]) -> StepScore:
+        return self.monitor.update(step, *value)
 
 
 #: The node class, for in-process launching.

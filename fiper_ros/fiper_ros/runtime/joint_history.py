@@ -43,8 +43,3 @@ class JointHistory:
         """The position with the latest stamp not after ``stamp_ns``; None if every kept one is later."""
         index = bisect.bisect_right(self._stamps, stamp_ns)
         return self._positions[index - 1] if index > 0 else None
-
-    def clear(self) -> None:
-        """Forget every position (a new rollout)."""
-        self._stamps.clear()
-        self._positions.clear()
