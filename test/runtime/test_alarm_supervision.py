@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN, AlarmFuser, DetectorScore
+from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore
 from fiper_ros.runtime.supervision import SupervisorLogic
 
 S = 1_000_000_000
@@ -133,3 +133,22 @@ def test_supervisor_halts_on_silence() -> None:
     decision = logic.on_clock(103 * S)
     assert decision is not None and "no alarm message" in decision.reason
     assert logic.on_clock(104 * S) is None
+
+
+def test_supervisor_times_unknown_per_rollout_and_not_while_idle() -> None:
+    logic = SupervisorLogic(deadline_ns=2 * S)
+    # idle: the fusion node's "no active rollout" heartbeats for longer than the deadline halt nothing
+    for t in range(6):
+        assert logic.on_state(NO_ROLLOUT, UNKNOWN, "no active rollout", t * S) is None
+    assert logic.on_clock(int(5.5 * S)) is None
+    # a rollout starts: its first scores may take up to the deadline, counted from its own first state
+    assert logic.on_state(7, UNKNOWN, "waiting for the first scores", 6 * S) is None
+    assert logic.on_clock(int(7.9 * S)) is None
+    assert logic.on_state(7, OK, "", 8 * S) is None
+    # UNKNOWN carried over from one rollout into the next restarts at the new rollout
+    assert logic.on_state(7, UNKNOWN, "stale", 9 * S) is None
+    for t in (10.5, 11.5, 12.0):  # heartbeats: not silent
+        assert logic.on_state(8, UNKNOWN, "waiting for the first scores", int(t * S)) is None
+    assert logic.on_clock(int(12.4 * S)) is None
+    decision = logic.on_clock(int(12.6 * S))
+    assert decision is not None and decision.rollout_id == 8 and "UNKNOWN for 2.10 s" in decision.reason

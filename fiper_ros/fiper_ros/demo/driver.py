@@ -5,14 +5,16 @@ Shared by ``fiper demo`` and ``fiper collect --ros``. It runs in one rclpy sessi
 ``/diagnostics``, calls ``/sim/reset`` and keeps a :class:`~fiper_ros.demo.trace.RolloutTrace` per
 rollout it started (action batches, both scores, the alarm, START / END stamps, the outcome) from its own
 subscriptions. A :class:`~fiper_ros.bags.record.Recorder` given to it is polled whenever it spins; an
-alarm display given to it sees every alarm decision. Nothing waits forever: a node process that died
-(the launcher exited), a node that never became active, a reset that was not answered and a rollout
+alarm display given to it sees every alarm decision. Before the first reset it waits until the nodes
+are active and wired (:mod:`fiper_ros.runtime.wiring`). Nothing waits forever: a node process that
+died (the launcher exited), a node that never became active, a reset that was not answered and a rollout
 that stopped making progress end in :class:`SuiteFailed`; Ctrl-C / SIGTERM (the session's stop) in
 :class:`KeyboardInterrupt`.
 """
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -26,6 +28,7 @@ from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess
 from fiper_ros.demo.trace import RolloutTrace
 from fiper_ros.nodes import qos
+from fiper_ros.runtime.wiring import missing_matches
 from fiper_ros.nodes.conversions import stamp_ns
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
@@ -37,9 +40,6 @@ OUTCOMES = {RolloutEvent.OUTCOME_SUCCESS: "success", RolloutEvent.OUTCOME_FAILUR
 RESET_TIMEOUT_S = 30.0
 #: Seconds a running rollout may go without a new action-chunk batch.
 STALL_TIMEOUT_S = 30.0
-#: Seconds the driver keeps spinning once every node is ready, so that the nodes discover each other's
-#: (and the recorder's) subscriptions before the first reset.
-DISCOVERY_S = 1.0
 
 #: Called with every alarm decision (not heartbeats) of a rollout the driver follows, after its bookkeeping.
 AlarmDisplay = Callable[[RolloutTrace, FailureAlarm], None]
@@ -97,6 +97,8 @@ class Driver:
         assert node is not None
         self.node = node
         self.states: dict[str, str] = {}
+        #: The latest /diagnostics key/values of each node (by fully qualified name).
+        self.diagnostics: dict[str, dict[str, str]] = {}
         self.traces: dict[int, RolloutTrace] = {}
         self._starts: dict[int, int] = {}
         self._reset = node.create_client(ResetRollout, "/sim/reset")
@@ -111,6 +113,7 @@ class Driver:
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
             values = {v.key: v.value for v in status.values}
+            self.diagnostics[status.hardware_id] = values
             if "lifecycle_state" in values:
                 self.states[status.hardware_id] = values["lifecycle_state"]
 
@@ -165,14 +168,17 @@ class Driver:
             raise KeyboardInterrupt
 
     def wait_ready(self, managed: Sequence[str], timeout_s: float, plain: Sequence[str] = ()) -> None:
-        """Until every ``managed`` node (``/ns/name``) reports ``active`` on /diagnostics, every ``plain`` node
-        is in the graph, the bridge's reset is served and the recorder (if any) subscribed to all its topics;
-        then :data:`DISCOVERY_S` more."""
+        """Until every ``managed`` node (``/ns/name``) reports ``active`` on /diagnostics, their topics are
+        wired (:func:`~fiper_ros.runtime.wiring.missing_matches`, the driver's own subscriptions included),
+        every ``plain`` node is in the graph, the bridge's reset is served and the recorder (if any)
+        subscribed to all its topics."""
         deadline = time.monotonic() + timeout_s
 
         def missing() -> list[str]:
             names = {node_path(namespace, name) for name, namespace in self.node.get_node_names_and_namespaces()}
             waiting = [n for n in managed if self.states.get(n) != "active"]
+            own = Counter(s.topic_name for s in self.node.subscriptions)
+            waiting += missing_matches(self.diagnostics, managed, own) if not waiting else []
             waiting += [n for n in plain if n not in names]
             waiting += ["/sim/reset service"] if not self._reset.service_is_ready() else []
             waiting += sorted(self.recorder.missing()) if self.recorder is not None else []
@@ -183,7 +189,6 @@ class Driver:
                 states = ", ".join(f"{n}: {self.states.get(n, 'no diagnostics')}" for n in managed)
                 raise SuiteFailed(f"not ready after {timeout_s:g} s, waiting for {', '.join(missing())} ({states})")
             self.spin(0.1)
-        self.spin(DISCOVERY_S)
 
     def reset(self, scenario: str, seed: int, label: str = "") -> RolloutTrace:
         """Reset the bridge into ``(task, scenario, seed)``; the trace of the new rollout."""

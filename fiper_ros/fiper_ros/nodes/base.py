@@ -21,8 +21,11 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from fiper_ros.nodes import qos
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
 from fiper_ros.runtime.validation import InputRejected
+from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
 LEVEL_NAMES = {DiagnosticStatus.OK: "OK", DiagnosticStatus.WARN: "WARN", DiagnosticStatus.ERROR: "ERROR"}
+#: Topics of ROS itself, left out of the matched-endpoint diagnostics.
+INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", "/diagnostics")
 
 
 def describe(description: str, *, read_only: bool = False, low: float | None = None, high: float | None = None,
@@ -171,6 +174,19 @@ class FiperNode(LifecycleNode):
         """Node-specific key/values for /diagnostics."""
         return {}
 
+    def matched_endpoints(self) -> dict[str, str]:
+        """DDS-level matches of the node's own topics (not ROS's infrastructure): per publisher the
+        subscriptions it has matched, per subscription the publishers (read by
+        :func:`fiper_ros.runtime.wiring.missing_matches`)."""
+        def own(topic: str) -> bool:
+            return not topic.startswith(INFRASTRUCTURE_TOPICS) and not topic.endswith("/transition_event")
+
+        values = {f"{MATCHED_SUBSCRIBERS}{p.topic_name}": str(p.get_subscription_count())
+                  for p in self.publishers if own(p.topic_name)}
+        values |= {f"{MATCHED_PUBLISHERS}{s.topic_name}": str(s.get_publisher_count())
+                   for s in self.subscriptions if own(s.topic_name)}
+        return dict(sorted(values.items()))
+
     def diagnostic_level(self) -> tuple[int, str]:
         """Worst condition of the node and its message."""
         if self.qos_incompatible:
@@ -196,6 +212,7 @@ class FiperNode(LifecycleNode):
         values |= {f"rate_hz.{name}": f"{meter.rate(now):.2f}" for name, meter in sorted(self.rates.items())}
         values |= {f"rejected.{reason}": str(n) for reason, n in sorted(self.rejected.items())}
         values |= {f"qos_incompatible.{topic}": str(n) for topic, n in sorted(self.qos_incompatible.items())}
+        values |= self.matched_endpoints()
         values |= self.diagnostic_values()
         status = DiagnosticStatus(
             level=level, name=f"fiper: {self.get_fully_qualified_name()}", message=message,

@@ -21,7 +21,8 @@ from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
 from fiper_ros.nodes.main import run_node
-from fiper_ros.runtime.alarm import ALARM, DETECTORS, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore
+from fiper_ros.runtime.alarm import (ALARM, DETECTORS, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState,
+                                     DetectorScore)
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.rollouts import RolloutTracker
 
@@ -156,7 +157,7 @@ class FusionNode(FiperNode):
         if fuser.rollout_id is not None and fuser.last is not None:
             return fuser.last
         reason = "no active rollout" if fuser.rollout_id is None else "waiting for the first scores of the rollout"
-        return AlarmState(rollout_id=fuser.rollout_id or 0, step=0, state=ALARM if fuser.latched else UNKNOWN,
+        return AlarmState(rollout_id=fuser.rollout_id or NO_ROLLOUT, step=0, state=ALARM if fuser.latched else UNKNOWN,
                           latched=fuser.latched, obs_exceeded=False, act_exceeded=False, eta_obs=math.nan,
                           gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combine,
                           reason=reason, stamp_ns=now)

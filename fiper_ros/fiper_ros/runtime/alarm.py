@@ -17,6 +17,8 @@ OK = "ok"
 ALARM = "alarm"
 UNKNOWN = "unknown"
 DETECTORS = ("rnd_oe", "ace")
+#: Rollout id of a state about no rollout (the fusion node is idle); the suite's rollout ids are > 0.
+NO_ROLLOUT = 0
 
 
 @dataclass(frozen=True)
@@ -161,7 +163,7 @@ class AlarmFuser:
         if not bad:
             return None
         base = self.last or AlarmState(
-            rollout_id=self.rollout_id or 0, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
+            rollout_id=self.rollout_id or NO_ROLLOUT, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
             act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
             combine=self.combine, reason="", stamp_ns=now_ns,
         )

@@ -1,13 +1,15 @@
 """Decision rule of the example safety supervisor: when to halt the robot.
 
-Halt on ALARM at once; halt when the state has been UNKNOWN, or nothing at all was heard, for longer
-than the supervisor's own deadline. At most one halt per rollout (and one per silence episode).
+Halt on ALARM at once; halt when the state of a rollout has been UNKNOWN, or nothing at all was heard,
+for longer than the supervisor's own deadline. The UNKNOWN clock is per rollout: it restarts when the
+rollout changes, and the monitor's idle state (rollout id 0, "no active rollout") never arms it, since
+no robot is moving then. At most one halt per rollout (and one per silence episode).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fiper_ros.runtime.alarm import ALARM, UNKNOWN
+from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, UNKNOWN
 
 
 @dataclass(frozen=True)
@@ -25,7 +27,7 @@ class SupervisorLogic:
         self.deadline_ns = deadline_ns
         self._last_heard_ns: int | None = None
         self._unknown_since_ns: int | None = None
-        self._rollout_id = 0
+        self._rollout_id = NO_ROLLOUT
         self._halted: set[int] = set()
         self._silence_reported = False
 
@@ -33,11 +35,13 @@ class SupervisorLogic:
         """One FailureAlarm arrived."""
         self._last_heard_ns = now_ns
         self._silence_reported = False
+        if rollout_id != self._rollout_id:
+            self._unknown_since_ns = None
         self._rollout_id = rollout_id
         if state == ALARM:
             self._unknown_since_ns = None
             return self._halt(f"ALARM: {reason}")
-        if state == UNKNOWN:
+        if state == UNKNOWN and rollout_id != NO_ROLLOUT:
             if self._unknown_since_ns is None:
                 self._unknown_since_ns = now_ns
             return self.on_clock(now_ns)

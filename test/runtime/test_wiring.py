@@ -1,0 +1,33 @@
+"""missing_matches: when the suite's nodes have matched each other's topics (no DDS)."""
+from __future__ import annotations
+
+from fiper_ros.runtime.wiring import missing_matches
+
+EMB = "/fiper/observation_embedding"
+POLICY, RND_OE, FUSION = "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/fusion_node"
+
+
+def test_a_publisher_must_match_every_managed_reader_and_the_callers_own() -> None:
+    diagnostics = {POLICY: {"lifecycle_state": "active", f"matched_subscribers.{EMB}": "1"},
+                   RND_OE: {f"matched_publishers.{EMB}": "1"}}
+    nodes = (POLICY, RND_OE)
+    # matched 1 = the detector; the caller records the topic too: one short
+    assert missing_matches(diagnostics, nodes, {EMB: 1}) == [f"{POLICY} to match 2 subscriptions of {EMB} (has 1)"]
+    assert missing_matches(diagnostics, nodes, {}) == []
+    diagnostics[POLICY][f"matched_subscribers.{EMB}"] = "2"
+    assert missing_matches(diagnostics, nodes, {EMB: 1}) == []
+
+
+def test_a_reader_must_match_a_publisher() -> None:
+    diagnostics = {POLICY: {f"matched_subscribers.{EMB}": "1"}, RND_OE: {f"matched_publishers.{EMB}": "0"}}
+    assert missing_matches(diagnostics, (POLICY, RND_OE), {}) == [f"{RND_OE} to match a publisher of {EMB}"]
+
+
+def test_topics_without_a_managed_publisher_and_unlisted_nodes_are_not_checked() -> None:
+    diagnostics = {RND_OE: {"matched_publishers./camera/wrist/image_raw": "0"},  # nobody of ours publishes it
+                   POLICY: {f"matched_subscribers.{EMB}": "0"}, FUSION: {f"matched_publishers.{EMB}": "0"}}
+    assert missing_matches(diagnostics, (RND_OE,), {}) == []
+    # the policy published to nobody, but FUSION is not one of the nodes to wire
+    assert missing_matches(diagnostics, (POLICY,), {}) == []
+    assert missing_matches(diagnostics, (POLICY, FUSION), {}) == [
+        f"{FUSION} to match a publisher of {EMB}", f"{POLICY} to match 1 subscriptions of {EMB} (has 0)"]
