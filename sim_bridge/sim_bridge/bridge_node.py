@@ -4,7 +4,10 @@ A thin shell around :class:`sim_bridge.bridge_session.BridgeSession`: ``/sim/res
 (RolloutEvent START, then the first observation), ``/sim/action`` commands (the first ``h`` actions of
 a chunk) are executed one per control step at the task's control rate times ``realtime_factor``
 (0: as fast as possible), and after every executed command the observation "tick" is published:
-``/joint_states``, both camera images and ``/sim/proprio`` with one ``header.stamp``. While no command
+``/joint_states``, both camera images and ``/sim/proprio`` with one ``header.stamp``. A command with
+``observation_history`` n > 0 (a policy with T_h = n + 1) gets, before the tick, the images and
+proprioception of its last n control steps before the tick's, each with its control step's stamp, so
+that the policy's history holds consecutive control steps as in training. While no command
 for a tick has arrived, its images and proprioception are re-published unchanged every
 ``observation_resend_s``: a policy whose subscriptions were matched after the tick (discovery under
 load, a policy node started late) still gets it, and one that already has it drops the repetition
@@ -217,7 +220,7 @@ class BridgeNode(FiperNode):
         assert self.session is not None
         try:
             self.session.accept(msg.rollout_id, msg.step, msg.action_space, msg.num_actions, msg.action_dim,
-                                floats_of(msg.data))
+                                floats_of(msg.data), msg.observation_history)
         except InputRejected as error:
             self.reject(error)
             return
@@ -250,6 +253,10 @@ class BridgeNode(FiperNode):
         if ended is not None:
             self._stop_stepping()
             self._publish_end(ended, stamp)
+        elif self.session.observation_due:
+            for pub, msg in self._observation(stamp):
+                pub.publish(msg)
+            self.tick("history_observation")
 
     # publishing ---------------------------------------------------------------------------------------
     def _stamp_ns(self) -> int:
@@ -269,9 +276,18 @@ class BridgeNode(FiperNode):
 
     def _publish_tick(self, stamp: int) -> None:
         """The observation of a policy step: joint states, both images, proprioception; one stamp."""
+        self._publish_joint_state(stamp)
+        parts = self._observation(stamp)
+        for pub, msg in parts:
+            pub.publish(msg)
+        self._unanswered, self._unanswered_since = parts, self.steady.now().nanoseconds
+        self.tick("observation")
+
+    def _observation(self, stamp: int) -> list[tuple[Any, Any]]:
+        """The current observation's messages (both images, proprioception), stamped ``stamp``, with their
+        publishers."""
         assert self.session is not None and self.session.rollout is not None
         obs = self.session.observation()
-        self._publish_joint_state(stamp)
         parts: list[tuple[Any, Any]] = []
         for key, pub in self._image_pubs.items():
             image = obs[key]
@@ -283,10 +299,7 @@ class BridgeNode(FiperNode):
         proprio = JointState(name=list(PROPRIO_NAMES[self.session.rollout.task]), position=obs["proprio"].tolist())
         proprio.header.stamp = to_stamp(stamp)
         parts.append((self._proprio_pub, proprio))
-        for pub, msg in parts:
-            pub.publish(msg)
-        self._unanswered, self._unanswered_since = parts, self.steady.now().nanoseconds
-        self.tick("observation")
+        return parts
 
     def _on_resend(self) -> None:
         """Re-publish the tick whose command has not arrived (see the module docstring)."""

@@ -89,6 +89,8 @@ class BridgeSession:
         self.started = 0
         self._renderer: CameraRenderer | None = None
         self._pending: deque[np.ndarray] = deque()
+        #: Observations the last command asked for before its tick.
+        self._history = 0
         self._qpos_adr = np.zeros(0, dtype=int)
         self._dof_adr = np.zeros(0, dtype=int)
 
@@ -127,9 +129,15 @@ class BridgeSession:
             return None
         return self._finish(FAILURE, reason)
 
+    @property
+    def observation_due(self) -> bool:
+        """Whether the state the last control step left is one of the observations the command asked for
+        before its tick (those of its last ``observation_history`` control steps before the tick's)."""
+        return self.rollout is not None and 0 < len(self._pending) <= self._history
+
     def accept(self, rollout_id: int, step: int, action_space: str, num_actions: int, action_dim: int,
-               data: np.ndarray) -> None:
-        """Check a command and queue its actions.
+               data: np.ndarray, observation_history: int) -> None:
+        """Check a command and queue its actions (``observation_history``: see :attr:`observation_due`).
 
         Raises:
             InputRejected: With reason ``unknown_rollout``, ``busy``, ``duplicate_step``,
@@ -156,6 +164,7 @@ class BridgeSession:
                                                   f"1..{env.horizon} x {env.action_dim}")
         actions = validation.action_batch(data, 1, num_actions, action_dim, num_actions)[0]
         self._pending.extend(actions.astype(np.float64))
+        self._history = min(observation_history, num_actions - 1)
         rollout.policy_step += 1
 
     def execute_one(self) -> Ended | None:

@@ -170,9 +170,11 @@ def test_the_collect_suite_gives_the_ace_node_the_sims_urdf(tmp_path: Path) -> N
     assert "urdf_path" not in nodes["rnd_oe_node"]
 
 
-def test_a_live_stacking_rollout_scores_its_joint_velocities_as_the_bag_says(tmp_path: Path) -> None:
-    """The ACE node integrates each batch from the joint state stamped with it (not the later states of
-    the control steps that run meanwhile), so the live alarms equal the offline oracle's on the bag."""
+def test_a_live_stacking_rollout_is_the_in_process_episode_and_scored_as_the_bag_says(tmp_path: Path) -> None:
+    """T_h = 2: the policy node acts on consecutive control steps (the bridge publishes the one before each
+    tick), so the live rollout is the in-process episode bit for bit. The ACE node integrates each batch
+    from the joint state stamped with it (not the later states of the control steps that run meanwhile),
+    so the live alarms equal the offline oracle's on the bag."""
     from sim_bridge.robot import URDF_PATH
 
     from fiper_ros.core.kinematics import PinocchioFK
@@ -191,6 +193,12 @@ def test_a_live_stacking_rollout_scores_its_joint_velocities_as_the_bag_says(tmp
         batch_stamps = [stamp_ns(reader.decode(m).header.stamp) for m in reader.messages([ACTIONS])]
     assert len(states) > steps and set(range(steps - 1)) <= set(recorded)  # the control steps' states as well
     (rollout,) = read_rollouts(bag)
+    episode = run_episode(Policy.load(MODELS / "stacking"), "id", 1003, batch=8, max_policy_steps=steps)
+    assert episode.rollout is not None
+    np.testing.assert_array_equal(rollout.embeddings, episode.rollout.embeddings)
+    np.testing.assert_array_equal(rollout.actions, episode.rollout.actions)
+    np.testing.assert_array_equal(np.asarray(rollout.metadata["joint_positions"], np.float32),  # the bag: float64
+                                  episode.rollout.metadata["joint_positions"])
     np.testing.assert_array_equal(rollout.metadata["joint_positions"],
                                   [np.asarray(states[stamp].position[:7]) for stamp in batch_stamps])
     (offline,) = predict_bag(bag, load_calibration(calibration_dir), PinocchioFK(URDF_PATH, "panda_hand"))

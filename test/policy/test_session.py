@@ -129,15 +129,27 @@ def test_a_start_without_end_replaces_the_running_rollout(session: PolicySession
     assert not session.observe(1500 * MS, obs, 0) and session.late == 1 and not rejected
 
 
-def test_history_holds_the_last_t_h_ticks() -> None:
+def test_history_holds_the_control_steps_before_each_tick() -> None:
+    """T_h = 2: each command asks for the observation of the control step before the next tick; it joins
+    the history without a step of its own, so the step acts on [that observation, the tick], as
+    run_episode's history of consecutive control steps."""
     policy = tiny_policy("stacking")  # T_h = 2
+    assert policy.config.obs_horizon == 2 and policy.config.exec_steps >= 2
     session = PolicySession(policy, 4, lambda error: None)
-    obs = [random_observation(policy.config, seed) for seed in range(3)]
+    assert session.history_frames == 1
+    obs = [random_observation(policy.config, seed) for seed in range(5)]
     session.start(RID, 0)
-    embeddings = []
-    for step in range(3):
-        assert session.observe(step * MS, obs[step], 0)
-        embeddings.append(session.compute(session.begin()).embedding)
+    assert session.observe(0, obs[0], 0)
+    embeddings = [session.compute(session.begin()).embedding]
+    for step, (before, tick) in enumerate(((obs[1], obs[2]), (obs[3], obs[4])), start=1):
+        assert not session.observe((2 * step - 1) * MS, before, 0)  # history only
+        assert session.observe(2 * step * MS, tick, 0)
+        action = session.compute(session.begin())
+        assert (action.step, action.stamp) == (step, 2 * step * MS)
+        embeddings.append(action.embedding)
     np.testing.assert_array_equal(embeddings[0], policy.embed([obs[0]]))  # the first tick repeated
-    np.testing.assert_allclose(embeddings[2], policy.embed([obs[1], obs[2]]), atol=1e-6)
+    np.testing.assert_allclose(embeddings[1], policy.embed([obs[1], obs[2]]), atol=1e-6)
+    np.testing.assert_allclose(embeddings[2], policy.embed([obs[3], obs[4]]), atol=1e-6)
     assert session.running is not None and len(session.running.history) == 2
+    # T_h = 1 asks for nothing: every observation is a tick
+    assert PolicySession(tiny_policy(), None, lambda error: None).history_frames == 0

@@ -104,11 +104,12 @@ class BridgeClient(Node):
         return [e for e in self.events if e.rollout_id == rollout_id]
 
     def command(self, rollout_id: int, step: int, actions: np.ndarray, action_space: str,
-                stamp: int = 0) -> ActionCommand:
+                stamp: int = 0, observation_history: int = 0) -> ActionCommand:
         """An ActionCommand of an ``(n, D)`` array (data as given, also when inconsistent)."""
         actions = np.atleast_2d(actions)
         msg = ActionCommand(rollout_id=rollout_id, step=step, num_actions=actions.shape[0],
-                            action_dim=actions.shape[1], data=float_array(actions.ravel()), action_space=action_space)
+                            action_dim=actions.shape[1], data=float_array(actions.ravel()), action_space=action_space,
+                            observation_history=observation_history)
         msg.header.stamp = to_stamp(stamp)
         return msg
 

@@ -44,7 +44,7 @@ def test_rollout_ids_are_unique_and_carry_counter_and_seed() -> None:
 
 def _reason(session: BridgeSession, *args: object) -> str:
     with pytest.raises(InputRejected) as info:
-        session.accept(*args)  # type: ignore[arg-type]
+        session.accept(*args, 0)  # type: ignore[arg-type]
     return info.value.reason
 
 
@@ -65,13 +65,28 @@ def test_commands_are_checked(session: BridgeSession) -> None:
     assert _reason(session, rid, 0, "ee_position", 4, 2, ok[:-1]) == "shape"
     assert _reason(session, rid, 0, "ee_position", 4, 2, nan) == "non_finite"
     tcp = session.observation()["proprio"][:2]
-    session.accept(rid, 0, "ee_position", 4, 2, np.tile(tcp, 4))
+    session.accept(rid, 0, "ee_position", 4, 2, np.tile(tcp, 4), 0)
     assert session.busy
     assert _reason(session, rid, 1, "ee_position", 4, 2, ok) == "busy"
     while session.busy:
         assert session.execute_one() is None
     assert session.env is not None and session.env.control_step == 4
     assert _reason(session, rid, 0, "ee_position", 4, 2, ok) == "duplicate_step"
+
+
+def test_a_command_asks_for_the_observations_of_its_last_control_steps(session: BridgeSession) -> None:
+    """``observation_history`` n: the states of the command's last n control steps before the tick's
+    (at most num_actions - 1) are due, the tick's own is not."""
+    rollout, _ = session.start("sorting", "id", 5)
+    tcp = session.observation()["proprio"][:2]
+    for step, (history, due) in enumerate([(0, [False] * 4), (1, [False, False, True, False]),
+                                           (5, [True, True, True, False])]):
+        session.accept(rollout.rollout_id, step, "ee_position", 4, 2, np.tile(tcp, 4), history)
+        seen = []
+        while session.busy:
+            assert session.execute_one() is None
+            seen.append(session.observation_due)
+        assert seen == due, history
 
 
 def test_outcomes(session: BridgeSession) -> None:
@@ -84,13 +99,13 @@ def test_outcomes(session: BridgeSession) -> None:
         session.start("no_such_task", "id", 0)
     assert session.rollout is rollout  # a refused reset keeps the rollout running
     tcp = session.observation()["proprio"][:2]
-    session.accept(rollout.rollout_id, 0, "ee_position", 8, 2, np.tile(tcp, 8))
+    session.accept(rollout.rollout_id, 0, "ee_position", 8, 2, np.tile(tcp, 8), 0)
     new, aborted = session.start("sorting", "id", 3)
     assert aborted is not None and (aborted.outcome, aborted.reason, aborted.policy_step) == ("failure", "aborted", 1)
     assert not session.busy and new.rollout_id >> 32 == 3
     step, ended = 0, None
     while ended is None:  # hold still until the time limit
-        session.accept(new.rollout_id, step, "ee_position", 4, 2, np.tile(tcp, 4))
+        session.accept(new.rollout_id, step, "ee_position", 4, 2, np.tile(tcp, 4), 0)
         step += 1
         while ended is None and session.busy:
             ended = session.execute_one()
@@ -107,7 +122,7 @@ def test_a_policy_step_cap_ends_rollouts_as_a_timeout_after_the_last_command() -
         ended = None
         for step in range(2):
             assert ended is None
-            session.accept(rollout.rollout_id, step, "ee_position", 4, 2, np.tile(tcp, 4))
+            session.accept(rollout.rollout_id, step, "ee_position", 4, 2, np.tile(tcp, 4), 0)
             while ended is None and session.busy:
                 ended = session.execute_one()
         assert ended is not None

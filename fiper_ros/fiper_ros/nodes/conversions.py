@@ -52,12 +52,13 @@ def action_batch_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray
     return msg
 
 
-def action_command_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray,
-                       action_space: str) -> ActionCommand:
-    """An ActionCommand of the ``[n, D]`` actions to execute."""
+def action_command_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray, action_space: str,
+                       observation_history: int) -> ActionCommand:
+    """An ActionCommand of the ``[n, D]`` actions to execute (``observation_history``: the control-step
+    observations wanted before the next tick)."""
     n, d = actions.shape
     msg = ActionCommand(rollout_id=rollout_id, step=step, num_actions=n, action_dim=d, data=float_array(actions),
-                        action_space=action_space)
+                        action_space=action_space, observation_history=observation_history)
     msg.header.stamp = to_stamp(stamp)
     return msg
 

@@ -217,7 +217,8 @@ class PolicyNode(FiperNode):
             self._chunks_pub.publish(action_batch_msg(action.rollout_id, action.step, action.stamp, action.chunks,
                                                       config.exec_steps, config.action_space))
             self._command_pub.publish(action_command_msg(action.rollout_id, action.step, action.stamp,
-                                                         action.command, config.action_space))
+                                                         action.command, config.action_space,
+                                                         session.history_frames))
             self.published += 1
 
     # diagnostics --------------------------------------------------------------------------------------
@@ -239,7 +240,8 @@ class PolicyNode(FiperNode):
         running = session.running
         values |= {"task": c.task, "head": c.head, "batch_size": str(self.batch_size), "horizon": str(c.horizon),
                    "action_dim": str(c.action_dim), "embed_dim": str(c.embed_dim), "exec_steps": str(c.exec_steps),
-                   "obs_horizon": str(c.obs_horizon), "action_space": c.action_space,
+                   "obs_horizon": str(c.obs_horizon), "history_frames": str(session.history_frames),
+                   "action_space": c.action_space,
                    "rollouts_seen": str(session.rollouts_seen), "ticks.late": str(session.late),
                    "waiting_for_start": str(int(session.waiting)),
                    "rollout_id": "" if running is None else str(running.rollout_id),

@@ -16,8 +16,11 @@ decides:
   first tick may overtake its START: the newest such tick waits up to ``start_wait_ns`` for it;
 - **unknown rollout** (rejected): anything else, including a waiting tick whose START never came.
 
-``T_h`` > 1: the history holds the last ``T_h`` *ticks* (one per policy step), while the in-process
-loop keeps the last ``T_h`` control-step observations (docs/policies.md).
+``T_h`` > 1: the history must hold consecutive control steps, as in training and the in-process
+``run_episode``, not one tick per policy step. Each command therefore asks the driver for
+:attr:`PolicySession.history_frames` more observations (ActionCommand ``observation_history``): those
+of the control steps just before the next tick, which arrive before it on the same topics. They join
+the history without a step; the observation after them is the tick acted on.
 """
 from __future__ import annotations
 
@@ -48,8 +51,10 @@ class PolicyRollout:
     scenario: str = ""
     #: Policy steps acted so far: the number of the next step.
     steps: int = 0
-    #: Stamp of the newest tick in ``history``.
+    #: Stamp of the newest observation in ``history``.
     last_stamp: int = 0
+    #: Observations still to come before the next tick (asked for with the last command).
+    history_due: int = 0
     end_stamp: int | None = None
     outcome: str = "unknown"
 
@@ -122,6 +127,13 @@ class PolicySession:
         self._waiting: _WaitingTick | None = None
 
     @property
+    def history_frames(self) -> int:
+        """Control-step observations a command asks for before its tick: ``T_h - 1``, at most ``h - 1``
+        (those of the command's own control steps)."""
+        config = self.policy.config
+        return min(config.obs_horizon, config.exec_steps) - 1
+
+    @property
     def waiting(self) -> bool:
         """Whether a tick waits for its rollout's START."""
         return self._waiting is not None
@@ -189,6 +201,7 @@ class PolicySession:
         step = PolicyStep(rollout.rollout_id, rollout.steps, rollout.last_stamp, tuple(rollout.history),
                           rollout.generator)
         rollout.steps += 1
+        rollout.history_due = self.history_frames
         return step
 
     def compute(self, step: PolicyStep) -> PolicyAction:
@@ -209,6 +222,9 @@ class PolicySession:
             return False
         rollout.history.append(observation)
         rollout.last_stamp = stamp
+        if rollout.history_due > 0:
+            rollout.history_due -= 1
+            return False
         return True
 
     def _is_late(self, stamp: int) -> bool:
