@@ -86,6 +86,7 @@ def test_a_reset_gets_embedding_batch_and_a_command_the_bridge_executes(loop: Lo
         assert stamp_ns(msg.header.stamp) == tick.stamp
     chunks = floats_of(batch.data).reshape(b, h, d)
     assert (command.num_actions, command.action_dim, command.action_space) == (config.exec_steps, d, "ee_position")
+    assert command.observation_history == 0  # T_h = 1: the tick alone
     np.testing.assert_array_equal(floats_of(command.data).reshape(-1, d), chunks[0, : config.exec_steps])
     # the bridge executes the command: the next tick comes, nothing was rejected
     assert bridge.next_tick(tick.stamp).stamp > tick.stamp
