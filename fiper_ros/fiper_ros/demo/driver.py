@@ -28,8 +28,8 @@ from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess
 from fiper_ros.demo.trace import RolloutTrace
 from fiper_ros.nodes import qos
-from fiper_ros.runtime.wiring import missing_matches
 from fiper_ros.nodes.conversions import stamp_ns
+from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
 TRACE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
