@@ -20,9 +20,9 @@ from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.rollouts import read_rollouts
 from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationSettings, calibrate
-from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.compat import PROFILE_NAMES
 from fiper_ros.core.fusion import COMBINES
+from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.thresholds import KINDS

@@ -96,7 +96,6 @@ class Driver:
         node = session.node
         assert node is not None
         self.node = node
-        self.states: dict[str, str] = {}
         #: The latest /diagnostics key/values of each node (by fully qualified name).
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.traces: dict[int, RolloutTrace] = {}
@@ -112,10 +111,7 @@ class Driver:
     # callbacks ----------------------------------------------------------------------------------------
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
-            values = {v.key: v.value for v in status.values}
-            self.diagnostics[status.hardware_id] = values
-            if "lifecycle_state" in values:
-                self.states[status.hardware_id] = values["lifecycle_state"]
+            self.diagnostics[status.hardware_id] = {v.key: v.value for v in status.values}
 
     def _on_score(self, msg: Score) -> None:
         trace = self.traces.get(msg.rollout_id)
@@ -167,6 +163,10 @@ class Driver:
         if self.session.stop.is_set():
             raise KeyboardInterrupt
 
+    def lifecycle_state(self, node: str) -> str:
+        """The lifecycle state ``node`` (``/ns/name``) last reported on /diagnostics."""
+        return self.diagnostics.get(node, {}).get("lifecycle_state", "no diagnostics")
+
     def wait_ready(self, managed: Sequence[str], timeout_s: float, plain: Sequence[str] = ()) -> None:
         """Until every ``managed`` node (``/ns/name``) reports ``active`` on /diagnostics, their topics are
         wired (:func:`~fiper_ros.runtime.wiring.missing_matches`, the driver's own subscriptions included),
@@ -176,7 +176,7 @@ class Driver:
 
         def missing() -> list[str]:
             names = {node_path(namespace, name) for name, namespace in self.node.get_node_names_and_namespaces()}
-            waiting = [n for n in managed if self.states.get(n) != "active"]
+            waiting = [n for n in managed if self.lifecycle_state(n) != "active"]
             own = Counter(s.topic_name for s in self.node.subscriptions)
             waiting += missing_matches(self.diagnostics, managed, own) if not waiting else []
             waiting += [n for n in plain if n not in names]
@@ -186,7 +186,7 @@ class Driver:
 
         while missing():
             if time.monotonic() > deadline:
-                states = ", ".join(f"{n}: {self.states.get(n, 'no diagnostics')}" for n in managed)
+                states = ", ".join(f"{n}: {self.lifecycle_state(n)}" for n in managed)
                 raise SuiteFailed(f"not ready after {timeout_s:g} s, waiting for {', '.join(missing())} ({states})")
             self.spin(0.1)
 

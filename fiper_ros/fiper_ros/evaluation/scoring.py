@@ -25,10 +25,10 @@ from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.compat import get_profile
+from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores, cache_key, code_version
-from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.methods import SEEDLESS_STREAMS, MethodSettings
 
