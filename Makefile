@@ -2,7 +2,7 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test demo study bench-core bench-eval bench-nodes lock clean distclean
+.PHONY: help setup test demo study bench-core bench-eval bench-nodes bench-policy lock clean distclean
 
 help:
 	@echo "make demo        the main job: sim bridge, policy and FIPER nodes live, 2 rollouts (runs/demo/)"
@@ -12,6 +12,7 @@ help:
 	@echo "make bench-core  latency of the FIPER core (ACE, RND-OE, fusion)"
 	@echo "make bench-eval  speed of the evaluation engine (scores, full sweep) on synthetic data"
 	@echo "make bench-nodes end-to-end latency and throughput of the node suite over DDS"
+	@echo "make bench-policy cost of a policy step (embedding, B sampled chunks) of each shipped policy"
 	@echo "make lock        regenerate requirements.lock from requirements.in"
 	@echo "make clean       remove colcon build/install/log; make distclean also removes the venv"
 
@@ -35,6 +36,9 @@ bench-eval: setup
 
 bench-nodes: setup
 	@$(RUN) python -m fiper_ros.bench.nodes_bench
+
+bench-policy: setup
+	@$(RUN) python -m fiper_ros.bench.policy_bench
 
 lock: setup
 	@$(RUN) pip install --quiet -r requirements.in && python tools/lock.py > requirements.lock
