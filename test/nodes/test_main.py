@@ -1,6 +1,8 @@
 """The process shell of every node (`fiper_ros.nodes.main`): shutdown while a callback runs."""
 from __future__ import annotations
 
+import signal
+import textwrap
 import threading
 import time
 
@@ -9,6 +11,7 @@ from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 
 from fiper_ros.nodes.main import spin_until_shutdown
+from helpers.dds import spawn_python
 
 
 def test_spin_until_shutdown_returns_only_after_the_callbacks_in_flight(ros_domain: int) -> None:
@@ -37,3 +40,58 @@ def test_spin_until_shutdown_returns_only_after_the_callbacks_in_flight(ros_doma
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def _run_node_process(factory_body: str, domain: int, interrupt_after: str | None = None) -> tuple[int, str]:
+    """Run ``run_node`` on ``factory()`` (given by its body) in a child process; send SIGINT once the child
+    printed ``interrupt_after``; return its exit status and output."""
+    script = ("import faulthandler, sys, rclpy\nfrom fiper_ros.nodes.main import run_node\n"
+              f"def factory():\n{textwrap.indent(factory_body, '    ')}\nsys.exit(run_node(factory, []))\n")
+    child = spawn_python(["-c", script], domain)
+    lines = []
+    if interrupt_after is not None:
+        for line in child.stdout:
+            lines.append(line)
+            if interrupt_after in line:
+                child.send_signal(signal.SIGINT)
+                break
+    out, _ = child.communicate(timeout=60)
+    return child.returncode, "".join(lines) + out
+
+
+def test_a_stopped_node_process_destroys_its_node_and_exits_0(ros_domain: int) -> None:
+    # destroying the node deletes its DDS entities and their shared-memory segments (docs/nodes.md)
+    body = textwrap.dedent("""\
+        class Probe(rclpy.node.Node):
+            def destroy_node(self):
+                print("destroy_node called", flush=True)
+                super().destroy_node()
+        node = Probe("probe")
+        node.create_timer(0.05, lambda: print("spinning", flush=True))
+        return node""")
+    status, out = _run_node_process("import rclpy.node\n" + body, ros_domain, interrupt_after="spinning")
+    assert status == 0, out
+    assert "destroy_node called" in out
+
+
+def test_a_signal_while_the_node_is_built_ends_the_process_quietly(ros_domain: int) -> None:
+    # rclpy's SIGINT handler shuts the context down; landing between or inside the constructor's rcl calls,
+    # that fails the next one
+    for shut_down_before in ("node", "publisher"):
+        body = textwrap.dedent(f"""\
+            from std_msgs.msg import String
+            if "{shut_down_before}" == "node":
+                rclpy.get_default_context().shutdown()
+            node = rclpy.create_node("late")
+            rclpy.get_default_context().try_shutdown()
+            node.create_publisher(String, "late", 1)
+            return node""")
+        status, out = _run_node_process(body, ros_domain)
+        assert status == 0, (shut_down_before, out)
+        assert "Traceback" not in out, (shut_down_before, out)
+
+
+def test_a_crashing_node_process_prints_its_python_stack(ros_domain: int) -> None:
+    status, out = _run_node_process("faulthandler._sigsegv()", ros_domain)
+    assert status == -signal.SIGSEGV
+    assert "Fatal Python error: Segmentation fault" in out and "in factory" in out

@@ -3,9 +3,11 @@
 After start-up every object that exists (rclpy, numpy, torch, the node) is moved out of the garbage
 collector's reach (``gc.freeze``): a full collection then only walks what the callbacks allocate, so it
 no longer stalls a callback for milliseconds (the tail of the node benchmark, docs/benchmarks.md).
+A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows.
 """
 from __future__ import annotations
 
+import faulthandler
 import gc
 import signal
 import sys
@@ -14,6 +16,7 @@ from typing import Any
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.exceptions import NotInitializedException
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
 CALLBACK_DRAIN_S = 30.0
@@ -46,11 +49,22 @@ def stop_executor(executor: Executor) -> None:
     executor._work_tracker.wait(CALLBACK_DRAIN_S)  # noqa: SLF001
 
 
+def shut_down() -> None:
+    """Shut the default context down unless that already happened, also while rclpy's signal handler
+    thread does it (its shutdown can land between ``try_shutdown``'s check and its call)."""
+    try:
+        rclpy.try_shutdown()
+    except RCLError:
+        if rclpy.ok():
+            raise
+
+
 def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1) -> int:
     """Create the node from ``factory`` and spin it (in ``threads`` threads: callback groups of its own run
     beside the default group) until interrupted; returns the exit status."""
+    faulthandler.enable()
     rclpy.init(args=sys.argv if args is None else args)
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+    signal.signal(signal.SIGTERM, lambda *_: shut_down())
     node = None
     try:
         node = factory()
@@ -61,8 +75,12 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads
         spin_until_shutdown(executor)
     except KeyboardInterrupt:  # during start-up
         pass
+    except (RCLError, NotInitializedException):
+        # a signal shut the context down while the node was being built
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        shut_down()
     return 0
