@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fiper_ros.runtime.joint_history import JointHistory
+from fiper_ros.runtime.joint_history import JointHistory, StampGate
 
 
 def q(value: float) -> np.ndarray:
@@ -32,3 +32,35 @@ def test_a_repeated_stamp_replaces_and_capacity_drops_the_oldest() -> None:
     assert len(history) == 2 and history.at(150) is None and history.at(250)[0] == 3.0
     with pytest.raises(ValueError, match="capacity"):
         JointHistory(capacity=0)
+
+
+def test_the_gate_holds_a_batch_until_a_state_at_its_stamp_and_keeps_events_in_order() -> None:
+    gate = StampGate(wait_ns=500)
+    seen: list[str] = []
+    gate.push(seen.append, "batch 300", 300, now_ns=0)
+    gate.push(seen.append, "END", None, now_ns=10)  # an event behind a held batch waits for it
+    gate.push(seen.append, "batch 700", 700, now_ns=20)
+    assert gate.release(latest_state_ns=None, now_ns=30) == []
+    assert gate.release(latest_state_ns=200, now_ns=40) == []  # the states up to 300 are not all in
+    due = gate.release(latest_state_ns=300, now_ns=50)
+    assert [(item, late) for _, item, late in due] == [("batch 300", False), ("END", False)]
+    for handler, item, _ in due:
+        handler(item)
+    assert seen == ["batch 300", "END"] and len(gate) == 1
+    assert gate.release(latest_state_ns=400, now_ns=519) == []  # 499 ns waited
+    assert [(item, late) for _, item, late in gate.release(400, now_ns=520)] == [("batch 700", True)]
+    assert len(gate) == 0
+
+
+def test_a_gate_without_wait_releases_everything_at_once() -> None:
+    gate = StampGate(wait_ns=0)
+    gate.push(print, "a", 100, now_ns=0)
+    gate.push(print, "b", None, now_ns=0)
+    assert [(item, late) for _, item, late in gate.release(None, now_ns=0)] == [("a", True), ("b", False)]
+    with pytest.raises(ValueError, match="wait_ns"):
+        StampGate(-1)
+    history = JointHistory()
+    assert history.latest_stamp is None
+    history.add(200, q(1.0))
+    history.add(100, q(2.0))
+    assert history.latest_stamp == 200

@@ -2,7 +2,9 @@
 
 Joint-space batches are mapped to end-effector positions with pinocchio (parameters ``urdf_path``
 and ``ee_frame``); joint-velocity batches are integrated first from the ``joint_states`` position
-with the latest stamp not after the batch's (:mod:`fiper_ros.runtime.joint_history`).
+with the latest stamp not after the batch's (:mod:`fiper_ros.runtime.joint_history`). In that mode
+batches and rollout events pass a :class:`~fiper_ros.runtime.joint_history.StampGate` in arrival order:
+a batch is scored once a joint state stamped at or after it has arrived, or ``joint_state_wait_s`` passed.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from typing import Any
 import numpy as np
 from sensor_msgs.msg import JointState
 
-from fiper_msgs.msg import ActionChunkBatch
+from fiper_msgs.msg import ActionChunkBatch, RolloutEvent
 from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import ActionMonitor, StepScore
@@ -22,7 +24,7 @@ from fiper_ros.nodes.conversions import floats_of, stamp_ns
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation
-from fiper_ros.runtime.joint_history import JointHistory
+from fiper_ros.runtime.joint_history import JointHistory, StampGate
 from fiper_ros.runtime.validation import InputRejected
 
 JOINT_SPACES = (ActionChunkBatch.ACTION_SPACE_JOINT_POSITION, ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY)
@@ -43,8 +45,15 @@ class AceNode(DetectorNode):
                                describe("measured joint positions, for joint-velocity actions", read_only=True))
         self.declare_parameter("joint_names", [f"panda_joint{i}" for i in range(1, 8)],
                                describe("joints of the URDF chain, picked by name from joint_states", read_only=True))
+        self.declare_parameter("joint_state_wait_s", 0.5,
+                               describe("longest wait of a joint-velocity batch for the joint state of its stamp",
+                                        read_only=True, low=0.0, high=10.0))
         self._joints = JointHistory()
         self._joint_sub: Any = None
+        self._gate = StampGate(int(self.get_parameter("joint_state_wait_s").value * 1e9))
+        self._gate_timer: Any = None
+        #: Batches scored after joint_state_wait_s without a joint state at or after their stamp.
+        self.joint_state_waits_out = 0
 
     def make_monitor(self, calibration: Calibration) -> ActionMonitor:
         fk = None
@@ -61,12 +70,45 @@ class AceNode(DetectorNode):
             self._joint_sub = self.create_subscription(
                 JointState, self.get_parameter("joint_state_topic").value, self._on_joint_state, qos.INPUT)
             self._inputs.append(self._joint_sub)
+            self._gate_timer = self.create_timer(0.05, self._release, clock=self.steady)
+
+    def deactivate(self) -> None:
+        self._release(force=True)
+        if self._gate_timer is not None:
+            self.destroy_timer(self._gate_timer)
+            self._gate_timer = None
+        self._joint_sub = None
+        super().deactivate()
+
+    def _on_input(self, msg: ActionChunkBatch) -> None:
+        if self._joint_sub is None:
+            super()._on_input(msg)
+            return
+        self._gate.push(super()._on_input, msg, stamp_ns(msg.header.stamp), self.steady.now().nanoseconds)
+        self._release()
+
+    def _on_event(self, msg: RolloutEvent) -> None:
+        if len(self._gate) == 0:
+            super()._on_event(msg)
+            return
+        self._gate.push(super()._on_event, msg, None, self.steady.now().nanoseconds)
 
     def _on_joint_state(self, msg: JointState) -> None:
         positions = dict(zip(msg.name, msg.position))
         names = self.get_parameter("joint_names").value
         if all(name in positions for name in names):
             self._joints.add(stamp_ns(msg.header.stamp), np.array([positions[name] for name in names], dtype=np.float64))
+            self._release()
+
+    def _release(self, force: bool = False) -> None:
+        now = self.steady.now().nanoseconds + (self._gate.wait_ns if force else 0)
+        for handler, item, waited_out in self._gate.release(self._joints.latest_stamp, now):
+            if waited_out:
+                self.joint_state_waits_out += 1
+                self.get_logger().warning(
+                    f"batch of rollout {item.rollout_id} step {item.step}: no joint state at or after its stamp "
+                    f"within joint_state_wait_s; integrating from the latest one before it")
+            handler(item)
 
     def window(self) -> int:
         return self.calibration.settings.window_act if self.calibration else 0
@@ -92,6 +134,10 @@ class AceNode(DetectorNode):
 
     def score(self, step: int, value: tuple[np.ndarray, np.ndarray | None]) -> StepScore:
         return self.monitor.update(step, *value)
+
+    def diagnostic_values(self) -> dict[str, str]:
+        return super().diagnostic_values() | {"waiting_for_joint_state": str(len(self._gate)),
+                                              "joint_state_waits_out": str(self.joint_state_waits_out)}
 
 
 #: The node class, for in-process launching.

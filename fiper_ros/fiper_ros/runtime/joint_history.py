@@ -7,10 +7,19 @@ the chunk), so "the latest joint state to arrive" depends on timing. The rule he
 stamps: the joint state with the latest stamp not after the batch's stamp (the policy node and the sim
 bridge stamp both with the observation's stamp, so that is the one observed). The ACE node and the bag
 reader both use it, so live scores equal those computed from a bag.
+
+Live, the rule needs the joint states up to the batch's stamp to have been taken before the batch is
+scored. An executor that finds a batch and several joint states waiting takes the batch first (one
+message per subscription per round), so the ACE node holds its inputs in a :class:`StampGate` until a
+joint state stamped at or after the batch's has arrived (per publisher, states arrive in order), or a
+wait runs out.
 """
 from __future__ import annotations
 
 import bisect
+from collections import deque
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -39,7 +48,46 @@ class JointHistory:
         if len(self._stamps) > self.capacity:
             del self._stamps[0], self._positions[0]
 
+    @property
+    def latest_stamp(self) -> int | None:
+        """The latest stamp kept, None if none."""
+        return self._stamps[-1] if self._stamps else None
+
     def at(self, stamp_ns: int) -> np.ndarray | None:
         """The position with the latest stamp not after ``stamp_ns``; None if every kept one is later."""
         index = bisect.bisect_right(self._stamps, stamp_ns)
         return self._positions[index - 1] if index > 0 else None
+
+
+class StampGate:
+    """Inputs in arrival order, each held until the joint states up to its stamp are in, or ``wait_ns`` passed.
+
+    An input without a stamp (a rollout event) waits only for those before it, so events stay in order
+    with the batches around them.
+    """
+
+    def __init__(self, wait_ns: int) -> None:
+        if wait_ns < 0:
+            raise ValueError(f"wait_ns must be >= 0, got {wait_ns}")
+        self.wait_ns = wait_ns
+        self._queue: deque[tuple[int | None, int, Callable[[Any], None], Any]] = deque()
+
+    def __len__(self) -> int:
+        return len(self._queue)
+
+    def push(self, handler: Callable[[Any], None], item: Any, stamp_ns: int | None, now_ns: int) -> None:
+        """Queue ``handler(item)``; ``stamp_ns`` None: no joint state needed."""
+        self._queue.append((stamp_ns, now_ns, handler, item))
+
+    def release(self, latest_state_ns: int | None, now_ns: int) -> list[tuple[Callable[[Any], None], Any, bool]]:
+        """The inputs now due, in arrival order, as ``(handler, item, waited_out)``."""
+        due = []
+        while self._queue:
+            stamp, arrived, handler, item = self._queue[0]
+            ready = stamp is None or (latest_state_ns is not None and latest_state_ns >= stamp)
+            waited_out = not ready and now_ns - arrived >= self.wait_ns
+            if not (ready or waited_out):
+                break
+            self._queue.popleft()
+            due.append((handler, item, waited_out))
+        return due
