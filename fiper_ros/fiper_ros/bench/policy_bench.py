@@ -17,18 +17,16 @@ from pathlib import Path
 import numpy as np
 import torch
 from sim_bridge.env import make_env
+from sim_bridge.scenarios import TASK_NAMES
 
 from fiper_ros.bench.core_bench import measure
 from fiper_ros.policy.noise import sampling_generator
 from fiper_ros.policy.policy import Policy
 
-TASKS = ("sorting", "stacking", "pusht")
-
-
 def run(models: Path, iterations: int, warmup: int) -> list[tuple[str, str, float, float]]:
     """``(model, measurement, p50 ms, p99 ms)`` for every shipped model."""
     rows: list[tuple[str, str, float, float]] = []
-    for task in TASKS:
+    for task in TASK_NAMES:
         folder = models / task
         if not (folder / "policy.yaml").is_file():
             continue
