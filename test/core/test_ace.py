@@ -127,3 +127,17 @@ def test_bad_inputs_raise() -> None:
         ace_score(np.zeros((4, 3, 2)), np.ones(3))
     with pytest.raises(ValueError, match="NaN"):
         ace_score(np.full((4, 3, 1), np.nan), np.ones(1))
+
+
+def test_samples_spread_beyond_the_int64_range_of_bin_indices_are_still_counted_apart() -> None:
+    # Issue #27: 32 samples spread over 1e30 with 0.01 cells are 1e32 bins apart; the old code cast the bin
+    # indices to int64 (INT64_MIN for all), put every sample in one cell and reported entropy 0 (certain).
+    actions = np.arange(32, dtype=np.float64)[:, None, None] * np.array([1e30, 0.0])  # [B=32, H=1, D=2]
+    assert step_entropies(actions, np.array([0.01, 0.5])) == pytest.approx([5.0])  # log2(32): all apart
+
+
+def test_a_range_wider_than_float64_can_count_has_no_entropy() -> None:
+    actions = np.zeros((4, 2, 2))
+    actions[::2, 0, 0], actions[1::2, 0, 0] = -3e38, 3e38
+    entropies = step_entropies(actions, np.array([1e-300, 0.5]))
+    assert np.isnan(entropies[0]) and entropies[1] == 0.0

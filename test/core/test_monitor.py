@@ -1,13 +1,19 @@
-"""Streaming monitors equal the vectorised rollout prediction bit for bit."""
+"""Streaming monitors equal the vectorised rollout prediction bit for bit; missing, non-finite and
+boundary steps are never judged below their threshold by accident."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
-from helpers.core_data import make_rollout
+from helpers.core_data import make_rollout, overflowing_rnd
 
 from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.monitor import ActionMonitor, FiperMonitor, MonitorError, ObservationMonitor, predict_rollout
+from fiper_ros.core.scores import NonFiniteScore
+from fiper_ros.core.thresholds import Threshold
+from fiper_ros.core.window import WindowAccumulator
 
 
 @pytest.mark.parametrize(("ood", "length"), [(False, None), (True, None), (False, 40)])
@@ -97,3 +103,73 @@ def test_skipped_steps_enter_the_window_as_missing(calibration: Calibration) -> 
     assert [results[t].complete for t in range(3, 8)] == [False, False, True, True, True]
     assert results[3].windowed == full.obs_scores[3]  # a lower bound while steps are missing
     assert [results[t].windowed for t in (5, 6, 7)] == full.obs_windowed[5:].tolist()
+
+
+def _with_obs_threshold(calibration: Calibration, value: float) -> Calibration:
+    return dataclasses.replace(calibration, threshold_obs=Threshold("cp_constant", 0.05, np.array([value])))
+
+
+def test_a_windowed_score_equal_to_its_threshold_is_not_exceeded(calibration: Calibration) -> None:
+    # eq. (3) is strict; a ">=" anywhere in the streaming or vectorised path flips these.
+    rollout = make_rollout(np.random.default_rng(3), 0)
+    eta = ObservationMonitor(calibration).update(0, rollout.embeddings[0]).windowed
+    at = _with_obs_threshold(calibration, eta)
+    below = _with_obs_threshold(calibration, float(np.nextafter(eta, -np.inf)))
+    assert not ObservationMonitor(at).update(0, rollout.embeddings[0]).exceeded
+    assert ObservationMonitor(below).update(0, rollout.embeddings[0]).exceeded
+    assert not predict_rollout(rollout, at).obs_exceeded[0]
+    assert predict_rollout(rollout, below).obs_exceeded[0]
+
+
+def test_the_shipped_style_nan_case_now_scores_and_exceeds(calibration: Calibration) -> None:
+    # Issue #27: an embedding of finite float32 values 3e38 scored NaN, "not exceeded", and the step was OK.
+    monitor = ObservationMonitor(calibration)
+    result = monitor.update(0, np.full(calibration.embedding_dim, 3e38, np.float32))
+    assert np.isfinite(result.score) and np.isfinite(result.windowed) and result.exceeded
+
+
+def test_a_non_finite_score_is_raised_and_the_step_can_be_declared_missing(calibration: Calibration) -> None:
+    rollout = make_rollout(np.random.default_rng(4), 0)
+    broken = dataclasses.replace(calibration, rnd=overflowing_rnd(calibration.embedding_dim))
+    monitor = ObservationMonitor(broken)
+    with pytest.raises(NonFiniteScore, match="RND-OE score"):
+        monitor.update(0, rollout.embeddings[0])
+    assert monitor.next_step == 0  # nothing was consumed, nothing entered the window
+    missing = monitor.missing(0)
+    assert np.isnan(missing.score) and missing.windowed == 0.0 and not missing.complete and not missing.exceeded
+    assert monitor.next_step == 1
+    with pytest.raises(NonFiniteScore, match="step 0"):
+        predict_rollout(rollout, broken)
+
+
+def test_missing_steps_give_lower_bounds_until_they_leave_the_window(calibration: Calibration) -> None:
+    rollout = make_rollout(np.random.default_rng(5), 0, length=12)
+    w = calibration.settings.window_obs
+    monitor = ObservationMonitor(calibration)
+    first = monitor.update(0, rollout.embeddings[0])
+    missing = monitor.missing(1)
+    assert missing.windowed == first.score and not missing.complete  # s_0 + 0: a lower bound
+    results = [monitor.update(t, rollout.embeddings[t]) for t in range(2, 2 + w)]
+    assert [r.complete for r in results] == [False] * (w - 1) + [True]  # step 1 leaves the window at 1 + w
+
+
+def test_a_huge_step_gap_costs_at_most_a_window_of_pushes(calibration: Calibration,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    # Issue #18: a message with step 4294967295 made the old skip_to push one 0 per missing step (4e9 pushes).
+    pushes = []
+    original = WindowAccumulator.push
+
+    def counted(self: WindowAccumulator, score: float) -> float:
+        pushes.append(score)
+        if len(pushes) > 100:
+            raise AssertionError("skip_to pushes once per skipped step")
+        return original(self, score)
+
+    monkeypatch.setattr(WindowAccumulator, "push", counted)
+    rollout = make_rollout(np.random.default_rng(6), 0)
+    monitor = ObservationMonitor(calibration)
+    monitor.update(0, rollout.embeddings[0])
+    monitor.skip_to(2**32 - 1)
+    result = monitor.update(2**32 - 1, rollout.embeddings[1])
+    assert result.windowed == result.score and not result.complete  # the window holds zeros and this step
+    assert len(pushes) == 2

@@ -81,3 +81,33 @@ def test_input_errors(model: RNDOE) -> None:
         model.score(np.full((2, 32), np.nan))
     with pytest.raises(RNDError, match="at least 2"):
         RNDOE.fit(np.zeros((1, 32)), TINY_RND)
+
+
+def _linear_pair(target_weight: float, predictor_weight: float) -> RNDOE:
+    """A 1-input RND whose target is ``x -> target_weight x`` and predictor ``x -> predictor_weight x``."""
+    import torch
+
+    model = RNDOE(1, RNDConfig(trunk=(), head=(), out_dim=1), seed=0)
+    with torch.no_grad():
+        model.target[0].weight.fill_(target_weight)
+        model.predictor[0].weight.fill_(predictor_weight)
+    model._cache_numpy()
+    return model
+
+
+def test_float32_overflow_is_recomputed_in_float64() -> None:
+    # Issue #27: 3x and 2x of x = 3e38 overflow float32 to inf, inf - inf = NaN, and NaN > gamma is False:
+    # the old score_one returned NaN, which the fusion read as "below the threshold". By hand, the score
+    # is |3x - 2x| = x.
+    x = float(np.float32(3e38))
+    model = _linear_pair(2.0, 3.0)
+    assert model.score_one(np.array([x], np.float32)) == pytest.approx(x, rel=1e-12)
+    assert model.score_one(np.array([-x], np.float32)) == pytest.approx(x, rel=1e-12)
+    # the float32 path is kept where it does not overflow: |3 - 2| * 1.5 = 1.5 exactly
+    assert model.score_one(np.array([1.5], np.float32)) == 1.5
+
+
+def test_a_score_beyond_float64_stays_non_finite_for_the_caller_to_reject() -> None:
+    from helpers.core_data import overflowing_rnd
+
+    assert not np.isfinite(overflowing_rnd(3).score_one(np.ones(3, np.float32)))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fiper_ros.core.window import WindowAccumulator, aggregate, cumulative, windowed
+from fiper_ros.core.window import MODES, WindowAccumulator, aggregate, cumulative, windowed
 
 
 def test_hand_computed_window() -> None:
@@ -43,3 +43,25 @@ def test_streaming_equals_vectorised_bit_for_bit(mode: str, w: int) -> None:
         accumulator.reset()
         streamed = np.array([accumulator.push(s) for s in scores])
         assert np.array_equal(streamed, aggregate(scores, mode, w))
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_non_finite_score_never_enters_the_window(mode: str) -> None:
+    window = WindowAccumulator(3, mode)
+    window.push(1.0)
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(ValueError, match="non-finite"):
+            window.push(bad)
+    assert window.push(2.0) == (2.0 if mode == "single" else 3.0)  # 1 + 2: nothing of the bad ones stayed
+    with pytest.raises(ValueError, match="finite"):
+        aggregate(np.array([1.0, np.nan]), mode, 3)
+
+
+@pytest.mark.parametrize(("mode", "expected"), [("window", 4.0), ("cumulative", 7.0), ("single", 4.0)])
+def test_skip_enters_zeros_without_one_push_per_step(mode: str, expected: float) -> None:
+    window = WindowAccumulator(3, mode)
+    window.push(3.0)
+    window.skip(10**15)  # O(w): a loop per skipped step would never return
+    assert window.push(4.0) == expected  # the window holds 0, 0, 4; the cumulative sum 3 + 4
+    with pytest.raises(ValueError):
+        window.skip(-1)

@@ -4,7 +4,7 @@ widely spread action samples."""
 from __future__ import annotations
 
 import numpy as np
-from fiper_ros.core.rnd_oe import RNDConfig
+from fiper_ros.core.rnd_oe import RNDOE, RNDConfig
 from fiper_ros.core.rollout import Rollout
 
 EMBEDDING_DIM = 12
@@ -31,3 +31,16 @@ def make_rollout(
         exec_steps=4,
         success=success,
     )
+
+
+def overflowing_rnd(embedding_dim: int = EMBEDDING_DIM, layers: int = 8) -> RNDOE:
+    """A real RND-OE model whose every weight is 3e38: its score overflows even in float64 (inf - inf)."""
+    import torch
+
+    model = RNDOE(embedding_dim, RNDConfig(trunk=(1,) * layers, head=(), out_dim=1), seed=0)
+    with torch.no_grad():
+        for network in (model.target, model.predictor):
+            for parameter in network.parameters():
+                parameter.fill_(3e38)
+    model._cache_numpy()
+    return model

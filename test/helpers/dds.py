@@ -9,7 +9,7 @@ from pathlib import Path
 
 from fiper_ros.dds import allocate_domain, local_env
 
-__all__ = ["allocate_domain", "ros_env", "spawn_python", "stop"]
+__all__ = ["allocate_domain", "ros_env", "run_python", "spawn_python", "stop"]
 
 
 def ros_env(domain: int) -> dict[str, str]:
@@ -44,3 +44,16 @@ def stop(proc: subprocess.Popen[str], timeout: float = 10.0) -> str:
             proc.kill()
     out, _ = proc.communicate()
     return out or ""
+
+
+def run_python(args: Sequence[str], domain: int, timeout: float) -> subprocess.CompletedProcess[str]:
+    """Run ``python ARGS`` to its end in ``domain``; on ``timeout`` kill its whole process group (the suite
+    a ``fiper replay`` started too) and raise ``AssertionError`` with what it printed so far."""
+    proc = spawn_python(args, domain)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, 9)
+        out, _ = proc.communicate()
+        raise AssertionError(f"python {' '.join(args)} did not finish in {timeout:g} s:\n{(out or '')[-4000:]}") from None
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out or "", "")

@@ -106,7 +106,7 @@ class Suite:
             assert self.spin_until(lambda s=step: s in self.driver.alarms_of(rollout_id)), f"no alarm for step {step}"
         if end:
             self.driver.end(rollout_id, bool(rollout.success))
-            self.spin_until(lambda: self.fusion.fuser.rollout_id is None, timeout=2.0)
+            self.spin_until(lambda: self.fusion.fuser.active_rollout is None, timeout=2.0)
         return self.driver.alarms_of(rollout_id)
 
     def close(self) -> None:

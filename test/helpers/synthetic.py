@@ -37,10 +37,11 @@ def make_rollout(seed: int, *, fail: bool = False, length: int = LENGTH) -> Roll
     )
 
 
-def make_calibration(directory: Path, *, combine: str = "and") -> Path:
+def make_calibration(directory: Path, *, combine: str = "and", threshold: str = "cp_constant",
+                     delta: float = 0.1) -> Path:
     """Fit a small calibration on 12 synthetic successes and save it to ``directory``."""
     rollouts = [make_rollout(seed) for seed in range(12)]
-    settings = CalibrationSettings(window_obs=3, window_act=3, threshold="cp_constant", delta=0.1, combine=combine,
+    settings = CalibrationSettings(window_obs=3, window_act=3, threshold=threshold, delta=delta, combine=combine,
                                    rnd=TINY_RND, seed=0)
     calibrate(rollouts, settings).save(directory)
     return directory

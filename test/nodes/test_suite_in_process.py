@@ -11,7 +11,7 @@ from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.monitor import predict_rollout
 from helpers.suite import Suite
-from helpers.synthetic import FAIL_FROM, make_rollout
+from helpers.synthetic import FAIL_FROM, make_calibration, make_rollout
 
 STATE = {FailureAlarm.STATE_OK: "ok", FailureAlarm.STATE_ALARM: "alarm", FailureAlarm.STATE_UNKNOWN: "unknown"}
 
@@ -68,3 +68,85 @@ def test_inputs_that_overtake_their_start_wait_for_it(suite: Suite) -> None:
     assert suite.spin_until(lambda: 0 in drv.alarms_of(9))
     assert drv.alarms_of(9)[0].state == FailureAlarm.STATE_OK
     assert suite.rnd_oe.rejected["unknown_rollout"] == 0
+
+
+def test_a_cp_band_calibration_over_dds_equals_the_vectorised_core(ros_domain: int, tmp_path: Path) -> None:
+    # The paper's default threshold (App. A.3): gamma_t = mu(t) + k s(t), different at every step. With
+    # M2 = 6 band scores, delta = 0.2 is the smallest round level with a finite k (ceil(7 * 0.8) = 6).
+    directory = make_calibration(tmp_path / "cp_band", threshold="cp_band", delta=0.2)
+    calibration = load_calibration(directory)
+    assert calibration.threshold_obs.kind == "cp_band" and np.isfinite(calibration.threshold_obs.values).all()
+    assert len(set(calibration.threshold_obs.values[:LENGTH_CHECKED])) > 1, "a band varies over t"
+    suite = Suite(ros_domain, str(directory))
+    try:
+        suite.wait_active()
+        for rollout_id, rollout in ((1, make_rollout(210, fail=True)), (2, make_rollout(211))):
+            prediction = predict_rollout(rollout, calibration)
+            alarms = suite.run(rollout, rollout_id=rollout_id)
+            assert [STATE[alarms[t].state] for t in range(rollout.length)] == _expected_states(prediction)
+            for t in range(rollout.length):
+                assert alarms[t].gamma_obs == np.float32(prediction.obs_thresholds[t])
+                assert alarms[t].gamma_act == np.float32(prediction.act_thresholds[t])
+            assert (prediction.first_alarm_step is not None) == (rollout_id == 1)
+    finally:
+        suite.close()
+
+
+#: Steps over which the band's values are compared (the synthetic rollouts' length).
+LENGTH_CHECKED = 20
+
+
+def test_a_repeated_start_keeps_the_latch_and_the_windows(suite: Suite, calibration_dir: Path) -> None:
+    rollout = make_rollout(304, fail=True)
+    prediction = predict_rollout(rollout, load_calibration(calibration_dir))
+    drv = suite.driver
+    drv.start(7)
+    assert suite.spin_until(lambda: suite.fusion.fuser.rollout_id == 7)
+    half = FAIL_FROM + 2
+    for step in range(half):
+        drv.step(7, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+        assert suite.spin_until(lambda s=step: s in drv.alarms_of(7)), step
+    assert drv.alarms_of(7)[FAIL_FROM].state == FailureAlarm.STATE_ALARM
+    events = suite.rnd_oe.rollouts.active
+    drv.start(7)  # the START again (a restarted policy node, a replayed event): nothing is reset
+    assert suite.spin_until(lambda: (suite.rnd_oe.repeated_starts, suite.ace.repeated_starts,
+                                     suite.fusion.repeated_starts) == (1, 1, 1))  # each node has seen it
+    assert suite.rnd_oe.rollouts.active is events and suite.fusion.fuser.latched
+    for step in range(half, rollout.length):
+        drv.step(7, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+        assert suite.spin_until(lambda s=step: s in drv.alarms_of(7)), step
+    alarms = drv.alarms_of(7)
+    assert all(alarms[t].state == FailureAlarm.STATE_ALARM and alarms[t].latched for t in range(FAIL_FROM, rollout.length))
+    for t in range(half, rollout.length):  # the windows went on where they were: the same numbers as offline
+        assert alarms[t].eta_obs == np.float32(prediction.obs_windowed[t])
+        assert alarms[t].eta_act == np.float32(prediction.act_windowed[t])
+
+
+def test_after_the_end_of_a_latched_rollout_the_heartbeat_names_it(suite: Suite) -> None:
+    suite.run(make_rollout(305, fail=True), rollout_id=11)  # ends with END
+    assert suite.fusion.fuser.active_rollout is None
+    count = len(suite.driver.alarms)
+    assert suite.spin_until(lambda: any(m.heartbeat for m in suite.driver.alarms[count:]), timeout=5.0)
+    beats = [m for m in suite.driver.alarms[count:] if m.heartbeat]
+    # the old heartbeat said rollout 0, "no active rollout", with state ALARM: an alarm of no rollout
+    assert all(m.rollout_id == 11 and m.state == FailureAlarm.STATE_ALARM and m.latched for m in beats), beats[0]
+
+
+def test_the_last_step_of_a_rollout_is_judged_even_when_its_end_overtakes_it(suite: Suite) -> None:
+    # The bridge's END and the policy's last step travel on different topics; a busy node can take the END
+    # first (the demo's CI run of this session: "26 policy steps, only 25 scored"). The step is judged anyway.
+    rollout = make_rollout(306)
+    drv = suite.driver
+    drv.start(12)
+    assert suite.spin_until(lambda: suite.fusion.fuser.rollout_id == 12)
+    last = rollout.length - 1
+    for step in range(last):
+        drv.step(12, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+        assert suite.spin_until(lambda s=step: s in drv.alarms_of(12)), step
+    drv.end(12, True)
+    assert suite.spin_until(lambda: suite.rnd_oe.rollouts.active is None and suite.ace.rollouts.active is None
+                            and suite.fusion.fuser.active_rollout is None)  # every node took the END
+    drv.step(12, last, rollout.embeddings[last], rollout.actions[last], rollout.exec_steps)
+    assert suite.spin_until(lambda: last in drv.alarms_of(12)), "the overtaken step got no verdict"
+    assert drv.alarms_of(12)[last].state == FailureAlarm.STATE_OK
+    assert suite.rnd_oe.rejected["unknown_rollout"] == suite.ace.rejected["unknown_rollout"] == 0

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore
@@ -12,10 +13,13 @@ S = 1_000_000_000
 
 
 def _pair(fuser: AlarmFuser, step: int, obs: float, act: float, now: int, *, gamma: float = 1.0,
-          complete: tuple[bool, bool] = (True, True), rollout: int = 1):  # noqa: ANN202
-    first = fuser.add(DetectorScore("rnd_oe", rollout, step, obs, gamma, now, complete[0]), now)
+          complete: tuple[bool, bool] = (True, True), rollout: int = 1,
+          flags: tuple[bool, bool] | None = None):  # noqa: ANN202
+    """Both detectors' scores of one step; ``flags``: their exceeded flags (default: the true comparison)."""
+    obs_flag, act_flag = flags if flags is not None else (obs > gamma, act > gamma)
+    first = fuser.add(DetectorScore("rnd_oe", rollout, step, obs, gamma, now, complete[0], obs_flag), now)
     assert first is None
-    return fuser.add(DetectorScore("ace", rollout, step, act, gamma, now, complete[1]), now)
+    return fuser.add(DetectorScore("ace", rollout, step, act, gamma, now, complete[1], act_flag), now)
 
 
 def test_and_alarms_only_when_both_exceed_and_latches() -> None:
@@ -54,8 +58,77 @@ def test_start_clears_latch() -> None:
 def test_missing_threshold_is_unknown_never_ok() -> None:
     fuser = AlarmFuser("and")
     fuser.start(1, 0)
-    state = _pair(fuser, 0, 0.0, 0.0, 0, gamma=math.nan)
-    assert state.state == UNKNOWN and "no threshold" in state.reason
+    # +inf is what a Threshold holds when M is too small for delta; NaN what a Score carries uncalibrated.
+    for step, gamma in enumerate((math.inf, math.nan)):
+        state = _pair(fuser, step, 0.0, 0.0, 0, gamma=gamma)
+        assert state.state == UNKNOWN and "no threshold" in state.reason, gamma
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_windowed_score_is_unknown_never_ok(bad: float) -> None:
+    # The old fuser compared nan > gamma (False) and reported the step as below its threshold: OK.
+    for combine in ("and", "or"):
+        fuser = AlarmFuser(combine)
+        fuser.start(1, 0)
+        state = _pair(fuser, 0, bad, 0.0, 0, flags=(False, False))
+        assert state.state == UNKNOWN and "rnd_oe" in state.reason and "not finite" in state.reason, combine
+
+
+def test_the_detectors_full_precision_decision_counts_where_float32_rounds_to_equal() -> None:
+    # eta = 1 + 2**-30 > gamma = 1 in float64 (the detector's and the offline oracle's decision), but both
+    # round to 1.0f in the Score message: comparing the float32 numbers would report OK.
+    eta = float(np.float32(1.0 + 2.0**-30))
+    assert eta == 1.0
+    fuser = AlarmFuser("or")
+    fuser.start(1, 0)
+    state = _pair(fuser, 0, eta, 0.0, 0, flags=(True, False))
+    assert state.state == ALARM and state.obs_exceeded and state.latched
+
+
+@pytest.mark.parametrize(("obs", "flag"), [(2.0, False), (0.5, True)])
+def test_a_score_contradicting_its_own_flag_is_unknown(obs: float, flag: bool) -> None:
+    fuser = AlarmFuser("and")
+    fuser.start(1, 0)
+    state = _pair(fuser, 0, obs, 0.5, 0, flags=(flag, False))
+    assert state.state == UNKNOWN and "contradicting" in state.reason
+
+
+@pytest.mark.parametrize("combine", ["and", "or"])
+def test_a_step_whose_own_input_was_rejected_is_unknown_unless_an_alarm_is_certain(combine: str) -> None:
+    fuser = AlarmFuser(combine)
+    fuser.start(1, 0)
+    # rnd_oe's input of step 0 was rejected (its window leaves it out); ace is complete and below.
+    first = fuser.add(DetectorScore("rnd_oe", 1, 0, 0.5, 1.0, 0, False, False, scored=False), 0)
+    assert first is None
+    state = fuser.add(DetectorScore("ace", 1, 0, 0.5, 1.0, 0, True, False), 0)
+    assert state.state == UNKNOWN and "input of this step rejected: rnd_oe" in state.reason
+    # the lower bound without the rejected input already exceeds: the alarm is certain (OR), or needs ace (AND)
+    fuser.add(DetectorScore("rnd_oe", 1, 1, 2.0, 1.0, 0, False, True, scored=False), 0)
+    state = fuser.add(DetectorScore("ace", 1, 1, 0.5, 1.0, 0, True, False), 0)
+    assert state.state == (ALARM if combine == "or" else UNKNOWN)
+
+
+def test_latch_wins_over_everything_until_start_or_reset() -> None:
+    fuser = AlarmFuser("and", deadline_ns=S)
+    fuser.start(1, 0)
+    assert _pair(fuser, 0, 2.0, 2.0, 0).state == ALARM
+    after = [
+        _pair(fuser, 1, 0.0, 0.0, 0, gamma=math.inf),                    # threshold gone
+        _pair(fuser, 2, math.nan, 0.0, 0, flags=(False, False)),         # non-finite score
+        _pair(fuser, 3, 2.0, 0.0, 0, flags=(False, False)),              # contradictory score
+        _pair(fuser, 4, 0.0, 0.0, 0, complete=(False, False)),           # incomplete windows
+        _pair(fuser, 5, 0.0, 0.0, 0),                                    # everything below
+    ]
+    assert [a.state for a in after] == [ALARM] * 5 and all(a.latched for a in after)
+    assert all("latched since step 0" in a.reason for a in after)
+    assert fuser.check(10 * S).state == ALARM                          # stale streams
+    assert fuser.check(10 * S, frozenset({"ace"})).state == ALARM      # a dead node
+    fuser.end(1)
+    assert fuser.latched and fuser.last is not None and fuser.last.state == ALARM and fuser.last.rollout_id == 1
+    fuser.reset()
+    assert not fuser.latched and fuser.last is None
+    fuser.start(2, 0)
+    assert _pair(fuser, 0, 0.0, 0.0, 0, rollout=2).state == OK
 
 
 @pytest.mark.parametrize(
@@ -101,6 +174,18 @@ def test_stale_stream_turns_unknown_after_deadline_unless_latched() -> None:
     assert fuser.check(10 * S).state == ALARM
     fuser.end(1)
     assert fuser.check(20 * S) is None
+
+
+def test_a_step_the_end_overtook_is_still_judged_and_the_streams_are_no_longer_expected() -> None:
+    fuser = AlarmFuser("and", deadline_ns=S)
+    fuser.start(1, 0)
+    _pair(fuser, 0, 0.0, 0.0, 0)
+    fuser.end(1)
+    assert fuser.active_rollout is None and fuser.check(10 * S) is None  # no staleness after the END
+    late = _pair(fuser, 1, 2.0, 2.0, 11 * S)
+    assert late is not None and late.step == 1 and late.state == ALARM and late.rollout_id == 1
+    fuser.start(2, 12 * S)
+    assert fuser.add(DetectorScore("rnd_oe", 1, 2, 0.0, 1.0, 0), 12 * S) is None  # rollout 1 is over now
 
 
 def test_supervisor_halts_on_alarm_once_per_rollout() -> None:

@@ -11,7 +11,7 @@ import numpy as np
 
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, RolloutResult, StepResult, as_float32
+from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult, as_float32
 from fiper_ros.bags.rollouts import layout_of, read_rollouts
 from fiper_ros.core.calibration import Calibration, CalibrationMismatch
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
@@ -43,9 +43,12 @@ def predict_bag(bag: Path, calibration: Calibration, fk: ForwardKinematics | Non
             raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}; give the robot model with --urdf "
                            "and --ee-frame") from error
         latched = np.logical_or.accumulate(prediction.alarms)
+        # As the fusion node (runtime.alarm): the latch first, then a missing (infinite) threshold is UNKNOWN.
+        calibrated = np.isfinite(prediction.obs_thresholds) & np.isfinite(prediction.act_thresholds)
         steps = {
-            t: StepResult(ALARM if latched[t] else OK, bool(prediction.obs_exceeded[t]), bool(prediction.act_exceeded[t]),
-                          as_float32(prediction.obs_windowed[t]), as_float32(prediction.act_windowed[t]))
+            t: StepResult(ALARM if latched[t] else OK if calibrated[t] else UNKNOWN, bool(prediction.obs_exceeded[t]),
+                          bool(prediction.act_exceeded[t]), as_float32(prediction.obs_windowed[t]),
+                          as_float32(prediction.act_windowed[t]))
             for t in range(rollout.length)
         }
         results.append(RolloutResult(int(rollout.rollout_id), rollout.task, rollout.scenario,

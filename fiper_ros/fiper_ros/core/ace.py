@@ -22,7 +22,9 @@ from collections.abc import Iterable
 
 import numpy as np
 
-# Mixed-radix cell codes must fit in int64; beyond this many bits we sort index tuples instead.
+# Mixed-radix cell codes must fit in int64; beyond this many bits we sort index tuples instead. Those
+# tuples stay float64 (exact integers): a bin index beyond the int64 range would cast to INT64_MIN and
+# put every far-apart sample into one cell (entropy 0, an uncertain batch read as certain).
 _MAX_CODE_BITS = 62.0
 
 
@@ -89,24 +91,35 @@ def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float) -> 
         span = span + 2.0 * pad
     informative = cell > 0
     safe_cell = np.where(informative, cell, 1.0)
-    n_bins = np.where(informative, np.maximum(np.ceil(span / safe_cell), 1.0), 1.0)
-    index = np.floor((x - low[:, None, :]) / safe_cell).astype(np.int64)
-    np.minimum(index, (n_bins - 1).astype(np.int64)[:, None, :], out=index)
+    with np.errstate(over="ignore"):
+        n_bins = np.where(informative, np.maximum(np.ceil(span / safe_cell), 1.0), 1.0)
+        scaled = np.floor((x - low[:, None, :]) / safe_cell)
+    # A step whose range is more cells wide than float64 can count has no defined entropy: NaN, which
+    # the score's finiteness check turns into a rejected step (fiper_ros.core.scores.NonFiniteScore).
+    undefined = ~np.isfinite(n_bins).all(axis=1)
+    if undefined.any():
+        n_bins[undefined] = 1.0
+        scaled[undefined] = 0.0
+    index = np.minimum(scaled, (n_bins - 1)[:, None, :])
     if float(np.log2(n_bins).sum(axis=1).max()) < _MAX_CODE_BITS:
+        index = index.astype(np.int64)  # every index < 2**62 here
         strides = np.cumprod(np.concatenate([np.ones((groups, 1)), n_bins[:, :-1]], axis=1), axis=1)
         codes = np.einsum("gbd,gd->gb", index, strides.astype(np.int64))
         codes.sort(axis=1)
         starts = np.empty((groups, samples), dtype=bool)
         starts[:, 0] = True
         np.not_equal(codes[:, 1:], codes[:, :-1], out=starts[:, 1:])
-        return _run_entropies(starts.ravel(), groups, samples)
-    rows = index.reshape(groups * samples, dims)
-    group_of_row = np.repeat(np.arange(groups), samples)
-    order = np.lexsort((*(rows[:, d] for d in range(dims - 1, -1, -1)), group_of_row))
-    rows = rows[order]
-    starts = np.ones(groups * samples, dtype=bool)
-    starts[1:] = np.any(rows[1:] != rows[:-1], axis=1) | (group_of_row[1:] != group_of_row[:-1])
-    return _run_entropies(starts, groups, samples)
+        entropies = _run_entropies(starts.ravel(), groups, samples)
+    else:
+        rows = index.reshape(groups * samples, dims)
+        group_of_row = np.repeat(np.arange(groups), samples)
+        order = np.lexsort((*(rows[:, d] for d in range(dims - 1, -1, -1)), group_of_row))
+        rows = rows[order]
+        starts = np.ones(groups * samples, dtype=bool)
+        starts[1:] = np.any(rows[1:] != rows[:-1], axis=1) | (group_of_row[1:] != group_of_row[:-1])
+        entropies = _run_entropies(starts, groups, samples)
+    entropies[undefined] = np.nan
+    return entropies
 
 
 def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: float = 0.0) -> np.ndarray:

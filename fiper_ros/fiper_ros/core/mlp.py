@@ -58,12 +58,13 @@ class NumpyMLP:
             else:
                 raise TypeError(f"unsupported module {type(module).__name__}")
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        """Forward ``x [..., in]`` -> ``[..., out]`` in float32."""
-        h = np.asarray(x, dtype=np.float32)
+    def __call__(self, x: np.ndarray, dtype: type[np.floating] = np.float32) -> np.ndarray:
+        """Forward ``x [..., in]`` -> ``[..., out]`` in float32, or in ``dtype`` (e.g. float64 for inputs whose
+        float32 activations would overflow; the weights are converted on the fly)."""
+        h = np.asarray(x, dtype=dtype)
         for weight, bias, activation in self.layers:
-            h = h @ weight
-            h += bias
+            h = h @ weight.astype(dtype, copy=False)
+            h += bias.astype(dtype, copy=False)
             if activation == "leaky_relu":
                 np.maximum(h, LEAKY_SLOPE * h, out=h)
             elif activation == "relu":

@@ -8,17 +8,20 @@ the per-step scores with :mod:`fiper_ros.core.scores`, aggregate in float64 in t
 Streaming monitors expect policy steps ``0, 1, 2, ...`` in order after every :meth:`reset`; a gap or
 repeat raises :class:`MonitorError` because the windowed score would be wrong (eq. 2), unless the
 caller declares the lost steps with ``skip_to`` (then results are flagged ``complete=False`` while a
-missing step is inside the window).
+missing step is inside the window). A step whose input was rejected, or whose score is not finite
+(:class:`~fiper_ros.core.scores.NonFiniteScore`), is declared with ``missing``: it enters the window as
+0 and its result carries only the lower bound. Every decision is :func:`fiper_ros.core.fusion.exceeds`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from fiper_ros.core.calibration import Calibration
-from fiper_ros.core.fusion import FusionLatch, FusionState, alarms_over_rollout
+from fiper_ros.core.fusion import FusionLatch, FusionState, exceeds, first_alarm, fuse
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_score, act_scores, obs_score, obs_scores, rollout_positions
@@ -74,20 +77,38 @@ class _StreamingPredictor:
         """Mark the steps from :attr:`next_step` up to ``step - 1`` as missing (input lost or rejected).
 
         Each enters the window as a score of 0, so the next :meth:`update` may be ``step``; results
-        whose window still holds a missing step are flagged ``complete=False``.
+        whose window still holds a missing step are flagged ``complete=False``. The cost is O(w) however
+        large the gap: only the last ``w`` steps are inside a window.
         """
-        while self._next < step:
-            self._window.push(0.0)
-            self._complete_from = self._next + self._span
-            self._next += 1
+        if step <= self._next:
+            return
+        self._window.skip(step - self._next)
+        self._complete_from = step - 1 + self._span
+        self._next = step
 
-    def _step(self, step: int, score: float) -> StepScore:
+    def missing(self, step: int) -> StepScore:
+        """Declare policy step ``step`` (the expected one) missing and return its lower-bound result.
+
+        The per-step score is NaN, ``windowed`` the window's sum with this step as 0 (a lower bound, as
+        scores are >= 0), ``complete`` False; ``exceeded`` is therefore certain when True.
+        """
+        self._expect(step)
+        eta = self._window.push(0.0)
+        self._next += 1
+        self._complete_from = step + self._span
+        gamma = self._threshold.at(step)
+        return StepScore(step, math.nan, eta, gamma, bool(exceeds(eta, gamma)), False)
+
+    def _expect(self, step: int) -> None:
         if step != self._next:
             raise MonitorError(f"expected policy step {self._next}, got {step} (call reset() for a new rollout)")
-        self._next += 1
+
+    def _step(self, step: int, score: float) -> StepScore:
+        self._expect(step)
         eta = self._window.push(score)
+        self._next += 1
         gamma = self._threshold.at(step)
-        return StepScore(step, score, eta, gamma, eta > gamma, step >= self._complete_from)
+        return StepScore(step, score, eta, gamma, bool(exceeds(eta, gamma)), step >= self._complete_from)
 
 
 class ObservationMonitor(_StreamingPredictor):
@@ -101,6 +122,7 @@ class ObservationMonitor(_StreamingPredictor):
     def update(self, step: int, embedding: np.ndarray) -> StepScore:
         """Score the observation embedding ``[E]`` of policy step ``step``."""
         embedding = np.asarray(embedding)
+        self._expect(step)
         self._calibration.check_compatible(embedding_dim=embedding.shape[-1])
         return self._step(step, obs_score(self._calibration.rnd, embedding, self._calibration.profile))
 
@@ -121,6 +143,7 @@ class ActionMonitor(_StreamingPredictor):
         ``q_current`` (the measured joint position) is required for joint-velocity actions.
         """
         actions = np.asarray(actions)
+        self._expect(step)
         if actions.ndim != 3:
             raise MonitorError(f"actions must be [B, H, D], got shape {actions.shape}")
         self._calibration.check_compatible(action_dim=actions.shape[2], horizon=actions.shape[1])
@@ -190,7 +213,8 @@ def predict_rollout(
     eta_act = aggregate(s_act, settings.aggregation, settings.window_act)
     gamma_obs = calibration.threshold_obs.over(rollout.length)
     gamma_act = calibration.threshold_act.over(rollout.length)
-    alarms, first = alarms_over_rollout(eta_obs, gamma_obs, eta_act, gamma_act, settings.combine)
-    return RolloutPrediction(
-        s_obs, s_act, eta_obs, eta_act, gamma_obs, gamma_act, eta_obs > gamma_obs, eta_act > gamma_act, alarms, first
-    )
+    obs_exceeded = np.asarray(exceeds(eta_obs, gamma_obs), dtype=bool)
+    act_exceeded = np.asarray(exceeds(eta_act, gamma_act), dtype=bool)
+    alarms = np.asarray(fuse(obs_exceeded, act_exceeded, settings.combine), dtype=bool)
+    return RolloutPrediction(s_obs, s_act, eta_obs, eta_act, gamma_obs, gamma_act, obs_exceeded, act_exceeded, alarms,
+                             first_alarm(alarms))

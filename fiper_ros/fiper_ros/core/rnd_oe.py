@@ -227,12 +227,22 @@ class RNDOE:
             return torch.linalg.vector_norm(self.predictor(x) - self.target(x), dim=1).double().numpy()
 
     def score_one(self, x: np.ndarray) -> float:
-        """RND-OE score of one embedding ``[E]`` with the cached numpy float32 weights (eq. 1)."""
+        """RND-OE score of one embedding ``[E]`` with the cached numpy float32 weights (eq. 1).
+
+        Where float32 overflows (an activation beyond 3.4e38, or ``inf - inf`` in the difference), the
+        score is computed again in float64, which holds every finite float32 input; a score that is still
+        not finite is returned as such for the caller to reject (:func:`fiper_ros.core.scores.obs_score`).
+        """
         x = np.asarray(x, dtype=np.float32)
         if x.shape != (self.embedding_dim,):
             raise RNDError(f"expected one embedding of shape ({self.embedding_dim},), got {x.shape}")
-        diff = self._np_predictor(x) - self._np_target(x)
-        return float(np.sqrt(np.dot(diff, diff)))
+        with np.errstate(over="ignore", invalid="ignore"):
+            diff = self._np_predictor(x) - self._np_target(x)
+            score = float(np.sqrt(np.dot(diff, diff)))
+            if not np.isfinite(score):
+                diff = self._np_predictor(x, np.float64) - self._np_target(x, np.float64)
+                score = float(np.sqrt(np.dot(diff, diff)))
+        return score
 
     def digest(self) -> str:
         """SHA-256 over both networks' weights."""

@@ -1,7 +1,9 @@
 """Per-step FIPER scores under a profile: ``s_RND`` (eq. 1) and ``s_ACE`` (eq. 4).
 
 Calibration, the streaming monitors and the vectorised rollout prediction all compute their
-per-step scores here, so a score is the same number wherever it is computed.
+per-step scores here, so a score is the same number wherever it is computed. A score that is NaN or
+infinite can never be compared with a threshold (``nan > gamma`` is False, which would read as "below"):
+it raises :class:`NonFiniteScore` here, the one place every score passes, and the step is not judged.
 """
 
 from __future__ import annotations
@@ -17,21 +19,42 @@ from fiper_ros.core.rollout import Rollout
 JOINT_POSITIONS_KEY = "joint_positions"
 
 
+class NonFiniteScore(ValueError):
+    """A per-step score is NaN or infinite: that step cannot be judged, and is never reported OK."""
+
+
+def finite(scores: np.ndarray, what: str) -> np.ndarray:
+    """``scores`` unchanged if every entry is finite, else :class:`NonFiniteScore` naming the first bad index."""
+    bad = np.flatnonzero(~np.isfinite(scores))
+    if bad.size:
+        first = np.unravel_index(int(bad[0]), np.shape(scores)) if np.ndim(scores) else ()
+        where = f" at index {tuple(int(i) for i in first)}" if first else ""
+        raise NonFiniteScore(f"{what} is {np.ravel(scores)[bad[0]]}{where} ({bad.size} non-finite)")
+    return scores
+
+
 def obs_score(rnd: RNDOE, embedding: np.ndarray, profile: Profile) -> float:
-    """``s_RND(O_t)`` of one embedding ``[E]`` (numpy path) plus the profile's epsilon."""
-    return rnd.score_one(embedding) + profile.score_epsilon
+    """``s_RND(O_t)`` of one embedding ``[E]`` (numpy path) plus the profile's epsilon; finite or raises."""
+    return float(finite(np.float64(rnd.score_one(embedding) + profile.score_epsilon), "RND-OE score"))
 
 
 def obs_scores(rnd: RNDOE, embeddings: np.ndarray, profile: Profile) -> np.ndarray:
     """``s_RND`` of every step of ``[T, E]``, step by step with the same numpy path as :func:`obs_score`."""
-    return np.array([obs_score(rnd, e, profile) for e in embeddings], dtype=np.float64)
+    scores = np.empty(len(embeddings), dtype=np.float64)
+    for t, embedding in enumerate(embeddings):
+        try:
+            scores[t] = obs_score(rnd, embedding, profile)
+        except NonFiniteScore as error:
+            raise NonFiniteScore(f"step {t}: {error}") from error
+    return scores
 
 
 def act_scores(positions: np.ndarray, cell: np.ndarray, profile: Profile) -> np.ndarray:
-    """``s_ACE`` of position batches ``[..., B, H, P]`` -> ``[...]`` (sum or mean over ``H``, plus epsilon)."""
+    """``s_ACE`` of position batches ``[..., B, H, P]`` -> ``[...]`` (sum or mean over ``H``, plus epsilon);
+    finite or raises :class:`NonFiniteScore`."""
     entropies = step_entropies(positions, cell, profile.range_buffer)
     reduced = entropies.sum(axis=-1) if profile.ace_reduce == "sum" else entropies.mean(axis=-1)
-    return reduced + profile.score_epsilon
+    return finite(reduced + profile.score_epsilon, "ACE score")
 
 
 def act_score(positions: np.ndarray, cell: np.ndarray, profile: Profile) -> float:

@@ -6,11 +6,14 @@ stride ``h`` is implicit. The paper's ablations also use the cumulative sum (``w
 single-step score (``w = 1``).
 
 The vectorised functions and :class:`WindowAccumulator` add the same float64 numbers in the same
-order (newest score first), so they agree bit for bit; the monitor relies on that.
+order (newest score first), so they agree bit for bit; the monitor relies on that. A window never
+holds a non-finite score (one NaN would spoil the next ``w`` sums, or all later cumulative ones): both
+refuse it with ``ValueError``. A step whose score is missing enters as 0 (:meth:`WindowAccumulator.skip`).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -22,6 +25,8 @@ def _scores(scores: np.ndarray) -> np.ndarray:
     array = np.asarray(scores, dtype=np.float64)
     if array.ndim != 1:
         raise ValueError(f"scores must be 1-D, got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"scores must be finite, got {int(np.count_nonzero(~np.isfinite(array)))} NaN/inf")
     return array
 
 
@@ -73,9 +78,18 @@ class WindowAccumulator:
         self._recent.clear()
         self._total = 0.0
 
+    def skip(self, steps: int) -> None:
+        """Enter ``steps`` missing steps as scores of 0, in O(min(steps, w)): only the last ``w`` matter."""
+        if steps < 0:
+            raise ValueError(f"cannot skip {steps} steps")
+        if self.mode != "cumulative":  # a cumulative sum is unchanged by zeros
+            self._recent.extend([0.0] * min(steps, self.w))
+
     def push(self, score: float) -> float:
         """Add the score of the next policy step and return its aggregated value."""
         score = float(score)
+        if not math.isfinite(score):
+            raise ValueError(f"a non-finite score ({score}) never enters the window")
         if self.mode == "cumulative":
             self._total += score
             return self._total

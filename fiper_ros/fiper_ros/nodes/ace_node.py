@@ -97,7 +97,13 @@ class AceNode(DetectorNode):
         positions = dict(zip(msg.name, msg.position))
         names = self.get_parameter("joint_names").value
         if all(name in positions for name in names):
-            self._joints.add(stamp_ns(msg.header.stamp), np.array([positions[name] for name in names], dtype=np.float64))
+            try:
+                q = validation.vector([positions[name] for name in names], len(names), "joint state",
+                                      self.get_parameter("max_abs_value").value, np.float64)
+            except InputRejected as error:
+                self.reject(error)
+                return
+            self._joints.add(stamp_ns(msg.header.stamp), q)
             self._release()
 
     def _release(self, force: bool = False) -> None:
@@ -116,7 +122,8 @@ class AceNode(DetectorNode):
     def to_array(self, msg: ActionChunkBatch) -> tuple[np.ndarray, np.ndarray | None]:
         """The batch and, for joint velocities, the joint position it integrates from."""
         actions = validation.action_batch(floats_of(msg.data), msg.batch_size, msg.horizon, msg.action_dim,
-                                          msg.exec_steps, self.get_parameter("max_elements").value)
+                                          msg.exec_steps, self.get_parameter("max_elements").value,
+                                          self.get_parameter("max_abs_value").value)
         cal = self.calibration
         if msg.action_space != cal.action_space:
             raise InputRejected(validation.ACTION_SPACE,

@@ -13,12 +13,14 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import RolloutEvent, Score
 from fiper_ros.core.calibration import Calibration, load_calibration
 from fiper_ros.core.monitor import StepScore
+from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.rollouts import RolloutTracker
-from fiper_ros.runtime.validation import DEFAULT_MAX_ELEMENTS, INTERNAL, NO_CALIBRATION, UNKNOWN_ROLLOUT, InputRejected
+from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, INTERNAL, NO_CALIBRATION,
+                                         NON_FINITE_SCORE, UNKNOWN_ROLLOUT, InputRejected)
 
 
 class DetectorNode(FiperNode):
@@ -35,6 +37,8 @@ class DetectorNode(FiperNode):
                                describe("a message of a new rollout id starts that rollout (no RolloutEvents)"))
         self.declare_parameter("max_elements", DEFAULT_MAX_ELEMENTS,
                                describe("largest accepted array", low=1, high=1 << 30, integer=True))
+        self.declare_parameter("max_abs_value", DEFAULT_MAX_ABS_VALUE,
+                               describe("largest accepted magnitude of an input value", low=1.0, high=3.4e38))
         self.declare_parameter("start_wait_s", 1.0,
                                describe("how long a message may wait for its rollout's START", read_only=True,
                                         low=0.0, high=60.0))
@@ -44,6 +48,8 @@ class DetectorNode(FiperNode):
         self.rollouts = RolloutTracker(self.get_parameter("auto_start_rollouts").value)
         self.pending: PendingBuffer[Any] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
         self.published = 0
+        #: STARTs of the rollout already active (ignored: its steps and windows are kept).
+        self.repeated_starts = 0
         #: Recently ended rollouts: their late messages are rejected at once instead of waiting.
         self.ended: deque[int] = deque(maxlen=16)
         self._inputs: list[Any] = []
@@ -107,6 +113,7 @@ class DetectorNode(FiperNode):
         if msg.event == RolloutEvent.EVENT_START:
             active = self.rollouts.active
             if active is not None and active.rollout_id == msg.rollout_id:
+                self.repeated_starts += 1
                 return  # already started (auto_start, or the START was repeated): keep its steps
             self.rollouts.start(msg.rollout_id, msg.task, msg.scenario)
             if self.monitor is not None:
@@ -143,21 +150,20 @@ class DetectorNode(FiperNode):
             if self.calibration is None:
                 raise InputRejected(NO_CALIBRATION, "no calibration loaded")
             record, new = self.rollouts.admit(msg.rollout_id, msg.step)
-            if new:
-                self.monitor.reset()
-            self.monitor.skip_to(msg.step)  # steps that never arrived enter the window as missing
-            try:
-                value = self.to_array(msg)
-            except InputRejected:
-                self.monitor.skip_to(msg.step + 1)  # this step is missing too: never reported OK
-                raise
-            result = self.score(msg.step, value)
         except InputRejected as error:
             self.reject(error)
             return
-        except ValueError as error:  # a core check the shell did not anticipate: report, keep running
-            self.reject(InputRejected(INTERNAL, f"{type(error).__name__}: {error}"))
-            return
+        if new:
+            self.monitor.reset()
+        self.monitor.skip_to(msg.step)  # steps that never arrived enter the window as missing
+        try:
+            result = self.score(msg.step, self.to_array(msg))
+        except (InputRejected, NonFiniteScore, ValueError) as error:
+            # An admitted step that cannot be scored is published as missing (NaN score, lower-bound
+            # window, complete=False), so the fusion node says UNKNOWN for it aloud, never OK by silence.
+            self.reject(error if isinstance(error, InputRejected) else InputRejected(
+                NON_FINITE_SCORE if isinstance(error, NonFiniteScore) else INTERNAL, f"{type(error).__name__}: {error}"))
+            result = self.monitor.missing(msg.step)
         latency_ms = self.record_latency(started)
         if result.exceeded and record.alarm_step is None:
             record.alarm_step = result.step
@@ -172,7 +178,7 @@ class DetectorNode(FiperNode):
     def diagnostic_values(self) -> dict[str, str]:
         self._expire_pending()
         values = {"published": str(self.published), "calibration_hash": self.calibration_hash or "none",
-                  "waiting_for_start": str(len(self.pending))}
+                  "waiting_for_start": str(len(self.pending)), "repeated_starts": str(self.repeated_starts)}
         active = self.rollouts.active
         values["active_rollout"] = "none" if active is None else str(active.rollout_id)
         return values

@@ -25,6 +25,7 @@ from fiper_ros.runtime.alarm import (ALARM, DETECTORS, NO_ROLLOUT, OK, UNKNOWN, 
                                      DetectorScore)
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, InputRejected
 
 STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
 
@@ -48,6 +49,8 @@ class FusionNode(FiperNode):
         self.pending: PendingBuffer[DetectorScore] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
         self.ended: deque[int] = deque(maxlen=16)
         self.dropped_early = 0
+        #: STARTs of the rollout already active (ignored: its latch is kept).
+        self.repeated_starts = 0
         self.rollouts = RolloutTracker()
         self.lost: set[str] = set()
         self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
@@ -103,7 +106,8 @@ class FusionNode(FiperNode):
         now = self.now_ns()
         if msg.event == RolloutEvent.EVENT_START:
             if self.fuser.rollout_id == msg.rollout_id:
-                return  # a repeated START: keep the rollout's state
+                self.repeated_starts += 1
+                return  # a repeated START: keep the rollout's state (and its latch)
             self.rollouts.start(msg.rollout_id, msg.task, msg.scenario)
             self.fuser.start(msg.rollout_id, now)
             for early in self.pending.take(msg.rollout_id):
@@ -120,10 +124,10 @@ class FusionNode(FiperNode):
         started = self.timed()
         self.tick(f"scores/{msg.detector}")
         if msg.detector not in DETECTORS:
-            self.get_logger().warning(f"ignoring score of unknown detector {msg.detector!r}")
+            self.reject(InputRejected(UNKNOWN_DETECTOR, f"score of unknown detector {msg.detector!r}"))
             return
         score = DetectorScore(msg.detector, msg.rollout_id, msg.step, msg.windowed_score, msg.threshold,
-                              stamp_ns(msg.header.stamp), msg.complete)
+                              stamp_ns(msg.header.stamp), msg.complete, msg.exceeded, math.isfinite(msg.score))
         now = self.now_ns()
         self.dropped_early += len(self.pending.expire(now))
         if msg.rollout_id != self.fuser.rollout_id and msg.rollout_id not in self.ended:
@@ -154,10 +158,10 @@ class FusionNode(FiperNode):
     def heartbeat_state(self, now: int) -> AlarmState:
         """The state to repeat when nothing new happened."""
         fuser = self.fuser
-        if fuser.rollout_id is not None and fuser.last is not None:
-            return fuser.last
-        reason = "no active rollout" if fuser.rollout_id is None else "waiting for the first scores of the rollout"
-        return AlarmState(rollout_id=fuser.rollout_id or NO_ROLLOUT, step=0, state=ALARM if fuser.latched else UNKNOWN,
+        if fuser.last is not None and (fuser.active_rollout is not None or fuser.latched):
+            return fuser.last  # a latched ALARM stays the state, for its own rollout, after its END too
+        reason = "no active rollout" if fuser.active_rollout is None else "waiting for the first scores of the rollout"
+        return AlarmState(rollout_id=fuser.active_rollout or NO_ROLLOUT, step=0, state=ALARM if fuser.latched else UNKNOWN,
                           latched=fuser.latched, obs_exceeded=False, act_exceeded=False, eta_obs=math.nan,
                           gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combine,
                           reason=reason, stamp_ns=now)
@@ -192,7 +196,8 @@ class FusionNode(FiperNode):
             values |= {"matched": str(self.fuser.matched), "evicted": str(self.fuser.evicted),
                        "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
                        "lost_streams": ",".join(sorted(self.lost)) or "none",
-                       "waiting_for_start": str(len(self.pending)), "dropped_without_start": str(self.dropped_early)}
+                       "waiting_for_start": str(len(self.pending)), "dropped_without_start": str(self.dropped_early),
+                       "repeated_starts": str(self.repeated_starts)}
         return values
 
 

@@ -33,7 +33,7 @@ class RndOeNode(DetectorNode):
 
     def to_array(self, msg: ObservationEmbedding) -> np.ndarray:
         return validation.embedding(floats_of(msg.data), msg.shape, self.calibration.embedding_dim,
-                                    self.get_parameter("max_elements").value)
+                                    self.get_parameter("max_elements").value, self.get_parameter("max_abs_value").value)
 
 
 #: The node class, for in-process launching.

@@ -2,8 +2,15 @@
 say UNKNOWN whenever a stream is missing, stale or uncalibrated.
 
 Contract (docs/alarm-contract.md): one :class:`AlarmState` per policy step whose two scores both
-arrived; ALARM latches until :meth:`AlarmFuser.reset` or the next rollout START; UNKNOWN, never OK,
-while a stream is missing, older than ``deadline_ns``, or carries no threshold.
+arrived; ALARM latches until :meth:`AlarmFuser.reset` or the next rollout START, and the latch wins over
+everything that arrives after it (missing or infinite thresholds, stale streams, non-finite or
+contradictory scores); UNKNOWN, never OK, while a stream is missing, older than ``deadline_ns``, carries
+no finite threshold or score, or contradicts itself.
+
+A step's exceedance is the detector's own decision (``Score.exceeded``, made in float64 by
+:func:`fiper_ros.core.fusion.exceeds`), not a comparison of the float32 numbers the message carries:
+rounding to float32 can turn ``eta > gamma`` into ``eta == gamma``, and the offline oracle decides in
+float64. The float32 numbers still have to agree with it (:func:`decision`).
 """
 from __future__ import annotations
 
@@ -33,6 +40,26 @@ class DetectorScore:
     stamp_ns: int
     complete: bool = True
     """False while the window holds a missing step: ``windowed`` is then a lower bound."""
+    exceeded: bool = False
+    """The detector's decision ``windowed > threshold`` at full precision (``Score.exceeded``)."""
+    scored: bool = True
+    """False when this step's own input was rejected (``Score.score`` NaN): ``windowed`` leaves it out."""
+
+
+def decision(score: DetectorScore) -> bool | None:
+    """The score's exceedance, or ``None`` when its numbers cannot be judged or contradict its flag.
+
+    Rounding to float32 is monotone, so a float64 ``eta > gamma`` never becomes ``eta32 < gamma32`` and a
+    float64 ``eta <= gamma`` never becomes ``eta32 > gamma32``: only ``eta32 == gamma32`` leaves the
+    flag free. Non-finite numbers (NaN, or an infinite window or threshold) cannot be judged.
+    """
+    if not (math.isfinite(score.windowed) and math.isfinite(score.threshold)):
+        return None
+    if exceeds(score.windowed, score.threshold):
+        return True if score.exceeded else None
+    if exceeds(score.threshold, score.windowed):
+        return None if score.exceeded else False
+    return bool(score.exceeded)
 
 
 @dataclass(frozen=True)
@@ -64,6 +91,8 @@ class AlarmFuser:
         self.deadline_ns = deadline_ns
         self.buffer_size = buffer_size
         self.rollout_id: int | None = None
+        """The rollout of the latest START (also after its END: its late steps are still judged)."""
+        self.ended = False
         self.latched = False
         self.alarm_step: int | None = None
         self.last: AlarmState | None = None
@@ -79,22 +108,29 @@ class AlarmFuser:
         self.unmatched_stale += len(self._pending)
         self._pending.clear()
         self.rollout_id = rollout_id
+        self.ended = False
         self.latched = False
         self.alarm_step = None
         self.last = None
         self._last_seen = {d: now_ns for d in DETECTORS}  # the deadline runs from the START
 
     def end(self, rollout_id: int) -> None:
-        """The rollout ended: nothing more is expected from it."""
+        """The rollout ended: its streams are no longer expected (no staleness), but a step of it still on its
+        way is judged (topics are not ordered: the END can overtake the last step). A latched ALARM (and
+        :attr:`last`) stays until the next START or :meth:`reset`."""
         if rollout_id == self.rollout_id:
-            self.unmatched_stale += len(self._pending)
-            self._pending.clear()
-            self.rollout_id = None
+            self.ended = True
+
+    @property
+    def active_rollout(self) -> int | None:
+        """The rollout that is running (started, not ended), if any."""
+        return None if self.ended else self.rollout_id
 
     def reset(self) -> None:
-        """Clear a latched ALARM (the ~/reset service)."""
+        """Clear a latched ALARM (the ~/reset service); the next step is judged afresh."""
         self.latched = False
         self.alarm_step = None
+        self.last = None
 
     # scores -----------------------------------------------------------------------------------------
     def add(self, score: DetectorScore, now_ns: int) -> AlarmState | None:
@@ -122,27 +158,35 @@ class AlarmFuser:
         return self.last
 
     def _fuse(self, obs: DetectorScore, act: DetectorScore) -> AlarmState:
-        uncalibrated = [s.detector for s in (obs, act) if not math.isfinite(s.threshold)]
-        obs_exc = bool(exceeds(obs.windowed, obs.threshold))
-        act_exc = bool(exceeds(act.windowed, act.threshold))
+        obs_dec, act_dec = decision(obs), decision(act)
+        obs_exc, act_exc = bool(obs_dec), bool(act_dec)
         common = dict(
             rollout_id=obs.rollout_id, step=obs.step, obs_exceeded=obs_exc, act_exceeded=act_exc,
             eta_obs=obs.windowed, gamma_obs=obs.threshold, eta_act=act.windowed, gamma_act=act.threshold,
             combine=self.combine, stamp_ns=max(obs.stamp_ns, act.stamp_ns),
         )
+        if self.latched:  # the latch wins over whatever this step brings
+            return AlarmState(state=ALARM, latched=True, reason=f"latched since step {self.alarm_step}", **common)
+        uncalibrated = [s.detector for s in (obs, act) if not math.isfinite(s.threshold)]
         if uncalibrated:
-            return AlarmState(state=UNKNOWN, latched=self.latched, reason=f"no threshold: {', '.join(uncalibrated)}",
+            return AlarmState(state=UNKNOWN, latched=False, reason=f"no threshold: {', '.join(uncalibrated)}",
+                              **common)
+        undecided = [s.detector for s, d in ((obs, obs_dec), (act, act_dec)) if d is None]
+        if undecided:
+            return AlarmState(state=UNKNOWN, latched=False,
+                              reason=f"score not finite or contradicting its exceeded flag: {', '.join(undecided)}",
                               **common)
         # Scores are >= 0, so an incomplete window's sum is a lower bound: its "exceeded" is certain,
         # its "not exceeded" is not. An alarm therefore stands; an OK needs complete windows.
         if bool(fuse(obs_exc, act_exc, self.combine)):
-            if not self.latched:
-                self.latched, self.alarm_step = True, obs.step
+            self.latched, self.alarm_step = True, obs.step
             names = [n for n, e in (("rnd_oe", obs_exc), ("ace", act_exc)) if e]
             return AlarmState(state=ALARM, latched=True, reason=f"exceeded: {', '.join(names)} ({self.combine})",
                               **common)
-        if self.latched:
-            return AlarmState(state=ALARM, latched=True, reason=f"latched since step {self.alarm_step}", **common)
+        rejected = [s.detector for s in (obs, act) if not s.scored]
+        if rejected:  # a step whose input was rejected is never OK, whatever the other detector says
+            return AlarmState(state=UNKNOWN, latched=False, reason=f"input of this step rejected: {', '.join(rejected)}",
+                              **common)
         certainly_below = [s.complete and not e for s, e in ((obs, obs_exc), (act, act_exc))]
         if not (any(certainly_below) if self.combine == "and" else all(certainly_below)):
             incomplete = [s.detector for s in (obs, act) if not s.complete]
@@ -153,17 +197,17 @@ class AlarmFuser:
     # time -------------------------------------------------------------------------------------------
     def stale_streams(self, now_ns: int) -> list[str]:
         """Detectors of the active rollout whose last score is older than the deadline."""
-        if self.rollout_id is None:
+        if self.active_rollout is None:
             return []
         return [d for d in DETECTORS if now_ns - self._last_seen.get(d, now_ns) > self.deadline_ns]
 
     def check(self, now_ns: int, lost: frozenset[str] = frozenset()) -> AlarmState | None:
         """UNKNOWN state if a stream is stale or ``lost`` (liveliness), else ``None``."""
-        bad = sorted(set(self.stale_streams(now_ns)) | (set(lost) if self.rollout_id is not None else set()))
+        bad = sorted(set(self.stale_streams(now_ns)) | (set(lost) if self.active_rollout is not None else set()))
         if not bad:
             return None
         base = self.last or AlarmState(
-            rollout_id=self.rollout_id or NO_ROLLOUT, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
+            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
             act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
             combine=self.combine, reason="", stamp_ns=now_ns,
         )

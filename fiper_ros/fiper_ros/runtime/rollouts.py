@@ -40,29 +40,34 @@ class RolloutRecord:
 class RolloutTracker:
     """The active rollout and the order of its steps.
 
-    A START makes a rollout active (resetting everything of the previous one); END closes it. Steps
-    must increase strictly within a rollout; a jump forward is accepted and counted as a gap. With
-    ``auto_start`` a message of a new rollout id starts that rollout implicitly (for policies that
-    publish no RolloutEvents).
+    A START makes a rollout current and active (resetting everything of the previous one); END ends it,
+    but it stays current until the next START, so a step of it that the END overtook (topics are not
+    ordered) is still admitted. Steps must increase strictly within a rollout; a jump forward is accepted
+    and counted as a gap. With ``auto_start`` a message of a new rollout id starts that rollout implicitly
+    (for policies that publish no RolloutEvents).
     """
 
     def __init__(self, auto_start: bool = False) -> None:
         self.auto_start = auto_start
-        self.active: RolloutRecord | None = None
+        self.current: RolloutRecord | None = None
+
+    @property
+    def active(self) -> RolloutRecord | None:
+        """The current rollout if it has not ended."""
+        return None if self.current is None or self.current.ended else self.current
 
     def start(self, rollout_id: int, task: str = "", scenario: str = "") -> RolloutRecord:
         """Begin ``rollout_id``; returns its fresh record."""
-        self.active = RolloutRecord(rollout_id, task, scenario)
-        return self.active
+        self.current = RolloutRecord(rollout_id, task, scenario)
+        return self.current
 
     def end(self, rollout_id: int, outcome: str) -> RolloutRecord | None:
-        """Close ``rollout_id`` if it is the active one; returns its record (or ``None``)."""
-        if self.active is None or self.active.rollout_id != rollout_id:
-            return None
+        """End ``rollout_id`` if it is the active one; returns its record (or ``None``)."""
         record = self.active
+        if record is None or record.rollout_id != rollout_id:
+            return None
         record.outcome = outcome
         record.ended = True
-        self.active = None
         return record
 
     def admit(self, rollout_id: int, step: int) -> tuple[RolloutRecord, bool]:
@@ -73,13 +78,13 @@ class RolloutTracker:
         started = False
         if step < 0:
             raise InputRejected(NEGATIVE_STEP, f"step {step} of rollout {rollout_id} is negative")
-        if self.active is None or self.active.rollout_id != rollout_id:
+        if self.current is None or self.current.rollout_id != rollout_id:
             if not self.auto_start:
                 active = "none" if self.active is None else str(self.active.rollout_id)
                 raise InputRejected(UNKNOWN_ROLLOUT, f"rollout {rollout_id} is not the active rollout ({active})")
             self.start(rollout_id)
             started = True
-        record = self.active
+        record = self.current
         assert record is not None
         if record.last_step is not None:
             if step == record.last_step:

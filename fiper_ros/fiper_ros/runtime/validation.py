@@ -20,15 +20,22 @@ ACTION_SPACE = "action_space"
 NO_JOINT_STATE = "no_joint_state"
 INTERNAL = "internal_error"
 ENCODING = "encoding"
+OUT_OF_RANGE = "out_of_range"
+NON_FINITE_SCORE = "non_finite_score"
+UNKNOWN_DETECTOR = "unknown_detector"
 REASONS = (
     SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT,
     DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
+    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR,
 )
 #: The one image encoding the policies take (sensor_msgs/Image ``encoding``).
 RGB8 = "rgb8"
 
 #: Default cap on the number of floats in one message (256 x 64 x 64 actions, or a 4M embedding).
 DEFAULT_MAX_ELEMENTS = 1 << 22
+#: Default cap on the magnitude of an embedding or action value. Policies' embeddings and actions are of
+#: order 1-100; far larger values are a fault, and the bound keeps every score finite in float32.
+DEFAULT_MAX_ABS_VALUE = 1e6
 
 
 class InputRejected(ValueError):
@@ -47,13 +54,21 @@ def _finite(values: np.ndarray, what: str) -> np.ndarray:
     return values
 
 
+def _bounded(values: np.ndarray, max_abs_value: float, what: str) -> np.ndarray:
+    """``values`` (finite) if every magnitude is at most ``max_abs_value``, else :class:`InputRejected`."""
+    largest = float(np.max(np.abs(values))) if values.size else 0.0
+    if largest > max_abs_value:
+        raise InputRejected(OUT_OF_RANGE, f"{what} has a value of magnitude {largest:g} > max_abs_value={max_abs_value:g}")
+    return values
+
+
 def _size(n: int, max_elements: int, what: str) -> None:
     if n > max_elements:
         raise InputRejected(OVERSIZE, f"{what} has {n} values, more than max_elements={max_elements}")
 
 
 def embedding(data: Sequence[float] | np.ndarray, shape: Sequence[int], expected_dim: int | None,
-              max_elements: int = DEFAULT_MAX_ELEMENTS) -> np.ndarray:
+              max_elements: int = DEFAULT_MAX_ELEMENTS, max_abs_value: float = DEFAULT_MAX_ABS_VALUE) -> np.ndarray:
     """Return the embedding as a flat float array, or raise :class:`InputRejected`.
 
     ``shape`` is the declared shape (empty: flat); ``expected_dim`` the calibration's embedding size
@@ -70,11 +85,12 @@ def embedding(data: Sequence[float] | np.ndarray, shape: Sequence[int], expected
         raise InputRejected(NO_CALIBRATION, "no calibration loaded")
     if values.size != expected_dim:
         raise InputRejected(CALIBRATION_MISMATCH, f"embedding dim {values.size} != calibration's {expected_dim}")
-    return _finite(values, "embedding")
+    return _bounded(_finite(values, "embedding"), max_abs_value, "embedding")
 
 
 def action_batch(data: Sequence[float] | np.ndarray, batch_size: int, horizon: int, action_dim: int,
-                 exec_steps: int, max_elements: int = DEFAULT_MAX_ELEMENTS) -> np.ndarray:
+                 exec_steps: int, max_elements: int = DEFAULT_MAX_ELEMENTS,
+                 max_abs_value: float = DEFAULT_MAX_ABS_VALUE) -> np.ndarray:
     """Return the batch as a float array ``[B, H, D]``, or raise :class:`InputRejected`.
 
     Checks only the message's own consistency; compatibility with a calibration is the caller's
@@ -90,15 +106,18 @@ def action_batch(data: Sequence[float] | np.ndarray, batch_size: int, horizon: i
         )
     if not 0 < exec_steps <= horizon:
         raise InputRejected(SHAPE, f"exec_steps {exec_steps} outside 1..H={horizon}")
-    return _finite(values.reshape(batch_size, horizon, action_dim), "action batch")
+    return _bounded(_finite(values.reshape(batch_size, horizon, action_dim), "action batch"), max_abs_value,
+                    "action batch")
 
 
-def vector(data: Sequence[float] | np.ndarray, size: int, what: str) -> np.ndarray:
-    """Return ``data`` as a float32 vector of exactly ``size`` finite values, or raise :class:`InputRejected`."""
-    values = np.asarray(data, dtype=np.float32)
+def vector(data: Sequence[float] | np.ndarray, size: int, what: str, max_abs_value: float = DEFAULT_MAX_ABS_VALUE,
+           dtype: type[np.floating] = np.float32) -> np.ndarray:
+    """Return ``data`` as a ``dtype`` vector of exactly ``size`` finite values of magnitude at most
+    ``max_abs_value``, or raise :class:`InputRejected`."""
+    values = np.asarray(data, dtype=dtype)
     if values.shape != (size,):
         raise InputRejected(SHAPE, f"{what} has {values.size} values, expected {size}")
-    return _finite(values, what)
+    return _bounded(_finite(values, what), max_abs_value, what)
 
 
 def rgb8_image(data: bytes | array.array, height: int, width: int, encoding: str, step: int,
