@@ -1,5 +1,6 @@
 """``fiper replay`` through the real node processes over DDS (loopback) says exactly what the offline
-oracle (bag -> Rollouts -> core.monitor.predict_rollout) says, step for step, on every sample bag."""
+oracle (bag -> Rollouts -> core.monitor.predict_rollout) says, step for step, on every sample bag; a step
+without an alarm makes it exit 1."""
 from __future__ import annotations
 
 import json
@@ -9,21 +10,28 @@ from pathlib import Path
 
 import pytest
 
+from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bags.offline import predict_bag
 from fiper_ros.bags.reader import BagReader, find_bags
+from fiper_ros.bags.rollouts import write_rollouts
+from fiper_ros.bags.schema import EVENTS, BagInfo
+from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.calibration import load_calibration
 from helpers.dds import ros_env
+from helpers.synthetic import make_rollout
 
 SAMPLES = Path(__file__).resolve().parents[2] / "bags"
 SETS = sorted(p for p in SAMPLES.iterdir() if (p / "calibration").is_dir()) if SAMPLES.is_dir() else []
 
 
-def _replay(args: list[str], domain: int, report: Path, timeout: float = 240) -> dict:
+def _replay(args: list[str], domain: int, report: Path, timeout: float = 240,
+            status: int = 0) -> tuple[dict, subprocess.CompletedProcess[str]]:
+    """Run ``fiper replay`` (asserting its exit ``status``); its JSON report and the finished process."""
     result = subprocess.run([sys.executable, "-m", "fiper_ros.cli", "replay", *args, "--domain", str(domain),
                              "--report", str(report)], env=ros_env(domain), capture_output=True, text=True,
                             timeout=timeout)
-    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    return json.loads(report.read_text())
+    assert result.returncode == status, result.stdout[-3000:] + result.stderr[-3000:]
+    return json.loads(report.read_text()), result
 
 
 def _offline(bags: list[Path], calibration: Path) -> list[dict]:
@@ -57,7 +65,7 @@ def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_do
     pacing = PACING[sample_set.name]
     # Equality is the point here, not latency: a step whose alarm is late on a loaded machine must not
     # count as missing (the default --step-timeout is 5 s); a dropped alarm still does.
-    report = _replay([str(sample_set), *pacing, "--step-timeout", "30"], ros_domain, tmp_path / "report.json")
+    report, _ = _replay([str(sample_set), *pacing, "--step-timeout", "30"], ros_domain, tmp_path / "report.json")
     expected = _offline([sample_set], sample_set / "calibration")
     assert report["missing"] == []
     assert len(report["rollouts"]) == len(expected) == ROLLOUTS[sample_set.name]
@@ -68,3 +76,27 @@ def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_do
     assert any(r["first_alarm"] is not None for r in expected)  # the failures are predicted
     if pacing[0] == "--rate":  # played on the bag's clock: no faster than bag time / rate
         assert report["seconds"] >= _bag_seconds([sample_set]) / float(pacing[1]) * 0.95
+
+
+def test_replay_exits_1_when_a_step_gets_no_alarm(small_calibration: Path, ros_domain: int, tmp_path: Path) -> None:
+    """A bag recorded from after a rollout's START: the suite never fuses that rollout's steps (the fusion
+    node waits for the START), so replay names each of them and exits 1; the complete rollout is answered."""
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    write_rollouts(whole, [make_rollout(100, length=6), make_rollout(101, length=2)], [7, 8],
+                   BagInfo(task="synthetic", synthetic=True, source="test"))
+    with BagReader(whole) as reader, BagWriter(cut) as writer:
+        writer.info = reader.info
+        for message in reader.messages():
+            if message.topic == EVENTS:
+                event = reader.decode(message)
+                if (event.rollout_id, event.event) == (8, RolloutEvent.EVENT_START):
+                    continue
+            writer.write(message.topic, message.log_time_ns, message.raw, message.msgtype)
+    report, result = _replay([str(cut), "--calibration", str(small_calibration), "--fast", "--step-timeout", "5"],
+                             ros_domain, tmp_path / "report.json", status=1)
+    assert report["missing"] == [[8, 0], [8, 1]]
+    for step in (0, 1):
+        assert f"no alarm for rollout 8 step {step} within 5 s" in result.stderr
+    assert "2 steps without an alarm" in result.stdout
+    (complete,) = [r for r in report["rollouts"] if r["rollout_id"] == 7]
+    assert len(complete["steps"]) == 6

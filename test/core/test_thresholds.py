@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -36,7 +37,8 @@ def test_cp_constant_uses_rollout_maxima() -> None:
     threshold = fit_threshold(curves, ThresholdSettings(kind="cp_constant", delta=0.2))
     assert np.array_equal(threshold.values, np.full(3, 9.0))
     plain = fit_threshold(curves, ThresholdSettings(kind="cp_constant", delta=0.2, conformal=False))
-    assert plain.values[0] == pytest.approx(np.quantile(np.arange(1.0, 11.0), 0.8))
+    # linear 0.8 quantile of the maxima 1..10: index (10 - 1) * 0.8 = 7.2 -> 8 + 0.2 * (9 - 8) = 8.2
+    assert plain.values[0] == pytest.approx(8.2)
 
 
 def test_time_varying_is_a_per_step_quantile() -> None:
@@ -82,24 +84,31 @@ def test_errors() -> None:
         fit_threshold([np.array([1.0, np.nan])])
 
 
-def test_band_matches_a_direct_computation_and_ignores_i2_for_its_shape() -> None:
-    rng = np.random.default_rng(3)
-    curves = [np.cumsum(rng.random(12)) for _ in range(20)]
-    settings = ThresholdSettings(kind="cp_band", delta=0.2, seed=5)
-    order = np.random.default_rng(5).permutation(20)
-    first, second = np.stack([curves[i] for i in order[:10]]), [curves[i] for i in order[10:]]
-    mu, spread = first.mean(axis=0), first.std(axis=0)
-    scale = np.maximum(spread, 0.1 * spread.mean())
-    k = conformal_quantile([np.max((c - mu) / scale) for c in second], 0.2)
-    fitted = fit_threshold(curves, settings)
-    assert fitted.params["k"] == pytest.approx(k)
-    assert np.allclose(fitted.values, mu + k * scale)
-    changed = list(curves)
-    for i in order[10:]:
-        changed[i] = curves[i] * 1.3
-    refitted = fit_threshold(changed, settings)
-    assert refitted.params["k"] > k
-    assert np.allclose(refitted.values, mu + refitted.params["k"] * scale)
+#: A seeded split, by hand: ``np.random.default_rng(1).permutation(4)`` is ``[0, 1, 2, 3]``, so with
+#: ``band_split`` 0.5 the curves 0, 1 form ``I1`` and the curves 2, 3 form ``I2``.
+SPLIT_SEED = 1
+
+
+def test_band_by_hand_with_the_floor_and_independent_of_i2_for_its_shape() -> None:
+    i1 = [np.array([1.0, 2.0, 2.0]), np.array([3.0, 6.0, 2.0])]
+    # mu = [2, 4, 2]; s (population std) = [1, 2, 0], mean 1, floor 0.1 * 1 = 0.1 -> scale = [1, 2, 0.1]
+    c2, c3 = np.array([2.5, 5.0, 2.1]), np.array([4.0, 4.0, 1.0])
+    # R_2 = max(0.5 / 1, 1 / 2, 0.1 / 0.1) = 1;  R_3 = max(2 / 1, 0 / 2, -1 / 0.1) = 2
+    settings = ThresholdSettings(kind="cp_band", delta=0.4, seed=SPLIT_SEED)
+    fitted = fit_threshold([*i1, c2, c3], settings)
+    # M2 = 2, rank ceil(3 * 0.6) = 2: k = 2 -> gamma = mu + 2 scale = [4, 8, 2.2]
+    assert (fitted.params["m1"], fitted.params["m2"]) == (2, 2)
+    assert fitted.params["s_floor"] == pytest.approx(0.1)
+    assert fitted.params["k"] == pytest.approx(2.0)
+    np.testing.assert_allclose(fitted.values, [4.0, 8.0, 2.2])
+    # delta 0.7: rank ceil(3 * 0.3) = 1: k = 1 -> [3, 6, 2.1]
+    looser = fit_threshold([*i1, c2, c3], replace(settings, delta=0.7))
+    assert looser.params["k"] == pytest.approx(1.0)
+    np.testing.assert_allclose(looser.values, [3.0, 6.0, 2.1])
+    # I2 sets only k: c3 = [6, 4, 1] gives R_3 = 4, k = 4 and gamma = [2 + 4, 4 + 8, 2 + 0.4]; mu and s stay
+    changed = fit_threshold([*i1, c2, np.array([6.0, 4.0, 1.0])], settings)
+    assert changed.params["k"] == pytest.approx(4.0)
+    np.testing.assert_allclose(changed.values, [6.0, 12.0, 2.4])
 
 
 def _score_curves(rng: np.random.Generator, count: int) -> list[np.ndarray]:
@@ -141,10 +150,12 @@ def test_lower_band_sign_of_the_reference_code_breaks_the_bound() -> None:
     assert np.mean(rates) > 0.5
 
 
-def test_gaussian_threshold_lies_above_the_mean() -> None:
-    rng = np.random.default_rng(13)
-    curves = _score_curves(rng, 40)
-    gaussian = fit_threshold(curves, ThresholdSettings(kind="gaussian", delta=0.1))
-    mean = np.mean([c[:15] for c in curves], axis=0)
-    assert np.all(gaussian.values[:15] > mean)
-    assert gaussian.params["z"] == pytest.approx(1.2815515655446004)
+def test_gaussian_threshold_by_hand() -> None:
+    i1 = [np.array([1.0, 1.0]), np.array([3.0, 3.0])]  # mu = [2, 2]
+    i2 = [np.array([3.0, -2.0]), np.array([9.0, 6.0])]
+    # sigma is the RMS deviation of I2 from mu (not I2's own spread):
+    # t = 0: deviations 1, 7 -> sqrt((1 + 49) / 2) = 5;  t = 1: deviations -4, 4 -> sqrt((16 + 16) / 2) = 4
+    for delta, z in ((0.1, 1.2815515655446004), (0.05, 1.6448536269514722)):  # z = Phi^-1(1 - delta), from tables
+        gaussian = fit_threshold([*i1, *i2], ThresholdSettings(kind="gaussian", delta=delta, seed=SPLIT_SEED))
+        assert gaussian.params["z"] == pytest.approx(z)
+        np.testing.assert_allclose(gaussian.values, [2.0 + 5.0 * z, 2.0 + 4.0 * z])

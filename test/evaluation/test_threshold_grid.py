@@ -22,7 +22,11 @@ def test_grid_equals_fit_threshold(profile: str, trial: int) -> None:
     if trial == 0:
         curves = [np.ones(10)] * 6  # ties and a zero spread
     base = CalibrationSettings(profile=profile, seed=trial).threshold_settings()
-    grid = fit_threshold_grid(curves, GRID_KINDS, DELTAS + (0.3,), base)
+    deltas = DELTAS + (0.3,)
+    grid = fit_threshold_grid(curves, GRID_KINDS, deltas, base)
+    # one threshold per (kind, delta), in order: a truncated grid must not pass with fewer comparisons
+    assert list(grid) == list(GRID_KINDS) and len(deltas) == 11
+    assert all([t.delta for t in grid[kind]] == list(deltas) for kind in GRID_KINDS)
     for kind in GRID_KINDS:
         for threshold in grid[kind]:
             expected = fit_threshold(curves, replace(base, kind=kind, delta=threshold.delta))

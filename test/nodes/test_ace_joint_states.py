@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -22,6 +23,8 @@ from helpers.spin import spin_until
 
 CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "stacking" / "calibration"
 MS = 1_000_000
+#: Longest wait for a joint state: generous, so that case 1 never runs out of it on a loaded machine.
+WAIT_S = 3.0
 
 
 def _joint_state(stamp: int, q: np.ndarray) -> JointState:
@@ -36,7 +39,7 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
     executor = SingleThreadedExecutor(context=context)
     ace = AceNode(context=context, namespace="/fiper", parameter_overrides=[
         Parameter("calibration_dir", value=str(CALIBRATION)), Parameter("urdf_path", value=str(URDF_PATH)),
-        Parameter("joint_state_wait_s", value=0.5)])
+        Parameter("joint_state_wait_s", value=WAIT_S), Parameter("diagnostics_period_s", value=0.1)])
     driver = rclpy.create_node("driver", namespace="/fiper", context=context)
     batches = driver.create_publisher(ActionChunkBatch, "action_chunks", qos.INPUT)
     events = driver.create_publisher(RolloutEvent, "rollout_events", qos.EVENT)
@@ -44,6 +47,10 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
     scores: dict[tuple[int, int], Score] = {}
     driver.create_subscription(Score, "scores/ace", lambda m: scores.setdefault((m.rollout_id, m.step), m),
                                qos.SCORE_SUB)
+    waiting: list[str] = []  # the ACE node's waiting_for_joint_state, report by report
+    driver.create_subscription(DiagnosticArray, "/diagnostics", lambda m: waiting.extend(
+        kv.value for status in m.status if status.name.endswith("/ace_node")
+        for kv in status.values if kv.key == "waiting_for_joint_state"), qos.DIAGNOSTICS)
     for node in (ace, driver):
         executor.add_node(node)
 
@@ -66,8 +73,13 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
         # 1. the batch of 200 ms comes before the joint state of 200 ms: it waits, then uses that state
         batches.publish(action_batch_msg(7, 0, 200 * MS, velocities[0], 4, "joint_velocity"))
         assert spin(lambda: len(ace._gate) == 1)  # noqa: SLF001
-        spin(lambda: False, timeout=0.2)
-        assert (7, 0) not in scores
+        # Three reports of the node saying the batch waits (one in flight may still say 0, from before it
+        # came): it stayed held over two diagnostics periods while the gate's 50 ms timer ran, and no
+        # report after the first of them says it was released without its joint state.
+        reports = len(waiting)
+        assert spin(lambda: waiting[reports:].count("1") >= 3)
+        held = waiting[reports:][waiting[reports:].index("1"):]
+        assert "0" not in held and (7, 0) not in scores
         joints.publish(_joint_state(200 * MS, q[1]))
         assert spin(lambda: (7, 0) in scores)
         assert scores[7, 0].score == np.float32(monitor.update(0, velocities[0], q[1]).score)

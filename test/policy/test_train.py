@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from helpers.policy_fixtures import tiny_config, tiny_policy, write_demos
+from helpers.policy_fixtures import tiny_config, write_demos
 
 from fiper_ros.policy.dataset import DemoDataset
 from fiper_ros.policy.fit import open_loop_fit
+from fiper_ros.policy.normalizer import RangeNormalizer
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.train import Progress, train
 
@@ -91,23 +92,26 @@ def test_stop_after_writes_the_model_of_that_epoch_and_the_schedule_goes_on(tmp_
         train(three, demo_dir, tmp_path / "y", tmp_path / "run", seed=2, progress=_quiet, stop_after=2)
 
 
-def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(demo_dir: Path) -> None:
-    policy = tiny_policy()
-    episode = sorted(demo_dir.glob("episode_*.npz"))[0]
-    with np.load(episode) as data:
-        frames = [{key: data[key][t] for key in ("wrist_rgb", "third_rgb", "proprio")}
-                  for t in range(len(data["actions"]))]
-        actions = data["actions"]
-    last = len(actions) - 1
-    report = open_loop_fit(policy, [episode], batch=5, stride=last, seed=3)  # states 0 and the last one
-    expected_errors, expected_spreads = [], []
-    for t, target in ((0, actions[:policy.config.horizon]), (last, np.repeat(actions[-1:], policy.config.horizon, 0))):
-        _, chunks = policy.act([frames[t]], 5, torch.Generator().manual_seed(3))
-        expected_errors.append(np.abs(chunks.mean(0) - target).mean(0))
-        expected_spreads.append(chunks.std(0).mean(0))
+def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(tmp_path: Path) -> None:
+    config = tiny_config()  # H = 8, D = 2, T_h = 1
+    assert (config.horizon, config.action_dim, config.obs_horizon) == (8, 2, 1)
+    # A zero action range (clamped to 0.01): every sampled action is 0 + 0.005 x, |x| a few units, so each
+    # |chunk mean - expert action| is |expert action| to within 0.05, whatever the untrained network does.
+    torch.manual_seed(0)
+    policy = Policy(config, RangeNormalizer(np.zeros(2), np.zeros(2)),
+                    RangeNormalizer(-np.ones(config.proprio_dim), np.ones(config.proprio_dim))).eval()
+    actions = np.array([[10.0, -20.0], [30.0, 40.0], [-50.0, 60.0]], dtype=np.float32)
+    rng = np.random.default_rng(0)
+    episode = tmp_path / "episode_000000.npz"
+    np.savez(episode, actions=actions, proprio=rng.normal(size=(3, config.proprio_dim)).astype(np.float32),
+             **{key: rng.integers(0, 255, (3, 96, 96, 3), dtype=np.uint8) for key in ("wrist_rgb", "third_rgb")})
+    report = open_loop_fit(policy, [episode], batch=5, stride=2, seed=3)  # states 0 and 2
+    # state 0: the chunk a0, a1, a2, a2, a2, a2, a2, a2 (padded with the last action):
+    #   mean |.| = (10 + 30 + 6 * 50) / 8 = 42.5 and (20 + 40 + 6 * 60) / 8 = 52.5
+    # state 2: a2 eight times: 50 and 60.  error = the mean over both states: 46.25 and 56.25
     assert report.states == 2
-    np.testing.assert_allclose(report.error, np.mean(expected_errors, 0), rtol=1e-6)
-    np.testing.assert_allclose(report.spread, np.mean(expected_spreads, 0), rtol=1e-6)
-    np.testing.assert_allclose(report.magnitude, np.abs(actions).mean(0), rtol=1e-6)
+    np.testing.assert_allclose(report.error, [46.25, 56.25], atol=0.05)
+    assert np.all(report.spread > 0) and np.all(report.spread < 0.05)  # spread over the 5 samples, in units of 0.005
+    np.testing.assert_allclose(report.magnitude, [(10 + 30 + 50) / 3, (20 + 40 + 60) / 3], rtol=1e-6)
     with pytest.raises(ValueError, match="stride"):
         open_loop_fit(policy, [episode], stride=0)

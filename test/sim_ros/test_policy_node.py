@@ -4,6 +4,7 @@ launch file. A step whose rollout ends while it computes is not published."""
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +26,7 @@ from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
 from fiper_ros.policy.encoder import CAMERAS
 from fiper_ros.policy.rollout import run_episode
+from fiper_ros.policy.session import PolicyAction, PolicyStep
 from sim_ros.bridge_client import BridgeHarness
 from sim_ros.policy_client import FakeDriver, PolicyHarness
 
@@ -119,9 +121,12 @@ def test_a_closed_loop_rollout_runs_until_halted(loop: Loop) -> None:
     assert float(diagnostics["latency_p50_ms"]) > 0 and diagnostics["model"] == str(SORTING)
     assert (diagnostics["batch_size"], diagnostics["horizon"], diagnostics["action_dim"]) == ("32", "8", "2")
     assert diagnostics["level"] == "0", diagnostics
-    published = node.published
-    policy.spin_until(lambda: False, timeout=0.5)
-    assert node.published == published == ended.steps  # nothing after the END
+    # Nothing after the END: the next rollout's first step comes after anything of the halted one on the
+    # same ordered topics (one writer each, one executor thread computing).
+    following = bridge.reset("sorting", "id", 1002).rollout_id
+    policy.wait_outputs(following, 0)
+    for outputs in (policy.probe.embeddings, policy.probe.batches, policy.probe.commands):
+        assert [m.step for m in outputs if m.rollout_id == rid] == list(range(ended.steps))
     # the ROS rollout is the in-process rollout of the same seed, step by step
     episode = run_episode(node.policy, "id", 1001, max_policy_steps=steps)
     assert episode.rollout is not None
@@ -169,25 +174,41 @@ def test_bad_input_is_rejected_and_the_node_keeps_acting(ros_context: tuple[Cont
         driver.destroy_node()
 
 
-def test_a_step_whose_rollout_ends_while_it_computes_is_not_published(ros_domain: int) -> None:
+def test_a_step_whose_rollout_ends_while_it_computes_is_not_published(ros_domain: int,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     context = Context()
     rclpy.init(context=context, domain_id=ros_domain)
     executor = MultiThreadedExecutor(num_threads=3, context=context)  # as the node's own process spins
-    policy = PolicyHarness(context, executor, model=str(SORTING), batch=1024)  # seconds per step
+    policy = PolicyHarness(context, executor, model=str(SORTING))
     driver = FakeDriver(context, proprio_dim=4)
     executor.add_node(driver)
+    computing, release = threading.Event(), threading.Event()
     try:
         policy.wait_ready()
         node, probe, rid = policy.node, policy.probe, 5
+        assert node.session is not None
+        compute = node.session.compute
+
+        def held(step: PolicyStep) -> PolicyAction:
+            """The real computation, begun only once the test let it (the END is seen meanwhile, whatever
+            the machine's speed)."""
+            computing.set()
+            assert release.wait(timeout=60)
+            return compute(step)
+
+        monkeypatch.setattr(node.session, "compute", held)
         driver.event(rid, RolloutEvent.EVENT_START, 10 * SECOND)
         driver.tick(10 * SECOND)
-        assert policy.spin_until(lambda: node.session.running is not None and node.session.running.steps == 1)
+        assert policy.spin_until(lambda: computing.is_set() and node.session.running.steps == 1)
         driver.event(rid, RolloutEvent.EVENT_END, 11 * SECOND)  # the supervisor halted: step 0 is computing
-        assert policy.spin_until(lambda: node.session.running is None, timeout=2)  # seen during the computation
-        assert policy.spin_until(lambda: probe.diagnostics.get("steps_dropped_after_end") == "1", timeout=60), \
-            probe.diagnostics
+        assert policy.spin_until(lambda: node.session.running is None)  # seen during the computation
+        release.set()
+        assert policy.spin_until(lambda: probe.diagnostics.get("steps_dropped_after_end") == "1" or node.published,
+                                 timeout=60), probe.diagnostics
+        assert probe.diagnostics["steps_dropped_after_end"] == "1"
         assert node.published == 0 and not probe.embeddings and not probe.batches and not probe.commands
     finally:
+        release.set()
         stop_executor(executor)
         policy.close()
         executor.remove_node(driver)
