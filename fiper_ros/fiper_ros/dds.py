@@ -17,6 +17,8 @@ from typing import IO
 LOCK_DIR = Path(os.environ.get("FIPER_DOMAIN_LOCK_DIR", "/tmp/fiper-ros-domains"))
 #: Domain ids that are safe on Linux with the default RTPS port mapping.
 DOMAIN_RANGE = range(1, 102)
+#: Set by ``fiper launch`` in each node's environment to its own pid: the node then ends when it does.
+PARENT_PID_ENV = "FIPER_PARENT_PID"
 
 
 @contextmanager

@@ -5,8 +5,10 @@ parameter files and inline parameters; the launcher starts ``python -m MODULE --
 node in its own process group, prefixes their output with the node name, reports starts and exits,
 forwards Ctrl-C / SIGTERM and stops everything cleanly (SIGINT, then SIGKILL after a grace period).
 A node that exits is reported and the others keep running (a monitor must notice a dead peer), unless
-the node is marked ``required``; the launcher's exit status is 1 if any node exited on its own.
-``--in-process`` runs all nodes in one process on a multi-threaded executor.
+the node is marked ``required``; a node marked ``respawn`` is started again ``respawn_delay`` seconds
+after it exited (launch_ros's semantics: not while the launch stops). The launcher's exit status is 1 if
+any node exited on its own. Every node process dies with the launcher (``FIPER_PARENT_PID``), even when
+the launcher is killed. ``--in-process`` runs all nodes in one process on a multi-threaded executor.
 """
 from __future__ import annotations
 
@@ -25,6 +27,8 @@ from typing import Any
 
 import yaml
 
+from fiper_ros.dds import PARENT_PID_ENV
+
 
 class LaunchError(ValueError):
     """The launch configuration is unusable."""
@@ -41,6 +45,10 @@ class NodeSpec:
     parameters: dict[str, Any] = field(default_factory=dict)
     required: bool = False
     """Stop the whole launch when this node exits."""
+    respawn: bool = False
+    """Start the node again when it exits on its own."""
+    respawn_delay: float = 0.0
+    """Seconds between an exit and the respawn."""
 
     def ros_args(self, use_sim_time: bool) -> list[str]:
         """The ``--ros-args`` of this node's command line."""
@@ -86,14 +94,19 @@ def load_config(path: Path) -> LaunchConfig:
         if not isinstance(spec, dict) or "module" not in spec:
             raise LaunchError(f"{path}: node {name!r} needs a 'module'")
         own = [(path.parent / f).resolve() for f in spec.get("parameter_files", [])]
+        respawn_delay = float(spec.get("respawn_delay", 0.0))
+        if respawn_delay < 0:
+            raise LaunchError(f"{path}: node {name!r}: respawn_delay must be >= 0, got {respawn_delay}")
         nodes.append(NodeSpec(name, spec["module"], str(spec.get("namespace", namespace)), tuple(files + own),
-                              dict(spec.get("parameters", {})), bool(spec.get("required", False))))
+                              dict(spec.get("parameters", {})), bool(spec.get("required", False)),
+                              bool(spec.get("respawn", False)), respawn_delay))
     return LaunchConfig(tuple(nodes), bool(data.get("use_sim_time", False)))
 
 
 def dump_config(config: LaunchConfig, path: Path) -> Path:
     """Write ``config`` as a launch YAML that :func:`load_config` reads back unchanged (absolute paths)."""
     nodes = {spec.name: {"module": spec.module, "namespace": spec.namespace, "required": spec.required,
+                         "respawn": spec.respawn, "respawn_delay": spec.respawn_delay,
                          "parameter_files": [str(p) for p in spec.parameter_files],
                          "parameters": dict(spec.parameters)} for spec in config.nodes}
     path.write_text(yaml.safe_dump({"use_sim_time": config.use_sim_time, "nodes": nodes}, sort_keys=False))
@@ -101,11 +114,14 @@ def dump_config(config: LaunchConfig, path: Path) -> Path:
 
 
 class ProcessGroup:
-    """The launched processes, their output and their shutdown."""
+    """The launched processes, their output, their respawns and their shutdown."""
 
-    def __init__(self, grace_s: float) -> None:
+    def __init__(self, grace_s: float, use_sim_time: bool = False) -> None:
         self.grace_s = grace_s
+        self.use_sim_time = use_sim_time
         self.procs: dict[str, subprocess.Popen[str]] = {}
+        self.specs: dict[str, NodeSpec] = {}
+        self.respawns: dict[str, int] = {}
         self._print_lock = threading.Lock()
 
     def say(self, line: str) -> None:
@@ -113,12 +129,16 @@ class ProcessGroup:
         with self._print_lock:
             print(line, flush=True)
 
-    def start(self, spec: NodeSpec, use_sim_time: bool) -> None:
+    def start(self, spec: NodeSpec, use_sim_time: bool | None = None) -> None:
         """Start one node process and a thread relaying its output."""
-        cmd = [sys.executable, "-m", spec.module, *spec.ros_args(use_sim_time)]
+        if use_sim_time is not None:
+            self.use_sim_time = use_sim_time
+        cmd = [sys.executable, "-m", spec.module, *spec.ros_args(self.use_sim_time)]
+        env = os.environ | {"PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid())}
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,  # noqa: S603
-                                start_new_session=True, env=os.environ | {"PYTHONUNBUFFERED": "1"})
+                                start_new_session=True, env=env)
         self.procs[spec.name] = proc
+        self.specs[spec.name] = spec
         self.say(f"[launch] started {spec.name} (pid {proc.pid}): {spec.module} in {spec.namespace}")
         threading.Thread(target=self._relay, args=(spec.name, proc), daemon=True).start()
 
@@ -142,33 +162,45 @@ class ProcessGroup:
                 proc.wait()
 
     def watch(self, stop_event: threading.Event, required: set[str]) -> int:
-        """Run until ``stop_event``, every node has exited, or a required node exited.
+        """Run until ``stop_event``, every node has exited for good, or a required node exited.
 
-        Returns 0, or 1 if any node exited on its own (the others keep running unless it was required).
+        A node with ``respawn`` is started again ``respawn_delay`` seconds after it exited. Returns 0, or 1
+        if any node exited on its own (the others keep running unless it was required).
         """
         reported: set[str] = set()
+        due: dict[str, float] = {}
         status = 0
-        while not stop_event.is_set() and len(reported) < len(self.procs):
+        while not stop_event.is_set() and (len(reported) < len(self.procs) or due):
             for name, proc in self.procs.items():
                 if name not in reported and proc.poll() is not None:
                     reported.add(name)
                     self.say(f"[launch] {name} exited with code {proc.returncode}")
                     status = 1
+                    spec = self.specs[name]
+                    if spec.respawn and name not in required:
+                        due[name] = time.monotonic() + spec.respawn_delay
+                        self.say(f"[launch] respawning {name} in {spec.respawn_delay:g} s")
             if reported & required:
                 self.say(f"[launch] required node(s) {', '.join(sorted(reported & required))} exited")
                 break
-            stop_event.wait(0.2)
+            for name, when in list(due.items()):
+                if time.monotonic() >= when and not stop_event.is_set():
+                    del due[name]
+                    reported.discard(name)
+                    self.respawns[name] = self.respawns.get(name, 0) + 1
+                    self.start(self.specs[name])
+            stop_event.wait(0.05)
         return status
 
 
 def run_processes(config: LaunchConfig, grace_s: float) -> int:
     """Run every node in its own process until Ctrl-C / SIGTERM or until one dies."""
-    group = ProcessGroup(grace_s)
+    group = ProcessGroup(grace_s, config.use_sim_time)
     stop_event = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop_event.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         for spec in config.nodes:
-            group.start(spec, config.use_sim_time)
+            group.start(spec)
         status = group.watch(stop_event, {spec.name for spec in config.nodes if spec.required})
     finally:
         group.say("[launch] stopping")

@@ -4,11 +4,7 @@ state UNKNOWN within the deadline, and Ctrl-C stops everything cleanly."""
 from __future__ import annotations
 
 import os
-import re
 import signal
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import rclpy
@@ -19,40 +15,14 @@ from rclpy.node import Node
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.nodes import qos
-from helpers.dds import ros_env
+from helpers.launch import Launch
 from helpers.spin import spin_until as spin
 from helpers.suite import Driver
 from helpers.synthetic import FAIL_FROM, make_rollout
 
 DEADLINE_S = 1.0
 HEARTBEAT_S = 0.5
-
-
-class Launch:
-    """``fiper launch`` in a subprocess, its output collected line by line."""
-
-    def __init__(self, config: Path, domain: int) -> None:
-        self.proc = subprocess.Popen(  # noqa: S603
-            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
-            env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-        self.lines: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip())
-
-    def pid_of(self, name: str) -> int:
-        for line in self.lines:
-            match = re.match(rf"\[launch\] started {name} \(pid (\d+)\)", line)
-            if match:
-                return int(match.group(1))
-        raise AssertionError(f"{name} not started:\n" + "\n".join(self.lines))
-
-    def interrupt(self) -> int:
-        os.killpg(self.proc.pid, signal.SIGINT)
-        return self.proc.wait(timeout=30)
+POLICY_PERIOD_S = 0.1
 
 
 def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
@@ -105,23 +75,25 @@ def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
         assert spin_until(lambda: bool(late), timeout=10)
         assert late[0].state == FailureAlarm.STATE_ALARM and late[0].latched and late[0].rollout_id == 1
 
-        # 3. a new rollout runs OK; killing the ACE process turns the state UNKNOWN within the deadline.
+        # 3. a new rollout runs OK at 10 Hz; killing the ACE process turns the state UNKNOWN within the
+        # period-based deadline (deadline_periods = 2.5 measured policy periods).
         ok_rollout = make_rollout(501)
         driver.start(2)
-        for step in range(3):
+        for step in range(4):
             driver.step(2, step, ok_rollout.embeddings[step], ok_rollout.actions[step], ok_rollout.exec_steps)
             assert spin_until(lambda s=step: s in driver.alarms_of(2), timeout=10)
+            spin_until(lambda: False, timeout=POLICY_PERIOD_S)  # pacing: a 10 Hz policy
         assert all(m.state == FailureAlarm.STATE_OK for m in driver.alarms_of(2).values())
         driver.alarms.clear()
         os.kill(launch.pid_of("ace_node"), signal.SIGKILL)
         assert spin_until(lambda: any(m.state == FailureAlarm.STATE_UNKNOWN and m.rollout_id == 2 and "ace" in m.reason
                                       for m in driver.alarms), timeout=30)
         # Within the deadline, counted in the fusion node's own heartbeats (its clock, so load stretches both
-        # alike): after the last score it repeats OK at most once per heartbeat_s until the deadline (or
-        # the liveliness lease) has passed, then says UNKNOWN.
+        # alike): during a rollout it repeats OK once per measured period until 2.5 periods have passed, then
+        # says UNKNOWN. (test/nodes/test_faults.py counts the policy steps a kill goes unnoticed.)
         first_unknown = next(i for i, m in enumerate(driver.alarms) if m.state == FailureAlarm.STATE_UNKNOWN)
         ok_repeats = [m for m in driver.alarms[:first_unknown] if m.state == FailureAlarm.STATE_OK and m.heartbeat]
-        assert len(ok_repeats) <= DEADLINE_S / HEARTBEAT_S + 1, driver.alarms[:first_unknown]
+        assert len(ok_repeats) <= 3, driver.alarms[:first_unknown]
         # heartbeats go on (three more come): none of them may say OK again
         assert spin_until(lambda: len(driver.alarms) >= first_unknown + 4, timeout=10)
         assert all(m.state != FailureAlarm.STATE_OK for m in driver.alarms[first_unknown:])

@@ -21,3 +21,15 @@ def test_old_items_expire_and_a_full_buffer_drops_the_oldest() -> None:
     assert buf.add(2, "newer", 9) == ["old"]
     assert buf.expire(19) == ["new"]
     assert buf.take(2) == ["newer"] and len(buf) == 0
+
+
+def test_the_total_size_is_bounded_not_only_the_count() -> None:
+    # Issue #18: 64 waiting messages of 4M floats each would be 1 GB; the size budget drops the oldest.
+    buffer: PendingBuffer[str] = PendingBuffer(max_age_ns=10, max_items=64, max_size=10)
+    assert buffer.add(1, "a", 0, size=4) == []
+    assert buffer.add(2, "b", 0, size=4) == []
+    assert buffer.add(2, "c", 0, size=4) == ["a"]      # 12 > 10: the oldest goes
+    assert buffer.add(3, "d", 0, size=11) == ["b", "c", "d"]  # bigger than the whole budget: nothing stays
+    assert len(buffer) == 0
+    assert buffer.add(4, "e", 0, size=3) == [] and buffer.take(4) == ["e"]
+    assert buffer.add(5, "f", 0, size=10) == []        # the budget is free again

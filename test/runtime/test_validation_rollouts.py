@@ -117,3 +117,26 @@ def test_vectors_are_checked() -> None:
     assert validation.vector([1.0, 2.0], 2, "proprio").dtype == np.float32
     assert _reason(lambda: validation.vector([1.0, 2.0, 3.0], 2, "proprio")) == validation.SHAPE
     assert _reason(lambda: validation.vector([1.0, float("nan")], 2, "proprio")) == validation.NON_FINITE
+
+
+def test_a_step_jump_beyond_max_step_gap_is_rejected_and_changes_nothing() -> None:
+    # Issue #18: one message with step 4294967295 sent the RND-OE node into 4e9 window pushes.
+    tracker = RolloutTracker(max_step_gap=3)
+    tracker.start(1)
+    tracker.admit(1, 0)
+    assert _reason(lambda: tracker.admit(1, 2**32 - 1)) == validation.STEP_GAP
+    assert _reason(lambda: tracker.admit(1, 5)) == validation.STEP_GAP   # 4 missing steps > 3
+    record, _ = tracker.admit(1, 4)                                       # 3 missing: accepted
+    assert record.last_step == 4 and record.gaps == 3 and record.steps == 2
+    auto = RolloutTracker(auto_start=True, max_step_gap=3)
+    assert _reason(lambda: auto.admit(9, 4)) == validation.STEP_GAP and auto.current is None
+    assert auto.admit(9, 3)[1]
+
+
+def test_a_step_beyond_the_rollouts_max_steps_is_rejected() -> None:
+    tracker = RolloutTracker()
+    tracker.start(1, max_steps=5)
+    tracker.admit(1, 4)
+    assert _reason(lambda: tracker.admit(1, 5)) == validation.BEYOND_MAX_STEPS
+    tracker.start(2)  # max_steps 0: not known, no bound but the gap
+    assert tracker.admit(2, 50)[0].last_step == 50

@@ -19,8 +19,9 @@ from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.rollouts import RolloutTracker
-from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, INTERNAL, NO_CALIBRATION,
-                                         NON_FINITE_SCORE, UNKNOWN_ROLLOUT, InputRejected)
+from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
+                                         DEFAULT_MAX_STEP_GAP, INTERNAL, NO_CALIBRATION, NON_FINITE_SCORE,
+                                         UNKNOWN_ROLLOUT, InputRejected)
 
 
 class DetectorNode(FiperNode):
@@ -39,14 +40,22 @@ class DetectorNode(FiperNode):
                                describe("largest accepted array", low=1, high=1 << 30, integer=True))
         self.declare_parameter("max_abs_value", DEFAULT_MAX_ABS_VALUE,
                                describe("largest accepted magnitude of an input value", low=1.0, high=3.4e38))
+        self.declare_parameter("max_step_gap", DEFAULT_MAX_STEP_GAP,
+                               describe("largest accepted jump of the step number (lost steps); a bigger one is "
+                                        "rejected as step_gap", read_only=True, low=0, high=1 << 31, integer=True))
         self.declare_parameter("start_wait_s", 1.0,
                                describe("how long a message may wait for its rollout's START", read_only=True,
                                         low=0.0, high=60.0))
+        self.declare_parameter("start_wait_max_elements", DEFAULT_MAX_PENDING_ELEMENTS,
+                               describe("largest number of values waiting for their rollout's START", read_only=True,
+                                        low=1, high=1 << 32, integer=True))
         self.calibration: Calibration | None = None
         self.calibration_hash = ""
         self.monitor: Any = None
-        self.rollouts = RolloutTracker(self.get_parameter("auto_start_rollouts").value)
-        self.pending: PendingBuffer[Any] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
+        self.rollouts = RolloutTracker(self.get_parameter("auto_start_rollouts").value,
+                                       self.get_parameter("max_step_gap").value)
+        self.pending: PendingBuffer[Any] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9),
+                                                         max_size=self.get_parameter("start_wait_max_elements").value)
         self.published = 0
         #: STARTs of the rollout already active (ignored: its steps and windows are kept).
         self.repeated_starts = 0
@@ -115,7 +124,7 @@ class DetectorNode(FiperNode):
             if active is not None and active.rollout_id == msg.rollout_id:
                 self.repeated_starts += 1
                 return  # already started (auto_start, or the START was repeated): keep its steps
-            self.rollouts.start(msg.rollout_id, msg.task, msg.scenario)
+            self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
             if self.monitor is not None:
                 self.monitor.reset()
             for early in self.pending.take(msg.rollout_id):
@@ -132,7 +141,7 @@ class DetectorNode(FiperNode):
         active = self.rollouts.active
         if not self.rollouts.auto_start and (active is None or active.rollout_id != msg.rollout_id) \
                 and msg.rollout_id not in self.ended:
-            for dropped in self.pending.add(msg.rollout_id, msg, self.now_ns()):
+            for dropped in self.pending.add(msg.rollout_id, msg, self.now_ns(), len(msg.data)):
                 self._reject_unknown(dropped, "dropped from the full START wait buffer")
             return
         self._score_input(msg)

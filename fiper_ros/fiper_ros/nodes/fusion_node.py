@@ -37,9 +37,20 @@ class FusionNode(FiperNode):
         super().__init__("fusion_node", **kwargs)
         self.declare_parameter("combine", "and", describe("'and' (paper eq. 7) or 'or'", read_only=True))
         self.declare_parameter("deadline_s", 1.0,
-                               describe("a score stream older than this makes the state UNKNOWN", low=0.01, high=600.0))
+                               describe("a score stream older than this makes the state UNKNOWN, until the rollout's "
+                                        "policy period is measured (always, if deadline_periods is 0)",
+                                        low=0.01, high=600.0))
+        self.declare_parameter("deadline_periods", 2.5,
+                               describe("staleness deadline in measured policy periods of the rollout (0: deadline_s)",
+                                        low=0.0, high=1000.0))
+        self.declare_parameter("deadline_floor_s", 0.1,
+                               describe("the period-based deadline is never shorter (scheduling jitter)",
+                                        low=0.0, high=600.0))
+        self.declare_parameter("check_period_s", 0.02,
+                               describe("how often staleness is checked", read_only=True, low=0.001, high=10.0))
         self.declare_parameter("heartbeat_s", 0.5,
-                               describe("republish the current state after this much silence", low=0.01, high=600.0))
+                               describe("republish the current state after this much silence (during a rollout: "
+                                        "after one measured policy period, if shorter)", low=0.01, high=600.0))
         self.declare_parameter("buffer_size", 64,
                                describe("unmatched steps kept per rollout before eviction", low=1, high=100000, integer=True))
         self.declare_parameter("start_wait_s", 1.0,
@@ -55,6 +66,7 @@ class FusionNode(FiperNode):
         self.lost: set[str] = set()
         self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
         self._last_publish_ns = 0
+        self._last_published: tuple[int, str, str] | None = None
         self._inputs: list[Any] = []
         self._timer: Any = None
         self._alarm_pub = self.create_lifecycle_publisher(
@@ -66,7 +78,8 @@ class FusionNode(FiperNode):
     def configure(self) -> None:
         combine = self.get_parameter("combine").value
         self.fuser = AlarmFuser(combine, int(self.get_parameter("deadline_s").value * 1e9),
-                                self.get_parameter("buffer_size").value)
+                                self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
+                                int(self.get_parameter("deadline_floor_s").value * 1e9))
 
     def activate(self) -> None:
         for detector in DETECTORS:
@@ -78,8 +91,7 @@ class FusionNode(FiperNode):
         self._inputs.append(self.create_subscription(
             RolloutEvent, "rollout_events", self._on_event, qos.EVENT,
             event_callbacks=self.subscription_events("rollout_events")))
-        period = min(self.get_parameter("heartbeat_s").value, self.get_parameter("deadline_s").value) / 2
-        self._timer = self.create_timer(period, self._on_timer)
+        self._timer = self.create_timer(self.get_parameter("check_period_s").value, self._on_timer)
 
     def deactivate(self) -> None:
         for subscription in self._inputs:
@@ -108,7 +120,7 @@ class FusionNode(FiperNode):
             if self.fuser.rollout_id == msg.rollout_id:
                 self.repeated_starts += 1
                 return  # a repeated START: keep the rollout's state (and its latch)
-            self.rollouts.start(msg.rollout_id, msg.task, msg.scenario)
+            self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
             self.fuser.start(msg.rollout_id, now)
             for early in self.pending.take(msg.rollout_id):
                 self._fuse(early)
@@ -150,10 +162,19 @@ class FusionNode(FiperNode):
             return
         now = self.now_ns()
         state = self.fuser.check(now, frozenset(self.lost))
+        quiet = now - self._last_publish_ns >= self.repeat_ns()
         if state is not None:
-            self.publish(state, heartbeat=True)
-        elif now - self._last_publish_ns >= self.get_parameter("heartbeat_s").value * 1e9:
+            if quiet or self._last_published != (state.rollout_id, state.state, state.reason):
+                self.publish(state, heartbeat=True)  # a stream just went stale or lost: said at once
+        elif quiet:
             self.publish(self.heartbeat_state(now), heartbeat=True)
+
+    def repeat_ns(self) -> int:
+        """Silence after which the current state is published again: ``heartbeat_s``, or one measured policy
+        period during a rollout if that is shorter, so a supervisor hears the suite every period."""
+        heartbeat = int(self.get_parameter("heartbeat_s").value * 1e9)
+        period = self.fuser.period.period_ns() if self.fuser.active_rollout is not None else None
+        return heartbeat if period is None else max(1, min(heartbeat, period))
 
     def heartbeat_state(self, now: int) -> AlarmState:
         """The state to repeat when nothing new happened."""
@@ -189,6 +210,7 @@ class FusionNode(FiperNode):
         self._alarm_pub.publish(msg)
         self.states[state.state] += 1
         self._last_publish_ns = self.now_ns()
+        self._last_published = (state.rollout_id, state.state, state.reason)
 
     def diagnostic_values(self) -> dict[str, str]:
         values = {f"published.{k}": str(v) for k, v in self.states.items()}
@@ -197,7 +219,9 @@ class FusionNode(FiperNode):
                        "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
                        "lost_streams": ",".join(sorted(self.lost)) or "none",
                        "waiting_for_start": str(len(self.pending)), "dropped_without_start": str(self.dropped_early),
-                       "repeated_starts": str(self.repeated_starts)}
+                       "repeated_starts": str(self.repeated_starts),
+                       "deadline_ms": f"{self.fuser.deadline() / 1e6:.1f}",
+                       "policy_period_ms": "unknown" if (p := self.fuser.period.period_ns()) is None else f"{p / 1e6:.1f}"}
         return values
 
 

@@ -4,11 +4,15 @@ After start-up every object that exists (rclpy, numpy, torch, the node) is moved
 collector's reach (``gc.freeze``): a full collection then only walks what the callbacks allocate, so it
 no longer stalls a callback for milliseconds (the tail of the node benchmark, docs/benchmarks.md).
 A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows.
+A node started by ``fiper launch`` dies with it (``FIPER_PARENT_PID``: Linux's parent-death signal), so a
+killed launcher never leaves a stale suite speaking on the suite's topics.
 """
 from __future__ import annotations
 
+import ctypes
 import faulthandler
 import gc
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -18,6 +22,8 @@ import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.exceptions import NotInitializedException
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+
+from fiper_ros.dds import PARENT_PID_ENV
 
 CALLBACK_DRAIN_S = 30.0
 """Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
@@ -59,10 +65,26 @@ def shut_down() -> None:
             raise
 
 
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent() -> None:
+    """If ``FIPER_PARENT_PID`` names this process's parent, ask Linux to send SIGTERM when it dies."""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    if os.getppid() != int(parent):  # the launcher died before the request was in place
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
 def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1) -> int:
     """Create the node from ``factory`` and spin it (in ``threads`` threads: callback groups of its own run
     beside the default group) until interrupted; returns the exit status."""
     faulthandler.enable()
+    die_with_parent()
     rclpy.init(args=sys.argv if args is None else args)
     signal.signal(signal.SIGTERM, lambda *_: shut_down())
     node = None

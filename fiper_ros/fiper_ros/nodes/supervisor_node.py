@@ -10,7 +10,7 @@ from typing import Any
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from fiper_msgs.msg import FailureAlarm
+from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.main import run_node
@@ -28,24 +28,40 @@ class SupervisorNode(Node):
         self.declare_parameter("alarm_topic", "/fiper/alarm", describe("FailureAlarm topic", read_only=True))
         self.declare_parameter("halt_service", "/sim/halt", describe("std_srvs/Trigger that halts the robot",
                                                                       read_only=True))
-        self.declare_parameter("deadline_s", 2.0, describe("tolerated UNKNOWN / silence", low=0.05, high=600.0))
-        self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9))
+        self.declare_parameter("deadline_s", 2.0, describe("tolerated UNKNOWN; tolerated silence while no rollout "
+                                                           "runs or its period is not measured yet",
+                                                           low=0.05, high=600.0))
+        self.declare_parameter("silence_periods", 2.5,
+                               describe("tolerated silence during a rollout, in measured policy periods (0: deadline_s)",
+                                        low=0.0, high=1000.0))
+        self.declare_parameter("silence_floor_s", 0.1,
+                               describe("the period-based silence deadline is never shorter", low=0.0, high=600.0))
+        self.declare_parameter("events_topic", "/fiper/rollout_events",
+                               describe("RolloutEvent topic: which rollout is running", read_only=True))
+        self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),
+                                     self.get_parameter("silence_periods").value,
+                                     int(self.get_parameter("silence_floor_s").value * 1e9))
         self.halts: list[HaltDecision] = []
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state.
         self.create_subscription(FailureAlarm, self.get_parameter("alarm_topic").value, self._on_alarm, qos.ALARM)
-        self.create_timer(0.05, self._on_clock)
+        self.create_subscription(RolloutEvent, self.get_parameter("events_topic").value, self._on_event, qos.EVENT)
+        self.create_timer(0.02, self._on_clock)
 
     def _now(self) -> int:
         return self.get_clock().now().nanoseconds
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
-        decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now())
+        decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now(),
+                                       msg.step, msg.heartbeat)
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:
             self.get_logger().warning(
                 f"ALARM rollout {msg.rollout_id} step {msg.step}: eta_obs {msg.eta_obs:.3g} > {msg.gamma_obs:.3g}"
                 f" = {msg.obs_exceeded}, eta_act {msg.eta_act:.3g} > {msg.gamma_act:.3g} = {msg.act_exceeded}")
         self._act(decision)
+
+    def _on_event(self, msg: RolloutEvent) -> None:
+        self.logic.on_event(msg.rollout_id, msg.event == RolloutEvent.EVENT_START)
 
     def _on_clock(self) -> None:
         self._act(self.logic.on_clock(self._now()))

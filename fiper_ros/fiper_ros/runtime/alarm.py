@@ -19,6 +19,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, replace
 
 from fiper_ros.core.fusion import exceeds, fuse
+from fiper_ros.runtime.stats import PeriodEstimator
 
 OK = "ok"
 ALARM = "alarm"
@@ -84,18 +85,29 @@ class AlarmState:
 class AlarmFuser:
     """Streaming eq. (7) over matched (rollout_id, step) score pairs, with latch and staleness."""
 
-    def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64) -> None:
+    def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
+                 deadline_periods: float = 0.0, deadline_floor_ns: int = 0) -> None:
         if combine not in ("and", "or"):
             raise ValueError(f"combine must be 'and' or 'or', got {combine!r}")
+        if deadline_periods < 0 or deadline_floor_ns < 0 or deadline_ns <= 0:
+            raise ValueError("deadline_ns must be > 0, deadline_periods and deadline_floor_ns >= 0")
         self.combine = combine
         self.deadline_ns = deadline_ns
+        """The staleness deadline until the rollout's policy period is measured (always, if
+        ``deadline_periods`` is 0)."""
+        self.deadline_periods = deadline_periods
+        self.deadline_floor_ns = deadline_floor_ns
         self.buffer_size = buffer_size
+        self.period = PeriodEstimator()
         self.rollout_id: int | None = None
         """The rollout of the latest START (also after its END: its late steps are still judged)."""
         self.ended = False
         self.latched = False
         self.alarm_step: int | None = None
         self.last: AlarmState | None = None
+        self._next_step = 0
+        self.unjudged: tuple[int, int] | None = None
+        """The first and last policy step of this rollout that never got a verdict here, if any."""
         self._pending: OrderedDict[tuple[int, int], dict[str, DetectorScore]] = OrderedDict()
         self._last_seen: dict[str, int] = {}
         self.matched = 0
@@ -112,6 +124,9 @@ class AlarmFuser:
         self.latched = False
         self.alarm_step = None
         self.last = None
+        self._next_step = 0
+        self.unjudged = None
+        self.period.reset()
         self._last_seen = {d: now_ns for d in DETECTORS}  # the deadline runs from the START
 
     def end(self, rollout_id: int) -> None:
@@ -127,10 +142,19 @@ class AlarmFuser:
         return None if self.ended else self.rollout_id
 
     def reset(self) -> None:
-        """Clear a latched ALARM (the ~/reset service); the next step is judged afresh."""
+        """Clear a latched ALARM (the ~/reset service); the next step is judged afresh, as after a START."""
         self.latched = False
         self.alarm_step = None
         self.last = None
+        self.unjudged = None
+
+    def deadline(self) -> int:
+        """The staleness deadline now: ``deadline_periods`` measured policy periods of this rollout (at
+        least ``deadline_floor_ns``), or ``deadline_ns`` while the period is unknown or ``deadline_periods`` 0."""
+        period = self.period.period_ns()
+        if self.deadline_periods <= 0 or period is None:
+            return self.deadline_ns
+        return max(self.deadline_floor_ns, int(self.deadline_periods * period))
 
     # scores -----------------------------------------------------------------------------------------
     def add(self, score: DetectorScore, now_ns: int) -> AlarmState | None:
@@ -154,6 +178,11 @@ class AlarmFuser:
             del self._pending[old]
             self.unmatched_stale += 1
         self.matched += 1
+        self.period.add(score.step, now_ns)
+        if score.step > self._next_step:  # steps that will never be fused: an alarm there cannot be ruled out
+            first = self._next_step if self.unjudged is None else self.unjudged[0]
+            self.unjudged = (first, score.step - 1)
+        self._next_step = max(self._next_step, score.step + 1)
         self.last = self._fuse(entry["rnd_oe"], entry["ace"])
         return self.last
 
@@ -183,6 +212,11 @@ class AlarmFuser:
             names = [n for n, e in (("rnd_oe", obs_exc), ("ace", act_exc)) if e]
             return AlarmState(state=ALARM, latched=True, reason=f"exceeded: {', '.join(names)} ({self.combine})",
                               **common)
+        if self.unjudged is not None:  # the latch may have fired at a step never judged here
+            first, last = self.unjudged
+            return AlarmState(state=UNKNOWN, latched=False, reason=f"not every step of {first}..{last} was judged "
+                              "(a gap, or this node started after them): an alarm there cannot be ruled out",
+                              **common)
         rejected = [s.detector for s in (obs, act) if not s.scored]
         if rejected:  # a step whose input was rejected is never OK, whatever the other detector says
             return AlarmState(state=UNKNOWN, latched=False, reason=f"input of this step rejected: {', '.join(rejected)}",
@@ -199,7 +233,8 @@ class AlarmFuser:
         """Detectors of the active rollout whose last score is older than the deadline."""
         if self.active_rollout is None:
             return []
-        return [d for d in DETECTORS if now_ns - self._last_seen.get(d, now_ns) > self.deadline_ns]
+        deadline = self.deadline()
+        return [d for d in DETECTORS if now_ns - self._last_seen.get(d, now_ns) > deadline]
 
     def check(self, now_ns: int, lost: frozenset[str] = frozenset()) -> AlarmState | None:
         """UNKNOWN state if a stream is stale or ``lost`` (liveliness), else ``None``."""
@@ -212,5 +247,5 @@ class AlarmFuser:
             combine=self.combine, reason="", stamp_ns=now_ns,
         )
         state = ALARM if self.latched else UNKNOWN
-        reason = f"stream(s) {', '.join(bad)} missing or older than {self.deadline_ns / 1e9:g} s"
+        reason = f"stream(s) {', '.join(bad)} missing or older than {self.deadline() / 1e9:.3g} s"
         return replace(base, state=state, latched=self.latched, reason=reason, stamp_ns=now_ns)

@@ -1,8 +1,8 @@
 """Messages that arrive before their rollout's START.
 
 Topics are not ordered against each other: a policy's first embedding can overtake the bridge's
-RolloutEvent START. Such messages wait here (bounded in count and age) and are processed, in arrival
-order, when the START arrives; those that expire are rejected as unknown_rollout.
+RolloutEvent START. Such messages wait here (bounded in count, in total size and in age) and are
+processed, in arrival order, when the START arrives; those that expire are rejected as unknown_rollout.
 """
 from __future__ import annotations
 
@@ -13,24 +13,30 @@ Item = TypeVar("Item")
 
 
 class PendingBuffer(Generic[Item]):
-    """Holds items per rollout id for at most ``max_age_ns``, at most ``max_items`` in total."""
+    """Holds items per rollout id for at most ``max_age_ns``, at most ``max_items`` of total ``size`` at most
+    ``max_size`` (e.g. float values: a few huge messages cannot fill the memory)."""
 
-    def __init__(self, max_age_ns: int = 1_000_000_000, max_items: int = 64) -> None:
+    def __init__(self, max_age_ns: int = 1_000_000_000, max_items: int = 64, max_size: int | None = None) -> None:
         self.max_age_ns = max_age_ns
         self.max_items = max_items
-        self._items: OrderedDict[int, list[tuple[int, Item]]] = OrderedDict()
+        self.max_size = max_size
+        self._items: OrderedDict[int, list[tuple[int, int, Item]]] = OrderedDict()
         self._count = 0
+        self._size = 0
 
-    def add(self, rollout_id: int, item: Item, now_ns: int) -> list[Item]:
-        """Keep ``item``; returns the oldest items pushed out when the buffer is full."""
-        self._items.setdefault(rollout_id, []).append((now_ns, item))
+    def add(self, rollout_id: int, item: Item, now_ns: int, size: int = 1) -> list[Item]:
+        """Keep ``item`` (of ``size``); returns the oldest items pushed out when the buffer is full."""
+        self._items.setdefault(rollout_id, []).append((now_ns, size, item))
         self._count += 1
+        self._size += size
         dropped = []
-        while self._count > self.max_items:
+        while self._count > self.max_items or (self.max_size is not None and self._size > self.max_size):
             oldest_id = next(iter(self._items))
             entries = self._items[oldest_id]
-            dropped.append(entries.pop(0)[1])
+            _, old_size, old = entries.pop(0)
+            dropped.append(old)
             self._count -= 1
+            self._size -= old_size
             if not entries:
                 del self._items[oldest_id]
         return dropped
@@ -39,16 +45,19 @@ class PendingBuffer(Generic[Item]):
         """Remove and return the items of ``rollout_id`` in arrival order."""
         entries = self._items.pop(rollout_id, [])
         self._count -= len(entries)
-        return [item for _, item in entries]
+        self._size -= sum(size for _, size, _ in entries)
+        return [item for _, _, item in entries]
 
     def expire(self, now_ns: int) -> list[Item]:
         """Remove and return the items older than ``max_age_ns``."""
         expired = []
         for rollout_id in list(self._items):
             entries = self._items[rollout_id]
-            keep = [(t, i) for t, i in entries if now_ns - t <= self.max_age_ns]
-            expired += [i for t, i in entries if now_ns - t > self.max_age_ns]
-            self._count -= len(entries) - len(keep)
+            keep = [e for e in entries if now_ns - e[0] <= self.max_age_ns]
+            gone = [e for e in entries if now_ns - e[0] > self.max_age_ns]
+            expired += [item for _, _, item in gone]
+            self._count -= len(gone)
+            self._size -= sum(size for _, size, _ in gone)
             if keep:
                 self._items[rollout_id] = keep
             else:

@@ -4,9 +4,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from fiper_ros.runtime.validation import (
+    BEYOND_MAX_STEPS,
+    DEFAULT_MAX_STEP_GAP,
     DUPLICATE_STEP,
     NEGATIVE_STEP,
     OUT_OF_ORDER_STEP,
+    STEP_GAP,
     UNKNOWN_ROLLOUT,
     InputRejected,
 )
@@ -19,6 +22,8 @@ class RolloutRecord:
     rollout_id: int
     task: str = ""
     scenario: str = ""
+    max_steps: int = 0
+    """The rollout's limit of policy steps from its START (0: not known)."""
     last_step: int | None = None
     steps: int = 0
     gaps: int = 0
@@ -43,12 +48,16 @@ class RolloutTracker:
     A START makes a rollout current and active (resetting everything of the previous one); END ends it,
     but it stays current until the next START, so a step of it that the END overtook (topics are not
     ordered) is still admitted. Steps must increase strictly within a rollout; a jump forward is accepted
-    and counted as a gap. With ``auto_start`` a message of a new rollout id starts that rollout implicitly
-    (for policies that publish no RolloutEvents).
+    and counted as a gap, up to ``max_step_gap`` steps, and a step must lie below the START's ``max_steps``
+    (when given): a message field never sizes the work that follows it. With ``auto_start`` a message of a
+    new rollout id starts that rollout implicitly (for policies that publish no RolloutEvents).
     """
 
-    def __init__(self, auto_start: bool = False) -> None:
+    def __init__(self, auto_start: bool = False, max_step_gap: int = DEFAULT_MAX_STEP_GAP) -> None:
+        if max_step_gap < 0:
+            raise ValueError(f"max_step_gap must be >= 0, got {max_step_gap}")
         self.auto_start = auto_start
+        self.max_step_gap = max_step_gap
         self.current: RolloutRecord | None = None
 
     @property
@@ -56,9 +65,9 @@ class RolloutTracker:
         """The current rollout if it has not ended."""
         return None if self.current is None or self.current.ended else self.current
 
-    def start(self, rollout_id: int, task: str = "", scenario: str = "") -> RolloutRecord:
+    def start(self, rollout_id: int, task: str = "", scenario: str = "", max_steps: int = 0) -> RolloutRecord:
         """Begin ``rollout_id``; returns its fresh record."""
-        self.current = RolloutRecord(rollout_id, task, scenario)
+        self.current = RolloutRecord(rollout_id, task, scenario, max_steps)
         return self.current
 
     def end(self, rollout_id: int, outcome: str) -> RolloutRecord | None:
@@ -73,29 +82,30 @@ class RolloutTracker:
     def admit(self, rollout_id: int, step: int) -> tuple[RolloutRecord, bool]:
         """Accept step ``step`` of ``rollout_id`` or raise :class:`InputRejected`.
 
-        Returns the rollout's record and whether this message started it (``auto_start`` only).
+        Returns the rollout's record and whether this message started it (``auto_start`` only). A rejected
+        step changes nothing: the next valid step is judged as if the rejected one never came.
         """
-        started = False
         if step < 0:
             raise InputRejected(NEGATIVE_STEP, f"step {step} of rollout {rollout_id} is negative")
-        if self.current is None or self.current.rollout_id != rollout_id:
-            if not self.auto_start:
-                active = "none" if self.active is None else str(self.active.rollout_id)
-                raise InputRejected(UNKNOWN_ROLLOUT, f"rollout {rollout_id} is not the active rollout ({active})")
-            self.start(rollout_id)
-            started = True
         record = self.current
-        assert record is not None
-        if record.last_step is not None:
-            if step == record.last_step:
-                raise InputRejected(DUPLICATE_STEP, f"step {step} of rollout {rollout_id} seen twice")
-            if step < record.last_step:
-                raise InputRejected(
-                    OUT_OF_ORDER_STEP, f"step {step} of rollout {rollout_id} after step {record.last_step}"
-                )
-            record.gaps += step - record.last_step - 1
-        else:
-            record.gaps += step
+        new = record is None or record.rollout_id != rollout_id
+        if new and not self.auto_start:
+            active = "none" if self.active is None else str(self.active.rollout_id)
+            raise InputRejected(UNKNOWN_ROLLOUT, f"rollout {rollout_id} is not the active rollout ({active})")
+        last = -1 if new or record.last_step is None else record.last_step
+        if step == last:
+            raise InputRejected(DUPLICATE_STEP, f"step {step} of rollout {rollout_id} seen twice")
+        if step < last:
+            raise InputRejected(OUT_OF_ORDER_STEP, f"step {step} of rollout {rollout_id} after step {last}")
+        if step - last - 1 > self.max_step_gap:
+            raise InputRejected(STEP_GAP, f"step {step} of rollout {rollout_id} after step {last}: a gap of "
+                                          f"{step - last - 1} steps, more than max_step_gap={self.max_step_gap}")
+        if not new and record.max_steps and step >= record.max_steps:
+            raise InputRejected(BEYOND_MAX_STEPS, f"step {step} of rollout {rollout_id}: the rollout has at most "
+                                                  f"{record.max_steps} steps (its START)")
+        if new:
+            record = self.start(rollout_id)
+        record.gaps += step - last - 1
         record.last_step = step
         record.steps += 1
-        return record, started
+        return record, new

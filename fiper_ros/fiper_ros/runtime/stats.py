@@ -1,4 +1,4 @@
-"""Latency percentiles, message rates and rate-limited logging for the nodes' diagnostics."""
+"""Latency percentiles, message rates, policy periods and rate-limited logging for the nodes."""
 from __future__ import annotations
 
 from collections import deque
@@ -22,6 +22,37 @@ class LatencyStats:
 
     def __len__(self) -> int:
         return len(self._values)
+
+
+class PeriodEstimator:
+    """The policy period as seen by a node: the median time per step between the arrivals of consecutive
+    policy steps of one rollout (node-clock times), over the last ``window`` intervals.
+
+    The median keeps one slow step (a GC pause, a busy core) from moving it; a step gap counts as that
+    many periods (the time is divided by the step difference).
+    """
+
+    def __init__(self, window: int = 8) -> None:
+        if window < 1:
+            raise ValueError(f"window must be >= 1, got {window}")
+        self._intervals: deque[float] = deque(maxlen=window)
+        self._last: tuple[int, int] | None = None
+
+    def reset(self) -> None:
+        """A new rollout: forget the previous one's steps."""
+        self._intervals.clear()
+        self._last = None
+
+    def add(self, step: int, now_ns: int) -> None:
+        """Policy step ``step`` arrived at ``now_ns``."""
+        if self._last is not None and step > self._last[0] and now_ns >= self._last[1]:
+            self._intervals.append((now_ns - self._last[1]) / (step - self._last[0]))
+        if self._last is None or step > self._last[0]:
+            self._last = (step, now_ns)
+
+    def period_ns(self) -> int | None:
+        """The median period in nanoseconds, or None before two steps arrived."""
+        return int(np.median(self._intervals)) if self._intervals else None
 
 
 class RateMeter:

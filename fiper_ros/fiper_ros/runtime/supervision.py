@@ -1,15 +1,21 @@
 """Decision rule of the example safety supervisor: when to halt the robot.
 
-Halt on ALARM at once; halt when the state of a rollout has been UNKNOWN, or nothing at all was heard,
-for longer than the supervisor's own deadline. The UNKNOWN clock is per rollout: it restarts when the
-rollout changes, and the monitor's idle state (rollout id 0, "no active rollout") never arms it, since
-no robot is moving then. At most one halt per rollout (and one per silence episode).
+Halt on ALARM at once; halt when the state of a rollout has been UNKNOWN for longer than the supervisor's
+own deadline; halt when nothing at all was heard for longer than the silence deadline. The UNKNOWN clock
+is per rollout: it restarts when the rollout changes, and the monitor's idle state (rollout id 0, "no
+active rollout") never arms it, since no robot is moving then. While a rollout runs (between its START
+and END events) the silence deadline follows the measured period of the monitor's per-step decisions
+(``silence_periods`` of them, at least ``silence_floor_ns``): a fusion node that died or hangs is noticed
+within a few policy periods; otherwise it is the deadline. At most one halt per rollout (and one per
+silence episode).
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, UNKNOWN
+from fiper_ros.runtime.stats import PeriodEstimator
 
 
 @dataclass(frozen=True)
@@ -21,20 +27,45 @@ class HaltDecision:
 
 
 class SupervisorLogic:
-    """Feed it every received alarm state and a periodic clock; it says when to halt."""
+    """Feed it every received alarm state, the rollout events and a periodic clock; it says when to halt."""
 
-    def __init__(self, deadline_ns: int) -> None:
+    def __init__(self, deadline_ns: int, silence_periods: float = 0.0, silence_floor_ns: int = 0) -> None:
+        if deadline_ns <= 0 or silence_periods < 0 or silence_floor_ns < 0:
+            raise ValueError("deadline_ns must be > 0, silence_periods and silence_floor_ns >= 0")
         self.deadline_ns = deadline_ns
+        self.silence_periods = silence_periods
+        self.silence_floor_ns = silence_floor_ns
+        self.period = PeriodEstimator()
+        self._running: int | None = None
         self._last_heard_ns: int | None = None
         self._unknown_since_ns: int | None = None
         self._rollout_id = NO_ROLLOUT
-        self._halted: set[int] = set()
+        self._halted: deque[int] = deque(maxlen=64)  # the recent rollouts halted (bounded)
         self._silence_reported = False
 
-    def on_state(self, rollout_id: int, state: str, reason: str, now_ns: int) -> HaltDecision | None:
-        """One FailureAlarm arrived."""
+    def on_event(self, rollout_id: int, started: bool) -> None:
+        """A RolloutEvent: ``started`` for its START, False for its END."""
+        if started:
+            if rollout_id != self._running:
+                self.period.reset()
+            self._running = rollout_id
+        elif rollout_id == self._running:
+            self._running = None
+
+    def silence_deadline(self) -> int:
+        """How long silence is tolerated now (see the module docstring)."""
+        period = self.period.period_ns() if self._running is not None else None
+        if self.silence_periods <= 0 or period is None:
+            return self.deadline_ns
+        return max(self.silence_floor_ns, int(self.silence_periods * period))
+
+    def on_state(self, rollout_id: int, state: str, reason: str, now_ns: int, step: int = 0,
+                 heartbeat: bool = True) -> HaltDecision | None:
+        """One FailureAlarm arrived (``heartbeat`` False: a new step's decision)."""
         self._last_heard_ns = now_ns
         self._silence_reported = False
+        if not heartbeat and rollout_id == self._running:
+            self.period.add(step, now_ns)
         if rollout_id != self._rollout_id:
             self._unknown_since_ns = None
         self._rollout_id = rollout_id
@@ -52,7 +83,7 @@ class SupervisorLogic:
         """Periodic check for silence and lasting UNKNOWN."""
         if self._last_heard_ns is None:
             return None  # never heard the monitor: nothing is running yet
-        if now_ns - self._last_heard_ns > self.deadline_ns and not self._silence_reported:
+        if now_ns - self._last_heard_ns > self.silence_deadline() and not self._silence_reported:
             self._silence_reported = True
             return HaltDecision(self._rollout_id, f"no alarm message for {(now_ns - self._last_heard_ns) / 1e9:.2f} s")
         if self._unknown_since_ns is not None and now_ns - self._unknown_since_ns > self.deadline_ns:
@@ -62,5 +93,5 @@ class SupervisorLogic:
     def _halt(self, reason: str) -> HaltDecision | None:
         if self._rollout_id in self._halted:
             return None
-        self._halted.add(self._rollout_id)
+        self._halted.append(self._rollout_id)
         return HaltDecision(self._rollout_id, reason)

@@ -23,16 +23,22 @@ ENCODING = "encoding"
 OUT_OF_RANGE = "out_of_range"
 NON_FINITE_SCORE = "non_finite_score"
 UNKNOWN_DETECTOR = "unknown_detector"
+STEP_GAP = "step_gap"
+BEYOND_MAX_STEPS = "beyond_max_steps"
 REASONS = (
     SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT,
     DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
-    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR,
+    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS,
 )
 #: The one image encoding the policies take (sensor_msgs/Image ``encoding``).
 RGB8 = "rgb8"
 
 #: Default cap on the number of floats in one message (256 x 64 x 64 actions, or a 4M embedding).
 DEFAULT_MAX_ELEMENTS = 1 << 22
+#: Default cap on the steps a rollout may jump forward at once (a gap of lost or skipped steps).
+DEFAULT_MAX_STEP_GAP = 100
+#: Default cap on the values waiting for their rollout's START (8 messages of the largest size).
+DEFAULT_MAX_PENDING_ELEMENTS = 8 * DEFAULT_MAX_ELEMENTS
 #: Default cap on the magnitude of an embedding or action value. Policies' embeddings and actions are of
 #: order 1-100; far larger values are a fault, and the bound keeps every score finite in float32.
 DEFAULT_MAX_ABS_VALUE = 1e6
