@@ -151,10 +151,7 @@ class AlarmFuser:
     def deadline(self) -> int:
         """The staleness deadline now: ``deadline_periods`` measured policy periods of this rollout (at
         least ``deadline_floor_ns``), or ``deadline_ns`` while the period is unknown or ``deadline_periods`` 0."""
-        period = self.period.period_ns()
-        if self.deadline_periods <= 0 or period is None:
-            return self.deadline_ns
-        return max(self.deadline_floor_ns, int(self.deadline_periods * period))
+        return self.period.deadline_ns(self.deadline_periods, self.deadline_floor_ns, self.deadline_ns)
 
     # scores -----------------------------------------------------------------------------------------
     def add(self, score: DetectorScore, now_ns: int) -> AlarmState | None:

@@ -54,6 +54,14 @@ class PeriodEstimator:
         """The median period in nanoseconds, or None before two steps arrived."""
         return int(np.median(self._intervals)) if self._intervals else None
 
+    def deadline_ns(self, periods: float, floor_ns: int, fallback_ns: int) -> int:
+        """``periods`` measured periods, at least ``floor_ns``; ``fallback_ns`` while the period is unknown or
+        ``periods`` is 0 (the one rule of the fusion node's staleness and the supervisor's silence)."""
+        period = self.period_ns()
+        if periods <= 0 or period is None:
+            return fallback_ns
+        return max(floor_ns, int(periods * period))
+
 
 class RateMeter:
     """Messages per second over a sliding window of the last ``window_s`` seconds (node-clock times)."""

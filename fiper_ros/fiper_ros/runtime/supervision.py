@@ -54,10 +54,9 @@ class SupervisorLogic:
 
     def silence_deadline(self) -> int:
         """How long silence is tolerated now (see the module docstring)."""
-        period = self.period.period_ns() if self._running is not None else None
-        if self.silence_periods <= 0 or period is None:
+        if self._running is None:
             return self.deadline_ns
-        return max(self.silence_floor_ns, int(self.silence_periods * period))
+        return self.period.deadline_ns(self.silence_periods, self.silence_floor_ns, self.deadline_ns)
 
     def on_state(self, rollout_id: int, state: str, reason: str, now_ns: int, step: int = 0,
                  heartbeat: bool = True) -> HaltDecision | None:
