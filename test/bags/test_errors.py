@@ -1,8 +1,13 @@
-"""Robustness: truncated, corrupt or foreign bags, bags with unknown types and calibrations of another
-shape give one clear line naming the file (exit 2, no traceback)."""
+"""Robustness of the commands that read bags and calibrations (docs/reliability.md, "Bags and calibration
+files"): every failure class of helpers.bag_damage and helpers.calibration_damage, on real files made by the
+project's writer and calibrate and then damaged, run through the ``fiper`` entry point of every command that
+reads it, gives exit status 2 and one line on stderr that starts with ``fiper COMMAND:`` and names the file
+and what is wrong (no traceback), and leaves no output behind."""
 from __future__ import annotations
 
+import pickle
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -13,47 +18,194 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from fiper_ros.bags.reader import BagReader
 from fiper_ros.bags.rollouts import read_rollouts
 from fiper_ros.cli import main
+from fiper_ros.core.rollout import RolloutSet
+from helpers.bag_damage import BAG_DAMAGES, CHUNK, mcap_of, records, write_recorded_bag
+from helpers.calibration_damage import CALIBRATION_DAMAGES, FIT_DAMAGES, fit_damages
+from helpers.synthetic import make_rollout
 
-SAMPLES = Path(__file__).resolve().parents[2] / "bags"
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLES = ROOT / "bags"
+SORTING_CALIBRATION = ROOT / "models" / "sorting" / "calibration"
 GADGET = "acme_msgs/msg/Gadget"
 
+#: command name -> argv for (input bag, calibration, empty output directory).
+BAG_COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
+    "replay --offline": lambda bag, cal, out: ["replay", str(bag), "--offline", "--calibration", str(cal),
+                                               "--report", str(out / "report.json")],
+    "replay": lambda bag, cal, out: ["replay", str(bag), "--fast", "--calibration", str(cal),
+                                     "--report", str(out / "report.json")],
+    "calibrate": lambda bag, cal, out: ["calibrate", str(bag), "-o", str(out / "calibration")],
+    "evaluate": lambda bag, cal, out: ["evaluate", "--data", f"synthetic={bag}", "--tiny", "--no-cache", "--quiet",
+                                       "--out", str(out / "results")],
+}
+#: command name -> argv for (input bag, calibration, empty output directory); replay and demo start the
+#: suite's node processes and refuse the calibration while they boot.
+CALIBRATION_COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
+    "replay --offline": BAG_COMMANDS["replay --offline"],
+    "replay": BAG_COMMANDS["replay"],
+    "collect": lambda bag, cal, out: ["collect", "--task", "sorting", "--episodes", "1", "--ros", "--calibration",
+                                      str(cal), "--out", str(out / "collected")],
+    "demo": lambda bag, cal, out: ["demo", "--calibration", str(cal), "--out", str(out / "demo")],
+}
 
-def _copy(small_bag: Path, tmp_path: Path, name: str) -> Path:
-    bag = tmp_path / name
-    shutil.copytree(small_bag, bag)
-    return bag
+
+@pytest.fixture(scope="module")
+def recorded_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """20 synthetic successes over several MCAP chunks, written by the project's writer."""
+    return write_recorded_bag(tmp_path_factory.mktemp("recorded") / "rollouts")
 
 
-def _replay_offline(bag: Path, calibration: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    status = main(["replay", str(bag), "--offline", "--calibration", str(calibration)])
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
-
-
-@pytest.mark.parametrize("damage", ["truncated", "corrupt", "empty"])
-def test_damaged_bag_is_named(damage: str, tmp_path: Path, small_bag: Path, small_calibration: Path,
-                              capsys: pytest.CaptureFixture[str]) -> None:
-    bag = _copy(small_bag, tmp_path, damage)
-    mcap = bag / "small.mcap"
-    data = mcap.read_bytes()
-    mcap.write_bytes({"truncated": data[: len(data) * 2 // 3],
-                      "corrupt": data[:3000] + bytes(range(256)) * 8 + data[5048:],
-                      "empty": b""}[damage])
-    status, _, err = _replay_offline(bag, small_calibration, capsys)
+def refused(argv: list[str], out: Path, capsys: pytest.CaptureFixture[str]) -> str:
+    """Run ``fiper ARGV``: exit status 2, one line on stderr, no traceback, nothing in ``out``; the line."""
+    status = main(argv)
+    err = capsys.readouterr().err
     assert status == 2, err
-    assert err.count("\n") == 1 and err.startswith(f"fiper replay: {bag}:"), err
-    assert "Traceback" not in err
-    assert main(["calibrate", str(bag), "-o", str(tmp_path / "cal")]) == 2
-    assert capsys.readouterr().err.startswith(f"fiper calibrate: {bag}:")
-    assert not (tmp_path / "cal").exists()
+    assert err.count("\n") == 1 and err.endswith("\n") and "Traceback" not in err, err
+    assert sorted(p.name for p in out.iterdir()) == [], "output left behind"
+    return err
 
 
-def test_not_a_bag(tmp_path: Path, small_calibration: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    (tmp_path / "notes").mkdir()
-    (tmp_path / "notes" / "metadata.yaml").write_text("just: text\n")
-    status, _, err = _replay_offline(tmp_path / "notes", small_calibration, capsys)
-    assert status == 2 and f"{tmp_path / 'notes'}: metadata.yaml is not rosbag2 metadata" in err
+def _prefix(command: str) -> str:
+    return f"fiper {command.split()[0]}: "
 
+
+@pytest.mark.parametrize("command", BAG_COMMANDS)
+@pytest.mark.parametrize("damage", BAG_DAMAGES)
+def test_a_damaged_bag_is_refused_by_every_command_that_reads_it(
+        damage: str, command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    bag = tmp_path / "bags" / "rollouts"
+    shutil.copytree(recorded_bag, bag)
+    expected = BAG_DAMAGES[damage](bag)
+    out = tmp_path / "out"
+    out.mkdir()
+    err = refused(BAG_COMMANDS[command](bag, small_calibration, out), out, capsys)
+    assert err.startswith(_prefix(command) + expected), err
+
+
+def test_the_undamaged_bag_spans_several_chunks_and_is_read(
+        recorded_bag: Path, small_calibration: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The table's starting point: the same commands accept the bag before it is damaged."""
+    assert sum(op == CHUNK for _, op, _ in records(mcap_of(recorded_bag).read_bytes())) >= 3
+    assert main(["replay", str(recorded_bag), "--offline", "--calibration", str(small_calibration)]) == 0
+    assert capsys.readouterr().out.count("rollout ") == 20
+    assert main(["calibrate", str(recorded_bag), "-o", str(tmp_path / "cal"), "--max-epochs", "2"]) == 0
+    assert (tmp_path / "cal" / "calibration.yaml").is_file()
+
+
+@pytest.mark.parametrize("command", CALIBRATION_COMMANDS)
+@pytest.mark.parametrize("damage", (*CALIBRATION_DAMAGES, *FIT_DAMAGES))
+def test_a_damaged_or_unfitting_calibration_is_refused_by_every_command_that_reads_it(
+        command: str, damage: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # replay plays the synthetic bag (its calibration: small_calibration); collect and demo run the
+    # shipped Sorting policy (its calibration: models/sorting/calibration).
+    base, foreign = ((small_calibration, SORTING_CALIBRATION) if command.startswith("replay")
+                     else (SORTING_CALIBRATION, small_calibration))
+    calibration = tmp_path / "calibration"
+    shutil.copytree(base, calibration)
+    expected = (CALIBRATION_DAMAGES | fit_damages(base, foreign))[damage](calibration)
+    out = tmp_path / "out"
+    out.mkdir()
+    err = refused(CALIBRATION_COMMANDS[command](recorded_bag, calibration, out), out, capsys)
+    if damage in FIT_DAMAGES:
+        assert err.startswith(f"{_prefix(command)}calibration {calibration} does not fit ") and expected in err, err
+    else:
+        assert err.startswith(_prefix(command) + expected), err
+
+
+# -- fiper convert --------------------------------------------------------------------------------------
+
+def _fiper_layout(root: Path, test_dims: tuple[int, ...] = (2, 2)) -> Path:
+    """<root>/task/rollouts/{calibration,test}/*.pkl of the FIPER authors' layout (E = 6, B = 4, H = 3)."""
+    rng = np.random.default_rng(0)
+    for split, dims in (("calibration", (2, 2)), ("test", test_dims)):
+        directory = root / "task" / "rollouts" / split
+        directory.mkdir(parents=True)
+        for index, d in enumerate(dims):
+            steps = [{"obs_embedding": rng.normal(size=6), "action_pred": rng.normal(size=(4, 3, d))} for _ in range(5)]
+            with (directory / f"rollout_{index}_success.pkl").open("wb") as stream:
+                pickle.dump({"metadata": {}, "rollout": steps}, stream)
+    return root / "task"
+
+
+#: A damage of one source pickle -> the text of its refusal.
+PICKLE_DAMAGES: dict[str, tuple[Callable[[bytes], bytes], str]] = {
+    "zero_bytes": (lambda data: b"", "not a readable pickle (EOFError"),
+    "truncated": (lambda data: data[: len(data) // 2], "not a readable pickle ("),
+    "random_bytes": (lambda data: np.random.default_rng(0).bytes(1000), "not a readable pickle ("),
+    "another_structure": (lambda data: pickle.dumps([1, 2, 3]), "not a FIPER rollout pickle"),
+}
+
+
+@pytest.mark.parametrize("damage", PICKLE_DAMAGES)
+def test_a_damaged_source_file_is_refused_by_convert(damage: str, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    source = _fiper_layout(tmp_path / "src")
+    victim = source / "rollouts" / "test" / "rollout_1_success.pkl"
+    change, text = PICKLE_DAMAGES[damage]
+    victim.write_bytes(change(victim.read_bytes()))
+    out = tmp_path / "out"
+    out.mkdir()
+    err = refused(["convert", "fiper", str(source), "--exec-steps", "2", "-o", str(out / "bags")], out, capsys)
+    assert err.startswith(f"fiper convert: {victim}: {text}"), err
+
+
+def test_convert_failing_after_its_first_bag_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The calibration bag is written, then the test split (rollouts of two action sizes) fails: the
+    staging directory holding the finished bag goes too."""
+    source = _fiper_layout(tmp_path / "src", test_dims=(2, 3))
+    out = tmp_path / "out"
+    out.mkdir()
+    convert = ["convert", "fiper", "--exec-steps", "2", "-o", str(out / "bags")]
+    err = refused([*convert, str(source)], out, capsys)
+    assert "one bag holds one layout" in err
+    assert main([*convert, str(_fiper_layout(tmp_path / "good"))]) == 0
+    assert sorted(p.name for p in (out / "bags").iterdir()) == ["calibration_rollouts", "test_rollouts"]
+
+
+@pytest.mark.parametrize("damage", ["truncated", "random_bytes"])
+def test_a_damaged_rollout_set_is_refused_by_evaluate(damage: str, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "rollouts.npz"
+    RolloutSet([make_rollout(seed) for seed in range(4)], [make_rollout(9, fail=True)]).save_npz(path)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2] if damage == "truncated" else np.random.default_rng(0).bytes(len(data)))
+    out = tmp_path / "out"
+    out.mkdir()
+    err = refused(["evaluate", "--data", f"synthetic={path}", "--tiny", "--out", str(out / "results")], out, capsys)
+    assert err.startswith(f"fiper evaluate: {path}: not a readable rollout set, damaged or not written by "
+                          "save_npz ("), err
+
+
+# -- outputs of a failed run ----------------------------------------------------------------------------
+
+def test_a_failed_evaluate_leaves_an_existing_output_folder_as_it_was(
+        recorded_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "results"
+    out.mkdir()
+    (out / "results.md").write_text("the previous run\n")
+    bag = tmp_path / "bag"
+    shutil.copytree(recorded_bag, bag)
+    BAG_DAMAGES["changed_byte_in_a_chunk"](bag)
+    assert main(["evaluate", "--data", f"synthetic={bag}", "--tiny", "--no-cache", "--quiet", "--out", str(out)]) == 2
+    assert "corrupt MCAP data" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "results"]  # no staging left beside it
+    assert [p.name for p in out.iterdir()] == ["results.md"]
+    assert (out / "results.md").read_text() == "the previous run\n"
+
+
+def test_a_report_path_that_is_a_folder_is_refused_before_replaying(
+        recorded_bag: Path, small_calibration: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "report").mkdir()
+    (tmp_path / "report" / "keep.txt").write_text("x")
+    assert main(["replay", str(recorded_bag), "--offline", "--calibration", str(small_calibration),
+                 "--report", str(tmp_path / "report")]) == 2
+    assert capsys.readouterr().err == f"fiper replay: --report {tmp_path / 'report'} is a directory: give a file name\n"
+    assert (tmp_path / "report" / "keep.txt").read_text() == "x"
+
+
+# -- what is not an error -------------------------------------------------------------------------------
 
 def test_unknown_types_are_decoded_from_the_bag(tmp_path: Path, small_bag: Path, small_calibration: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
@@ -75,16 +227,27 @@ def test_unknown_types_are_decoded_from_the_bag(tmp_path: Path, small_bag: Path,
         decoded = reader.decode(message)
     assert decoded.name == "widget" and list(decoded.values) == [1.5, 2.5]
     assert len(read_rollouts(bag)) == 4
-    status, out, _ = _replay_offline(bag, small_calibration, capsys)
-    assert status == 0 and out.count("rollout ") == 4
+    status = main(["replay", str(bag), "--offline", "--calibration", str(small_calibration)])
+    assert status == 0 and capsys.readouterr().out.count("rollout ") == 4
+
+
+def test_every_shipped_bag_passes_the_checks() -> None:
+    """The sample bags (written before chunks had checksums) open: their schema is the installed one."""
+    from fiper_ros.bags.reader import find_bags
+
+    bags = find_bags([SAMPLES])
+    assert len(bags) >= 5
+    for bag in bags:
+        with BagReader(bag) as reader:
+            assert reader.topics
 
 
 def test_calibration_of_another_shape_is_refused(small_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     calibration = SAMPLES / "pretzel_synthetic" / "calibration"
-    status, _, err = _replay_offline(small_bag, calibration, capsys)
-    assert status == 2
-    assert err == (f"fiper replay: calibration {calibration} does not fit bag {small_bag}: calibration mismatch "
-                   "for embedding_dim: expected 512, got 16\n")
+    assert main(["replay", str(small_bag), "--offline", "--calibration", str(calibration)]) == 2
+    assert capsys.readouterr().err == (
+        f"fiper replay: calibration {calibration} does not fit bag {small_bag}: calibration mismatch "
+        "for embedding_dim: expected 512, got 16\n")
 
 
 def test_missing_calibration_is_refused(small_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,4 +1,5 @@
-"""Calibration fitting, files and compatibility checks."""
+"""Calibration fitting, files and compatibility checks; every damage class of helpers.calibration_damage
+is refused on load with one line naming the file (docs/reliability.md, "Bags and calibration files")."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from helpers.calibration_damage import CALIBRATION_DAMAGES, FIT_DAMAGES, fit_damages
 from helpers.core_data import ACTION_DIM, EMBEDDING_DIM, HORIZON, TINY_RND, make_rollout
 
 from fiper_ros.core.ace import action_ranges
@@ -22,6 +24,9 @@ from fiper_ros.core.calibration import (
     load_calibration,
 )
 from fiper_ros.core.rollout import Rollout
+
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = sorted([*ROOT.glob("models/*/calibration"), *ROOT.glob("bags/*/calibration")])
 
 
 def test_fitted_fields(calibration: Calibration, calibration_rollouts: list[Rollout]) -> None:
@@ -50,32 +55,54 @@ def test_save_load_round_trip(calibration: Calibration, tmp_path: Path) -> None:
     assert np.array_equal(loaded.ranges, calibration.ranges)
 
 
-def test_tampering_and_missing_files_are_refused(calibration: Calibration, tmp_path: Path) -> None:
-    calibration.save(tmp_path / "good")
-    with pytest.raises(CalibrationError, match="directory not found"):
-        load_calibration(tmp_path / "absent")
-    shutil.copytree(tmp_path / "good", tmp_path / "no_weights")
-    (tmp_path / "no_weights" / "rnd_oe.pt").unlink()
-    with pytest.raises(CalibrationError, match="rnd_oe.pt"):
-        load_calibration(tmp_path / "no_weights")
-    shutil.copytree(tmp_path / "good", tmp_path / "edited")
-    path = tmp_path / "edited" / CALIBRATION_FILE
-    content = yaml.safe_load(path.read_text())
-    content["delta"] = 0.5
-    path.write_text(yaml.safe_dump(content))
-    with pytest.raises(CalibrationError, match="content hash"):
-        load_calibration(tmp_path / "edited")
-    content["format_version"] = 2
-    path.write_text(yaml.safe_dump(content))
-    with pytest.raises(CalibrationError, match="format_version 2"):
-        load_calibration(tmp_path / "edited")
-    shutil.copytree(tmp_path / "good", tmp_path / "corrupt")
-    (tmp_path / "corrupt" / "rnd_oe.pt").write_bytes(b"not a torch file")
-    with pytest.raises(CalibrationError, match="rnd_oe.pt"):
-        load_calibration(tmp_path / "corrupt")
-    (tmp_path / "empty").mkdir()
-    with pytest.raises(CalibrationError, match="calibration file not found"):
-        load_calibration(tmp_path / "empty")
+@pytest.fixture(scope="module")
+def saved(calibration: Calibration, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The fitted calibration as a directory."""
+    directory = tmp_path_factory.mktemp("saved") / "calibration"
+    calibration.save(directory)
+    return directory
+
+
+@pytest.mark.parametrize("damage", CALIBRATION_DAMAGES)
+def test_a_damaged_calibration_directory_is_refused_with_one_line_naming_the_file(
+        damage: str, saved: Path, tmp_path: Path) -> None:
+    directory = tmp_path / "calibration"
+    shutil.copytree(saved, directory)
+    expected = CALIBRATION_DAMAGES[damage](directory)
+    with pytest.raises(CalibrationError) as error:
+        load_calibration(directory)
+    assert str(error.value).startswith(expected) and "\n" not in str(error.value), str(error.value)
+
+
+@pytest.mark.parametrize("damage", FIT_DAMAGES)
+def test_a_calibration_of_other_data_loads_and_names_what_differs(damage: str, saved: Path, tmp_path: Path) -> None:
+    directory = tmp_path / "calibration"
+    shutil.copytree(saved, directory)
+    expected = fit_damages(saved, ROOT / "models" / "sorting" / "calibration")[damage](directory)
+    fitting = load_calibration(saved)
+    with pytest.raises(CalibrationMismatch) as error:
+        load_calibration(directory).check_compatible(
+            embedding_dim=fitting.embedding_dim, action_dim=fitting.action_dim, horizon=fitting.horizon,
+            exec_steps=fitting.exec_steps, action_space=fitting.action_space, task=fitting.task)
+    assert str(error.value).startswith(expected), str(error.value)
+
+
+def test_the_task_is_recorded_and_rollouts_of_several_tasks_are_refused(
+        calibration: Calibration, calibration_rollouts: list[Rollout], settings: CalibrationSettings) -> None:
+    assert calibration.task == "synthetic"
+    calibration.check_compatible(task="")  # a caller that does not know the task checks nothing
+    mixed = [dataclasses.replace(r, task="other") if i == 3 else r for i, r in enumerate(calibration_rollouts)]
+    with pytest.raises(CalibrationError, match=r"calibration rollouts of several tasks \(other, synthetic\)"):
+        calibrate(mixed, settings)
+
+
+@pytest.mark.parametrize("directory", SHIPPED, ids=lambda d: str(d.relative_to(ROOT)))
+def test_shipped_calibrations_without_a_task_keep_their_content_hash(directory: Path) -> None:
+    """Written before the task was recorded: they still load, with their stored hash, and fit any task."""
+    content = yaml.safe_load((directory / CALIBRATION_FILE).read_text())
+    loaded = load_calibration(directory)
+    assert "task" not in content and loaded.task == "" and loaded.content_hash == content["content_hash"]
+    loaded.check_compatible(task="any task")
 
 
 def test_check_compatible(calibration: Calibration) -> None:

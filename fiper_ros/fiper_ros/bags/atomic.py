@@ -56,3 +56,28 @@ def atomic_output(path: Path, overwrite: bool = False) -> Iterator[Path]:
         remove(temporary)
         raise
     commit(temporary, path, overwrite)
+
+
+def check_directory(directory: Path) -> None:
+    """Refuse an output directory that exists as something else (a file)."""
+    if directory.exists() and not directory.is_dir():
+        raise BagError(f"{directory} exists and is not a directory")
+
+
+@contextmanager
+def atomic_files(directory: Path) -> Iterator[Path]:
+    """Yield an empty staging directory beside ``directory``; on success its files move into
+    ``directory`` (created if needed; same-named files replaced, others left), on any error nothing
+    moves: a failed run adds and changes nothing there."""
+    directory = Path(directory)
+    check_directory(directory)
+    staging = temporary_sibling(directory)
+    remove(staging)
+    staging.mkdir(parents=True)
+    try:
+        yield staging
+        directory.mkdir(exist_ok=True)
+        for file in sorted(staging.iterdir()):
+            file.replace(directory / file.name)
+    finally:
+        remove(staging)

@@ -42,6 +42,7 @@ from sim_bridge.tasks import TASKS
 from fiper_ros.bags.atomic import remove
 from fiper_ros.bags.collect_index import INDEX_FILE, IN_PROCESS, ROS, CollectIndex, CollectSetup, IndexEntry
 from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.offline import calibration_for, policy_layout
 from fiper_ros.bags.reader import METADATA, find_bags
 from fiper_ros.bags.rollouts import write_rollouts
 from fiper_ros.bags.schema import BagInfo
@@ -470,13 +471,9 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
 
 
 def _check_calibration(args: argparse.Namespace) -> None:
-    """``--calibration`` only with ``--ros``, and only a calibration folder."""
-    if args.calibration is None:
-        return
-    if not args.ros:
+    """``--calibration`` only with ``--ros``."""
+    if args.calibration is not None and not args.ros:
         raise BagError("--calibration runs the scoring nodes: it needs --ros")
-    if not (args.calibration / "calibration.yaml").is_file():
-        raise BagError(f"{args.calibration}: no calibration.yaml: not a calibration folder")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -489,6 +486,8 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
         model_dir = args.model or default_model(args.task)
         model = load_model(model_dir, args.task)
+        if args.calibration is not None:  # refused here with one line, not by scoring nodes that never configure
+            calibration_for(args.calibration, [policy_layout(model.policy.config, model_dir)])
         setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
                              args.max_policy_steps, ROS if args.ros else IN_PROCESS)
         with locked(args.out), ExitStack() as stack:

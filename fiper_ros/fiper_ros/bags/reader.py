@@ -1,7 +1,10 @@
 """Reading rosbag2 bags with ``rosbags.highlevel.AnyReader`` (types from the bag's own definitions).
 
-Every problem (missing or malformed ``metadata.yaml``, a truncated or corrupt MCAP file, a message
-that does not decode) becomes a :class:`~fiper_ros.bags.errors.BagError` naming the bag.
+Every problem becomes a :class:`~fiper_ros.bags.errors.BagError` of one line naming the bag or file: a
+missing or malformed ``metadata.yaml``, an empty, foreign or truncated MCAP file
+(:func:`fiper_ros.bags.storage.check_mcap`, before ``rosbags`` opens it), corrupt MCAP data, a message
+that does not decode, and a schema topic whose type or definition (RIHS01 hash) is not the installed
+``fiper_msgs`` one (:meth:`BagReader.check_schema`).
 """
 from __future__ import annotations
 
@@ -16,13 +19,21 @@ from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection, Qos
 
 from fiper_ros.bags.errors import BagError
-from fiper_ros.bags.schema import BagInfo
+from fiper_ros.bags.schema import TOPICS, BagInfo, typestore
+from fiper_ros.bags.storage import check_mcap
 
 METADATA = "metadata.yaml"
 
 
+def _below(root: Path, pattern: str) -> Iterator[Path]:
+    """Files matching ``pattern`` below ``root``, outside hidden directories."""
+    return (f for f in root.rglob(pattern) if not any(part.startswith(".") for part in f.relative_to(root).parts))
+
+
 def find_bags(paths: Iterable[Path]) -> list[Path]:
-    """The bags named by ``paths``: a bag directory itself, or every bag below a directory (sorted)."""
+    """The bags named by ``paths``: a bag directory itself, or every bag below a directory (sorted;
+    hidden directories, such as a writer's staging, left out). A directory of MCAP data without
+    ``metadata.yaml`` (an unfinished recording) is refused rather than skipped."""
     found: list[Path] = []
     for path in map(Path, paths):
         if (path / METADATA).is_file():
@@ -30,8 +41,11 @@ def find_bags(paths: Iterable[Path]) -> list[Path]:
         elif path.is_file() and path.suffix == ".mcap":
             raise BagError(f"{path}: give the bag directory (the one with {METADATA}), not the .mcap file")
         elif path.is_dir():
-            below = sorted(p.parent for p in path.rglob(METADATA)
-                           if not any(part.startswith(".") for part in p.relative_to(path).parts))
+            bare = sorted({f.parent for f in _below(path, "*.mcap") if not (f.parent / METADATA).is_file()})
+            if bare:
+                raise BagError(f"{bare[0]}: MCAP data but no {METADATA}: not a finished rosbag2 bag (the recording "
+                               "did not end, or the file was removed)")
+            below = sorted(p.parent for p in _below(path, METADATA))
             if not below:
                 raise BagError(f"{path}: no bag ({METADATA}) in this directory")
             found.extend(below)
@@ -42,13 +56,24 @@ def find_bags(paths: Iterable[Path]) -> list[Path]:
 
 def _read_metadata(path: Path) -> dict[str, Any]:
     try:
-        content = yaml.safe_load((path / METADATA).read_text())
+        with (path / METADATA).open() as stream:
+            content = yaml.safe_load(stream)
     except (OSError, yaml.YAMLError) as error:
         raise BagError(f"{path}: unreadable {METADATA}: {error}") from error
     info = content.get("rosbag2_bagfile_information") if isinstance(content, dict) else None
     if not isinstance(info, dict):
         raise BagError(f"{path}: {METADATA} is not rosbag2 metadata")
     return info
+
+
+def _storage_files(path: Path, metadata: dict[str, Any]) -> list[Path]:
+    """The MCAP files ``metadata.yaml`` lists (none for another storage plugin)."""
+    if metadata.get("storage_identifier") != "mcap":
+        return []
+    names = metadata.get("relative_file_paths")
+    if not isinstance(names, list) or not names:
+        raise BagError(f"{path}: {METADATA} lists no storage files (relative_file_paths)")
+    return [path / str(name) for name in names]
 
 
 @dataclass(frozen=True)
@@ -73,16 +98,46 @@ class BagReader:
             raise BagError(f"{self.path}: not a rosbag2 bag (no {METADATA})")
         metadata = _read_metadata(self.path)
         self.info = BagInfo.from_custom_data(metadata.get("custom_data"), str(self.path))
+        self._files = _storage_files(self.path, metadata)
         self._reader: AnyReader | None = None
 
     def __enter__(self) -> BagReader:
+        for file in self._files:
+            check_mcap(file)
         try:
             self._reader = AnyReader([self.path])
             self._reader.open()
         except Exception as error:  # noqa: BLE001 - any rosbags/MCAP failure is a bad bag
             self._reader = None
             raise BagError(f"{self.path}: cannot open the bag ({type(error).__name__}: {error})") from error
+        try:
+            self.check_schema()
+        except BagError:
+            self.__exit__(None, None, None)
+            raise
         return self
+
+    def check_schema(self) -> None:
+        """Every schema topic the bag holds has the schema's type, defined as the installed ``fiper_msgs``
+        defines it (same RIHS01 type hash): its messages are decoded and published as that type."""
+        ours = typestore()
+        for connection in self.reader.connections:
+            spec = TOPICS.get(connection.topic)
+            if spec is None:
+                continue
+            if connection.msgtype != spec.msgtype:
+                raise BagError(f"{self.path}: topic {connection.topic} holds {connection.msgtype}, the FIPER schema "
+                               f"says {spec.msgtype} (not a bag of this suite)")
+            theirs, expected = self.reader.typestore.hash_rihs01(spec.msgtype), ours.hash_rihs01(spec.msgtype)
+            if theirs != expected:
+                raise BagError(f"{self.path}: its definition of {spec.msgtype} (on {connection.topic}, {theirs}) is "
+                               f"not the installed one ({expected}): recorded with another version of the message")
+
+    def require_any(self, topics: Sequence[str]) -> None:
+        """Refuse a bag that holds none of ``topics`` (e.g. a bag of other data)."""
+        if not set(topics) & set(self.topics):
+            held = ", ".join(f"{t} ({m})" for t, m in sorted(self.topics.items())) or "none"
+            raise BagError(f"{self.path}: none of the FIPER topics {', '.join(topics)} (its topics: {held})")
 
     def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
                  traceback: TracebackType | None) -> None:
@@ -125,13 +180,20 @@ class BagReader:
         try:
             for connection, log_time, raw in self.reader.messages(connections=connections):
                 yield BagMessage(connection.topic, connection.msgtype, int(log_time), bytes(raw))
-        except Exception as error:  # noqa: BLE001 - truncated / corrupt storage
-            raise BagError(f"{self.path}: corrupt or truncated bag ({type(error).__name__}: {error})") from error
+        except Exception as error:  # noqa: BLE001 - corrupt chunk data (truncation is refused on opening)
+            raise BagError(f"{self.path}: corrupt MCAP data ({type(error).__name__}: {error})") from error
+
+    def check_data(self) -> None:
+        """Read every chunk once (decompressed, checked against its CRC), so a corrupt bag is refused
+        before anything is done with its first messages."""
+        for _ in self.messages():
+            pass
 
     def decode(self, message: BagMessage) -> Any:
-        """The message as a ``rosbags`` object (types from the bag's embedded definitions)."""
+        """The message as a ``rosbags`` object (types from the bag's embedded definitions, which
+        :meth:`check_schema` found equal to ours for the schema topics: a failure is corrupt data)."""
         try:
             return self.reader.deserialize(message.raw, message.msgtype)
         except Exception as error:  # noqa: BLE001 - a message that does not match its type
-            raise BagError(f"{self.path}: a {message.msgtype} message on {message.topic} at "
+            raise BagError(f"{self.path}: corrupt MCAP data: a {message.msgtype} message on {message.topic} at "
                            f"{message.log_time_ns} ns does not decode ({error})") from error

@@ -35,6 +35,7 @@ from rosgraph_msgs.msg import Clock
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.bags import robot_options
+from fiper_ros.bags.atomic import atomic_output
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult
@@ -262,22 +263,13 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
 
 
 def checked_calibration(directory: Path | None, bags: list[Path]) -> Calibration | None:
-    """The calibration in ``directory`` (``None`` without one), checked against every bag's shapes.
+    """The calibration in ``directory`` (``None`` without one), checked against every bag's layout.
 
     Imported here, not at the top: the core brings torch, whose import would delay the suite's start.
     """
-    from fiper_ros.bags.offline import check_fits  # noqa: PLC0415
-    from fiper_ros.core.calibration import CalibrationError, load_calibration  # noqa: PLC0415
+    from fiper_ros.bags.offline import bag_layout, calibration_for  # noqa: PLC0415
 
-    if directory is None:
-        return None
-    try:
-        calibration = load_calibration(directory)
-    except CalibrationError as error:
-        raise BagError(str(error)) from error
-    for bag in bags:
-        check_fits(calibration, directory, bag)
-    return calibration
+    return None if directory is None else calibration_for(directory, [bag_layout(bag) for bag in bags])
 
 
 def _offline(bags: list[Path], directory: Path, args: argparse.Namespace) -> dict[str, Any]:
@@ -317,12 +309,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | None]:
-    """The bags (each opened once, so a bad one is refused before anything starts) and the calibration
+    """The bags (each read once, so a bad one is refused before anything starts) and the calibration
     directory to use."""
     bags = find_bags(args.bags)
     for bag in bags:
-        with BagReader(bag):
-            pass
+        with BagReader(bag) as reader:
+            reader.require_any(INPUT_TOPICS)
+            reader.check_data()
     directory = args.calibration or find_calibration(bags)
     if directory is None and not args.no_launch:
         raise BagError("no calibration: give --calibration DIR (or put calibration/ next to the bags)")
@@ -333,6 +326,8 @@ def run(args: argparse.Namespace) -> int:
     """``fiper replay``."""
     if args.rate <= 0 or args.clock_hz <= 0:
         return fail("replay", "--rate and --clock-hz must be > 0")
+    if args.report is not None and args.report.is_dir():
+        return fail("replay", f"--report {args.report} is a directory: give a file name")
     try:
         bags, directory = _bags_and_calibration(args)
         outcome = _offline(bags, directory, args) if args.offline else _play_all(args, bags, directory)
@@ -347,7 +342,8 @@ def run(args: argparse.Namespace) -> int:
                   "calibration_hash": calibration.content_hash if calibration else None,
                   "mode": "offline" if args.offline else "live", "seconds": outcome["seconds"],
                   "missing": outcome["missing"], "rollouts": [r.to_dict() for r in outcome["rollouts"]]}
-        args.report.write_text(json.dumps(report, indent=1))
+        with atomic_output(args.report, overwrite=True) as staging:
+            staging.write_text(json.dumps(report, indent=1))
     if outcome["interrupted"]:
         return 130
     return 1 if outcome["missing"] else 0

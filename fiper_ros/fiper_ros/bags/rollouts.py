@@ -235,8 +235,10 @@ def _to_rollout(record: _Collected, path: Path) -> Rollout:
 
 
 def read_rollouts(path: Path) -> list[Rollout]:
-    """The rollouts of one bag, in the order they start; rollouts without any step are left out."""
+    """The rollouts of one bag, in the order they start; rollouts without any step are left out, a bag
+    without embeddings and action batches is refused."""
     with BagReader(path) as bag:
+        bag.require_any((EMBEDDING, ACTIONS))
         collected = _collect(bag)
     rollouts = []
     for record in collected:
@@ -248,9 +250,12 @@ def read_rollouts(path: Path) -> list[Rollout]:
 
 
 def layout_of(bag: BagReader) -> BagInfo:
-    """The bag's ``custom_data``, with E, B, H, D, h and action space taken from its first messages
-    where ``custom_data`` does not say (e.g. a bag of another tool)."""
+    """The bag's ``custom_data``, with the task, E, B, H, D, h and action space taken from its first
+    messages where ``custom_data`` does not say (e.g. a bag of ``fiper record`` or of another tool)."""
     info = bag.info
+    if not info.task:
+        tasks = (bag.decode(message).task for message in bag.messages([EVENTS]))
+        info = replace(info, task=next((task for task in tasks if task), ""))
     if info.embedding_dim and info.action_dim and info.horizon and info.action_space:
         return info
     for topic in (EMBEDDING, ACTIONS):

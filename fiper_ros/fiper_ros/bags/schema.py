@@ -142,8 +142,13 @@ class BagInfo:
 
     @classmethod
     def from_custom_data(cls, data: dict[str, Any] | None, where: str = "bag") -> BagInfo:
-        """Parse ``custom_data``; keys of other tools are ignored, missing keys keep their defaults."""
+        """Parse ``custom_data``; keys of other tools are ignored, missing keys keep their defaults; a
+        ``fiper_schema`` version other than :data:`SCHEMA_VERSION` is refused."""
         data = data or {}
+        version = str(data.get("fiper_schema", SCHEMA_VERSION))
+        if version != SCHEMA_VERSION:
+            raise BagError(f"{where}: FIPER bag schema version {version!r} not supported (this code reads "
+                           f"{SCHEMA_VERSION!r})")
         values: dict[str, Any] = {}
         try:
             for item in fields(cls):

@@ -2,7 +2,8 @@
 
 The bag is written under a temporary name beside its target and renamed when :meth:`BagWriter.close`
 succeeds; :meth:`BagWriter.abort` (or an exception inside ``with``) removes it, so a reader never sees
-a half-written bag.
+a half-written bag. Every chunk carries the CRC-32 of its records (:func:`~fiper_ros.bags.storage.add_chunk_crcs`),
+so a reader refuses a bag damaged later instead of decoding other values.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from fiper_ros.bags.atomic import check_new, commit, remove, temporary_sibling
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.schema import TOPICS, BagInfo, bag_qos, typestore
+from fiper_ros.bags.storage import add_chunk_crcs
 
 
 class BagWriter:
@@ -83,6 +85,8 @@ class BagWriter:
             self._writer.set_custom_data(key, value)
         try:
             self._writer.close()
+            for storage in self._temporary.glob("*.mcap"):
+                add_chunk_crcs(storage)
         except (WriterError, OSError) as error:
             self.abort()
             raise BagError(f"{self.path}: could not finish the bag: {error}") from error

@@ -6,14 +6,17 @@ like the paper, the same rollouts also calibrate the thresholds, Remark 1), fixe
 thresholds ``gamma_O,t`` and ``gamma_A,t`` (Sec. 4.3, App. A.3).
 
 A calibration directory holds ``calibration.yaml`` and the RND-OE files (``rnd_oe.pt`` and
-``rnd_oe.json``). The YAML carries a content hash over its own content and the network weights, so
-a modified or mismatched directory is refused on load.
+``rnd_oe.json``). The YAML carries a content hash over its own content and the network weights, and
+``rnd_oe.json`` must describe the network the YAML names, so a modified, incomplete or mismatched
+directory is refused on load with one line naming the file (:func:`load_calibration`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
+import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -26,7 +29,9 @@ from fiper_ros.core.ace import action_ranges, cell_size
 from fiper_ros.core.compat import Profile, get_profile
 from fiper_ros.core.fusion import COMBINES
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
-from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig
+from fiper_ros.core.rnd_oe import CONFIG_FILE as RND_CONFIG_FILE
+from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig, RNDError
+from fiper_ros.core.rnd_oe import WEIGHTS_FILE as RND_WEIGHTS_FILE
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
 from fiper_ros.core.thresholds import Threshold, ThresholdSettings, fit_threshold
@@ -43,7 +48,7 @@ class CalibrationError(ValueError):
 
 
 class CalibrationMismatch(CalibrationError):
-    """Live data does not match the calibration (e.g. another policy or robot)."""
+    """Live data does not match the calibration (e.g. another policy, robot or task)."""
 
     def __init__(self, field_name: str, expected: Any, got: Any) -> None:
         super().__init__(f"calibration mismatch for {field_name}: expected {expected}, got {got}")
@@ -147,7 +152,7 @@ class CalibrationSettings:
 
 @dataclass
 class Calibration:
-    """A fitted FIPER calibration."""
+    """A fitted FIPER calibration; ``task`` is that of its rollouts ("" if they did not say)."""
 
     settings: CalibrationSettings
     rnd: RNDOE
@@ -160,6 +165,7 @@ class Calibration:
     exec_steps: int
     action_space: str
     num_rollouts: int
+    task: str = ""
 
     @property
     def profile(self) -> Profile:
@@ -176,13 +182,26 @@ class Calibration:
         return ActionProjection(self.action_space, self.settings.action_dims, fk, self.settings.control_dt)
 
     def check_compatible(
-        self, embedding_dim: int | None = None, action_dim: int | None = None, horizon: int | None = None
+        self,
+        embedding_dim: int | None = None,
+        action_dim: int | None = None,
+        horizon: int | None = None,
+        *,
+        exec_steps: int | None = None,
+        action_space: str | None = None,
+        task: str | None = None,
     ) -> None:
-        """Raise :class:`CalibrationMismatch` naming the first field that differs."""
-        for name, got in (("embedding_dim", embedding_dim), ("action_dim", action_dim), ("horizon", horizon)):
+        """Raise :class:`CalibrationMismatch` naming the first field that differs (``None``: not checked;
+        a task is compared only when both this calibration and the caller know it)."""
+        for name, got in (("embedding_dim", embedding_dim), ("action_dim", action_dim), ("horizon", horizon),
+                          ("exec_steps", exec_steps)):
             expected = getattr(self, name)
             if got is not None and int(got) != expected:
                 raise CalibrationMismatch(name, expected, int(got))
+        if action_space is not None and action_space != self.action_space:
+            raise CalibrationMismatch("action_space", self.action_space, action_space)
+        if task and self.task and task != self.task:
+            raise CalibrationMismatch("task", self.task, task)
 
     def _content(self) -> dict[str, Any]:
         return {
@@ -202,6 +221,8 @@ class Calibration:
             "exec_steps": self.exec_steps,
             "action_space": self.action_space,
             "num_rollouts": self.num_rollouts,
+            # Only when known: calibrations written before the task was recorded keep their content hash.
+            **({"task": self.task} if self.task else {}),
         }
 
     @property
@@ -227,47 +248,94 @@ def _content_hash(content: dict[str, Any], rnd: RNDOE) -> str:
     return digest.hexdigest()
 
 
+def _one_line(error: object) -> str:
+    """``error`` as one line (YAML and torch errors span several)."""
+    return " ".join(str(error).split())
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    """``calibration.yaml`` as a mapping of the supported format version."""
+    try:
+        with path.open() as stream:
+            content = yaml.safe_load(stream)
+    except OSError as error:
+        raise CalibrationError(f"{path}: unreadable ({_one_line(error)})") from error
+    except yaml.YAMLError as error:
+        raise CalibrationError(f"{path}: not valid YAML ({_one_line(error)})") from error
+    if not isinstance(content, dict):
+        got = "an empty file" if content is None else f"a YAML {type(content).__name__}"
+        raise CalibrationError(f"{path}: not a calibration (a YAML mapping expected, got {got})")
+    if content.get("format_version") != FORMAT_VERSION:
+        raise CalibrationError(f"{path}: format_version {content.get('format_version')!r} not supported "
+                               f"(this code reads {FORMAT_VERSION})")
+    return content
+
+
+def _check_description(directory: Path, embedding_dim: int, settings: CalibrationSettings) -> None:
+    """``rnd_oe.json`` must describe the network ``calibration.yaml`` names (``RNDOE.save``'s fields):
+    the content hash covers the YAML and the weights, this check the description."""
+    path = directory / RND_CONFIG_FILE
+    try:
+        described = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise CalibrationError(f"{path}: unreadable ({_one_line(error)})") from error
+    expected = {"embedding_dim": embedding_dim, "seed": settings.seed, "config": settings.rnd.to_dict()}
+    if described != expected:
+        raise CalibrationError(f"{path}: does not describe the RND-OE network of {CALIBRATION_FILE} (file modified, "
+                               "or files of different runs)")
+
+
+def _load_rnd(directory: Path) -> RNDOE:
+    """The RND-OE model, once its description is known to be right: any failure is the weights'."""
+    path = directory / RND_WEIGHTS_FILE
+    try:
+        return RNDOE.load(directory)
+    except Exception as error:  # noqa: BLE001 - torch raises OSError, RuntimeError, pickle errors for a damaged file
+        cause = error.__cause__ if isinstance(error, RNDError) and error.__cause__ is not None else error
+        detail = re.split(r"(?<=\.)\s|\n", str(cause).strip(), maxsplit=1)[0]
+        raise CalibrationError(f"{path}: not readable RND-OE weights (damaged, or not written by fiper calibrate: "
+                               f"{type(cause).__name__}{': ' + detail if detail else ''})") from error
+
+
 def load_calibration(directory: str | Path) -> Calibration:
-    """Read a calibration directory written by :meth:`Calibration.save`."""
+    """Read a calibration directory written by :meth:`Calibration.save`.
+
+    Raises :class:`CalibrationError` with one line naming the file for a missing directory or file, a
+    file that does not parse, an unknown format version, a missing or malformed entry, a modified file
+    (content hash, RND-OE description) and weights that do not load.
+    """
     directory = Path(directory)
     path = directory / CALIBRATION_FILE
     if not directory.is_dir():
         raise CalibrationError(f"calibration directory not found: {directory}")
-    if not path.is_file():
-        raise CalibrationError(f"calibration file not found: {path}")
+    for name in (CALIBRATION_FILE, RND_CONFIG_FILE, RND_WEIGHTS_FILE):
+        if not (directory / name).is_file():
+            raise CalibrationError(f"calibration file not found: {directory / name}")
+    content = _read_yaml(path)
     try:
-        content = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        raise CalibrationError(f"{path}: not valid YAML: {error}") from error
-    if not isinstance(content, dict) or content.get("format_version") != FORMAT_VERSION:
-        version = content.get("format_version") if isinstance(content, dict) else None
-        raise CalibrationError(f"{path}: format_version {version!r} not supported (expected {FORMAT_VERSION})")
-    try:
-        rnd = RNDOE.load(directory)
-        calibration = Calibration(
-            settings=CalibrationSettings.from_dict(content["settings"]),
-            rnd=rnd,
-            ranges=np.asarray(content["ranges"], dtype=np.float64),
-            threshold_obs=Threshold.from_dict(content["thresholds"]["obs"]),
-            threshold_act=Threshold.from_dict(content["thresholds"]["act"]),
-            embedding_dim=int(content["embedding_dim"]),
-            action_dim=int(content["action_dim"]),
-            horizon=int(content["horizon"]),
-            exec_steps=int(content["exec_steps"]),
-            action_space=str(content["action_space"]),
-            num_rollouts=int(content["num_rollouts"]),
-        )
-    except CalibrationError:
-        raise
-    except (KeyError, TypeError) as error:
-        raise CalibrationError(f"{path}: missing or malformed entry {error}") from error
-    except ValueError as error:  # RNDError, ThresholdError, bad settings values
-        raise CalibrationError(f"{directory}: {error}") from error
+        settings = CalibrationSettings.from_dict(content["settings"])
+        fields = {
+            "ranges": np.asarray(content["ranges"], dtype=np.float64),
+            "threshold_obs": Threshold.from_dict(content["thresholds"]["obs"]),
+            "threshold_act": Threshold.from_dict(content["thresholds"]["act"]),
+            "embedding_dim": int(content["embedding_dim"]),
+            "action_dim": int(content["action_dim"]),
+            "horizon": int(content["horizon"]),
+            "exec_steps": int(content["exec_steps"]),
+            "action_space": str(content["action_space"]),
+            "num_rollouts": int(content["num_rollouts"]),
+            "task": str(content.get("task", "")),
+        }
+    except KeyError as error:
+        raise CalibrationError(f"{path}: missing entry {error}") from error
+    except (TypeError, ValueError) as error:  # ThresholdError, RNDConfig and settings values
+        raise CalibrationError(f"{path}: malformed entry ({_one_line(error)})") from error
+    _check_description(directory, fields["embedding_dim"], settings)
+    rnd = _load_rnd(directory)
+    calibration = Calibration(settings=settings, rnd=rnd, **fields)
     stored = content.pop("content_hash", None)
     if stored != _content_hash(content, rnd) or stored != calibration.content_hash:
         raise CalibrationError(f"{path}: content hash mismatch (file or weights modified, or files of different runs)")
-    if rnd.embedding_dim != calibration.embedding_dim:
-        raise CalibrationMismatch("embedding_dim", calibration.embedding_dim, rnd.embedding_dim)
     return calibration
 
 
@@ -275,6 +343,15 @@ def _layout(rollout: Rollout) -> tuple[int, int, int, int, str]:
     """``(embedding_dim, action_dim, horizon, exec_steps, action_space)`` of a rollout."""
     shape = rollout.actions.shape
     return rollout.embeddings.shape[1], shape[3], shape[2], rollout.exec_steps, rollout.action_space
+
+
+def _task_of(rollouts: Sequence[Rollout]) -> str:
+    """The one task the rollouts name ("" if none does); rollouts of several tasks are refused."""
+    tasks = sorted({r.task for r in rollouts if r.task})
+    if len(tasks) > 1:
+        raise CalibrationError(f"calibration rollouts of several tasks ({', '.join(tasks)}): calibrate each task "
+                               "on its own")
+    return tasks[0] if tasks else ""
 
 
 def _check_consistent(rollouts: Sequence[Rollout]) -> tuple[int, int, int, int, str]:
@@ -312,6 +389,7 @@ def calibrate(
             f"(of {len(rollouts)} given)"
         )
     embedding_dim, action_dim, horizon, exec_steps, action_space = _check_consistent(list(rollouts))
+    task = _task_of(rollouts)
     profile = settings.profile_obj
     projection = ActionProjection(action_space, settings.action_dims, fk, settings.control_dt)
     # Positions are recomputed in the second pass instead of kept: a task with B = 256 holds hundreds
@@ -338,4 +416,5 @@ def calibrate(
         exec_steps=exec_steps,
         action_space=action_space,
         num_rollouts=len(good),
+        task=task,
     )

@@ -9,6 +9,7 @@ stores them in one versioned ``.npz`` file.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -149,10 +150,22 @@ class RolloutSet:
 
     @classmethod
     def load_npz(cls, path: str | Path) -> RolloutSet:
-        """Read a file written by :meth:`save_npz`."""
+        """Read a file written by :meth:`save_npz`; a damaged or foreign file is a :class:`RolloutError`
+        naming it."""
         path = Path(path)
         if not path.is_file():
             raise RolloutError(f"rollout file not found: {path}")
+        try:
+            return cls._read_npz(path)
+        except RolloutError:
+            raise
+        except (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as error:
+            detail = " ".join(str(error).split())
+            raise RolloutError(f"{path}: not a readable rollout set, damaged or not written by save_npz "
+                               f"({type(error).__name__}: {detail})") from error
+
+    @classmethod
+    def _read_npz(cls, path: Path) -> RolloutSet:
         with np.load(path, allow_pickle=False) as data:
             if "__header__" not in data:
                 raise RolloutError(f"{path}: not a rollout set (no __header__)")

@@ -20,7 +20,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.bags.errors import BagError
+from fiper_ros.bags.atomic import remove
+from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.record import Recorder
 from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS
 from fiper_ros.bags.session import RosSession
@@ -109,14 +110,27 @@ def demo_config(source: Path, model: Path, calibration: Path, out: Path) -> Path
     return dump_config(config, out)
 
 
+def check_calibration(model: Path, calibration: Path) -> None:
+    """Refuse (:class:`BagError`, one line naming the file) a calibration that does not load or does not fit
+    the model's policy, instead of scoring nodes that never configure. Imported here: it needs torch."""
+    from fiper_ros.bags.offline import calibration_for, policy_layout  # noqa: PLC0415
+    from fiper_ros.policy.config import PolicyConfig  # noqa: PLC0415
+
+    try:
+        config = PolicyConfig.read(model / "policy.yaml")
+    except ValueError as error:
+        raise BagError(str(error)) from error
+    calibration_for(calibration, [policy_layout(config, model)])
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """Run the demo; returns the exit status."""
     model, calibration = args.model.resolve(), (args.calibration or args.model / "calibration").resolve()
-    for path, what in ((model / "policy.yaml", "policy"), (calibration / "calibration.yaml", "calibration")):
-        if not path.is_file():
-            print(f"fiper demo: no {what} at {path.parent} (see docs/policies.md and docs/results.md)", file=sys.stderr)
-            return 2
+    if not (model / "policy.yaml").is_file():
+        print(f"fiper demo: no policy at {model} (see docs/policies.md and docs/results.md)", file=sys.stderr)
+        return 2
     out = (args.out or Path("runs/demo") / datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")).resolve()
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     plans = [Plan("in-distribution", "id", args.id_seed), Plan("harmful OOD", args.ood_scenario, args.ood_seed)]
     started = time.monotonic()
@@ -126,6 +140,13 @@ def run_demo(args: argparse.Namespace) -> int:
     with allocate_domain() as domain:
         print(f"fiper demo: ROS domain {domain} (loopback only), output {out}", flush=True)
         suite = SuiteProcess(config, domain, echo=args.verbose, log=out / "suite.log")
+        try:
+            check_calibration(model, calibration)  # while the nodes boot
+        except BagError:
+            suite.stop()
+            if created:
+                remove(out)  # a refused demo leaves no run folder
+            raise
         try:
             with RosSession("fiper_demo", domain) as session:
                 display = Display(sys.stdout.isatty())
@@ -185,6 +206,5 @@ def run(args: argparse.Namespace) -> int:
     try:
         return run_demo(args)
     except (LaunchError, BagError) as error:
-        print(f"fiper demo: {error}", file=sys.stderr)
-        return 2
+        return fail("demo", error)
 

@@ -22,13 +22,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import logging  # noqa: E402
-import sys  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from fiper_ros.bags import robot_options  # noqa: E402
-from fiper_ros.bags.errors import BagError  # noqa: E402
+from fiper_ros.bags.atomic import atomic_files, check_directory  # noqa: E402
+from fiper_ros.bags.errors import BagError, fail  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
@@ -162,14 +162,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the evaluation; 0 on success, 2 on bad input."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        check_directory(args.out)
         datasets = datasets_from(args)
         settings = settings_from(args)
         robot_options.fk_of(settings.method_settings.robot)
         for dataset in datasets:
             robot_for(dataset, settings.method_settings)
     except (DatasetError, BagError, ValueError) as error:
-        print(f"fiper evaluate: {error}", file=sys.stderr)
-        return 2
+        return fail("evaluate", error)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
     # +inf CP thresholds (ceil((M+1)(1-delta)) > M for the smallest deltas) are expected in a sweep.
     threshold_log = logging.getLogger("fiper_ros.core.thresholds")
@@ -177,13 +177,15 @@ def run(args: argparse.Namespace) -> int:
     threshold_log.setLevel(logging.ERROR)
     try:
         result = run_evaluation(datasets, settings, cache)
-        figures: list[str] = []
-        if not args.no_plots:
-            from fiper_ros.evaluation.plots import write_figures  # matplotlib only when plotting
+        # Written beside --out and moved in when complete: a failed run leaves no partial results.
+        with atomic_files(args.out) as staging:
+            figures: list[str] = []
+            if not args.no_plots:
+                from fiper_ros.evaluation.plots import write_figures  # matplotlib only when plotting
 
-            figures = write_figures(result, args.out)
+                figures = write_figures(result, staging)
+            markdown, _ = write_reports(result, staging, figures)
     finally:
         threshold_log.setLevel(previous)
-    markdown, _ = write_reports(result, args.out, figures)
-    print(summary(result, markdown))
+    print(summary(result, args.out / markdown.name))
     return 0

@@ -121,7 +121,9 @@ def _bag_split(path: Path) -> tuple[list[Rollout], list[Rollout]]:
 
 
 def _is_bag_input(path: Path) -> bool:
-    return path.is_dir() and (any(path.rglob("metadata.yaml")) and not any(path.glob("*.npz")))
+    """A directory of bags (MCAP data or bag metadata below it) rather than of ``.npz`` rollout sets."""
+    return path.is_dir() and not any(path.glob("*.npz")) and any(
+        any(path.rglob(pattern)) for pattern in ("metadata.yaml", "*.mcap"))
 
 
 def load_dataset(task: str, paths: Sequence[str | Path]) -> Dataset:

@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
 from typing import Any
+
+import yaml
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,15 @@ class PolicyConfig:
         if unknown:
             raise ValueError(f"unknown policy config keys: {sorted(unknown)}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+    @classmethod
+    def read(cls, path: Path) -> PolicyConfig:
+        """The ``config`` entry of a model's ``policy.yaml`` (without loading the network); a file that
+        does not hold one raises ``ValueError`` naming it."""
+        try:
+            return cls.from_dict(yaml.safe_load(Path(path).read_text())["config"])
+        except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{path}: not a policy configuration ({type(error).__name__}: {error})") from error
 
     def with_overrides(self, **changes: Any) -> PolicyConfig:
         """A copy with some fields changed."""
