@@ -150,3 +150,19 @@ def test_the_last_step_of_a_rollout_is_judged_even_when_its_end_overtakes_it(sui
     assert suite.spin_until(lambda: last in drv.alarms_of(12)), "the overtaken step got no verdict"
     assert drv.alarms_of(12)[last].state == FailureAlarm.STATE_OK
     assert suite.rnd_oe.rejected["unknown_rollout"] == suite.ace.rejected["unknown_rollout"] == 0
+
+
+def test_a_rollout_of_another_task_than_the_calibrations_is_never_judged_ok(suite: Suite) -> None:
+    from fiper_msgs.msg import RolloutEvent  # noqa: PLC0415
+    from fiper_ros.nodes.conversions import rollout_event_msg  # noqa: PLC0415
+
+    assert load_calibration(suite.rnd_oe.get_parameter("calibration_dir").value).task == "synthetic"
+    rollout = make_rollout(307)
+    drv = suite.driver
+    drv.events.publish(rollout_event_msg(13, RolloutEvent.EVENT_START, 0, task="pusht"))
+    assert suite.spin_until(lambda: suite.fusion.fuser.rollout_id == 13)
+    for step in range(3):
+        drv.step(13, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+        assert suite.spin_until(lambda s=step: s in drv.alarms_of(13)), step
+    assert all(m.state == FailureAlarm.STATE_UNKNOWN for m in drv.alarms_of(13).values())
+    assert suite.rnd_oe.rejected["task_mismatch"] == suite.ace.rejected["task_mismatch"] == 3

@@ -21,7 +21,7 @@ from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.rollouts import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
                                          DEFAULT_MAX_STEP_GAP, INTERNAL, NO_CALIBRATION, NON_FINITE_SCORE,
-                                         UNKNOWN_ROLLOUT, InputRejected)
+                                         TASK_MISMATCH, UNKNOWN_ROLLOUT, InputRejected)
 
 
 class DetectorNode(FiperNode):
@@ -166,6 +166,9 @@ class DetectorNode(FiperNode):
             self.monitor.reset()
         self.monitor.skip_to(msg.step)  # steps that never arrived enter the window as missing
         try:
+            if record.task and self.calibration.task and record.task != self.calibration.task:
+                raise InputRejected(TASK_MISMATCH, f"rollout {record.rollout_id} is of task {record.task!r}, the "
+                                                   f"calibration of {self.calibration.task!r}")
             result = self.score(msg.step, self.to_array(msg))
         except (InputRejected, NonFiniteScore, ValueError) as error:
             # An admitted step that cannot be scored is published as missing (NaN score, lower-bound
