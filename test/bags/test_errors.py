@@ -34,7 +34,7 @@ BAG_COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
                                                "--report", str(out / "report.json")],
     "replay": lambda bag, cal, out: ["replay", str(bag), "--fast", "--calibration", str(cal),
                                      "--report", str(out / "report.json")],
-    "calibrate": lambda bag, cal, out: ["calibrate", str(bag), "-o", str(out / "calibration")],
+    "calibrate": lambda bag, cal, out: ["calibrate", str(bag), "-o", str(out / "calibration"), "--delta", "0.2"],
     "evaluate": lambda bag, cal, out: ["evaluate", "--data", f"synthetic={bag}", "--tiny", "--no-cache", "--quiet",
                                        "--out", str(out / "results")],
 }
@@ -89,7 +89,7 @@ def test_the_undamaged_bag_spans_several_chunks_and_is_read(
     assert sum(op == CHUNK for _, op, _ in records(mcap_of(recorded_bag).read_bytes())) >= 3
     assert main(["replay", str(recorded_bag), "--offline", "--calibration", str(small_calibration)]) == 0
     assert capsys.readouterr().out.count("rollout ") == 20
-    assert main(["calibrate", str(recorded_bag), "-o", str(tmp_path / "cal"), "--max-epochs", "2"]) == 0
+    assert main(["calibrate", str(recorded_bag), "-o", str(tmp_path / "cal"), "--max-epochs", "2", "--delta", "0.2"]) == 0
     assert (tmp_path / "cal" / "calibration.yaml").is_file()
 
 

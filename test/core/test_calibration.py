@@ -33,8 +33,12 @@ def test_fitted_fields(calibration: Calibration, calibration_rollouts: list[Roll
     assert calibration.num_rollouts == 24  # the failed rollout is not used
     layout = (calibration.embedding_dim, calibration.action_dim, calibration.horizon)
     assert layout == (EMBEDDING_DIM, ACTION_DIM, HORIZON)
-    good = [r.actions[..., :3] for r in calibration_rollouts if r.success]
-    assert np.allclose(calibration.ranges, action_ranges(good))
+    # split conformal (the default): R_d from the rollouts that fitted the models, none of the conformal set
+    split = calibration.split
+    assert split["mode"] == "split" and len(split["fit"]) == len(split["conformal"]) == 12
+    assert not set(split["fit"]) & set(split["conformal"])
+    fitted = [r.actions[..., :3] for r in calibration_rollouts if r.success and str(r.rollout_id) in split["fit"]]
+    assert np.allclose(calibration.ranges, action_ranges(fitted))
     assert np.allclose(calibration.cell, 0.03 * calibration.ranges)
     longest = max(r.length for r in calibration_rollouts if r.success)
     assert calibration.threshold_obs.values.shape == (longest,)

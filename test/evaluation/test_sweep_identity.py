@@ -36,7 +36,8 @@ def _single_path(dataset: Dataset, settings: MethodSettings, group: Group, delta
     w_obs, w_act = group.windows()
     calibration = calibrate(dataset.calibration, CalibrationSettings(
         window_obs=w_obs or 1, window_act=(w_act or w_obs or 1), aggregation=group.aggregation, threshold=group.kind,
-        delta=delta, combine=group.combine or "and", rnd=settings.rnd, seed=SEED, profile=settings.profile))
+        delta=delta, combine=group.combine or "and", rnd=settings.rnd, seed=SEED, profile=settings.profile,
+        split="same"), refuse_infinite=False)
     out: list[int | None] = []
     for rollout in dataset.test:
         prediction = predict_rollout(rollout, calibration)

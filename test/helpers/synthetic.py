@@ -39,8 +39,9 @@ def make_rollout(seed: int, *, fail: bool = False, length: int = LENGTH) -> Roll
 
 def make_calibration(directory: Path, *, combine: str = "and", threshold: str = "cp_constant",
                      delta: float = 0.1) -> Path:
-    """Fit a small calibration on 12 synthetic successes and save it to ``directory``."""
-    rollouts = [make_rollout(seed) for seed in range(12)]
+    """Fit a small calibration on 24 synthetic successes (split conformal, the default: 12 fit RND-OE and R_d,
+    12 the thresholds) and save it to ``directory``."""
+    rollouts = [make_rollout(seed) for seed in range(24)]
     settings = CalibrationSettings(window_obs=3, window_act=3, threshold=threshold, delta=delta, combine=combine,
                                    rnd=TINY_RND, seed=0)
     calibrate(rollouts, settings).save(directory)

@@ -1,9 +1,12 @@
 """``fiper calibrate BAG... -o DIR``: fit a FIPER calibration on the successful rollouts of bags.
 
-Reads every rollout of the bags, keeps those whose RolloutEvent END says SUCCESS, trains RND-OE on
-their embeddings, fixes the ACE ranges ``R_d`` and fits both thresholds
-(:func:`fiper_ros.core.calibration.calibrate`), then writes the calibration directory (under a
-temporary name, renamed when complete). Too few successes: one line, exit status 2.
+Reads every rollout of the bags, keeps those whose RolloutEvent END says SUCCESS, splits them (split
+conformal by default: RND-OE, ``R_d`` and the thresholds' shape on one part, the thresholds' conformal
+quantiles on the other; ``--split cross`` or ``--same-data`` instead), fits everything
+(:func:`fiper_ros.core.calibration.calibrate`), then writes the calibration directory (under a temporary
+name, renamed when complete) and prints what it fitted: the split, the rollouts behind each threshold,
+a leave-one-out estimate of the false-alarm rate and the guarantee. Too few successes, or a threshold that
+would be +inf: one line, exit status 2.
 """
 from __future__ import annotations
 
@@ -19,13 +22,13 @@ from fiper_ros.bags.convert_options import parse_channels
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationSettings, calibrate
+from fiper_ros.core.calibration import SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate
 from fiper_ros.core.compat import PROFILE_NAMES
 from fiper_ros.core.fusion import COMBINES
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
-from fiper_ros.core.thresholds import KINDS
+from fiper_ros.core.thresholds import KINDS, Threshold
 
 RND_PRESETS = {"small": RNDConfig.small, "paper": RNDConfig.paper}
 #: Seconds between two progress lines of the RND-OE training.
@@ -91,7 +94,9 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
         return CalibrationSettings(alpha=args.alpha, window_obs=args.window_obs, window_act=args.window_act,
                                    threshold=args.threshold, delta=args.delta, combine=args.combine, rnd=rnd,
                                    seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,
-                                   action_dims=dims, control_dt=args.control_dt)
+                                   action_dims=dims, control_dt=args.control_dt,
+                                   split="same" if args.same_data else args.split,
+                                   conformal_fraction=args.conformal_fraction, folds=args.folds)
     except (CalibrationError, ValueError) as error:
         raise BagError(str(error)) from error
 
@@ -107,7 +112,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--delta", type=float, default=defaults.delta, help="target false-alarm rate")
     parser.add_argument("--alpha", type=float, default=None, help="ACE cell size factor (default: the profile's)")
     parser.add_argument("--combine", choices=COMBINES, default=defaults.combine, help="fusion of the two predictors")
-    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of RND-OE and the CP split")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of RND-OE and of the splits")
+    parser.add_argument("--split", choices=SPLITS, default=defaults.split,
+                        help="which successes fit what: 'split' conformal (default; Proposition 1 holds), 'cross' "
+                             "(K-fold, approximate), 'same' (the paper's same-data calibration, no guarantee)")
+    parser.add_argument("--same-data", action="store_true",
+                        help="models and thresholds on the same successes (= --split same; not covered by Prop. 1)")
+    parser.add_argument("--conformal-fraction", type=float, default=defaults.conformal_fraction,
+                        help="with --split split: the share of the successes the thresholds' quantiles use")
+    parser.add_argument("--folds", type=int, default=defaults.folds, help="with --split cross: the folds K")
     parser.add_argument("--min-rollouts", type=int, default=defaults.min_rollouts, help="fewest successes accepted")
     parser.add_argument("--profile", choices=PROFILE_NAMES, default=defaults.profile,
                         help="'paper' definitions or the authors' 'reference' code")
@@ -132,5 +145,32 @@ def run(args: argparse.Namespace) -> int:
     print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
     print(f"layout: E={calibration.embedding_dim} H={calibration.horizon} D={calibration.action_dim} "
           f"h={calibration.exec_steps} {calibration.action_space}; R_d={[round(float(r), 4) for r in calibration.ranges]}")
+    for line in summary(calibration):
+        print(line)
     print(f"calibration {args.out} written (hash {calibration.content_hash})")
     return 0
+
+
+def summary(calibration: Calibration) -> list[str]:
+    """What the calibration fitted on which rollouts, and what it promises (lines to print)."""
+    split, estimate, settings = calibration.split, calibration.false_alarms, calibration.settings
+    lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted RND-OE and R_d, "
+             f"{len(split['conformal'])} the thresholds" + (f" ({len(split['folds'])} folds)" if "folds" in split else "")]
+    for name, threshold in (("RND-OE", calibration.threshold_obs), ("ACE", calibration.threshold_act)):
+        behind = split["behind_thresholds"]["obs" if name == "RND-OE" else "act"]
+        parts = ", ".join(f"{k} {v}" for k, v in behind.items())
+        lines.append(f"threshold {name}: {threshold.kind}, delta {threshold.delta:g}, gamma {value_range(threshold)} "
+                     f"({parts} rollouts)")
+    lines.append(f"false alarms on held-out successes, {estimate['method']}: {estimate['false_alarms']} of "
+                 f"{estimate['rollouts']} ({estimate['rate']:.3f} +- {estimate['standard_error']:.3f})"
+                 + ("" if estimate["held_out_from_models"] else "; optimistic: the models saw these rollouts"))
+    lines.append(f"guarantee: {split['guarantee']}")
+    if settings.split == "same":
+        lines.append("warning: same-data calibration (--same-data): not covered by Proposition 1")
+    return lines
+
+
+def value_range(threshold: Threshold) -> str:
+    """``gamma_t`` of a threshold: its one value, or its first and last, rounded."""
+    values = threshold.values
+    return f"{values[0]:.4g}" if values.min() == values.max() else f"{values[0]:.4g} .. {values[-1]:.4g}"

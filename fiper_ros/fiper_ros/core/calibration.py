@@ -1,14 +1,29 @@
 """Calibration: everything FIPER fits from successful ID rollouts (Sec. 4, App. A).
 
-:func:`calibrate` trains RND-OE on the embeddings of the successful calibration rollouts (App. A.2;
-like the paper, the same rollouts also calibrate the thresholds, Remark 1), fixes the ACE ranges
-``R_d`` (App. A.1), scores every calibration step, aggregates the scores (eqs. 2, 5) and fits the
-thresholds ``gamma_O,t`` and ``gamma_A,t`` (Sec. 4.3, App. A.3).
+:func:`calibrate` fixes the ACE ranges ``R_d`` (App. A.1), trains RND-OE on embeddings (App. A.2), scores
+the calibration steps, aggregates the scores (eqs. 2, 5) and fits the thresholds ``gamma_O,t`` and
+``gamma_A,t`` (Sec. 4.3, App. A.3). Which successes serve which part is the ``split``:
+
+- ``"split"`` (default): split conformal. A seeded ``conformal_fraction`` of the successes is the
+  conformal set: nothing is fitted on it but the thresholds' conformal quantiles. RND-OE, ``R_d`` and the
+  thresholds' per-step shape (the CP band's ``mu``, ``s``) are fitted on the rest. A new successful
+  rollout is then exchangeable with the conformal set, as Proposition 1 assumes (Remark 1: ``D_ID`` and
+  ``D_c`` disjoint), and a guaranteed threshold kind (``GUARANTEED_KINDS``) alarms on at most a fraction
+  delta of new successes.
+- ``"cross"``: K-fold cross-fitting. Each success is scored by RND-OE and ``R_d`` fitted without its fold,
+  the thresholds are fitted on all these out-of-fold curves (the CP band split inside them), and the
+  deployed RND-OE and ``R_d`` are fitted on all successes. Every rollout serves both purposes; the
+  deployed model saw all of them, so the guarantee is approximate (it holds to the extent that a model
+  fitted on all M successes scores a new one like a fold model scores its held-out fold), not
+  finite-sample.
+- ``"same"``: the paper's Remark 1 choice, ``D_ID = D_c``: models and thresholds on the same successes.
+  Not covered by Proposition 1: a model's scores of its own training rollouts are lower than those of new
+  successes, so the thresholds come out too low (issue #19 measured 0.78 false alarms at delta = 0.05).
 
 A calibration directory holds ``calibration.yaml`` and the RND-OE files (``rnd_oe.pt`` and
-``rnd_oe.json``). The YAML carries a content hash over its own content and the network weights, and
-``rnd_oe.json`` must describe the network the YAML names, so a modified, incomplete or mismatched
-directory is refused on load with one line naming the file (:func:`load_calibration`).
+``rnd_oe.json``). The YAML carries the split used (which rollouts fitted what), the number of rollouts
+behind each threshold, a leave-one-out estimate of the false-alarm rate, and a content hash over its own
+content and the network weights, so a modified or mismatched directory is refused on load.
 """
 
 from __future__ import annotations
@@ -16,6 +31,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -27,19 +43,22 @@ import yaml
 
 from fiper_ros.core.ace import action_ranges, cell_size
 from fiper_ros.core.compat import Profile, get_profile
-from fiper_ros.core.fusion import COMBINES
+from fiper_ros.core.fusion import COMBINES, exceeds, fuse
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
 from fiper_ros.core.rnd_oe import CONFIG_FILE as RND_CONFIG_FILE
 from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig, RNDError
 from fiper_ros.core.rnd_oe import WEIGHTS_FILE as RND_WEIGHTS_FILE
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
-from fiper_ros.core.thresholds import Threshold, ThresholdSettings, fit_threshold
+from fiper_ros.core.thresholds import (GUARANTEED_KINDS, Threshold, ThresholdSettings, fit_threshold,
+                                      minimum_conformal_set)
 from fiper_ros.core.window import MODES, aggregate
 
 LOG = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
+#: Which successes fit the score models and which the thresholds (see the module docstring).
+SPLITS = ("split", "cross", "same")
 CALIBRATION_FILE = "calibration.yaml"
 
 
@@ -79,6 +98,10 @@ class CalibrationSettings:
         action_dims: ``(start, stop)`` of the action channels used by ACE (see
             :class:`fiper_ros.core.kinematics.ActionProjection`); ``None``: its default.
         control_dt: Seconds per action, for ``joint_velocity`` actions.
+        split: ``"split"`` (split conformal, default), ``"cross"`` (K-fold) or ``"same"`` (the paper's
+            same-data calibration, not covered by Proposition 1); see the module docstring.
+        conformal_fraction: With ``"split"``: the fraction of the successes in the conformal set.
+        folds: With ``"cross"``: the number of folds K.
     """
 
     alpha: float | None = None
@@ -97,8 +120,17 @@ class CalibrationSettings:
     min_rollouts: int = 4
     action_dims: tuple[int, int] | None = None
     control_dt: float | None = None
+    split: str = "split"
+    conformal_fraction: float = 0.5
+    folds: int = 5
 
     def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise CalibrationError(f"unknown split {self.split!r}; expected one of {SPLITS}")
+        if not 0.0 < self.conformal_fraction < 1.0:
+            raise CalibrationError(f"conformal_fraction must be in (0, 1), got {self.conformal_fraction}")
+        if self.folds < 2:
+            raise CalibrationError(f"folds must be >= 2, got {self.folds}")
         get_profile(self.profile)
         if self.aggregation not in MODES:
             raise CalibrationError(f"unknown aggregation {self.aggregation!r}; expected one of {MODES}")
@@ -134,16 +166,21 @@ class CalibrationSettings:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain-data form for YAML."""
+        """Plain-data form for YAML. The split's own settings are written only where they apply, and not at
+        all for ``"same"``: calibrations written before the split existed are same-data ones and keep
+        their content hash."""
         data = asdict(self)
         data["rnd"] = self.rnd.to_dict()
         data["action_dims"] = None if self.action_dims is None else list(self.action_dims)
-        return data
+        unused = {"split": ("folds",), "cross": ("conformal_fraction",),
+                  "same": ("split", "conformal_fraction", "folds")}[self.split]
+        return {k: v for k, v in data.items() if k not in unused}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CalibrationSettings:
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict` (no ``split``: a same-data calibration)."""
         data = dict(data)
+        data.setdefault("split", "same")
         data["rnd"] = RNDConfig.from_dict(data["rnd"])
         if data.get("action_dims") is not None:
             data["action_dims"] = tuple(data["action_dims"])
@@ -166,6 +203,11 @@ class Calibration:
     action_space: str
     num_rollouts: int
     task: str = ""
+    split: dict[str, Any] = field(default_factory=dict)
+    """Which successes fitted what (:class:`CalibrationSplit` by rollout id), how many rollouts each
+    threshold rests on, and the guarantee; empty for calibrations written before it was recorded."""
+    false_alarms: dict[str, Any] = field(default_factory=dict)
+    """The leave-one-out estimate of the false-alarm rate on new successes (:func:`false_alarm_estimate`)."""
 
     @property
     def profile(self) -> Profile:
@@ -221,8 +263,10 @@ class Calibration:
             "exec_steps": self.exec_steps,
             "action_space": self.action_space,
             "num_rollouts": self.num_rollouts,
-            # Only when known: calibrations written before the task was recorded keep their content hash.
+            # Only when known: calibrations written before these were recorded keep their content hash.
             **({"task": self.task} if self.task else {}),
+            **({"split": self.split} if self.split else {}),
+            **({"false_alarm_estimate": self.false_alarms} if self.false_alarms else {}),
         }
 
     @property
@@ -325,6 +369,8 @@ def load_calibration(directory: str | Path) -> Calibration:
             "action_space": str(content["action_space"]),
             "num_rollouts": int(content["num_rollouts"]),
             "task": str(content.get("task", "")),
+            "split": dict(content.get("split", {})),
+            "false_alarms": dict(content.get("false_alarm_estimate", {})),
         }
     except KeyError as error:
         raise CalibrationError(f"{path}: missing entry {error}") from error
@@ -364,22 +410,148 @@ def _check_consistent(rollouts: Sequence[Rollout]) -> tuple[int, int, int, int, 
     return expected
 
 
+@dataclass(frozen=True)
+class CalibrationSplit:
+    """Which successful calibration rollouts (indices into them) fitted what."""
+
+    mode: str
+    fit: tuple[int, ...]
+    """Fitted RND-OE and ``R_d`` (and, with ``"split"``, the thresholds' per-step shape)."""
+    conformal: tuple[int, ...]
+    """Fitted the thresholds (their conformal quantiles)."""
+    folds: tuple[tuple[int, ...], ...] = ()
+    """With ``"cross"``: the K folds; fold ``k``'s curves come from models fitted without it."""
+
+
+def split_successes(count: int, settings: CalibrationSettings) -> CalibrationSplit:
+    """The split of ``count`` successes that ``settings`` asks for, seeded by ``settings.seed``."""
+    everything = tuple(range(count))
+    if settings.split == "same":
+        return CalibrationSplit("same", everything, everything)
+    order = np.random.default_rng([settings.seed, 19]).permutation(count)  # not the CP band's stream
+    if settings.split == "cross":
+        if count < settings.folds:
+            raise CalibrationError(f"{settings.folds}-fold cross-fitting needs at least {settings.folds} successes, "
+                                   f"got {count}")
+        folds = tuple(tuple(sorted(int(i) for i in fold)) for fold in np.array_split(order, settings.folds))
+        return CalibrationSplit("cross", everything, everything, folds)
+    conformal = min(max(round(settings.conformal_fraction * count), 1), count - 1)
+    return CalibrationSplit("split", tuple(sorted(int(i) for i in order[conformal:])),
+                            tuple(sorted(int(i) for i in order[:conformal])))
+
+
+@dataclass(frozen=True)
+class _Fitted:
+    """Score models fitted on some rollouts: RND-OE and the ACE cell."""
+
+    rnd: RNDOE
+    ranges: np.ndarray
+    cell: np.ndarray
+
+
+def _fit_models(fit: Sequence[Rollout], extra_ranges: Sequence[Rollout], settings: CalibrationSettings,
+                projection: ActionProjection, progress: ProgressCallback | None) -> _Fitted:
+    # Positions are recomputed when scoring instead of kept: a task with B = 256 holds hundreds of MB of them.
+    ranges = action_ranges(rollout_positions(r, projection) for r in [*fit, *extra_ranges])
+    rnd = RNDOE.fit(np.concatenate([r.embeddings for r in fit]), settings.rnd, settings.seed, progress)
+    return _Fitted(rnd, ranges, cell_size(ranges, settings.resolved_alpha))
+
+
+def _curves(models: _Fitted, rollouts: Sequence[Rollout], settings: CalibrationSettings,
+            projection: ActionProjection) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The aggregated RND-OE and ACE curves (eqs. 2, 5) of ``rollouts`` under ``models``."""
+    profile, mode = settings.profile_obj, settings.aggregation
+    obs = [aggregate(obs_scores(models.rnd, r.embeddings, profile), mode, settings.window_obs) for r in rollouts]
+    act = [aggregate(act_scores(rollout_positions(r, projection), models.cell, profile), mode, settings.window_act)
+           for r in rollouts]
+    return obs, act
+
+
+def _check_finite(threshold: Threshold, name: str, split: CalibrationSplit, settings: CalibrationSettings,
+                  successes: int) -> None:
+    """Refuse a threshold that is +inf somewhere, naming the fewest successes that would do."""
+    if np.isfinite(threshold.values).all():
+        return
+    need = minimum_conformal_set(settings.delta)
+    have = int(threshold.params.get("m2", threshold.params.get("m", 0)))
+    # The conformal scores are a share of the successes: search the smallest count that gives enough.
+    smallest = next(m for m in range(successes + 1, 1_000_000) if _conformal_count(m, split.mode, settings) >= need)
+    raise CalibrationError(
+        f"the {name} threshold ({settings.threshold}) is +inf: its conformal quantile at delta={settings.delta:g} "
+        f"needs at least {need} rollouts, this calibration gives it {have} of {successes} successes; calibrate on "
+        f"at least {smallest} successful rollouts (or raise --delta)")
+
+
+def _conformal_count(successes: int, mode: str, settings: CalibrationSettings) -> int:
+    """How many scores a threshold's conformal quantile gets from ``successes`` successes."""
+    conformal = successes if mode != "split" else min(max(round(settings.conformal_fraction * successes), 1),
+                                                         successes - 1)
+    if settings.threshold in ("cp_band", "cp_scaled", "gaussian") and mode != "split":
+        conformal -= min(max(round(settings.band_split * conformal), 1), conformal - 1)  # the band's own I2
+    return conformal
+
+
+def _fit_thresholds(obs: list[np.ndarray], act: list[np.ndarray], shape: tuple[list[np.ndarray], list[np.ndarray]] | None,
+                    settings: ThresholdSettings) -> tuple[Threshold, Threshold]:
+    return (fit_threshold(obs, settings, None if shape is None else shape[0]),
+            fit_threshold(act, settings, None if shape is None else shape[1]))
+
+
+def false_alarm_estimate(obs: list[np.ndarray], act: list[np.ndarray],
+                         shape: tuple[list[np.ndarray], list[np.ndarray]] | None, settings: CalibrationSettings) -> dict[str, Any]:
+    """Leave-one-out estimate of FIPER's false-alarm rate on new successes (eq. 7 at any step): each
+    conformal rollout judged by thresholds fitted without it. Its curves are held out from the score models
+    with ``"split"`` and ``"cross"``; with ``"same"`` the models saw it, so the estimate is optimistic."""
+    threshold_settings = settings.threshold_settings()
+    alarms = 0
+    for j in range(len(obs)):
+        others = [i for i in range(len(obs)) if i != j]
+        gamma_obs, gamma_act = _fit_thresholds([obs[i] for i in others], [act[i] for i in others], shape,
+                                               threshold_settings)
+        exceeded_obs = exceeds(obs[j], gamma_obs.over(obs[j].shape[0]))
+        exceeded_act = exceeds(act[j], gamma_act.over(act[j].shape[0]))
+        alarms += bool(np.any(fuse(exceeded_obs, exceeded_act, settings.combine)))
+    n = len(obs)
+    rate = alarms / n
+    return {"method": "leave-one-out over the conformal rollouts", "rollouts": n, "false_alarms": alarms,
+            "rate": rate, "standard_error": math.sqrt(rate * (1.0 - rate) / n),
+            "held_out_from_models": settings.split != "same"}
+
+
+def guarantee(settings: CalibrationSettings) -> str:
+    """What the calibration promises about false alarms on new successful rollouts, in one sentence."""
+    if settings.threshold not in GUARANTEED_KINDS:
+        return (f"none: a {settings.threshold} threshold bounds each step, not a whole rollout "
+                "(docs/method.md, 'What each threshold guarantees')")
+    if settings.split == "split":
+        return (f"at most {settings.delta:g} of new successful rollouts alarmed (Proposition 1: split conformal, "
+                "models and thresholds on disjoint successes)")
+    if settings.split == "cross":
+        return (f"about {settings.delta:g} (cross-fitted: approximate, the deployed model saw every calibration "
+                "rollout; no finite-sample guarantee)")
+    return "not covered by Proposition 1 (models and thresholds on the same successes, --same-data)"
+
+
 def calibrate(
     rollouts: Sequence[Rollout],
     settings: CalibrationSettings | None = None,
     fk: ForwardKinematics | None = None,
     progress: ProgressCallback | None = None,
+    refuse_infinite: bool = True,
 ) -> Calibration:
-    """Fit RND-OE, ``R_d`` and both thresholds from calibration rollouts.
+    """Fit RND-OE, ``R_d`` and both thresholds from calibration rollouts, split as ``settings.split`` says.
 
     Only rollouts with ``success is True`` are used, except that the ``"reference"`` profile takes
-    ``R_d`` over all given rollouts as the authors' code does.
+    ``R_d`` over the failed rollouts too, as the authors' code does.
 
     Args:
         rollouts: Calibration rollouts.
         settings: Hyperparameters; defaults to :class:`CalibrationSettings`.
         fk: Forward kinematics for joint-space actions.
         progress: Called after every RND-OE training epoch.
+        refuse_infinite: Raise :class:`CalibrationError` for a threshold that is +inf (too few conformal
+            rollouts for delta), naming the fewest successes that would do; False keeps it (the
+            evaluation shows such cells instead of using them).
     """
     settings = settings or CalibrationSettings()
     good = successful(list(rollouts))
@@ -390,26 +562,43 @@ def calibrate(
         )
     embedding_dim, action_dim, horizon, exec_steps, action_space = _check_consistent(list(rollouts))
     task = _task_of(rollouts)
-    profile = settings.profile_obj
     projection = ActionProjection(action_space, settings.action_dims, fk, settings.control_dt)
-    # Positions are recomputed in the second pass instead of kept: a task with B = 256 holds hundreds
-    # of MB of them (FK for joint-space actions is therefore evaluated twice, offline only).
-    ranges = action_ranges(rollout_positions(r, projection) for r in (rollouts if profile.ranges_from_all else good))
-    cell = cell_size(ranges, settings.resolved_alpha)
-    LOG.info("calibrating on %d successful rollouts (R_d = %s)", len(good), np.array2string(ranges, precision=4))
-    rnd = RNDOE.fit(np.concatenate([r.embeddings for r in good]), settings.rnd, settings.seed, progress)
-    mode = settings.aggregation
-    curves_obs = [aggregate(obs_scores(rnd, r.embeddings, profile), mode, settings.window_obs) for r in good]
-    curves_act = [
-        aggregate(act_scores(rollout_positions(r, projection), cell, profile), mode, settings.window_act) for r in good
-    ]
-    threshold_settings = settings.threshold_settings()
+    failed = [r for r in rollouts if r.success is not True] if settings.profile_obj.ranges_from_all else []
+    split = split_successes(len(good), settings)
+    fit = [good[i] for i in split.fit]
+    LOG.info("calibrating on %d successful rollouts (%s split: %d fit, %d conformal)", len(good), split.mode,
+             len(split.fit), len(split.conformal))
+    models = _fit_models(fit, failed, settings, projection, progress)
+    shape = None
+    if split.mode == "same":
+        obs, act = _curves(models, good, settings, projection)
+    elif split.mode == "split":
+        shape = _curves(models, fit, settings, projection)
+        obs, act = _curves(models, [good[i] for i in split.conformal], settings, projection)
+    else:  # cross: each fold scored by models fitted without it, in the order of the successes
+        obs, act = [np.empty(0)] * len(good), [np.empty(0)] * len(good)
+        for fold in split.folds:
+            rest = [good[i] for i in range(len(good)) if i not in fold]
+            fold_obs, fold_act = _curves(_fit_models(rest, failed, settings, projection, None),
+                                         [good[i] for i in fold], settings, projection)
+            for i, curve_obs, curve_act in zip(fold, fold_obs, fold_act):
+                obs[i], act[i] = curve_obs, curve_act
+    threshold_obs, threshold_act = _fit_thresholds(obs, act, shape, settings.threshold_settings())
+    for threshold, name in ((threshold_obs, "RND-OE"), (threshold_act, "ACE")):
+        if refuse_infinite:
+            _check_finite(threshold, name, split, settings, len(good))
+    ids = [str(r.rollout_id) for r in good]
+    record = {"mode": split.mode, "seed": settings.seed, "successes": len(good),
+              "fit": [ids[i] for i in split.fit], "conformal": [ids[i] for i in split.conformal],
+              **({"folds": [[ids[i] for i in fold] for fold in split.folds]} if split.folds else {}),
+              "behind_thresholds": {"obs": _behind(threshold_obs), "act": _behind(threshold_act)},
+              "guarantee": guarantee(settings)}
     return Calibration(
         settings=settings,
-        rnd=rnd,
-        ranges=ranges,
-        threshold_obs=fit_threshold(curves_obs, threshold_settings),
-        threshold_act=fit_threshold(curves_act, threshold_settings),
+        rnd=models.rnd,  # with "cross", fitted on every success: the deployed model
+        ranges=models.ranges,
+        threshold_obs=threshold_obs,
+        threshold_act=threshold_act,
         embedding_dim=embedding_dim,
         action_dim=action_dim,
         horizon=horizon,
@@ -417,4 +606,14 @@ def calibrate(
         action_space=action_space,
         num_rollouts=len(good),
         task=task,
+        split=record,
+        false_alarms=false_alarm_estimate(obs, act, shape, settings),
     )
+
+
+def _behind(threshold: Threshold) -> dict[str, int]:
+    """How many rollouts a threshold's shape and conformal quantile rest on."""
+    params = threshold.params
+    if "m2" in params:
+        return {"shape": int(params["m1"]), "conformal": int(params["m2"])}
+    return {"conformal": int(params["m"])}

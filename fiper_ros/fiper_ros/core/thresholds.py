@@ -15,9 +15,21 @@ calibration rollouts ``i = 1..M`` (curves may have different lengths). Kinds:
   sign), ``k`` = their conformal quantile at level ``ceil((M2+1)(1-delta))/M2``, and
   ``gamma_t = mu(t) + k s(t)``.
 - ``"time_varying"``: the per-step empirical ``1-delta`` quantile (numpy's linear interpolation)
-  over the rollouts still running at ``t``; no finite-sample guarantee.
+  over the rollouts still running at ``t``; no finite-sample guarantee (a quantile per step bounds the
+  false-alarm rate of each step, not of a whole rollout, which alarms if any step does).
+- ``"cp_scaled"``: the time-varying shape kept, with a rollout-level guarantee: ``q(t)`` is the per-step
+  ``1-delta`` quantile of the ``I1`` curves (floored at ``std_floor`` times its mean over the
+  well-supported steps, like the band's scale), ``R_i = max_t eta_i(t) / q(t)`` for ``i in I2``, ``k`` their
+  conformal quantile and ``gamma_t = k q(t)``: the one-sided band of App. A.3 with ``mu = 0`` and
+  ``s(t) = q(t)``, so Proposition 1 holds for it as for the CP band.
 - ``"gaussian"``: ``gamma_t = mu(t) + z(1-delta) sigma(t)`` (App. A.3 remark), ``mu`` from ``I1``,
   ``sigma(t)`` the root-mean-square deviation of the ``I2`` curves from ``mu(t)``.
+
+Where the split comes from: by default ``I1`` and ``I2`` are a seeded split of the given curves. A caller
+that already holds curves of a disjoint set of rollouts passes them as ``shape_curves``: they are ``I1``
+(the per-step shape: ``mu``, ``s``, ``q``) and every given curve is in ``I2`` (the conformal quantile).
+:func:`fiper_ros.core.calibration.calibrate` does so with the rollouts the score model was fitted on,
+so no rollout of the conformal set was seen by anything fitted (the premise of Proposition 1).
 
 Support rule: a per-step statistic at ``t`` is only computed where at least ``min_support``
 rollouts of the set it is computed from reach ``t`` (default ``max(5, M // 5)``, capped at the set
@@ -39,7 +51,9 @@ import numpy as np
 
 LOG = logging.getLogger(__name__)
 
-KINDS = ("cp_constant", "cp_band", "time_varying", "gaussian")
+KINDS = ("cp_constant", "cp_band", "time_varying", "cp_scaled", "gaussian")
+#: Kinds whose false-alarm rate on a whole new successful rollout is at most delta (Proposition 1).
+GUARANTEED_KINDS = ("cp_constant", "cp_band", "cp_scaled")
 EXTENSIONS = ("last", "mean", "max")
 BAND_SIGNS = ("upper", "lower")
 # Guards ceil() against (M+1)(1-delta) landing a rounding error above an integer.
@@ -167,6 +181,17 @@ def conformal_quantile(scores: Sequence[float] | np.ndarray, delta: float) -> fl
     return float(ordered[rank - 1])
 
 
+def minimum_conformal_set(delta: float) -> int:
+    """The fewest scores whose conformal ``1-delta`` quantile is finite: the smallest ``M`` with
+    ``ceil((M+1)(1-delta)) <= M`` (19 for delta = 0.05, 9 for 0.1)."""
+    if not 0.0 < delta < 1.0:
+        raise ThresholdError(f"delta must be in (0, 1), got {delta}")
+    m = max(1, math.ceil((1.0 - delta) / delta - _CEIL_TOLERANCE))
+    while math.ceil((m + 1) * (1.0 - delta) - _CEIL_TOLERANCE) > m:
+        m += 1
+    return m
+
+
 def _quantile(scores: np.ndarray, delta: float, conformal: bool) -> float:
     return conformal_quantile(scores, delta) if conformal else float(np.quantile(scores, 1.0 - delta))
 
@@ -248,54 +273,93 @@ class BandStatistics:
         return self.mu + k * self.scale if math.isfinite(k) else np.full(self.mu.shape[0], math.inf)
 
 
-def band_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> BandStatistics:
-    """Split, ``mu``, ``s`` and the band scores of the CP band; only ``k`` depends on delta."""
-    first, second = _split(len(curves), s)
-    set1 = _padded([curves[i] for i in first], length)
-    mu = _per_step(set1, s.min_support, "mean")
-    spread = _per_step(set1, s.min_support, "std")
-    floor = s.std_floor * float(np.mean(spread[: _supported_length(set1, s.min_support)]))
+def _floored(spread: np.ndarray, supported: int, s: ThresholdSettings, reference: np.ndarray) -> tuple[np.ndarray, float]:
+    """``spread`` floored at ``std_floor`` times its mean over the well-supported steps (a tiny positive
+    floor where that is 0), and the floor."""
+    floor = s.std_floor * float(np.mean(spread[:supported]))
     if floor <= 0.0:
-        floor = 1e-12 * max(1.0, float(np.max(np.abs(mu))))
-    scale = np.maximum(spread, floor)
+        floor = 1e-12 * max(1.0, float(np.max(np.abs(reference))))
+    return np.maximum(spread, floor), floor
+
+
+def _shape_and_conformal(curves: list[np.ndarray], s: ThresholdSettings,
+                         shape_curves: list[np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """``I1`` (the shape) and ``I2`` (the conformal set): ``shape_curves`` and ``curves`` when given, else a
+    seeded split of ``curves``."""
+    if shape_curves is not None:
+        return shape_curves, curves
+    first, second = _split(len(curves), s)
+    return [curves[i] for i in first], [curves[i] for i in second]
+
+
+def band_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings,
+                    shape_curves: list[np.ndarray] | None = None) -> BandStatistics:
+    """Split, ``mu``, ``s`` and the band scores of the CP band; only ``k`` depends on delta."""
+    set1, set2 = _shape_and_conformal(curves, s, shape_curves)
+    padded = _padded(set1, length)
+    mu = _per_step(padded, s.min_support, "mean")
+    scale, floor = _floored(_per_step(padded, s.min_support, "std"), _supported_length(padded, s.min_support), s, mu)
     sign = 1.0 if s.band_sign == "upper" else -1.0
-    band_scores = np.array(
-        [np.max(sign * (curves[i] - mu[: curves[i].shape[0]]) / scale[: curves[i].shape[0]]) for i in second]
-    )
-    return BandStatistics(mu, scale, band_scores, int(first.shape[0]), int(second.shape[0]), floor)
+    band_scores = np.array([np.max(sign * (c - mu[: c.shape[0]]) / scale[: c.shape[0]]) for c in set2])
+    return BandStatistics(mu, scale, band_scores, len(set1), len(set2), floor)
 
 
-def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:
-    stats = band_statistics(curves, length, s)
+def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings,
+             shape_curves: list[np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    stats = band_statistics(curves, length, s, shape_curves)
     k = _quantile(stats.band_scores, s.delta, s.conformal)
     return stats.values(k), {"k": float(k), "m1": stats.m1, "m2": stats.m2, "s_floor": stats.floor}
 
 
-def _gaussian(curves: list[np.ndarray], length: int, s: ThresholdSettings) -> tuple[np.ndarray, dict[str, Any]]:
-    first, second = _split(len(curves), s)
-    mu = _per_step(_padded([curves[i] for i in first], length), s.min_support, "mean")
-    set2 = _padded([curves[i] for i in second], length)
-    supported = _supported_length(set2, s.min_support)
-    sigma = np.sqrt(np.nanmean((set2[:, :supported] - mu[:supported]) ** 2, axis=0))
+def scaled_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings,
+                      shape_curves: list[np.ndarray] | None = None) -> BandStatistics:
+    """``q(t)`` (as ``scale``, ``mu = 0``) and the scores ``max_t eta_i(t) / q(t)`` of ``cp_scaled``."""
+    set1, set2 = _shape_and_conformal(curves, s, shape_curves)
+    padded = _padded(set1, length)
+    shape = _per_step(padded, s.min_support, "quantile", 1.0 - s.delta)
+    scale, floor = _floored(shape, _supported_length(padded, s.min_support), s, shape)
+    scores = np.array([np.max(c / scale[: c.shape[0]]) for c in set2])
+    return BandStatistics(np.zeros(length), scale, scores, len(set1), len(set2), floor)
+
+
+def _cp_scaled(curves: list[np.ndarray], length: int, s: ThresholdSettings,
+               shape_curves: list[np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    stats = scaled_statistics(curves, length, s, shape_curves)
+    k = _quantile(stats.band_scores, s.delta, s.conformal)
+    return stats.values(k), {"k": float(k), "m1": stats.m1, "m2": stats.m2, "q_floor": stats.floor}
+
+
+def _gaussian(curves: list[np.ndarray], length: int, s: ThresholdSettings,
+              shape_curves: list[np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    set1, set2 = _shape_and_conformal(curves, s, shape_curves)
+    mu = _per_step(_padded(set1, length), s.min_support, "mean")
+    padded2 = _padded(set2, length)
+    supported = _supported_length(padded2, s.min_support)
+    sigma = np.sqrt(np.nanmean((padded2[:, :supported] - mu[:supported]) ** 2, axis=0))
     z = NormalDist().inv_cdf(1.0 - s.delta)
-    return mu + z * _carried(sigma, supported, length), {"z": z, "m1": int(first.shape[0]), "m2": int(second.shape[0])}
+    return mu + z * _carried(sigma, supported, length), {"z": z, "m1": len(set1), "m2": len(set2)}
 
 
-def fit_threshold(curves: Sequence[np.ndarray], settings: ThresholdSettings | None = None) -> Threshold:
-    """Fit ``gamma_t`` on the aggregated score curves of successful calibration rollouts."""
+def fit_threshold(curves: Sequence[np.ndarray], settings: ThresholdSettings | None = None,
+                  shape_curves: Sequence[np.ndarray] | None = None) -> Threshold:
+    """Fit ``gamma_t`` on the aggregated score curves of successful calibration rollouts.
+
+    ``shape_curves``: curves of other successful rollouts, disjoint from ``curves``, for the per-step
+    shape of ``cp_band``, ``cp_scaled`` and ``gaussian`` (see the module docstring); the other kinds use
+    ``curves`` only.
+    """
     s = settings or ThresholdSettings()
     checked = _validated(curves)
-    length = max(curve.shape[0] for curve in checked)
+    shape = None if shape_curves is None else _validated(shape_curves)
+    length = max(curve.shape[0] for curve in checked + (shape or []))
     params: dict[str, Any] = {"m": len(checked)}
     if s.kind == "cp_constant":
         gamma = _quantile(np.array([curve.max() for curve in checked]), s.delta, s.conformal)
         values = np.full(length, gamma)
     elif s.kind == "time_varying":
         values = _per_step(_padded(checked, length), s.min_support, "quantile", 1.0 - s.delta)
-    elif s.kind == "cp_band":
-        values, extra = _cp_band(checked, length, s)
-        params.update(extra)
     else:
-        values, extra = _gaussian(checked, length, s)
+        fit = {"cp_band": _cp_band, "cp_scaled": _cp_scaled, "gaussian": _gaussian}[s.kind]
+        values, extra = fit(checked, length, s, shape)
         params.update(extra)
     return Threshold(s.kind, s.delta, values, s.extension, params)

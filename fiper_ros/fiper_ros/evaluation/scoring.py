@@ -78,10 +78,10 @@ def fiper_streams(dataset: Dataset, settings: MethodSettings, seed: int) -> dict
     """RND-OE and ACE scores through the core calibration (``core.scores``; epsilon included there)."""
     robot = robot_for(dataset, settings)
     calibration_settings = CalibrationSettings(alpha=settings.alpha, rnd=settings.rnd, seed=seed,
-                                               profile=settings.profile,
+                                               profile=settings.profile, split="same",
                                                control_dt=None if robot is None else robot.control_dt)
     fk = None if robot is None else robot.forward_kinematics()
-    calibration = calibrate(dataset.calibration, calibration_settings, fk=fk)
+    calibration = calibrate(dataset.calibration, calibration_settings, fk=fk, refuse_infinite=False)
     projection = calibration.projection(fk)
     profile = calibration.profile
 
