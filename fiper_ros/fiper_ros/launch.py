@@ -6,7 +6,9 @@ node in its own process group, prefixes their output with the node name, reports
 forwards Ctrl-C / SIGTERM and stops everything cleanly (SIGINT, then SIGKILL after a grace period).
 A node that exits is reported and the others keep running (a monitor must notice a dead peer), unless
 the node is marked ``required``; the launcher's exit status is 1 if any node exited on its own.
-``--in-process`` runs all nodes in one process on a multi-threaded executor.
+``--in-process`` runs all nodes in one process on a multi-threaded executor. Before any node starts, the
+launcher removes the Fast DDS shared-memory files that dead processes left (:mod:`fiper_ros.shm`) and
+prints how many.
 """
 from __future__ import annotations
 
@@ -24,6 +26,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from fiper_ros.shm import clean_stale
 
 
 class LaunchError(ValueError):
@@ -226,4 +230,5 @@ def run(args: argparse.Namespace) -> int:
     except (LaunchError, yaml.YAMLError) as error:
         print(f"fiper launch: {error}", file=sys.stderr)
         return 2
+    print(f"[launch] {clean_stale().summary()}", flush=True)
     return run_in_process(config) if args.in_process else run_processes(config, args.grace)

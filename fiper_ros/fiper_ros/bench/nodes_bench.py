@@ -25,6 +25,7 @@ from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
+from fiper_ros.shm import clean_stale
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
 
@@ -200,6 +201,7 @@ def main() -> int:
     parser.add_argument("--rates", type=float, nargs="+", default=[50, 100, 200, 300, 400, 600, 800])
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz")
+    print(clean_stale().summary(), flush=True)
     for shape in SHAPES:
         r = bench_shape(shape, args.steps, args.rates)
         print(f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "
