@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
@@ -71,10 +72,7 @@ def _launch(calibration: Path, work: Path, domain: int) -> subprocess.Popen[byte
         "namespace": "/fiper", "parameter_files": [str(CONFIG_DIR / "nodes.yaml")],
         "nodes": {"rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": params},
                   "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": params},
-                  # The alarm contract keeps only the newest state (KEEP_LAST(1)); to count every step's
-                  # alarm the benchmark deepens the history with the standard QoS override parameter.
-                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node",
-                                  "parameters": {"qos_overrides./fiper/alarm.publisher.depth": 1000}}},
+                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": EVERY_ALARM}},
     }))
     return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],  # noqa: S603
                             env=local_env(domain), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

@@ -6,7 +6,8 @@ time: its controller at the tasks' 10 Hz (``realtime_factor`` 1; the demo runs t
 can), so a Sorting policy step (h = 4 control steps plus the policy's inference) comes about every half
 second. The demo's driver (:mod:`fiper_ros.demo.driver`) resets rollouts back to back, in-distribution
 and harmful OOD (``box_pos``) seeds in turn, until the time is up; the supervisor halts a rollout at its
-alarm. Per block (5 minutes; 1 minute when ``--minutes`` is below 30) it prints: policy steps and their
+alarm; the fusion node keeps every step's alarm for the driver (``EVERY_ALARM``, as ``make bench-nodes``).
+Per block (5 minutes; 1 minute when ``--minutes`` is below 30) it prints: policy steps and their
 rate, alarm latency p50 / p99 (the step's FailureAlarm received minus its action-chunk batch received,
 both in this process on one monotonic clock), steps without an alarm, UNKNOWN decisions, and the
 resident memory (VmRSS) of every node process, the launcher and this driver. Flat memory and latency
@@ -31,6 +32,7 @@ from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
 from fiper_ros.bags.schema import ACTIONS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
+from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.dds import allocate_domain
 from fiper_ros.demo.driver import Driver, SuiteFailed, state_name
 from fiper_ros.demo.run import MANAGED_NODES, SETTLE_S, SUPERVISOR, Plan, demo_config
@@ -40,6 +42,7 @@ from fiper_ros.nodes import qos
 from fiper_ros.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"
+FUSION_MODULE = "fiper_ros.nodes.fusion_node"
 #: Seconds after which a step's action-chunk batch without an alarm counts as unanswered.
 UNANSWERED_S = 10.0
 #: Seconds a rollout may take per policy step it may have (plus a minute), at real time.
@@ -153,11 +156,10 @@ def plans() -> Iterator[Plan]:
 
 
 def soak_config(model: Path, calibration: Path, realtime_factor: float, out: Path) -> Path:
-    """The demo's launch config with the bridge paced at ``realtime_factor``."""
+    """The demo's launch config with the bridge paced at ``realtime_factor`` and every alarm kept."""
     demo = load_config(demo_config(installed_config("demo.yaml"), model, calibration, out / "demo.yaml"))
-    paced = demo.with_parameters(lambda spec: {"realtime_factor": realtime_factor}
-                                 if spec.module == BRIDGE_MODULE else {})
-    return dump_config(paced, out / "launch.yaml")
+    extra = {BRIDGE_MODULE: {"realtime_factor": realtime_factor}, FUSION_MODULE: EVERY_ALARM}
+    return dump_config(demo.with_parameters(lambda spec: extra.get(spec.module, {})), out / "launch.yaml")
 
 
 def summary(blocks: list[Block]) -> list[str]:
