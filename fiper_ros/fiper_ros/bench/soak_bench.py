@@ -199,11 +199,14 @@ def run_soak(args: argparse.Namespace) -> int:
                 meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()})
                 print(f"soak: all nodes active; processes {meter.pids}", flush=True)
                 end = meter.started + 60.0 * args.minutes
+                previous: RolloutTrace | None = None
                 for plan in plans():
                     trace = driver.reset(plan.scenario, plan.seed, plan.label)
                     driver.follow(trace, 60.0 + ROLLOUT_S_PER_STEP * trace.max_steps)
                     driver.settle(lambda: trace.scored_steps() >= trace.steps_started, SETTLE_S)
-                    del driver.traces[trace.rollout_id]  # the driver's own memory stays flat
+                    if previous is not None:  # kept one rollout longer: its last alarm may follow its scores
+                        del driver.traces[previous.rollout_id]  # the driver's own memory stays flat
+                    previous = trace
                     meter.rollout_done()
                     if time.monotonic() >= end:
                         break
