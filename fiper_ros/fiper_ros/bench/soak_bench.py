@@ -9,7 +9,8 @@ and harmful OOD (``box_pos``) seeds in turn, until the time is up; the superviso
 alarm; the fusion node keeps every step's alarm for the driver (``EVERY_ALARM``, as ``make bench-nodes``).
 Per block (5 minutes; 1 minute when ``--minutes`` is below 30) it prints: policy steps and their
 rate, alarm latency p50 / p99 (the step's FailureAlarm received minus its action-chunk batch received,
-both in this process on one monotonic clock), steps without an alarm, UNKNOWN decisions, and the
+both in this process on one monotonic clock), steps without an alarm, UNKNOWN decisions, batches of
+rollouts the driver did not start (another run in the domain, or a step before the reset's answer), the
 resident memory (VmRSS) of every node process, the launcher and this driver. Flat memory and latency
 are the target. ``soak.json`` in the output folder holds every block.
 """
@@ -21,7 +22,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Container, Iterator
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -66,6 +67,9 @@ class Block:
     """ALARM decisions (the first per rollout)."""
     unknown: int = 0
     unanswered: int = 0
+    """Steps of the driver's rollouts whose alarm did not come within :data:`UNANSWERED_S`."""
+    foreign: int = 0
+    """Action-chunk batches of rollouts the driver did not start (or before its reset was answered)."""
     latency_ms: list[float] = field(default_factory=list)
     rss_mb: dict[str, float] = field(default_factory=dict)
 
@@ -78,7 +82,7 @@ class Block:
         return (f"block {self.index:2d} ({span}{', partial' if self.length_s < self.full_s else ''}): "
                 f"{self.steps:4d} steps ({self.steps / self.length_s:.2f}/s), {self.rollouts} rollouts, "
                 f"{self.alarms} alarms | latency p50 {p50:6.1f} ms p99 {p99:6.1f} ms | unanswered {self.unanswered}, "
-                f"UNKNOWN {self.unknown} | RSS MB: {rss}")
+                f"UNKNOWN {self.unknown}, foreign {self.foreign} | RSS MB: {rss}")
 
 
 def rss_mb(pid: int) -> float:
@@ -99,19 +103,25 @@ class Meter:
         assert session.node is not None
         self.block_s = block_s
         self.pids: dict[str, int] = {}
+        self.rollouts: Container[int] = ()
         self.started = time.monotonic()
         self.blocks: list[Block] = []
         self.block = Block(0, 0.0, block_s)
         self._batches: dict[tuple[int, int], int] = {}
         session.node.create_subscription(ActionChunkBatch, ACTIONS, self._on_batch, qos.INPUT)
 
-    def start(self, pids: dict[str, int]) -> None:
-        """Start the first block now; ``pids``: process name -> id, whose memory each block reads."""
+    def start(self, pids: dict[str, int], rollouts: Container[int]) -> None:
+        """Start the first block now; ``pids``: process name -> id, whose memory each block reads;
+        ``rollouts``: the ids of the rollouts the driver follows."""
         self.pids = pids
+        self.rollouts = rollouts
         self.started = time.monotonic()
 
     def _on_batch(self, msg: ActionChunkBatch) -> None:
-        self._batches.setdefault((msg.rollout_id, msg.step), time.monotonic_ns())
+        if msg.rollout_id in self.rollouts:
+            self._batches.setdefault((msg.rollout_id, msg.step), time.monotonic_ns())
+        else:
+            self.block.foreign += 1
         self.tick()
 
     def on_alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
@@ -190,13 +200,14 @@ def run_soak(args: argparse.Namespace) -> int:
     meter: Meter | None = None
     problem = ""
     with allocate_domain() as domain:
+        print(f"soak: ROS domain {domain} (loopback only)", flush=True)
         suite = SuiteProcess(config, domain, echo=False, log=out / "suite.log")
         try:
             with RosSession("fiper_soak", domain) as session:
                 meter = Meter(session, block_s)
                 driver = Driver(session, suite, "sorting", display=meter.on_alarm)
                 driver.wait_ready(MANAGED_NODES, args.ready_timeout, plain=(SUPERVISOR,))
-                meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()})
+                meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()}, driver.traces)
                 print(f"soak: all nodes active; processes {meter.pids}", flush=True)
                 end = meter.started + 60.0 * args.minutes
                 previous: RolloutTrace | None = None
