@@ -61,9 +61,8 @@ PORT_HOLD_S = 1.0
 class Group:
     """The files of one data segment or one port (names in the shm directory)."""
 
-    key: str
-    """``<16 hex>`` or ``port<N>``."""
     port: int | None
+    """The port's number; ``None`` for a data segment."""
     data: list[str] = field(default_factory=list)
     locks: list[str] = field(default_factory=list)
 
@@ -99,7 +98,7 @@ def group_files(names: Iterable[str]) -> dict[str, Group]:
         if match is None:
             continue
         port = match.group("port")
-        group = groups.setdefault(match.group("group"), Group(match.group("group"), int(port) if port else None))
+        group = groups.setdefault(match.group("group"), Group(int(port) if port else None))
         (group.locks if match.group("lock") else group.data).append(name)
     return groups
 
