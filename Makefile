@@ -2,7 +2,7 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test demo study bench-core bench-eval bench-nodes bench-policy lock clean distclean
+.PHONY: help setup test demo study bench-core bench-eval bench-nodes bench-policy bench-soak lock clean distclean
 
 help:
 	@echo "make demo        the main job: sim bridge, policy and FIPER nodes live, 2 rollouts (runs/demo/)"
@@ -13,6 +13,7 @@ help:
 	@echo "make bench-eval  speed of the evaluation engine (scores, full sweep) on synthetic data"
 	@echo "make bench-nodes end-to-end latency and throughput of the node suite over DDS"
 	@echo "make bench-policy cost of a policy step (embedding, B sampled chunks) of each shipped policy"
+	@echo "make bench-soak  an hour of the demo's node set: memory, alarm latency per 5 min (MINUTES=10: per minute)"
 	@echo "make lock        regenerate requirements.lock from requirements.in"
 	@echo "make clean       remove colcon build/install/log; make distclean also removes the venv"
 
@@ -39,6 +40,9 @@ bench-nodes: setup
 
 bench-policy: setup
 	@$(RUN) python -m fiper_ros.bench.policy_bench
+
+bench-soak: setup
+	@$(RUN) python -m fiper_ros.bench.soak_bench --minutes $(or $(MINUTES),60)
 
 lock: setup
 	@$(RUN) pip install --quiet -r requirements.in && python tools/lock.py > requirements.lock

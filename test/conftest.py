@@ -1,4 +1,6 @@
-"""Suite-wide fixtures: refuse to run outside the workspace environment; DDS isolation per test."""
+"""Suite-wide fixtures: refuse to run outside the workspace environment; DDS isolation per test; Fast DDS
+shared memory of dead processes removed at the start of the session and of every DDS test (tests kill
+nodes on purpose)."""
 from __future__ import annotations
 
 import os
@@ -6,18 +8,27 @@ from collections.abc import Iterator
 
 import pytest
 
-from helpers.dds import allocate_domain
+from helpers.dds import allocate_domain, clean_stale
+
+#: The session's start-up cleaning, reported in pytest's header.
+_STARTUP_CLEANING = pytest.StashKey[str]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Stop with a clear message when env.sh was not sourced (make test does it)."""
-    del config
+    """Stop with a clear message when env.sh was not sourced (make test does it); then clean shared memory."""
     if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") != "LOCALHOST" or not os.environ.get("FIPER_ROOT"):
         pytest.exit("run the tests through 'make test' (or source ./env.sh first): DDS must stay on loopback", 2)
+    config.stash[_STARTUP_CLEANING] = clean_stale().summary()
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    """The start-up cleaning's line."""
+    return config.stash[_STARTUP_CLEANING]
 
 
 @pytest.fixture
 def ros_domain() -> Iterator[int]:
-    """A ROS_DOMAIN_ID nobody else on this machine uses while the test runs."""
+    """A ROS_DOMAIN_ID nobody else on this machine uses while the test runs (stale shared memory removed)."""
+    clean_stale()
     with allocate_domain() as domain:
         yield domain

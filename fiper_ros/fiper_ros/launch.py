@@ -9,6 +9,8 @@ the node is marked ``required``; a node marked ``respawn`` is started again ``re
 after it exited (launch_ros's semantics: not while the launch stops). The launcher's exit status is 1 if
 any node exited on its own. Every node process dies with the launcher (``FIPER_PARENT_PID``), even when
 the launcher is killed. ``--in-process`` runs all nodes in one process on a multi-threaded executor.
+Before any node starts, the launcher removes the Fast DDS shared-memory files that dead processes left
+(:mod:`fiper_ros.shm`) and prints how many.
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from typing import Any
 import yaml
 
 from fiper_ros.dds import PARENT_PID_ENV
+from fiper_ros.shm import clean_stale
 
 
 class LaunchError(ValueError):
@@ -258,4 +261,5 @@ def run(args: argparse.Namespace) -> int:
     except (LaunchError, yaml.YAMLError) as error:
         print(f"fiper launch: {error}", file=sys.stderr)
         return 2
+    print(f"[launch] {clean_stale().summary()}", flush=True)
     return run_in_process(config) if args.in_process else run_processes(config, args.grace)

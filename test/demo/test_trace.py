@@ -8,7 +8,7 @@ import pytest
 
 from fiper_ros.demo.figure import plot_trace
 from fiper_ros.demo.run import demo_config, problems_of
-from fiper_ros.demo.trace import ACE, RND_OE, RolloutTrace
+from fiper_ros.demo.trace import ACE, RND_OE, RolloutEvents, RolloutTrace
 from fiper_ros.launch import load_config
 
 
@@ -84,3 +84,25 @@ def test_demo_config_makes_model_and_calibration_absolute(tmp_path: Path) -> Non
     assert nodes["bridge_node"].namespace == "/sim" and nodes["bridge_node"].required
     assert "calibration_dir" not in nodes["fusion_node"].parameters
     assert np.all([spec.parameter_files for spec in nodes.values()])
+
+
+def test_events_pair_with_a_trace_whichever_comes_first() -> None:
+    events = RolloutEvents()
+    events.start(5, 100)
+    events.end(5, 200, "failure")  # a halt right after the start, before the reset's answer
+    early = events.follow(RolloutTrace("in-distribution", "id", 1, rollout_id=5))
+    assert (early.ended, early.outcome, early.started_ns, early.ended_ns) == (True, "failure", 100, 200)
+    late = events.follow(RolloutTrace("in-distribution", "id", 2, rollout_id=6))
+    events.start(6, 300)
+    assert not late.ended
+    events.end(6, 400, "success")
+    assert (late.outcome, late.started_ns, late.ended_ns) == ("success", 300, 400)
+
+
+def test_an_early_end_of_another_rollout_ends_no_trace() -> None:
+    events = RolloutEvents()
+    events.end(7, 50, "failure")
+    trace = events.follow(RolloutTrace("harmful OOD", "box_pos", 3, rollout_id=8))
+    assert not trace.ended
+    events.end(8, 60, "failure")
+    assert trace.ended and events.follow(RolloutTrace("x", "id", 4, rollout_id=7)).ended

@@ -1,4 +1,5 @@
-"""Test-side DDS helpers: child processes in a test's own domain (see fiper_ros.dds)."""
+"""Test-side DDS helpers: child processes in a test's own domain (see fiper_ros.dds), shared memory of dead
+processes removed (fiper_ros.shm)."""
 from __future__ import annotations
 
 import os
@@ -8,8 +9,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fiper_ros.dds import allocate_domain, local_env
+from fiper_ros.shm import clean_stale
 
-__all__ = ["allocate_domain", "ros_env", "run_python", "spawn_python", "stop"]
+__all__ = ["allocate_domain", "clean_stale", "ros_env", "run_python", "spawn_python", "stop"]
 
 
 def ros_env(domain: int) -> dict[str, str]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -28,6 +29,8 @@ ACE_MODULE = "fiper_ros.nodes.ace_node"
 DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", ACE_MODULE)
 #: Lines of the suite's output kept for an error report.
 KEPT_LINES = 200
+#: The launcher's report of a node process it started.
+STARTED = re.compile(r"\[launch\] started (\S+) \(pid (\d+)\)")
 
 
 def installed_config(name: str = "suite.yaml") -> Path:
@@ -83,6 +86,12 @@ class SuiteProcess:
     def output(self) -> str:
         """The last lines of the suite's output."""
         return "\n".join(self.lines)
+
+    def node_pids(self) -> dict[str, int]:
+        """Node name -> process id, from the launcher's ``started`` reports (call it soon after the start:
+        only the last :data:`KEPT_LINES` lines are kept)."""
+        return {match.group(1): int(match.group(2)) for line in list(self.lines)
+                if (match := STARTED.match(line)) is not None}
 
     def node_exits(self) -> list[str]:
         """The launcher's reports of nodes that exited, e.g. ``rnd_oe_node exited with code -9``."""

@@ -21,10 +21,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
+from fiper_ros.shm import clean_stale
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
 
@@ -70,10 +72,7 @@ def _launch(calibration: Path, work: Path, domain: int) -> subprocess.Popen[byte
         "namespace": "/fiper", "parameter_files": [str(CONFIG_DIR / "nodes.yaml")],
         "nodes": {"rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": params},
                   "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": params},
-                  # The alarm contract keeps only the newest state (KEEP_LAST(1)); to count every step's
-                  # alarm the benchmark deepens the history with the standard QoS override parameter.
-                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node",
-                                  "parameters": {"qos_overrides./fiper/alarm.publisher.depth": 1000}}},
+                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": EVERY_ALARM}},
     }))
     return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],  # noqa: S603
                             env=local_env(domain), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -200,6 +199,7 @@ def main() -> int:
     parser.add_argument("--rates", type=float, nargs="+", default=[50, 100, 200, 300, 400, 600, 800])
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz")
+    print(clean_stale().summary(), flush=True)
     for shape in SHAPES:
         r = bench_shape(shape, args.steps, args.rates)
         print(f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "

@@ -26,7 +26,7 @@ from fiper_ros.bags.record import Recorder
 from fiper_ros.bags.schema import ACTIONS, ALARM, EVENTS, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess
-from fiper_ros.demo.trace import RolloutTrace
+from fiper_ros.demo.trace import RolloutEvents, RolloutTrace
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.conversions import stamp_ns
 from fiper_ros.runtime.wiring import missing_matches
@@ -98,8 +98,9 @@ class Driver:
         self.node = node
         #: The latest /diagnostics key/values of each node (by fully qualified name).
         self.diagnostics: dict[str, dict[str, str]] = {}
-        self.traces: dict[int, RolloutTrace] = {}
-        self._starts: dict[int, int] = {}
+        self.events = RolloutEvents()
+        #: The followed rollouts' traces, by rollout id.
+        self.traces = self.events.traces
         self._reset = node.create_client(ResetRollout, "/sim/reset")
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
         node.create_subscription(Score, SCORE_RND_OE, self._on_score, TRACE_QOS)
@@ -125,13 +126,9 @@ class Driver:
 
     def _on_event(self, msg: RolloutEvent) -> None:
         if msg.event == RolloutEvent.EVENT_START:
-            self._starts[msg.rollout_id] = stamp_ns(msg.header.stamp)  # may come before the reset's answer
-            return
-        trace = self.traces.get(msg.rollout_id)
-        if trace is not None and msg.event == RolloutEvent.EVENT_END:
-            trace.started_ns = self._starts.pop(msg.rollout_id, 0)
-            trace.ended_ns = stamp_ns(msg.header.stamp)
-            trace.outcome = OUTCOMES.get(msg.outcome, "unknown")
+            self.events.start(msg.rollout_id, stamp_ns(msg.header.stamp))
+        elif msg.event == RolloutEvent.EVENT_END:
+            self.events.end(msg.rollout_id, stamp_ns(msg.header.stamp), OUTCOMES.get(msg.outcome, "unknown"))
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
         trace = self.traces.get(msg.rollout_id)
@@ -202,9 +199,8 @@ class Driver:
         if response is None or not response.success:
             raise SuiteFailed(f"/sim/reset refused {self.task}/{scenario} seed {seed}: "
                               f"{response.message if response else 'no response'}")
-        trace = RolloutTrace(label, scenario, seed, rollout_id=response.rollout_id, max_steps=response.max_steps)
-        self.traces[response.rollout_id] = trace
-        return trace
+        return self.events.follow(RolloutTrace(label, scenario, seed, rollout_id=response.rollout_id,
+                                               max_steps=response.max_steps))
 
     def follow(self, trace: RolloutTrace, timeout_s: float) -> None:
         """Spin until ``trace``'s rollout ended; fail after ``timeout_s`` or :data:`STALL_TIMEOUT_S` without

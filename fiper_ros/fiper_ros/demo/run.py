@@ -1,6 +1,7 @@
 """``fiper demo`` (``make demo``): the whole suite live on the shipped Sorting model, as separate processes.
 
-The demo starts ``fiper launch`` on ``config/demo.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
+The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.shm`), starts
+``fiper launch`` on ``config/demo.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
 the example supervisor, each its own OS process) in a ROS domain of its own, then drives it like an
 operator would from this process: it waits until every node is active, resets the bridge into one
 in-distribution and one harmful out-of-distribution rollout, prints a progress line per policy step and
@@ -31,6 +32,7 @@ from fiper_ros.demo.driver import Driver, SuiteFailed, alarm_line, state_name
 from fiper_ros.demo.figure import plot_trace
 from fiper_ros.demo.trace import ACE, RND_OE, RolloutTrace
 from fiper_ros.launch import LaunchError, dump_config, load_config
+from fiper_ros.shm import clean_stale
 
 #: Nodes that must report ``lifecycle_state: active`` on /diagnostics before the first reset.
 MANAGED_NODES = ("/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
@@ -137,6 +139,7 @@ def run_demo(args: argparse.Namespace) -> int:
     config = demo_config(args.config or installed_config("demo.yaml"), model, calibration, out / "launch.yaml")
     traces: list[RolloutTrace] = []
     problems: list[str] = []
+    print(f"fiper demo: {clean_stale().summary()}", flush=True)
     with allocate_domain() as domain:
         print(f"fiper demo: ROS domain {domain} (loopback only), output {out}", flush=True)
         suite = SuiteProcess(config, domain, echo=args.verbose, log=out / "suite.log")

@@ -105,3 +105,42 @@ class RolloutTrace:
                 "policy_steps": self.steps_started, "scored_steps": self.scored_steps(),
                 "unknown_steps": sorted(self.unknown_steps), "verdict": self.verdict(),
                 "rnd_oe": series(RND_OE), "ace": series(ACE)}
+
+
+class RolloutEvents:
+    """The START / END stamps of rollouts, paired with their traces whichever comes first.
+
+    A rollout's START, and even its END (a halt right after the start), can arrive before the reset's
+    answer that names the rollout and creates its trace. Kept: the START stamps of rollouts not ended
+    yet, and the one last END of a rollout without a trace.
+    """
+
+    def __init__(self) -> None:
+        self.traces: dict[int, RolloutTrace] = {}
+        self._starts: dict[int, int] = {}
+        self._early_end: tuple[int, int, str] | None = None
+
+    def start(self, rollout_id: int, stamp_ns: int) -> None:
+        """A START event."""
+        self._starts[rollout_id] = stamp_ns
+
+    def end(self, rollout_id: int, stamp_ns: int, outcome: str) -> None:
+        """An END event."""
+        trace = self.traces.get(rollout_id)
+        if trace is None:
+            self._early_end = (rollout_id, stamp_ns, outcome)
+        else:
+            self._close(trace, stamp_ns, outcome)
+
+    def follow(self, trace: RolloutTrace) -> RolloutTrace:
+        """Keep ``trace`` (its rollout's END may already be here); ``trace``."""
+        self.traces[trace.rollout_id] = trace
+        if self._early_end is not None and self._early_end[0] == trace.rollout_id:
+            self._close(trace, *self._early_end[1:])
+            self._early_end = None
+        return trace
+
+    def _close(self, trace: RolloutTrace, stamp_ns: int, outcome: str) -> None:
+        trace.started_ns = self._starts.pop(trace.rollout_id, 0)
+        trace.ended_ns = stamp_ns
+        trace.outcome = outcome
