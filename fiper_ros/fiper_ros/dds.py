@@ -1,8 +1,9 @@
 """DDS isolation for everything the project starts: tests, benchmarks, demos.
 
-Each run takes a ROS_DOMAIN_ID nobody else on this machine uses (an exclusive file lock per id), and
-every child process gets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, so no DDS packet leaves loopback
-and parallel runs never see each other.
+Each run takes a ROS_DOMAIN_ID nobody else on this machine uses: an exclusive file lock per id, and no
+live process whose environment names that id (a node left over from a killed run holds no lock, but
+would still speak in its domain). Every child process gets ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, so
+no DDS packet leaves loopback and parallel runs never see each other.
 """
 from __future__ import annotations
 
@@ -21,12 +22,33 @@ DOMAIN_RANGE = range(1, 102)
 PARENT_PID_ENV = "FIPER_PARENT_PID"
 
 
+def domains_in_use(proc: Path = Path("/proc")) -> set[int]:
+    """The ROS_DOMAIN_IDs in the environments of the other live processes (those this user may read)."""
+    used: set[int] = set()
+    me = str(os.getpid())
+    for entry in proc.iterdir():
+        if not entry.name.isdigit() or entry.name == me:
+            continue
+        try:
+            environ = (entry / "environ").read_bytes()
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        for variable in environ.split(b"\0"):
+            if variable.startswith(b"ROS_DOMAIN_ID="):
+                value = variable[len(b"ROS_DOMAIN_ID="):]
+                if value.isdigit():
+                    used.add(int(value))
+    return used
+
+
 @contextmanager
 def allocate_domain() -> Iterator[int]:
-    """Hold an unused ROS_DOMAIN_ID (not the shell's own) for the duration of the ``with`` block."""
+    """Hold an unused ROS_DOMAIN_ID (not the shell's own, none a live process uses) for the duration of
+    the ``with`` block."""
     LOCK_DIR.mkdir(parents=True, exist_ok=True)
     own = os.environ.get("ROS_DOMAIN_ID", "")
-    candidates = [d for d in DOMAIN_RANGE if str(d) != own]
+    busy = domains_in_use()
+    candidates = [d for d in DOMAIN_RANGE if str(d) != own and d not in busy]
     random.shuffle(candidates)
     for domain in candidates:
         handle: IO[str] = open(LOCK_DIR / f"{domain}.lock", "w")  # noqa: SIM115 - held while in use
