@@ -142,3 +142,61 @@ def test_reference_profile_takes_ranges_over_all_rollouts(calibration_rollouts: 
     reference = calibrate(calibration_rollouts, settings)
     assert np.allclose(reference.ranges, action_ranges([r.actions[..., :3] for r in calibration_rollouts]))
     assert reference.threshold_obs.extension == "mean"
+
+
+def _noise_rollout(rng: np.random.Generator, index: int) -> Rollout:
+    """A successful rollout of i.i.d. Gaussian embeddings: every rollout is new, none like another."""
+    return Rollout(rollout_id=f"noise-{index}", task="noise", scenario="id",
+                   embeddings=rng.normal(size=(6, 32)).astype(np.float32),
+                   actions=rng.normal(size=(6, 4, 2, 2)).astype(np.float32), exec_steps=1, success=True)
+
+
+def test_split_conformal_keeps_the_promise_where_same_data_breaks_it() -> None:
+    """Proposition 1 on held-out successes, over seeded trials, with a score model that overfits on purpose
+    (an RND-OE predictor trained far past the point of memorising 40 rollouts of noise): fitted and
+    calibrated on the same successes its thresholds come out too low; split, the rate stays at delta."""
+    from fiper_ros.core.rnd_oe import RNDConfig  # noqa: PLC0415
+    from fiper_ros.core.scores import obs_scores  # noqa: PLC0415
+
+    memoriser = RNDConfig(trunk=(64,), head=(64,), out_dim=8, max_epochs=60, lr=1e-2, patience=1000)
+    delta, rates = 0.1, {"same": [], "split": []}
+    for trial in range(12):
+        rng = np.random.default_rng(trial)
+        successes = [_noise_rollout(rng, i) for i in range(40)]
+        new = [_noise_rollout(rng, 1000 + i) for i in range(100)]
+        for split in rates:
+            fitted = calibrate(successes, CalibrationSettings(rnd=memoriser, window_obs=1, window_act=1, delta=delta,
+                                                              threshold="cp_constant", split=split, seed=trial))
+            gamma = fitted.threshold_obs.values[0]
+            rates[split].append(np.mean([np.any(obs_scores(fitted.rnd, r.embeddings, fitted.profile) > gamma)
+                                         for r in new]))
+    split, same = np.array(rates["split"]), np.array(rates["same"])
+    # split conformal: E[rate] = 1 - 19/21 = 0.095 for 20 conformal rollouts; allow 3 standard errors
+    assert split.mean() <= delta + 3 * split.std(ddof=1) / np.sqrt(split.size), split
+    assert same.mean() >= 3 * delta, same  # the broken rule is caught: 0.63 when this test was written
+
+
+def test_an_infinite_threshold_is_refused_with_the_fewest_successes_that_would_do() -> None:
+    rng = np.random.default_rng(3)
+    successes = [_noise_rollout(rng, i) for i in range(30)]
+    tiny = CalibrationSettings(rnd=TINY_RND, window_obs=1, window_act=1, threshold="cp_constant", delta=0.05)
+    # 15 conformal rollouts, 19 needed at delta 0.05 (ceil(20 * 0.95) = 19 <= 19): 38 successes split in half
+    with pytest.raises(CalibrationError, match=r"needs at least 19 rollouts, this calibration gives it 15 of 30 "
+                                               r"successes; calibrate on at least 38 successful rollouts"):
+        calibrate(successes, tiny)
+    kept = calibrate(successes, tiny, refuse_infinite=False)
+    assert np.isinf(kept.threshold_obs.values).all()
+
+
+def test_the_split_is_recorded_and_each_kind_states_its_guarantee(calibration: Calibration, tmp_path: Path) -> None:
+    from fiper_ros.core.calibration import guarantee  # noqa: PLC0415
+
+    split = calibration.split
+    assert split["behind_thresholds"]["obs"] == {"shape": 12, "conformal": 12}  # cp_band: mu, s on the fit part
+    assert "Proposition 1" in split["guarantee"] and calibration.false_alarms["held_out_from_models"]
+    calibration.save(tmp_path / "saved")
+    assert load_calibration(tmp_path / "saved").split == split
+    for kind, promise in (("time_varying", "none"), ("cp_scaled", "at most"), ("cp_constant", "at most")):
+        assert guarantee(CalibrationSettings(threshold=kind)).startswith(promise), kind
+    assert guarantee(CalibrationSettings(split="same")).startswith("not covered by Proposition 1")
+    assert guarantee(CalibrationSettings(split="cross")).startswith("about")
