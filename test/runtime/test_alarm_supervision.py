@@ -311,3 +311,15 @@ def test_the_supervisors_silence_deadline_follows_the_policy_period_during_a_rol
     for step in range(4):  # heartbeats do not measure the period
         heartbeats.on_state(5, OK, "", step * period, 0, heartbeat=True)
     assert heartbeats.silence_deadline() == 2 * S
+
+
+def test_under_sim_time_silence_must_also_last_in_wall_time() -> None:
+    # A starved supervisor takes a burst of /clock (sim time jumps 1 s) before the alarms queued beside it.
+    period = S // 10
+    logic = SupervisorLogic(deadline_ns=2 * S, silence_periods=2.5, silence_floor_ns=S // 10)
+    logic.on_event(4, started=True)
+    for step in range(4):
+        logic.on_state(4, OK, "", step * period, step, heartbeat=False, steady_ns=step * period)
+    assert logic.on_clock(3 * period + S, steady_ns=3 * period + S // 50) is None  # 20 ms of wall time: no
+    decision = logic.on_clock(3 * period + S, steady_ns=3 * period + S // 5)      # 200 ms of real silence
+    assert decision is not None and "no alarm message" in decision.reason

@@ -7,6 +7,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
@@ -42,6 +43,7 @@ class SupervisorNode(Node):
                                      self.get_parameter("silence_periods").value,
                                      int(self.get_parameter("silence_floor_s").value * 1e9))
         self.halts: list[HaltDecision] = []
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state.
         self.create_subscription(FailureAlarm, self.get_parameter("alarm_topic").value, self._on_alarm, qos.ALARM)
@@ -53,7 +55,7 @@ class SupervisorNode(Node):
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
         decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now(),
-                                       msg.step, msg.heartbeat)
+                                       msg.step, msg.heartbeat, self._steady.now().nanoseconds)
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:
             self.get_logger().warning(
                 f"ALARM rollout {msg.rollout_id} step {msg.step}: eta_obs {msg.eta_obs:.3g} > {msg.gamma_obs:.3g}"
@@ -64,7 +66,7 @@ class SupervisorNode(Node):
         self.logic.on_event(msg.rollout_id, msg.event == RolloutEvent.EVENT_START)
 
     def _on_clock(self) -> None:
-        self._act(self.logic.on_clock(self._now()))
+        self._act(self.logic.on_clock(self._now(), self._steady.now().nanoseconds))
 
     def _act(self, decision: HaltDecision | None) -> None:
         if decision is None:
