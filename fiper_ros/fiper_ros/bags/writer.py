@@ -19,6 +19,7 @@ Two ways to write (docs/bags.md, "What survives which stop"):
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -266,11 +267,8 @@ class BagWriter:
     def abort(self) -> None:
         """Stop writing. Staged: drop everything written so far. Live: what was written stays, unfinished
         (with the open chunk), for ``fiper bag recover``."""
-        try:
+        with contextlib.suppress(OSError):  # a full disk: the error that stopped the writing is the one reported
             self._writer.abort()
-        except OSError:
-            if self.live is not None:
-                raise
         if self._staging is not None:
             remove(self._staging)
 
