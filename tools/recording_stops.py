@@ -23,10 +23,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 from rclpy.serialization import serialize_message
 
 from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding
@@ -34,6 +30,7 @@ from fiper_ros.bags.live_options import LiveChunks
 from fiper_ros.bags.reader import BagReader
 from fiper_ros.bags.recover import recover_in_place, unfinished
 from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS, normalize_cdr
+from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.storage import Salvage
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.dds import allocate_domain, local_env
@@ -58,21 +55,16 @@ def step_cdr(rollout_id: int, step: int, rng: np.random.Generator) -> list[tuple
 
 
 class Publisher:
-    """The policy side, in this process."""
+    """The policy side, in this process's :class:`~fiper_ros.bags.session.RosSession`."""
 
-    def __init__(self, domain: int) -> None:
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = Node("recording_stops", namespace="/fiper", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.publishers = {EMBEDDING: self.node.create_publisher(ObservationEmbedding, EMBEDDING, qos.INPUT),
-                           ACTIONS: self.node.create_publisher(ActionChunkBatch, ACTIONS, qos.INPUT)}
+    def __init__(self, session: RosSession) -> None:
+        self.session = session
+        node = session.node
+        self.publishers = {EMBEDDING: node.create_publisher(ObservationEmbedding, EMBEDDING, qos.INPUT),
+                           ACTIONS: node.create_publisher(ActionChunkBatch, ACTIONS, qos.INPUT)}
 
     def spin(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=max(0.0, min(0.01, deadline - time.monotonic())))
+        self.session.spin_until(lambda: False, seconds)
 
     def publish_step(self, rollout_id: int, step: int, rng: np.random.Generator) -> list[tuple[bytes, int]]:
         sent = []
@@ -80,11 +72,6 @@ class Publisher:
             sent.append((raw, time.time_ns()))
             self.publishers[topic].publish(raw)
         return sent
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
 
 
 def on_disk(bag: Path) -> bool:
@@ -153,14 +140,12 @@ def main() -> int:
     parser.add_argument("--steps-per-s", type=float, default=25.0, help="policy steps a second (2 messages each)")
     parser.add_argument("--seconds", type=float, default=8.0, help="seconds of stream per run")
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory(prefix="recording-stops-") as tmp, allocate_domain() as domain:
-        publisher = Publisher(domain)
-        try:
-            for index, kind in enumerate(["SIGINT", "SIGTERM", *["SIGKILL"] * args.kills]):
-                print(one_run(kind, domain, publisher, Path(tmp) / f"run{index}", args.steps_per_s, args.seconds),
-                      flush=True)
-        finally:
-            publisher.close()
+    with (tempfile.TemporaryDirectory(prefix="recording-stops-") as tmp, allocate_domain() as domain,
+          RosSession("recording_stops", domain) as session):
+        publisher = Publisher(session)
+        for index, kind in enumerate(["SIGINT", "SIGTERM", *["SIGKILL"] * args.kills]):
+            print(one_run(kind, domain, publisher, Path(tmp) / f"run{index}", args.steps_per_s, args.seconds),
+                  flush=True)
         print(flush_costs(Path(tmp), args.steps_per_s, args.seconds))
     return 0
 
