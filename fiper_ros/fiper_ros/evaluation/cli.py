@@ -26,7 +26,7 @@ from collections.abc import Callable  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from fiper_ros.bags import robot_options  # noqa: E402
+from fiper_ros.bags import live_options, robot_options  # noqa: E402
 from fiper_ros.bags.atomic import atomic_files, check_directory  # noqa: E402
 from fiper_ros.bags.errors import BagError, fail  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
@@ -85,6 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help=f"generate the SYNTHETIC benchmark for these tasks ({', '.join(TASKS)})")
     data.add_argument("--synthetic-test", type=int, default=240, help="synthetic test rollouts per task")
     data.add_argument("--synthetic-scale", type=float, default=1.0, help="shrink synthetic shapes (tests)")
+    live_options.add_strict_argument(data)
     sweep = parser.add_argument_group("sweep")
     sweep.add_argument("--methods", type=name_list(tuple(METHODS)), default=tuple(METHODS))
     sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
@@ -121,7 +122,7 @@ def datasets_from(args: argparse.Namespace) -> list[Dataset]:
         task, sep, paths = spec.partition("=")
         if not sep or not task or not paths:
             raise DatasetError(f"--data expects TASK=PATH[,PATH...], got {spec!r}")
-        datasets.append(load_dataset(task, paths.split(",")))
+        datasets.append(load_dataset(task, paths.split(","), strict=args.strict))
     for task in args.synthetic or ():
         rollouts = make_task(task, test=args.synthetic_test, scale=args.synthetic_scale)
         datasets.append(Dataset(task, rollouts.calibration, rollouts.test))
