@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import array
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -82,7 +83,7 @@ def embedding(data: Sequence[float] | np.ndarray, shape: Sequence[int], expected
     """
     values = np.asarray(data, dtype=np.float32)
     _size(values.size, max_elements, "embedding")
-    declared = int(np.prod(shape)) if len(shape) else values.size
+    declared = math.prod(int(d) for d in shape) if len(shape) else values.size  # exact: np.prod wraps in int64
     if values.ndim != 1 or declared != values.size or any(int(d) <= 0 for d in shape):
         raise InputRejected(SHAPE, f"embedding has {values.size} values but declares shape {list(shape)}")
     if values.size == 0:
