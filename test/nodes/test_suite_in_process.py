@@ -150,3 +150,26 @@ def test_the_last_step_of_a_rollout_is_judged_even_when_its_end_overtakes_it(sui
     assert suite.spin_until(lambda: last in drv.alarms_of(12)), "the overtaken step got no verdict"
     assert drv.alarms_of(12)[last].state == FailureAlarm.STATE_OK
     assert suite.rnd_oe.rejected["unknown_rollout"] == suite.ace.rejected["unknown_rollout"] == 0
+
+
+def test_a_rollout_started_again_after_its_end_is_judged_afresh(suite: Suite) -> None:
+    # Found by test/nodes/test_fuzz.py: the fusion node took a START of the rollout id that had just ended for a
+    # repeated START and ignored it, while the scoring nodes began the rollout again from step 0. The new run was
+    # then judged with the old one's latch and step bookkeeping: all ALARM after a failed run, and OK after a gap
+    # of steps the new run never had judged (the old run had judged them).
+    drv = suite.driver
+    failing = make_rollout(307, fail=True)
+    assert suite.run(failing, rollout_id=13)[FAIL_FROM].state == FailureAlarm.STATE_ALARM  # ends with END
+    drv.start(13)
+    assert suite.spin_until(lambda: suite.rnd_oe.rollouts.active is not None and suite.ace.rollouts.active is not None
+                            and (suite.fusion.fuser.active_rollout == 13 or suite.fusion.repeated_starts == 1))
+    fine = make_rollout(308)
+    steps = [0, 1, 5, 6, 7, 8]  # steps 2-4 never come
+    for step in steps:
+        drv.step(13, step, fine.embeddings[step], fine.actions[step], fine.exec_steps)
+        assert suite.spin_until(lambda s=step: sum(m.step == s for m in drv.alarms if m.rollout_id == 13
+                                                   and not m.heartbeat) == 2), step  # this run's verdict too
+    again = {m.step: m for m in drv.alarms if m.rollout_id == 13 and not m.heartbeat}  # the later verdict per step
+    assert [again[t].state for t in (0, 1)] == [FailureAlarm.STATE_OK] * 2, [again[t].reason for t in (0, 1)]
+    assert [again[t].state for t in steps[2:]] == [FailureAlarm.STATE_UNKNOWN] * 4, [again[t].reason for t in steps]
+    assert suite.fusion.repeated_starts == 0
