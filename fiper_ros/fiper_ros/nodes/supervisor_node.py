@@ -5,6 +5,7 @@ lasts longer than its own ``deadline_s``.
 from __future__ import annotations
 
 import sys
+from collections import deque
 from typing import Any
 
 from rclpy.node import Node
@@ -15,7 +16,7 @@ from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
-from fiper_ros.runtime.supervision import HaltDecision, SupervisorLogic
+from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
 STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
 
@@ -41,7 +42,8 @@ class SupervisorNode(Node):
         self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),
                                      self.get_parameter("silence_periods").value,
                                      int(self.get_parameter("silence_floor_s").value * 1e9))
-        self.halts: list[HaltDecision] = []
+        #: The recent halts (bounded: one per rollout id would otherwise grow without end).
+        self.halts: deque[HaltDecision] = deque(maxlen=HALTED_MEMORY)
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state.
         self.create_subscription(FailureAlarm, self.get_parameter("alarm_topic").value, self._on_alarm, qos.ALARM)
