@@ -17,14 +17,17 @@ returned for the same files.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
 import pytest
+import rclpy
 from builtin_interfaces.msg import Time
 from hypothesis import HealthCheck, Phase, settings
 from hypothesis import strategies as st
+from rclpy.context import Context
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
 
@@ -71,13 +74,14 @@ _FAR = st.one_of(st.integers(0, 30), UINT32)
 _PAYLOADS = st.sampled_from(["valid", "valid", "at_bound", "nan", "inf", "huge", "short", "long", "empty", "oversize",
                              "any"])
 _SIGN = st.sampled_from([1.0, -1.0])
-_MOSTLY = st.sampled_from([True, True, True, False])
+#: True 3 times in 4: for "mostly the valid (or expected) value, else anything".
+MOSTLY = st.sampled_from([True, True, True, False])
 
 
 def draw_step(draw: st.DrawFn, expected: int) -> int:
     """A uint32 policy step, mostly near the ``expected`` next one (in order, repeated, a small gap, behind,
     just within and just beyond the default ``max_step_gap`` of 100), else small or any uint32."""
-    if draw(_MOSTLY):
+    if draw(MOSTLY):
         step = expected + draw(_NEAR)
         if 0 <= step <= UINT32_MAX:
             return step
@@ -148,6 +152,22 @@ def bring_up(node: Any) -> Any:
     assert node.trigger_activate() == TransitionCallbackReturn.SUCCESS
     assert node.lifecycle_state() == "active"
     return node
+
+
+@contextmanager
+def private_context(domain: int) -> Iterator[Context]:
+    """An rclpy context of its own in ``domain`` (the nodes' DDS entities exist; nothing is spun)."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
+def callbacks(node: Any) -> dict[str, Callable[[Any], None]]:
+    """The node's subscription callbacks by topic: what rclpy would call for a message on that topic."""
+    return {s.topic_name: s.callback for s in node.subscriptions}
 
 
 def record(publisher: Any, *then: Callable[[Any], None]) -> list[Any]:
