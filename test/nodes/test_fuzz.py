@@ -55,6 +55,7 @@ from fiper_ros.runtime.supervision import HALTED_MEMORY
 from fiper_ros.runtime.validation import DEFAULT_MAX_ABS_VALUE, REASONS
 from helpers.fuzz import (FLOAT32, MOSTLY, NODE_KWARGS, STAMP, TEXT, UINT8, UINT32, UINT64, UINT64_MAX, bring_up,
                           callbacks, draw_payload, draw_step, fuzz, load_once, node_params, private_context, record)
+from helpers.suite import STATE, assert_as_the_oracle
 from helpers.synthetic import B, D, EXEC, H, make_rollout
 
 #: Small bounds, so that the fuzz reaches them: the largest message, the values waiting for their START.
@@ -69,7 +70,6 @@ ROLLOUT_IDS = st.one_of(st.sampled_from([1, 2, 3]), st.sampled_from([0, UINT64_M
 #: A declared embedding shape whose product overflows int64 to exactly E = 16 (np.prod wraps silently).
 WRAPPING_SHAPE = [16, 3702849463, 793907557, 251]
 PIPELINE_INPUTS = st.sampled_from(["step", "step", "step", "embedding", "batch", "event", "event", "timer"])
-STATE = {FailureAlarm.STATE_OK: "ok", FailureAlarm.STATE_ALARM: "alarm", FailureAlarm.STATE_UNKNOWN: "unknown"}
 #: The values of valid inputs: a synthetic rollout's embeddings and batches, out of distribution from FAIL_FROM on
 #: (so that valid input gets judged ALARM as well as OK).
 ROWS = make_rollout(900, fail=True)
@@ -89,6 +89,7 @@ _START, _END = RolloutEvent.EVENT_START, RolloutEvent.EVENT_END
 _EVENT_KIND = st.one_of(st.sampled_from([_START, _START, _END]), UINT8)
 _OUTCOME = st.one_of(st.integers(0, 2), UINT8)
 _MAX_STEPS = st.one_of(st.sampled_from([0, 0, 3, 12, 40]), UINT32)
+_TASK = st.one_of(st.sampled_from(["synthetic", "synthetic", ""]), TEXT)  # the calibration's, none, another
 _SHAPES = st.sampled_from(["flat", "own", "own", "split", "wrong", "zero", "wrapping", "any"])
 _ANY_SHAPE = st.lists(UINT32, max_size=4)
 _BATCH_KINDS = st.sampled_from(["valid", "valid", "other_b", "fields", "dims"])
@@ -105,7 +106,7 @@ def draw_rollout_id(draw: st.DrawFn, tracker: RolloutTracker | None) -> int:
 def draw_event(draw: st.DrawFn, tracker: RolloutTracker | None = None) -> RolloutEvent:
     """A START or END (or an event or outcome code that means nothing) with arbitrary fields."""
     msg = RolloutEvent(rollout_id=draw_rollout_id(draw, tracker), event=draw(_EVENT_KIND), outcome=draw(_OUTCOME),
-                       task=draw(TEXT), scenario=draw(TEXT), max_steps=draw(_MAX_STEPS))
+                       task=draw(_TASK), scenario=draw(TEXT), max_steps=draw(_MAX_STEPS))
     msg.header.stamp = draw(STAMP)
     return msg
 
@@ -289,9 +290,10 @@ class PipelineContract(VerdictModel):
 class ScoringLedger:
     """Accounts for every input given to one scoring node (by the ``frame_id`` tag the Score copies)."""
 
-    def __init__(self, node: Any, published: list[Score], held: Callable[[], int] = lambda: 0) -> None:
+    def __init__(self, node: Any, *then: Callable[[Score], None], held: Callable[[], int] = lambda: 0) -> None:
         self.node = node
-        self.published = published
+        self.published = record(node._score_pub, self._on_score, *then)  # noqa: SLF001
+        """The Scores the node published (each also passed to ``then``)."""
         self.held = held
         """How many inputs the node holds besides its START wait buffer (the joint-state gate)."""
         self.content_ok: dict[str, bool | None] = {}
@@ -301,6 +303,12 @@ class ScoringLedger:
     def sent(self, tag: str, ok: bool | None) -> None:
         """Input ``tag`` is given; ``ok``: whether it must be scored (True), must not be (False), or either (None)."""
         self.content_ok[tag] = ok
+
+    def _on_score(self, msg: Score) -> None:
+        # A rollout whose START names another task than the calibration's may have its valid steps rejected too.
+        current, task = self.node.rollouts.current, self.node.calibration.task
+        if current is not None and current.task and task and current.task != task:
+            self.content_ok[msg.header.frame_id] = self.content_ok[msg.header.frame_id] and None
 
     def check(self) -> None:
         node = self.node
@@ -337,8 +345,7 @@ class Pipeline:
         self.ledgers = {}
         for node in (self.rnd, self.ace):
             topic = f"/fiper/scores/{node.detector}"
-            published = record(node._score_pub, self.contract.on_score, fusion_in[topic])  # noqa: SLF001
-            self.ledgers[node.detector] = ScoringLedger(node, published)
+            self.ledgers[node.detector] = ScoringLedger(node, self.contract.on_score, fusion_in[topic])
         self.inputs = {"embedding": callbacks(self.rnd)["/fiper/observation_embedding"],
                        "batch": callbacks(self.ace)["/fiper/action_chunks"]}
         self.event_callbacks = [callbacks(n)["/fiper/rollout_events"] for n in (self.rnd, self.ace, self.fusion)]
@@ -384,19 +391,6 @@ class Pipeline:
     def close(self) -> None:
         for node in self.nodes():
             node.destroy_node()
-
-
-def assert_as_the_oracle(alarms: dict[int, FailureAlarm], prediction: RolloutPrediction) -> None:
-    """The per-step verdicts are the offline oracle's: state (latched), flags, windowed scores and thresholds."""
-    latched = np.logical_or.accumulate(prediction.alarms)
-    assert sorted(alarms) == list(range(len(latched)))
-    for t, msg in alarms.items():
-        assert STATE[msg.state] == ("alarm" if latched[t] else "ok"), (t, msg)
-        assert (msg.obs_exceeded, msg.act_exceeded) == (prediction.obs_exceeded[t], prediction.act_exceeded[t]), t
-        assert (msg.eta_obs, msg.eta_act) == (np.float32(prediction.obs_windowed[t]),
-                                             np.float32(prediction.act_windowed[t])), t
-        assert (msg.gamma_obs, msg.gamma_act) == (np.float32(prediction.obs_thresholds[t]),
-                                                 np.float32(prediction.act_thresholds[t])), t
 
 
 class Oracle:
@@ -658,9 +652,9 @@ def test_the_joint_velocity_ace_node_survives_any_batch_and_joint_state(context:
     ace = bring_up(AceNode(context=context, namespace="/fiper", parameter_overrides=node_params(
         calibration_dir=str(STACKING), urdf_path=str(URDF_PATH), joint_state_wait_s=10.0, max_elements=MAX_ELEMENTS,
         start_wait_s=60.0, start_wait_max_elements=START_WAIT_VALUES), **NODE_KWARGS))
-    scores = record(ace._score_pub)  # noqa: SLF001
     gate = ace._gate._queue  # noqa: SLF001
-    ledger = ScoringLedger(ace, scores, held=lambda: sum(isinstance(item[3], ActionChunkBatch) for item in gate))
+    ledger = ScoringLedger(ace, held=lambda: sum(isinstance(item[3], ActionChunkBatch) for item in gate))
+    scores = ledger.published
     try:
         for n in range(data.draw(st.integers(1, 40), label="messages")):
             topics = callbacks(ace)

@@ -5,7 +5,6 @@ lasts longer than its own ``deadline_s``.
 from __future__ import annotations
 
 import sys
-from collections import deque
 from typing import Any
 
 from rclpy.node import Node
@@ -42,8 +41,7 @@ class SupervisorNode(Node):
         self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),
                                      self.get_parameter("silence_periods").value,
                                      int(self.get_parameter("silence_floor_s").value * 1e9))
-        #: The recent halts (bounded: one per rollout id would otherwise grow without end).
-        self.halts: deque[HaltDecision] = deque(maxlen=HALTED_MEMORY)
+        self.halts: list[HaltDecision] = []
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state.
         self.create_subscription(FailureAlarm, self.get_parameter("alarm_topic").value, self._on_alarm, qos.ALARM)
@@ -72,6 +70,7 @@ class SupervisorNode(Node):
         if decision is None:
             return
         self.halts.append(decision)
+        del self.halts[:-HALTED_MEMORY]  # the recent ones: one per new rollout id would grow without end
         self.get_logger().warning(f"halting the robot (rollout {decision.rollout_id}): {decision.reason}")
         if self._halt.service_is_ready():
             self._halt.call_async(Trigger.Request())

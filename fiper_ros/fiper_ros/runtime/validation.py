@@ -21,17 +21,17 @@ ACTION_SPACE = "action_space"
 NO_JOINT_STATE = "no_joint_state"
 INTERNAL = "internal_error"
 ENCODING = "encoding"
+#: A robot command while the previous one still executes (the sim bridge).
+BUSY = "busy"
 OUT_OF_RANGE = "out_of_range"
 NON_FINITE_SCORE = "non_finite_score"
 UNKNOWN_DETECTOR = "unknown_detector"
 STEP_GAP = "step_gap"
 BEYOND_MAX_STEPS = "beyond_max_steps"
-#: A robot command while the previous one still executes (the sim bridge).
-BUSY = "busy"
 REASONS = (
-    SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT,
+    SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT, BUSY,
     DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
-    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS, BUSY,
+    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS,
 )
 #: The one image encoding the policies take (sensor_msgs/Image ``encoding``).
 RGB8 = "rgb8"
