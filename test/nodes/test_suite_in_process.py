@@ -171,4 +171,3 @@ def test_the_last_step_of_a_rollout_is_judged_even_when_its_end_overtakes_it(sui
     assert suite.spin_until(lambda: last in drv.alarms_of(12)), "the overtaken step got no verdict"
     assert drv.alarms_of(12)[last].state == FailureAlarm.STATE_OK
     assert suite.rnd_oe.rejected["unknown_rollout"] == suite.ace.rejected["unknown_rollout"] == 0
-
