@@ -16,7 +16,7 @@ from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
-from fiper_ros.runtime.supervision import HaltDecision, SupervisorLogic
+from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
 STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
 
@@ -72,6 +72,7 @@ class SupervisorNode(Node):
         if decision is None:
             return
         self.halts.append(decision)
+        del self.halts[:-HALTED_MEMORY]  # the recent ones: one per new rollout id would grow without end
         self.get_logger().warning(f"halting the robot (rollout {decision.rollout_id}): {decision.reason}")
         if self._halt.service_is_ready():
             self._halt.call_async(Trigger.Request())

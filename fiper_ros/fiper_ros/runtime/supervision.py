@@ -19,6 +19,9 @@ from dataclasses import dataclass
 from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, UNKNOWN
 from fiper_ros.runtime.stats import PeriodEstimator
 
+#: How many recent halts the supervisor remembers (to halt each rollout once): bounded, whatever the rollout ids.
+HALTED_MEMORY = 64
+
 
 @dataclass(frozen=True)
 class HaltDecision:
@@ -43,7 +46,7 @@ class SupervisorLogic:
         self._last_heard_steady_ns: int | None = None
         self._unknown_since_ns: int | None = None
         self._rollout_id = NO_ROLLOUT
-        self._halted: deque[int] = deque(maxlen=64)  # the recent rollouts halted (bounded)
+        self._halted: deque[int] = deque(maxlen=HALTED_MEMORY)  # the recent rollouts halted
         self._silence_reported = False
 
     def on_event(self, rollout_id: int, started: bool) -> None:
