@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pytest
 
-from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore
+from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore
 from fiper_ros.runtime.supervision import SupervisorLogic
 
 S = 1_000_000_000
@@ -237,3 +239,103 @@ def test_supervisor_times_unknown_per_rollout_and_not_while_idle() -> None:
     assert logic.on_clock(int(12.4 * S)) is None
     decision = logic.on_clock(int(12.6 * S))
     assert decision is not None and decision.rollout_id == 8 and "UNKNOWN for 2.10 s" in decision.reason
+
+
+def test_a_fresh_fuser_is_idle_with_the_default_combine_deadline_and_buffer() -> None:
+    fuser = AlarmFuser()
+    assert fuser.combine == "and"
+    assert (fuser.rollout_id, fuser.active_rollout, fuser.latched, fuser.alarm_step, fuser.last) == (
+        None, None, False, None, None)
+    assert (fuser.matched, fuser.evicted, fuser.unmatched_stale) == (0, 0, 0)
+    assert fuser.check(10 * S, frozenset({"ace"})) is None  # idle: no stream is expected, a lost node neither
+    fuser.start(1, 0)
+    assert fuser.check(S) is None  # the default deadline is 1 s: not older than it yet
+    stale = fuser.check(S + 1)
+    assert stale is not None and stale.reason == "stream(s) ace, rnd_oe missing or older than 1 s"
+    for step in range(65):  # the default buffer keeps 64 unmatched steps
+        fuser.add(DetectorScore("rnd_oe", 1, step, 0.0, 1.0, 0), 0)
+    assert fuser.evicted == 1
+    with pytest.raises(ValueError, match=r"^combine must be 'and' or 'or', got 'xor'$"):
+        AlarmFuser("xor")
+    with pytest.raises(ValueError, match=r"^unknown detector 'stac'$"):
+        fuser.add(DetectorScore("stac", 1, 0, 0.0, 1.0, 0), 0)
+
+
+#: The scores of :func:`_fused` unless a test changes them: both below their thresholds, complete.
+OBS = DetectorScore("rnd_oe", 1, 0, windowed=0.25, threshold=1.0, stamp_ns=5)
+ACT = DetectorScore("ace", 1, 0, windowed=0.5, threshold=2.0, stamp_ns=7)
+
+
+def _fused(fuser: AlarmFuser, step: int, obs: dict[str, Any], act: dict[str, Any]) -> AlarmState:
+    """The state of one step of rollout 1 from :data:`OBS` and :data:`ACT` with the given changes."""
+    assert fuser.add(replace(OBS, step=step, **obs), 0) is None
+    state = fuser.add(replace(ACT, step=step, **act), 0)
+    assert state is not None
+    return state
+
+
+@pytest.mark.parametrize(
+    ("combine", "obs", "act", "state", "latched", "reason"),
+    [
+        ("and", {}, {}, OK, False, "below thresholds"),
+        ("and", {"threshold": math.inf}, {"threshold": math.inf}, UNKNOWN, False, "no threshold: rnd_oe, ace"),
+        ("and", {"windowed": 2.0}, {"exceeded": True}, UNKNOWN, False,
+         "score not finite or contradicting its exceeded flag: rnd_oe, ace"),
+        ("and", {"scored": False}, {"scored": False}, UNKNOWN, False, "input of this step rejected: rnd_oe, ace"),
+        ("and", {"complete": False}, {"complete": False}, UNKNOWN, False, "window holds a missing step: rnd_oe, ace"),
+        ("or", {"complete": False}, {}, UNKNOWN, False, "window holds a missing step: rnd_oe"),
+        ("or", {"windowed": 2.0, "exceeded": True}, {"windowed": 3.0, "exceeded": True}, ALARM, True,
+         "exceeded: rnd_oe, ace (or)"),
+    ],
+)
+def test_each_verdict_carries_both_scores_its_latch_flag_and_an_exact_reason(
+    combine: str, obs: dict[str, Any], act: dict[str, Any], state: str, latched: bool, reason: str
+) -> None:
+    fuser = AlarmFuser(combine)
+    fuser.start(1, 0)
+    o, a = replace(OBS, **obs), replace(ACT, **act)
+    assert _fused(fuser, 3, obs, act) == AlarmState(
+        rollout_id=1, step=3, state=state, latched=latched, obs_exceeded=state == ALARM, act_exceeded=state == ALARM,
+        eta_obs=o.windowed, gamma_obs=o.threshold, eta_act=a.windowed, gamma_act=a.threshold, combine=combine,
+        reason=reason, stamp_ns=7)
+
+
+def test_a_stale_state_before_any_score_says_nothing_was_measured() -> None:
+    fuser = AlarmFuser("or", deadline_ns=2 * S)
+    fuser.start(4, 0)
+    state = fuser.check(3 * S)
+    assert state is not None
+    assert (state.rollout_id, state.step, state.state, state.latched, state.obs_exceeded, state.act_exceeded) == (
+        4, 0, UNKNOWN, False, False, False)
+    assert all(math.isnan(v) for v in (state.eta_obs, state.gamma_obs, state.eta_act, state.gamma_act))
+    assert state.reason == "stream(s) ace, rnd_oe missing or older than 2 s"
+    assert (state.combine, state.stamp_ns) == ("or", 3 * S)
+
+
+def test_a_stale_state_after_scores_keeps_the_last_numbers_with_the_new_time() -> None:
+    fuser = AlarmFuser("and", deadline_ns=S)
+    fuser.start(1, 0)
+    last = _fused(fuser, 0, {}, {})
+    state = fuser.check(5 * S)
+    assert state is not None
+    assert state == replace(last, state=UNKNOWN, latched=False, stamp_ns=5 * S,
+                            reason="stream(s) ace, rnd_oe missing or older than 1 s")
+    fuser.end(1)
+    assert fuser.check(6 * S, frozenset({"ace"})) is None  # after the END a lost node is no missing stream
+
+
+def test_counters_and_the_lifecycle_attributes_the_fusion_node_reads() -> None:
+    fuser = AlarmFuser("and")
+    fuser.start(1, 0)
+    for step in (0, 1):  # rnd_oe only: both wait for ace in vain
+        fuser.add(DetectorScore("rnd_oe", 1, step, 0.0, 1.0, 0), 0)
+    _fused(fuser, 2, {}, {})
+    assert (fuser.matched, fuser.unmatched_stale) == (1, 2)
+    _fused(fuser, 3, {"windowed": 2.0, "exceeded": True}, {"windowed": 3.0, "exceeded": True})
+    assert (fuser.matched, fuser.latched, fuser.alarm_step) == (2, True, 3)
+    fuser.reset()
+    assert (fuser.latched, fuser.alarm_step, fuser.last) == (False, None, None)
+    _fused(fuser, 4, {"windowed": 2.0, "exceeded": True}, {"windowed": 3.0, "exceeded": True})
+    fuser.add(DetectorScore("rnd_oe", 1, 5, 0.0, 1.0, 0), 0)  # pending when the next rollout starts
+    fuser.start(2, 0)
+    assert (fuser.latched, fuser.alarm_step, fuser.last, fuser.unmatched_stale) == (False, None, None, 3)
