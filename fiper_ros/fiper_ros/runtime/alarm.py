@@ -199,7 +199,7 @@ class AlarmFuser:
         """Detectors of the active rollout whose last score is older than the deadline."""
         if self.active_rollout is None:
             return []
-        return [d for d in DETECTORS if now_ns - self._last_seen.get(d, now_ns) > self.deadline_ns]
+        return [d for d in DETECTORS if now_ns - self._last_seen[d] > self.deadline_ns]
 
     def check(self, now_ns: int, lost: frozenset[str] = frozenset()) -> AlarmState | None:
         """UNKNOWN state if a stream is stale or ``lost`` (liveliness), else ``None``."""
