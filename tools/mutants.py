@@ -3,10 +3,10 @@
     python tools/mutants.py [FILE ...] [--jobs N]     (after `source env.sh`; make mutants does both)
 
 FILE is a path under fiper_ros/fiper_ros, e.g. ``core/fusion.py``: only that file's mutants are tested,
-all of them afresh (minutes per file). Without FILE every mutant of core/ and runtime/ is tested
-(resumable: stop it with Ctrl-C, run it again and it goes on; verdicts stay in .mutmut/mutants/). Both
-ways, surviving mutants of the selection are tested again, since a test may have been added to kill
-them. mutmut shows its progress while it runs; a summary per file and the diff of every survivor follow.
+all of them afresh (minutes per file). Without FILE every mutant of core/ and runtime/ without a verdict
+is tested (resumable: stop it with Ctrl-C, run it again and it goes on; verdicts stay in .mutmut/mutants/).
+When a file under test/ changed since the last run, every surviving mutant is tested again (a test may
+have been added to kill it). mutmut shows its progress; a summary per file and every survivor's diff follow.
 
 The work dir .mutmut/ (git-ignored) holds links to the package, test/, pytest.ini and tools/mutmut.cfg
 (as the setup.cfg mutmut reads): mutmut names a mutant after its path from the working directory, and
@@ -16,6 +16,7 @@ with its mutants into .mutmut/mutants/ and puts that first on sys.path, ahead of
 from __future__ import annotations
 
 import argparse
+import hashlib
 import os
 import subprocess
 import sys
@@ -35,6 +36,7 @@ SINGLE_THREADED = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM
 
 
 def _prepare_work_dir() -> None:
+    """Create .mutmut/ and its links (again, where one points elsewhere)."""
     WORK.mkdir(exist_ok=True)
     for name, target in LINKS.items():
         link = WORK / name
@@ -57,24 +59,41 @@ def _module_of(file: str) -> str:
 
 
 def _in_selection(key: str, modules: list[str]) -> bool:
+    """Whether mutant ``key`` belongs to one of ``modules`` (all of them when none is given)."""
     return not modules or any(key.startswith(module + ".") for module in modules)
 
 
-def _retest_survivors(modules: list[str]) -> int:
-    """Mark the selection's surviving mutants unchecked, so that mutmut tests them again."""
+def _tests_digest() -> str:
+    """SHA-256 over the paths and contents of the test files."""
+    digest = hashlib.sha256()
+    for path in sorted((ROOT / "test").rglob("*.py")):
+        digest.update(str(path.relative_to(ROOT)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def _retest_survivors_if_tests_changed() -> int:
+    """Mark every surviving mutant unchecked when the tests changed since the last run.
+
+    mutmut keeps a survivor's verdict until its function's source changes, so a test added to kill it
+    would go unnoticed. An interrupted run does not test its survivors again when resumed.
+    """
     from mutmut.mutation.data import SourceFileMutationData
     from mutmut.utils.file_utils import walk_mutatable_files
 
+    digest, stamp = _tests_digest(), WORK / "tests.sha256"
+    if stamp.is_file() and stamp.read_text() == digest:
+        return 0
     count = 0
     for path in walk_mutatable_files():
         data = SourceFileMutationData(path=path)
         data.load()
-        survivors = [k for k, code in data.exit_code_by_key.items() if code == 0 and _in_selection(k, modules)]
+        survivors = [k for k, code in data.exit_code_by_key.items() if code == 0]
         for key in survivors:
             data.exit_code_by_key[key] = None
         if survivors:
             data.save()
             count += len(survivors)
+    stamp.write_text(digest)
     return count
 
 
@@ -116,12 +135,18 @@ def main(argv: list[str] | None = None) -> int:
     modules = [_module_of(f) for f in args.files]
     _prepare_work_dir()
     os.chdir(WORK)
-    again = _retest_survivors(modules)
+    again = _retest_survivors_if_tests_changed()
     if again:
-        print(f"mutants: testing {again} surviving mutant(s) again")
+        print(f"mutants: the tests changed: {again} surviving mutant(s) to test again")
     started = time.monotonic()
     command = ["mutmut", "run", "--max-children", str(args.jobs)] + [f"{m}.*" for m in modules]
-    status = subprocess.call(command, env={**os.environ, **SINGLE_THREADED})
+    mutmut = subprocess.Popen(command, env={**os.environ, **SINGLE_THREADED})
+    try:
+        status = mutmut.wait()
+    except KeyboardInterrupt:  # mutmut has the Ctrl-C too: it stops its workers, the verdicts so far are saved
+        mutmut.wait()
+        print("mutants: interrupted; run it again to go on", file=sys.stderr)
+        return 130
     elapsed = time.monotonic() - started
     if status != 0:
         print(f"mutants: mutmut run failed (exit {status}) after {elapsed:.0f} s", file=sys.stderr)
