@@ -64,7 +64,8 @@ def test_infinite_cells_are_never_averaged_or_selected(result: EvaluationResult)
 
 def test_every_table_shows_them(result: EvaluationResult) -> None:
     text = markdown(result, [])
-    assert "- sorting: conformal quantiles over 6 rollouts; +inf at delta 0.05, 0.1" in text
+    assert "- sorting: CP constant, CP band, CP scaled over 6 rollouts: +inf at delta 0.05, 0.1." in text
+    assert "- finite: CP constant, CP band, CP scaled over 25 rollouts: finite at every delta." in text
     default_table = text.split("## Fixed default configuration, paper protocol")[1].split("##")[0]
     sorting_twa = next(line for line in default_table.splitlines() if line.startswith("| sorting | TWA"))
     assert sorting_twa.count("inf (M=6 < 9)") == 3  # Elapsed, ACE, FIPER

@@ -305,20 +305,22 @@ def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
 
 
 def _infinite_summary(result: EvaluationResult) -> list[str]:
-    """One line per task: the rollouts behind the conformal quantiles and the deltas they cannot serve."""
-    cells = Cells(result)
+    """One line per task: the rollouts behind each conformal kind's quantiles and the deltas they cannot serve."""
+    deltas = list(result.settings.sweep.deltas)
     lines = []
     for t, task in enumerate(result.tasks):
-        behind = sorted(set(int(m) for g, m in zip(result.groups, result.sweep.conformal[t, 0])
-                            if g.kind in GUARANTEED_KINDS))
-        if not behind:
-            continue
-        fewest = behind[0]
-        infinite = [d for d in cells.deltas if minimum_conformal_set(d) > fewest]
-        tail = (f"+inf at delta {_deltas_text(infinite)} (delta {min(infinite):g} needs "
-                f"{minimum_conformal_set(min(infinite))}): those cells are left out of every average and selection"
-                if infinite else "finite at every delta")
-        lines.append(f"- {task}: conformal quantiles over {', '.join(map(str, behind))} rollouts; {tail}.")
+        kinds: dict[int, set[str]] = {}
+        for group, behind in zip(result.groups, result.sweep.conformal[t, 0]):
+            if group.kind in GUARANTEED_KINDS:
+                kinds.setdefault(int(behind), set()).add(group.kind)
+        parts = []
+        for behind, members in sorted(kinds.items()):
+            infinite = [d for d in deltas if minimum_conformal_set(d) > behind]
+            tail = f"+inf at delta {_deltas_text(infinite)}" if infinite else "finite at every delta"
+            labels = ", ".join(KIND_LABELS[k] for k in GUARANTEED_KINDS if k in members)
+            parts.append(f"{labels} over {behind} rollouts: {tail}")
+        if parts:
+            lines.append(f"- {task}: {'; '.join(parts)}.")
     return lines
 
 
@@ -346,7 +348,8 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                      "quantile of the calibration successes' lengths; 'TWA − Elapsed' is each method's gain over it.")
     summary = _infinite_summary(result)
     if summary:
-        lines += ["", "Infinite thresholds (a conformal quantile of fewer rollouts than delta needs):", *summary]
+        lines += ["", "Conformal quantiles (+inf where fewer rollouts than delta needs: those cells are left out of "
+                  "every average and selection):", *summary]
     lines.append("")
     for name, protocol in result.protocols.items():
         title = ("paper protocol (selection and report on all test rollouts)" if name == "paper"
