@@ -57,6 +57,12 @@ class Dataset:
         return np.array([bool(r.failed) for r in self.test])
 
     @property
+    def held_out_id_successes(self) -> np.ndarray:
+        """Indices of the test rollouts that succeeded in the ID scenario: new successes exchangeable with
+        the calibration successes, on which a threshold's false-alarm rate is set beside delta (Prop. 1)."""
+        return np.array([i for i, r in enumerate(self.test) if r.success and not r.is_ood], dtype=int)
+
+    @property
     def lengths(self) -> np.ndarray:
         """Per test rollout, ``T``."""
         return np.array([r.length for r in self.test])
