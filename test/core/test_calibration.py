@@ -23,6 +23,8 @@ from fiper_ros.core.calibration import (
     calibrate,
     load_calibration,
 )
+from fiper_ros.core.calibration_file import declared_detectors
+from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.core.rollout import Rollout
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -102,11 +104,13 @@ def test_the_task_is_recorded_and_rollouts_of_several_tasks_are_refused(
 
 @pytest.mark.parametrize("directory", SHIPPED, ids=lambda d: str(d.relative_to(ROOT)))
 def test_shipped_calibrations_without_a_task_keep_their_content_hash(directory: Path) -> None:
-    """Written before the task was recorded: they still load, with their stored hash, and fit any task."""
+    """Written before the task (and the detectors, issue #19) were recorded: they still load, with their stored
+    hash, fit any task and declare FIPER's pair."""
     content = yaml.safe_load((directory / CALIBRATION_FILE).read_text())
     loaded = load_calibration(directory)
     assert "task" not in content and loaded.task == "" and loaded.content_hash == content["content_hash"]
     loaded.check_compatible(task="any task")
+    assert "detectors" not in content["settings"] and loaded.detectors == declared_detectors(directory) == DETECTORS
 
 
 def test_check_compatible(calibration: Calibration) -> None:
