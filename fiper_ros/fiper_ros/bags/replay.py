@@ -264,8 +264,7 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
             assert directory is not None
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
             config = replay_config(args.launch or installed_config(SUITE_CONFIGS[detectors]), directory,
-                                   workdir / "suite.yaml",
-                                   robot_options.robot_from(args))
+                                   workdir / "suite.yaml", robot_options.robot_from(args))
             suite = SuiteProcess(config, domain, echo=args.verbose)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)
