@@ -2,12 +2,13 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test demo study bench-core bench-eval bench-nodes bench-policy bench-soak lock clean distclean
+.PHONY: help setup test mutants demo study bench-core bench-eval bench-nodes bench-policy bench-soak lock clean distclean
 
 help:
 	@echo "make demo        the main job: sim bridge, policy and FIPER nodes live, 2 rollouts (runs/demo/)"
 	@echo "make study       the FIPER-vs-baselines study on sim rollouts (long; docs/results.md)"
 	@echo "make test        set up the workspace if needed, then run the whole test suite"
+	@echo "make mutants     mutation testing of core/ and runtime/ (resumable; FILES=core/fusion.py for one file)"
 	@echo "make setup       venv with pinned wheels, Debian packages, colcon build (idempotent)"
 	@echo "make bench-core  latency of the FIPER core (ACE, RND-OE, fusion)"
 	@echo "make bench-eval  speed of the evaluation engine (scores, full sweep) on synthetic data"
@@ -22,6 +23,10 @@ setup:
 
 test: setup
 	@bash tools/run_tests.sh
+
+# Not part of make test: minutes per file (docs/testing.md, "Mutation testing"). JOBS: mutants at once.
+mutants: setup
+	@$(RUN) nice -n 10 python tools/mutants.py $(if $(JOBS),--jobs $(JOBS)) $(FILES)
 
 demo: setup
 	@$(RUN) fiper demo

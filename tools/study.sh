@@ -4,7 +4,8 @@
 # Per task: a calibration set of M = 50 successful ID rollouts (seeds 2000, 2001, ...), a test set of
 # 50 rollouts per scenario (ID, benign and harmful OOD; seeds 1000..1049), each rollout an MCAP bag
 # written by `fiper collect` under data/study/<task>/ (resumable: a rerun skips finished bags), then
-# `fiper evaluate` with all seven methods, 5 seeds, the paper's and the clean protocol into runs/study/.
+# `fiper evaluate` with all seven methods and the elapsed-time baseline (split conformal calibration), 5 seeds,
+# the paper's and the clean protocol into runs/study/.
 # Environment: STUDY_EPISODES (50), STUDY_SEEDS (0-4), STUDY_OUT (runs/study), STUDY_JOBS (episodes at
 # once, default: the number of cores; the bags are the same for any number).
 set -euo pipefail

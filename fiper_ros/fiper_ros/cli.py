@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "collect": ("fiper_ros.bags.collect", "run a policy's closed-loop rollouts in the sim, one bag per rollout"),
     "convert": ("fiper_ros.bags.convert", "convert Sentinel or FIPER rollout data into bags"),
     "snapshot": ("fiper_ros.bags.snapshot", "black box: write a bag around every alarm rise"),
+    "bag": ("fiper_ros.bags.recover", "'fiper bag recover BAG': finish a recording that did not stop cleanly"),
     "evaluate": ("fiper_ros.evaluation.cli", "evaluate FIPER and the baselines on rollout datasets"),
 }
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fiper_ros.runtime import validation
-from fiper_ros.runtime.validation import InputRejected
+from fiper_ros.runtime.validation import BUSY, InputRejected
 
 from .env import make_env
 from .render import CameraRenderer
@@ -33,8 +33,6 @@ PROPRIO_NAMES: dict[str, tuple[str, ...]] = {
 }
 #: Joints of ``/joint_states``: the seven arm joints and both fingers.
 JOINT_NAMES: tuple[str, ...] = (*ARM_JOINTS, *FINGER_JOINTS)
-#: Rejection reason of a command that arrives while the previous one is still executing.
-BUSY = "busy"
 
 SUCCESS, FAILURE = "success", "failure"
 

@@ -1,6 +1,8 @@
-"""Fixtures of the bag tests: a small bag of synthetic rollouts (3 successes, 1 failure) and its calibration."""
+"""Fixtures of the bag tests: a small bag of synthetic rollouts (3 successes, 1 failure) and its calibration,
+and a publisher of the policy's topics and the alarm over DDS."""
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -8,6 +10,7 @@ import pytest
 from fiper_ros.bags.rollouts import write_rollouts
 from fiper_ros.bags.schema import BagInfo
 from fiper_ros.core.rollout import Rollout
+from helpers.stream import Policy
 from helpers.synthetic import make_calibration, make_rollout
 
 ROLLOUT_IDS = [7, 8, 9, 10]
@@ -40,3 +43,13 @@ def small_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def small_calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_calibration(tmp_path_factory.mktemp("calibration"))
+
+
+@pytest.fixture
+def policy(ros_domain: int) -> Iterator[Policy]:
+    """The test's publishers of the policy topics and the alarm, in the test's ROS domain."""
+    p = Policy(ros_domain)
+    try:
+        yield p
+    finally:
+        p.close()

@@ -1,10 +1,13 @@
 """Robustness of the commands that read bags and calibrations (docs/reliability.md, "Bags and calibration
-files"): every failure class of helpers.bag_damage and helpers.calibration_damage, on real files made by the
-project's writer and calibrate and then damaged, run through the ``fiper`` entry point of every command that
-reads it, gives exit status 2 and one line on stderr that starts with ``fiper COMMAND:`` and names the file
-and what is wrong (no traceback), and leaves no output behind."""
+files" and "Recordings"): every failure class of helpers.bag_damage and helpers.calibration_damage, on real
+files made by the project's writer and calibrate and then damaged, run through the ``fiper`` entry point of
+every command that reads it, gives exit status 2 and one line on stderr that starts with ``fiper COMMAND:``
+and names the file and what is wrong (no traceback), and leaves no output behind. An unfinished bag (cut
+after a complete chunk, or without metadata.yaml) is read up to its last complete chunk with a one-line
+warning instead, exactly as a bag of those messages; with --strict it is refused like the others."""
 from __future__ import annotations
 
+import json
 import pickle
 import shutil
 from collections.abc import Callable
@@ -16,10 +19,13 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bags.rollouts import read_rollouts, write_rollouts
+from fiper_ros.bags.schema import BagInfo
 from fiper_ros.cli import main
 from fiper_ros.core.rollout import RolloutSet
-from helpers.bag_damage import BAG_DAMAGES, CHUNK, mcap_of, records, write_recorded_bag
+from fiper_ros.bags.writer import BagWriter
+from fiper_ros.core.calibration import load_calibration
+from helpers.bag_damage import BAG_DAMAGES, CHUNK, UNFINISHED, chunk_messages, mcap_of, records, write_recorded_bag
 from helpers.calibration_damage import CALIBRATION_DAMAGES, FIT_DAMAGES, fit_damages
 from helpers.synthetic import make_rollout
 
@@ -69,18 +75,98 @@ def _prefix(command: str) -> str:
     return f"fiper {command.split()[0]}: "
 
 
-@pytest.mark.parametrize("command", BAG_COMMANDS)
-@pytest.mark.parametrize("damage", BAG_DAMAGES)
-def test_a_damaged_bag_is_refused_by_every_command_that_reads_it(
-        damage: str, command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
-        capsys: pytest.CaptureFixture[str]) -> None:
+def _damaged(recorded_bag: Path, damage: str, tmp_path: Path) -> tuple[Path, str, Path]:
+    """A damaged copy of the recorded bag, the text of its refusal, and an empty output directory."""
     bag = tmp_path / "bags" / "rollouts"
     shutil.copytree(recorded_bag, bag)
     expected = BAG_DAMAGES[damage](bag)
     out = tmp_path / "out"
     out.mkdir()
+    return bag, expected, out
+
+
+@pytest.mark.parametrize("command", BAG_COMMANDS)
+@pytest.mark.parametrize("damage", [d for d in BAG_DAMAGES if d not in UNFINISHED])
+def test_a_damaged_bag_is_refused_by_every_command_that_reads_it(
+        damage: str, command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    bag, expected, out = _damaged(recorded_bag, damage, tmp_path)
     err = refused(BAG_COMMANDS[command](bag, small_calibration, out), out, capsys)
     assert err.startswith(_prefix(command) + expected), err
+
+
+@pytest.mark.parametrize("command", BAG_COMMANDS)
+@pytest.mark.parametrize("damage", UNFINISHED)
+def test_an_unfinished_bag_is_refused_with_strict(
+        damage: str, command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    bag, expected, out = _damaged(recorded_bag, damage, tmp_path)
+    err = refused([*BAG_COMMANDS[command](bag, small_calibration, out), "--strict"], out, capsys)
+    assert err.startswith(_prefix(command) + expected), err
+    assert err.endswith(f"; 'fiper bag recover {bag}' finishes it\n"), err
+
+
+def _bag_of_the_first(source: Path, count: int, path: Path) -> Path:
+    """A finished bag of the first ``count`` messages of ``source`` (in log-time order, which is the file
+    order of the recorded bag), with its custom_data."""
+    with BagReader(source) as reader, BagWriter(path) as writer:
+        writer.info = reader.info
+        for _, message in zip(range(count), reader.messages()):
+            writer.write(message.topic, message.log_time_ns, message.raw)
+    return path
+
+
+#: command -> argv for (bag, calibration, output directory) when the bag is read to the end.
+READING_COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
+    "replay --offline": BAG_COMMANDS["replay --offline"],
+    "calibrate": lambda bag, cal, out: [*BAG_COMMANDS["calibrate"](bag, cal, out), "--max-epochs", "2",
+                                        "--min-rollouts", "2"],
+}
+
+
+@pytest.mark.parametrize("command", READING_COMMANDS)
+@pytest.mark.parametrize("damage", UNFINISHED)
+def test_an_unfinished_bag_is_read_up_to_its_last_complete_chunk(
+        damage: str, command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The report or calibration equals that of a finished bag of the messages of the complete chunks (counted
+    by the test's own walk), and the command says in one line what it read."""
+    bag, expected, out = _damaged(recorded_bag, damage, tmp_path)
+    counts = chunk_messages(mcap_of(bag).read_bytes())
+    whole = chunk_messages(mcap_of(recorded_bag).read_bytes())
+    assert counts == whole[:len(counts)] and (len(counts) < len(whole) or damage != "cut_inside_a_chunk")
+    assert main(READING_COMMANDS[command](bag, small_calibration, out)) == 0
+    err = capsys.readouterr().err
+    warning = [line for line in err.splitlines() if " warning: " in line]
+    assert len(warning) == 1, err
+    assert warning[0].startswith(f"{_prefix(command)}warning: ") and expected.split(": the recording")[0] in warning[0]
+    assert warning[0].endswith(f"reading its {len(counts)} complete chunk(s), {sum(counts)} messages ('fiper bag "
+                               f"recover {bag}' finishes the bag)"), warning[0]
+    reference = _bag_of_the_first(recorded_bag, sum(counts), tmp_path / "reference" / "rollouts")
+    (tmp_path / "reference_out").mkdir()
+    assert main(READING_COMMANDS[command](reference, small_calibration, tmp_path / "reference_out")) == 0
+    if command == "calibrate":
+        assert (load_calibration(out / "calibration").content_hash
+                == load_calibration(tmp_path / "reference_out" / "calibration").content_hash)
+    else:
+        report, reference_report = (json.loads((o / "report.json").read_text())
+                                    for o in (out, tmp_path / "reference_out"))
+        assert report["rollouts"] == reference_report["rollouts"] and report["rollouts"]
+
+
+@pytest.mark.parametrize("damage", ["cut_inside_a_chunk", "no_metadata"])
+def test_evaluate_reads_an_unfinished_bag(damage: str, recorded_bag: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """Beside a finished bag of the test split, so that the tiny sweep runs to its end."""
+    bag, _, out = _damaged(recorded_bag, damage, tmp_path)
+    test = tmp_path / "test_rollouts"
+    write_rollouts(test, [make_rollout(50, length=60), make_rollout(51, length=60, fail=True)], [101, 102],
+                   BagInfo(task="synthetic", synthetic=True, source="test", split="test"))
+    argv = ["evaluate", "--data", f"synthetic={bag},{test}", "--tiny", "--no-cache", "--quiet", "--no-plots"]
+    assert main([*argv, "--out", str(out / "results")]) == 0
+    err = capsys.readouterr().err
+    assert f"fiper evaluate: warning: " in err and f"('fiper bag recover {bag}' finishes the bag)" in err, err
+    assert (out / "results" / "results.md").is_file()
 
 
 def test_the_undamaged_bag_spans_several_chunks_and_is_read(

@@ -16,7 +16,7 @@ from fiper_ros import __version__
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.rollouts import read_rollouts, write_rollouts
-from fiper_ros.bags.schema import ALARM, EMBEDDING, EVENTS, TOPICS, BagInfo, normalize_cdr
+from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS, BagInfo, normalize_cdr
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.rollout import Rollout
 
@@ -102,6 +102,32 @@ def test_reader_names_a_missing_step(tmp_path: Path, small_bag: Path) -> None:
             writer.write(message.topic, message.log_time_ns, message.raw)
     with pytest.raises(BagError, match=r"rollout 8 has no observation embedding for step 5"):
         read_rollouts(bag)
+
+
+def _without(small_bag: Path, bag: Path, drop: set[tuple[str, int, int]], events: bool = True) -> Path:
+    """``small_bag`` without the ``(topic, rollout, step)`` messages in ``drop`` (and without the END of rollout
+    10, the last, unless ``events``)."""
+    with BagReader(small_bag) as source, BagWriter(bag) as writer:
+        writer.info = source.info
+        for message in source.messages():
+            msg = source.decode(message)
+            if message.topic == EVENTS and not events and msg.rollout_id == 10 and msg.event == 1:
+                continue
+            if (message.topic, msg.rollout_id, getattr(msg, "step", -1)) not in drop:
+                writer.write(message.topic, message.log_time_ns, message.raw)
+    return bag
+
+
+def test_a_step_cut_off_by_the_end_of_a_recording_is_left_out(tmp_path: Path, small_bag: Path,
+                                                               caplog: pytest.LogCaptureFixture) -> None:
+    """A recording that ends between the last step's embedding and its action batch: the rollout has no END,
+    and that half step is left out, with a line; with the END (a finished rollout) it is an error."""
+    last = (ACTIONS, 10, len(read_rollouts(small_bag)[-1].embeddings) - 1)
+    cut = read_rollouts(_without(small_bag, tmp_path / "cut", {last}, events=False))
+    assert (cut[-1].length, cut[-1].success) == (last[2], None)
+    assert f"rollout 10 ends inside step {last[2]} (only its observation embedding, no END)" in caplog.text
+    with pytest.raises(BagError, match=f"rollout 10 has no action batch for step {last[2]}"):
+        read_rollouts(_without(small_bag, tmp_path / "ended", {last}))
 
 
 def test_find_bags(tmp_path: Path, small_bag: Path) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fiper_ros.core.fusion import FusionLatch, alarms_over_rollout, exceeds, fuse
+from fiper_ros.core.fusion import FusionLatch, alarms_over_rollout, exceeds, first_alarm, fuse
 
 
 def test_comparison_is_strict() -> None:
@@ -40,3 +40,19 @@ def test_streaming_latch_equals_vectorised(combine: str) -> None:
         seen_alarm += first is not None
         seen_quiet += first is None
     assert seen_alarm and seen_quiet  # both outcomes exercised
+
+
+def test_default_combine_is_and() -> None:
+    """Eq. (7)'s AND is the default of every form of the fusion (App. A.4)."""
+    obs, act = np.array([True, False, True]), np.array([False, True, True])
+    assert fuse(obs, act).tolist() == [False, False, True]
+    alarms, first = alarms_over_rollout(np.array([2.0, 0.0, 2.0]), np.ones(3), np.array([0.0, 2.0, 2.0]), np.ones(3))
+    assert alarms.tolist() == [False, False, True] and first == 2
+    latch = FusionLatch()
+    assert latch.combine == "and"
+    assert [latch.update(o, a).alarm for o, a in zip(obs, act)] == [False, False, True]
+
+
+def test_first_alarm_is_the_first_nonzero_step_not_the_largest() -> None:
+    assert first_alarm(np.array([0.0, 0.5, 1.0])) == 1
+    assert first_alarm(np.array([0, 0, 0])) is None

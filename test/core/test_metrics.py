@@ -47,3 +47,30 @@ def test_invalid_inputs() -> None:
         evaluate([1], [True], t_max=10, dt_mode="other")
     with pytest.raises(ValueError, match="outcomes"):
         evaluate([1, 2], [True], t_max=10)
+
+
+def test_every_count_by_hand() -> None:
+    # failures: detected at 0 and 3, two missed; successes: three quiet, two false alarms (T = 5)
+    result = evaluate([0, 3, None, None, None, None, None, 4, 2], [True] * 4 + [False] * 5, t_max=5)
+    assert {k: result[k] for k in ("tp", "fn", "tn", "fp", "n_pos", "n_neg", "dt_mode")} == {
+        "tp": 2, "fn": 2, "tn": 3, "fp": 2, "n_pos": 4, "n_neg": 5, "dt_mode": "paper"}
+    assert result["tpr"] == 0.5 and result["tnr"] == 0.6 and result["acc"] == pytest.approx(0.55)
+    assert result["dt"] == pytest.approx(0.3)  # (0 / 5 + 3 / 5) / 2
+    assert result["twa_pos"] == pytest.approx(0.35)  # ((1 - 0) + (1 - 0.6)) / 4
+    assert result["twa"] == pytest.approx(0.475)  # (0.35 + 0.6) / 2
+
+
+def test_detection_time_at_the_shortest_horizons() -> None:
+    # T = 1: the only step is 0, DT 0 in both modes (the reference mode's t / (T - 1) has no T - 1 = 0)
+    for dt_mode in ("paper", "reference"):
+        assert evaluate([0], [True], t_max=1, dt_mode=dt_mode)["dt"] == 0.0
+    # T = 2: the reference mode divides by T - 1 = 1
+    assert evaluate([1], [True], t_max=2, dt_mode="reference")["dt"] == 1.0
+    assert evaluate([1], [True], t_max=2)["dt"] == 0.5
+
+
+def test_rejections_say_what_was_wrong() -> None:
+    with pytest.raises(ValueError, match=r"^t_max must be >= 1, got 0$"):
+        evaluate([0], [True], t_max=0)
+    with pytest.raises(ValueError, match=r"^2 t_max values but 1 outcomes$"):
+        evaluate([0], [True], t_max=[3, 4])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -159,3 +160,120 @@ def test_gaussian_threshold_by_hand() -> None:
         gaussian = fit_threshold([*i1, *i2], ThresholdSettings(kind="gaussian", delta=delta, seed=SPLIT_SEED))
         assert gaussian.params["z"] == pytest.approx(z)
         np.testing.assert_allclose(gaussian.values, [2.0 + 5.0 * z, 2.0 + 4.0 * z])
+
+
+def test_gaussian_honours_min_support_in_both_halves() -> None:
+    # I1 = curves 0, 1 (SPLIT_SEED); min_support 1 lets a step count with one rollout of a half (default: 2).
+    i1 = [np.array([1.0, 1.0, 1.0]), np.array([3.0])]  # mu = [2, 1, 1]
+    i2 = [np.array([3.0, 2.0, 4.0]), np.array([9.0])]  # deviations: t = 0: 1, 7 -> 5; t = 1: 1; t = 2: 3
+    settings = ThresholdSettings(kind="gaussian", delta=0.1, seed=SPLIT_SEED, min_support=1)
+    fitted = fit_threshold([*i1, *i2], settings)
+    z = 1.2815515655446004
+    np.testing.assert_allclose(fitted.values, [2.0 + 5.0 * z, 1.0 + z, 1.0 + 3.0 * z])
+    assert fitted.params == {"m": 4, "z": pytest.approx(z), "m1": 2, "m2": 2}
+    assert (fitted.kind, fitted.delta) == ("gaussian", 0.1)
+
+
+def test_cp_band_honours_min_support_for_mu_the_spread_and_the_floor() -> None:
+    i1 = [np.array([1.0, 2.0, 4.0]), np.array([3.0])]
+    # min_support 1: mu = [2, 2, 4]; s = [1, 0, 0], floor 0.1 * mean(s) = 1/30 -> scale = [1, 1/30, 1/30]
+    i2 = [np.array([2.0, 2.0, 4.0]), np.array([3.0])]  # R = 0 and (3 - 2) / 1 = 1
+    settings = ThresholdSettings(kind="cp_band", delta=0.4, seed=SPLIT_SEED, min_support=1)
+    fitted = fit_threshold([*i1, *i2], settings)  # rank ceil(3 * 0.6) = 2 of M2 = 2: k = 1
+    assert fitted.params["k"] == pytest.approx(1.0)
+    assert fitted.params["s_floor"] == pytest.approx(1 / 30)
+    np.testing.assert_allclose(fitted.values, [3.0, 2.0 + 1 / 30, 4.0 + 1 / 30])
+
+
+def test_cp_band_floor_when_every_i1_curve_is_the_same() -> None:
+    # s = 0 everywhere, so 0.1 * mean(s) = 0: the floor falls back to 1e-12 max(1, max |mu|) = 1.5e-12
+    same = np.array([1.0, 1.5])
+    fitted = fit_threshold([same, same, same, same + np.array([0.0, 3e-12])],
+                           ThresholdSettings(kind="cp_band", delta=0.4, seed=SPLIT_SEED))
+    assert fitted.params["s_floor"] == pytest.approx(1.5e-12, rel=1e-9)
+    assert fitted.params["k"] == pytest.approx(2.0, rel=1e-3)  # R = 0 and 3e-12 / 1.5e-12
+    assert np.all(np.isfinite(fitted.values))
+
+
+@pytest.mark.parametrize(("m", "band_split", "m1"), [(2, 0.5, 1), (2, 0.9, 1), (4, 0.9, 3), (5, 0.1, 1)])
+def test_split_sizes_keep_both_halves_non_empty(m: int, band_split: float, m1: int) -> None:
+    # m1 = round(band_split * m), at least 1 and at most m - 1 (round(0.5) = 0, round(3.6) = 4)
+    curves = [np.array([float(i), 1.0]) for i in range(m)]
+    for kind in ("cp_band", "gaussian"):
+        fitted = fit_threshold(curves, ThresholdSettings(kind=kind, delta=0.5, band_split=band_split))
+        assert (fitted.params["m1"], fitted.params["m2"]) == (m1, m - m1), kind
+
+
+@pytest.mark.parametrize(("m", "expected"), [(26, [1.0, 3.0]), (30, [1.0, 1.0])])
+def test_default_min_support_is_a_fifth_of_m_but_at_least_five(m: int, expected: list[float]) -> None:
+    # five rollouts reach step 1: enough for M = 26 (need max(5, 26 // 5) = 5), not for M = 30 (need 6)
+    curves = [np.array([1.0])] * (m - 5) + [np.array([1.0, 3.0])] * 5
+    assert fit_threshold(curves, ThresholdSettings(kind="time_varying", delta=0.1)).values.tolist() == expected
+
+
+def test_single_step_curves_and_a_single_score_are_enough() -> None:
+    fitted = fit_threshold([np.array([2.0]), np.array([4.0])], ThresholdSettings(kind="cp_constant", delta=0.5))
+    assert fitted.values.tolist() == [4.0]  # rank ceil(3 * 0.5) = 2 of the maxima [2, 4]
+    assert conformal_quantile([3.0], 0.5) == 3.0  # rank ceil(2 * 0.5) = 1
+
+
+def test_conformal_warning_names_m_and_delta(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING):
+        conformal_quantile([1.0, 2.0, 3.0], 0.1)
+    assert [r.getMessage() for r in caplog.records] == [
+        "conformal level ceil((M+1)(1-delta))/M > 1 for M=3, delta=0.1: threshold is +inf"]
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"delta": 0.0}, "delta must be in (0, 1), got 0.0"),
+        ({"delta": 1.0}, "delta must be in (0, 1), got 1.0"),
+        ({"extension": "first"}, "unknown extension 'first'; expected one of ('last', 'mean', 'max')"),
+        ({"band_sign": "both"}, "unknown band_sign 'both'; expected one of ('upper', 'lower')"),
+        ({"band_split": 0.0}, "band_split must be in (0, 1), got 0.0"),
+        ({"band_split": 1.0}, "band_split must be in (0, 1), got 1.0"),
+        ({"min_support": 0}, "min_support must be >= 1, got 0"),
+        ({"std_floor": -0.1}, "std_floor must be >= 0, got -0.1"),
+    ],
+)
+def test_settings_rejections_name_the_setting(changes: dict[str, object], message: str) -> None:
+    with pytest.raises(ThresholdError, match=f"^{re.escape(message)}$"):
+        ThresholdSettings(**changes)  # type: ignore[arg-type]
+
+
+def test_a_zero_std_floor_is_allowed() -> None:
+    assert ThresholdSettings(std_floor=0.0).std_floor == 0.0
+
+
+def test_threshold_values_are_a_read_only_float64_vector_without_nan() -> None:
+    threshold = Threshold("time_varying", 0.1, [1, 2])  # type: ignore[arg-type]
+    assert isinstance(threshold.values, np.ndarray) and threshold.values.dtype == np.float64
+    with pytest.raises(ValueError, match="read-only"):
+        threshold.values[0] = 5.0
+    for values, message in (([[1.0, 2.0]], "threshold values must be a non-empty 1-D array, got shape (1, 2)"),
+                            ([1.0, math.nan], "threshold values contain NaN")):
+        with pytest.raises(ThresholdError, match=f"^{re.escape(message)}$"):
+            Threshold("time_varying", 0.1, np.array(values))
+    with pytest.raises(ThresholdError, match=r"^unknown extension 'first'; expected one of "):
+        Threshold("time_varying", 0.1, np.ones(2), "first")
+    with pytest.raises(IndexError, match=r"^policy step must be >= 0, got -1$"):
+        threshold.at(-1)
+
+
+def test_threshold_entry_defaults_and_missing_keys() -> None:
+    plain = Threshold.from_dict({"kind": "cp_constant", "delta": 0.1, "values": [2.0]})
+    assert (plain.extension, plain.params, plain.at(5)) == ("last", {}, 2.0)
+    with pytest.raises(ThresholdError, match=r"^threshold entry lacks 'values'$"):
+        Threshold.from_dict({"kind": "cp_constant", "delta": 0.1})
+
+
+def test_calibration_curve_rejections_name_the_curve() -> None:
+    message = "no calibration curves: thresholds need successful calibration rollouts"
+    with pytest.raises(ThresholdError, match=f"^{re.escape(message)}$"):
+        fit_threshold([])
+    message = "calibration curve 1 must be a non-empty 1-D array, got shape (2, 2)"
+    with pytest.raises(ThresholdError, match=f"^{re.escape(message)}$"):
+        fit_threshold([np.ones(3), np.ones((2, 2))])
+    with pytest.raises(ThresholdError, match=r"^conformal quantile of no scores$"):
+        conformal_quantile([], 0.1)

@@ -65,3 +65,39 @@ def test_skip_enters_zeros_without_one_push_per_step(mode: str, expected: float)
     assert window.push(4.0) == expected  # the window holds 0, 0, 4; the cumulative sum 3 + 4
     with pytest.raises(ValueError):
         window.skip(-1)
+
+
+def test_float32_scores_are_summed_in_float64() -> None:
+    # 1e8 + 1 is 1e8 in float32 (24-bit mantissa) but exact in float64, where the thresholds decide.
+    scores = np.array([1e8, 1.0], dtype=np.float32)
+    for summed in (windowed(scores, 2), cumulative(scores), aggregate(scores, "single")):
+        assert summed.dtype == np.float64
+    assert windowed(scores, 2).tolist() == [1e8, 100_000_001.0]
+    assert cumulative(scores).tolist() == [1e8, 100_000_001.0]
+
+
+def test_defaults_are_the_single_step_window() -> None:
+    scores = np.array([1.0, 2.0, 4.0])
+    assert aggregate(scores).tolist() == [1.0, 2.0, 4.0]  # mode "window", w = 1
+    window = WindowAccumulator()
+    assert (window.mode, window.w) == ("window", 1)
+    assert [window.push(s) for s in scores] == [1.0, 2.0, 4.0]
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_skipping_no_step_changes_nothing(mode: str) -> None:
+    window = WindowAccumulator(2, mode)
+    window.push(3.0)
+    window.skip(0)
+    assert window.push(4.0) == (4.0 if mode == "single" else 7.0)
+
+
+def test_rejections_say_what_was_wrong() -> None:
+    with pytest.raises(ValueError, match=r"^scores must be finite, got 2 NaN/inf$"):  # two of three
+        windowed(np.array([1.0, np.nan, np.inf]), 2)
+    with pytest.raises(ValueError, match=r"^scores must be 1-D, got shape \(1, 2\)$"):
+        cumulative(np.ones((1, 2)))
+    with pytest.raises(ValueError, match=r"^unknown aggregation mode 'median'; expected one of \('window', "):
+        WindowAccumulator(2, "median")
+    with pytest.raises(ValueError, match=r"^cannot skip -1 steps$"):
+        WindowAccumulator(2).skip(-1)

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from fiper_ros.core.rollout import Rollout
+from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.engine import horizons
 from fiper_ros.evaluation.protocol import METRICS, alarm_metrics, run_protocol, validation_split
 from fiper_ros.evaluation.sweep import Group
 
@@ -25,6 +28,28 @@ def test_alarm_metrics_match_hand_computed_values() -> None:
     assert (tpr, tnr, acc) == (0.5, 0.5, 0.5)
     assert dt == 0.2
     assert twa == 0.5 * ((1 - 0.2) / 2 + 0.5)
+
+
+def _rollout(name: str, length: int, success: bool) -> Rollout:
+    return Rollout(rollout_id=name, task="hand", scenario="id", embeddings=np.zeros((length, 2)),
+                   actions=np.zeros((length, 2, 2, 2)), exec_steps=1, success=success)
+
+
+def test_detection_time_is_relative_to_each_rollouts_own_length() -> None:
+    # App. B.4: a failed episode of length T flagged at t is predicted right at T - t of its T steps. A failure
+    # that ends early (a block off the table, 20 steps) is judged on its own length, not on the 75-step limit.
+    calibration = [_rollout("c0", 30, True), _rollout("c1", 40, True), _rollout("c2", 80, True)]
+    test = [_rollout("early", 20, False), _rollout("limit", 75, False), _rollout("ok", 30, True)]
+    dataset = Dataset("hand", calibration, test)
+    assert horizons(dataset, "paper").tolist() == [20, 75, 30]
+    alarms = np.array([[[10, 15, -1]]])
+    dt = METRICS.index("dt")
+    paper = alarm_metrics(alarms, dataset.failed, horizons(dataset, "paper"), "paper")[0, 0]
+    assert paper[dt] == (10 / 20 + 15 / 75) / 2
+    # the authors' code: the longest rollout over calibration and test, minus one
+    assert horizons(dataset, "reference") == 80
+    reference = alarm_metrics(alarms, dataset.failed, horizons(dataset, "reference"), "reference")[0, 0]
+    assert reference[dt] == (10 / 79 + 15 / 79) / 2
 
 
 def test_selection_maximises_mean_twa_and_reports_the_other_subset() -> None:

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import zstandard
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -26,6 +27,7 @@ from helpers.synthetic import make_rollout
 Damage = Callable[[Path], str]
 
 CHUNK, DATA_END, FOOTER = 0x06, 0x0F, 0x02
+MAGIC = b"\x89MCAP0\r\n"
 #: Rollouts of the recorded bag: long enough for several 1 MiB MCAP chunks.
 RECORDED_ROLLOUTS, RECORDED_LENGTH = 20, 60
 
@@ -47,13 +49,36 @@ def mcap_of(bag: Path) -> Path:
 
 
 def records(data: bytes) -> list[tuple[int, int, int]]:
-    """``(position, opcode, end)`` of every record of a whole MCAP file."""
+    """``(position, opcode, end)`` of every record of a whole MCAP file (of a cut one: up to the cut)."""
     position, found = 8, []
-    while position < len(data) - 8:
+    while position + 9 <= len(data) - (8 if data.endswith(MAGIC) else 0):
         end = position + 9 + int.from_bytes(data[position + 1:position + 9], "little")
+        if end > len(data):
+            break
         found.append((position, data[position], end))
         position = end
     return found
+
+
+def chunk_messages(data: bytes) -> list[int]:
+    """Messages per complete chunk of an MCAP file (cut or not), in file order: every chunk record whole in
+    ``data`` decompressed (zstd) and its message records (opcode 0x05) counted."""
+    counts = []
+    for position, opcode, end in records(data):
+        if opcode != CHUNK:
+            continue
+        body = data[position + 9:end]
+        size = int.from_bytes(body[16:24], "little")
+        name_length = int.from_bytes(body[28:32], "little")
+        compression = body[32:32 + name_length].decode()
+        payload = body[32 + name_length + 8:]
+        inner = zstandard.ZstdDecompressor().decompress(payload, max_output_size=size) if compression else payload
+        count, offset = 0, 0
+        while offset < len(inner):
+            count += inner[offset] == 0x05
+            offset += 9 + int.from_bytes(inner[offset + 1:offset + 9], "little")
+        counts.append(count)
+    return counts
 
 
 def _cut(bag: Path, at: Callable[[list[tuple[int, int, int]], int], int], where: Callable[[int, int], str]) -> str:
@@ -220,8 +245,50 @@ def other_definition_of_a_fiper_type(bag: Path) -> str:
     return f"{bag}: its definition of fiper_msgs/msg/ObservationEmbedding (on {EMBEDDING}, RIHS01_"
 
 
+#: The damages after which a bag is unfinished, not unreadable: it is read up to its last complete chunk
+#: (docs/reliability.md, "Recordings"), and refused with --strict (the text its damage returns).
+UNFINISHED = ("cut_inside_a_chunk", "cut_between_chunks", "cut_before_the_summary", "cut_before_the_footer",
+              "cut_inside_the_trailing_magic", "no_metadata")
+
 BAG_DAMAGES: dict[str, Damage] = {damage.__name__: damage for damage in (
     zero_bytes, random_bytes, cut_inside_header, cut_inside_a_chunk, cut_between_chunks, cut_before_the_summary,
     cut_before_the_footer, cut_inside_the_trailing_magic, changed_byte_in_a_chunk, no_metadata, metadata_not_yaml,
     metadata_of_another_tool, newer_rosbag2_version, newer_fiper_schema, storage_file_missing, only_std_msgs,
     std_msgs_on_a_fiper_topic, other_definition_of_a_fiper_type)}
+
+
+# -- what a killed live recorder leaves -------------------------------------------------------------
+
+#: Steps (embedding + action batch) per closed chunk of :func:`write_and_die`, and the steps left in its open chunk.
+STEPS_PER_CHUNK, OPEN_STEPS = 5, 2
+#: ``custom_data`` of :func:`write_and_die`'s bag.
+LIVE_INFO = BagInfo(task="synthetic", calibration_hash="c0ffee", source="fiper record", split="test")
+
+
+def live_stream(chunks: int) -> list[tuple[str, int, bytes]]:
+    """``(topic, log time, CDR)`` of :func:`write_and_die`: a START, then ``chunks`` chunks' worth of steps and
+    :data:`OPEN_STEPS` more."""
+    from helpers.stream import start_cdr, step_cdr  # noqa: PLC0415 - the stream helpers import the DDS harness
+
+    rollout = make_rollout(7, length=STEPS_PER_CHUNK * chunks + OPEN_STEPS)
+    stream = [("/fiper/rollout_events", 1_000, start_cdr(9))]
+    for step in range(rollout.length):
+        stream.extend((topic, 2_000 + step, raw) for topic, raw in step_cdr(9, step, rollout))
+    return stream
+
+
+def write_and_die(path: str, chunks: int) -> None:
+    """Write :func:`live_stream` as a live bag, closing ``chunks`` chunks of :data:`STEPS_PER_CHUNK` steps each (the
+    first holds the START too), then die by SIGKILL with :data:`OPEN_STEPS` steps in the open chunk."""
+    import os  # noqa: PLC0415
+    import signal  # noqa: PLC0415
+
+    from fiper_ros.bags.live_options import LiveChunks  # noqa: PLC0415
+
+    writer = BagWriter(Path(path), live=LiveChunks(seconds=3600.0, megabytes=100.0))
+    writer.info = LIVE_INFO
+    for index, (topic, time_ns, raw) in enumerate(live_stream(chunks)):
+        writer.write(topic, time_ns, raw)
+        if index and index % (2 * STEPS_PER_CHUNK) == 0 and index <= 2 * STEPS_PER_CHUNK * chunks:
+            writer.flush()
+    os.kill(os.getpid(), signal.SIGKILL)

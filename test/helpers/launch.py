@@ -1,4 +1,5 @@
-"""``fiper launch`` in a subprocess for the process-level tests: its output collected line by line."""
+"""``fiper launch`` in a subprocess for the process-level tests: its output collected line by line; a launched
+suite with the test's driver beside it (:class:`Rig`)."""
 from __future__ import annotations
 
 import os
@@ -7,9 +8,24 @@ import signal
 import subprocess
 import sys
 import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
+import rclpy
+import yaml
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from std_srvs.srv import Trigger
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.core.rollout import Rollout
 from helpers.dds import ros_env
+from helpers.spin import spin_until
+from helpers.suite import STEP_NS, Driver
+
+POLICY_PERIOD_S = STEP_NS / 1e9
 
 
 class Launch:
@@ -49,3 +65,108 @@ class Launch:
         if self.proc.poll() is None:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait(timeout=30)
+
+
+@dataclass
+class Rig:
+    """A launched suite (with the example supervisor), the test's driver and its halt service."""
+
+    launch: Launch
+    context: Context
+    driver: Driver
+    executor: SingleThreadedExecutor
+    halts: list[float] = field(default_factory=list)
+    """When the supervisor called ``/test/halt`` (monotonic seconds)."""
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
+        return spin_until(self.executor, condition, timeout, step=0.01)
+
+    def pace(self, seconds: float, condition: Callable[[], bool] = lambda: False) -> bool:
+        """Spin for ``seconds`` of a policy period (returning early once ``condition`` holds)."""
+        return self.spin_until(condition, timeout=seconds)
+
+    def start(self, rollout_id: int) -> None:
+        self.driver.start(rollout_id)
+        self.pace(0.2)  # the nodes take the START before the first step (the policy resets the sim first)
+
+    def step(self, rollout_id: int, rollout: Rollout, step: int) -> None:
+        self.driver.step(rollout_id, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+
+    def run_paced(self, rollout_id: int, rollout: Rollout, steps: range) -> dict[int, FailureAlarm]:
+        """Publish ``steps`` at 10 Hz, each after the previous one's verdict arrived."""
+        for step in steps:
+            began = time.monotonic()
+            self.step(rollout_id, rollout, step)
+            assert self.spin_until(lambda s=step: s in self.driver.alarms_of(rollout_id)), \
+                (rollout_id, step, "\n".join(self.launch.lines[-30:]))
+            self.pace(max(0.0, POLICY_PERIOD_S - (time.monotonic() - began)))
+        return self.driver.alarms_of(rollout_id)
+
+    def steps_until(self, noticed: Callable[[], bool], rollout_id: int, rollout: Rollout, first: int) -> int:
+        """Go on publishing at 10 Hz from step ``first`` until ``noticed()``; the steps published meanwhile."""
+        for published, step in enumerate(range(first, rollout.length)):
+            if noticed():
+                return published
+            began = time.monotonic()
+            self.step(rollout_id, rollout, step)
+            if self.pace(max(0.0, POLICY_PERIOD_S - (time.monotonic() - began)), noticed):
+                return published + 1
+        raise AssertionError(f"not noticed within {rollout.length - first} steps:\n"
+                             + "\n".join(self.launch.lines[-40:]))
+
+    def wait_healthy(self, name: str) -> None:
+        """Wait until ``name`` reports ACTIVE again and the driver's topics are wired to the whole suite."""
+        key = f"fiper: /fiper/{name}"
+        self.driver.diagnostics.pop(key, None)
+        assert self.spin_until(lambda: self.driver.diagnostics.get(key, {}).get("lifecycle_state") == "active",
+                               timeout=60), "\n".join(self.launch.lines[-40:])
+        assert self.spin_until(lambda: self.driver.embeddings.get_subscription_count() >= 1
+                               and self.driver.batches.get_subscription_count() >= 1
+                               and self.driver.events.get_subscription_count() >= 4)
+
+    def close(self) -> None:
+        """Stop the driver and SIGKILL the launch (what a test leaves behind)."""
+        self.executor.shutdown()
+        self.driver.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self.launch.kill()
+
+
+def suite_config(path: Path, calibration_dir: Path, *, respawn: bool = False,
+                 scoring: dict[str, object] | None = None) -> Path:
+    """Write a launch YAML to ``path``: the scoring nodes on ``calibration_dir`` (and ``scoring`` parameters), the
+    fusion node (``respawn`` with a delay of 0.5 s for all three) and the example supervisor calling ``/test/halt``."""
+    share = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "config"
+    parameters = {"calibration_dir": str(calibration_dir), **(scoring or {})}
+    respawning = {"respawn": respawn, "respawn_delay": 0.5}
+    path.write_text(yaml.safe_dump({
+        "namespace": "/fiper",
+        "parameter_files": [str(share / "nodes.yaml")],
+        "nodes": {
+            "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": parameters, **respawning},
+            "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": parameters, **respawning},
+            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", **respawning},
+            "supervisor_node": {"module": "fiper_ros.nodes.supervisor_node",
+                                "parameters": {"halt_service": "/test/halt", "deadline_s": 2.0}},
+        },
+    }))
+    return path
+
+
+def open_rig(config: Path, domain: int) -> Rig:
+    """Launch ``config`` in ``domain`` and make the test's driver, with the ``/test/halt`` service, beside it."""
+    launch = Launch(config, domain)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain)
+    executor = SingleThreadedExecutor(context=context)
+    rig = Rig(launch, context, Driver(context), executor)
+
+    def on_halt(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        del request
+        rig.halts.append(time.monotonic())
+        response.success = True
+        return response
+
+    rig.driver.create_service(Trigger, "/test/halt", on_halt)
+    executor.add_node(rig.driver)
+    return rig

@@ -14,12 +14,27 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
+from fiper_ros.core.monitor import RolloutPrediction
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg
 from helpers.spin import spin_until
 
 STEP_NS = 100_000_000  # 10 Hz policy
+STATE = {FailureAlarm.STATE_OK: "ok", FailureAlarm.STATE_ALARM: "alarm", FailureAlarm.STATE_UNKNOWN: "unknown"}
+
+
+def assert_as_the_oracle(alarms: dict[int, FailureAlarm], prediction: RolloutPrediction) -> None:
+    """The per-step verdicts are the offline oracle's: state (latched), flags, windowed scores and thresholds."""
+    latched = np.logical_or.accumulate(prediction.alarms)
+    assert sorted(alarms) == list(range(len(latched)))
+    for t, msg in alarms.items():
+        assert STATE[msg.state] == ("alarm" if latched[t] else "ok"), (t, msg)
+        assert (msg.obs_exceeded, msg.act_exceeded) == (prediction.obs_exceeded[t], prediction.act_exceeded[t]), t
+        assert (msg.eta_obs, msg.eta_act) == (np.float32(prediction.obs_windowed[t]),
+                                             np.float32(prediction.act_windowed[t])), t
+        assert (msg.gamma_obs, msg.gamma_act) == (np.float32(prediction.obs_thresholds[t]),
+                                                 np.float32(prediction.act_thresholds[t])), t
 
 
 class Driver(Node):

@@ -9,136 +9,36 @@ from __future__ import annotations
 
 import os
 import signal
-import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-import rclpy
-import yaml
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.core.rollout import Rollout
 from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg
-from helpers.launch import Launch
-from helpers.spin import spin_until
-from helpers.suite import STEP_NS, Driver
+from helpers.launch import Rig, open_rig, suite_config
+from helpers.suite import STEP_NS
 from helpers.synthetic import FAIL_FROM, LENGTH, make_rollout
 
-POLICY_PERIOD_S = STEP_NS / 1e9
 #: The promise: a fault goes unnoticed for at most this many policy steps.
 NOTICED_WITHIN_STEPS = 3
 NODES = ("rnd_oe_node", "ace_node", "fusion_node")
 
 
-@dataclass
-class Rig:
-    """A launched suite (with the example supervisor), the test's driver and its halt service."""
-
-    launch: Launch
-    driver: Driver
-    executor: SingleThreadedExecutor
-    halts: list[float] = field(default_factory=list)
-
-    def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
-        return spin_until(self.executor, condition, timeout, step=0.01)
-
-    def pace(self, seconds: float, condition: Callable[[], bool] = lambda: False) -> bool:
-        """Spin for ``seconds`` of a policy period (returning early once ``condition`` holds)."""
-        return self.spin_until(condition, timeout=seconds)
-
-    def start(self, rollout_id: int) -> None:
-        self.driver.start(rollout_id)
-        self.pace(0.2)  # the nodes take the START before the first step (the policy resets the sim first)
-
-    def step(self, rollout_id: int, rollout: Rollout, step: int) -> None:
-        self.driver.step(rollout_id, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
-
-    def run_paced(self, rollout_id: int, rollout: Rollout, steps: range) -> dict[int, FailureAlarm]:
-        """Publish ``steps`` at 10 Hz, each after the previous one's verdict arrived."""
-        for step in steps:
-            began = time.monotonic()
-            self.step(rollout_id, rollout, step)
-            assert self.spin_until(lambda s=step: s in self.driver.alarms_of(rollout_id)), \
-                (rollout_id, step, "\n".join(self.launch.lines[-30:]))
-            self.pace(max(0.0, POLICY_PERIOD_S - (time.monotonic() - began)))
-        return self.driver.alarms_of(rollout_id)
-
-    def steps_until(self, noticed: Callable[[], bool], rollout_id: int, rollout: Rollout, first: int) -> int:
-        """Go on publishing at 10 Hz from step ``first`` until ``noticed()``; the steps published meanwhile."""
-        for published, step in enumerate(range(first, rollout.length)):
-            if noticed():
-                return published
-            began = time.monotonic()
-            self.step(rollout_id, rollout, step)
-            if self.pace(max(0.0, POLICY_PERIOD_S - (time.monotonic() - began)), noticed):
-                return published + 1
-        raise AssertionError(f"not noticed within {rollout.length - first} steps:\n" + "\n".join(self.launch.lines[-40:]))
-
-    def wait_healthy(self, name: str) -> None:
-        """Wait until ``name`` reports ACTIVE again and the driver's topics are wired to the whole suite."""
-        key = f"fiper: /fiper/{name}"
-        self.driver.diagnostics.pop(key, None)
-        assert self.spin_until(lambda: self.driver.diagnostics.get(key, {}).get("lifecycle_state") == "active",
-                               timeout=60), "\n".join(self.launch.lines[-40:])
-        assert self.spin_until(lambda: self.driver.embeddings.get_subscription_count() >= 1
-                               and self.driver.batches.get_subscription_count() >= 1
-                               and self.driver.events.get_subscription_count() >= 4)
-
-
-def _config(path: Path, calibration_dir: Path, respawn: bool) -> Path:
-    share = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "config"
-    scoring = {"calibration_dir": str(calibration_dir)}
-    respawning = {"respawn": respawn, "respawn_delay": 0.5}
-    path.write_text(yaml.safe_dump({
-        "namespace": "/fiper",
-        "parameter_files": [str(share / "nodes.yaml")],
-        "nodes": {
-            "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": scoring, **respawning},
-            "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": scoring, **respawning},
-            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", **respawning},
-            "supervisor_node": {"module": "fiper_ros.nodes.supervisor_node",
-                                "parameters": {"halt_service": "/test/halt", "deadline_s": 2.0}},
-        },
-    }))
-    return path
-
-
 @pytest.fixture
 def rig_factory(tmp_path: Path, calibration_dir: Path, ros_domain: int) -> Iterator[Callable[[bool], Rig]]:
-    made: list[tuple[Rig, Context]] = []
+    made: list[Rig] = []
 
     def make(respawn: bool) -> Rig:
-        launch = Launch(_config(tmp_path / "suite.yaml", calibration_dir, respawn), ros_domain)
-        context = Context()
-        rclpy.init(context=context, domain_id=ros_domain)
-        executor = SingleThreadedExecutor(context=context)
-        driver = Driver(context)
-        rig = Rig(launch, driver, executor)
-
-        def on_halt(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-            del request
-            rig.halts.append(time.monotonic())
-            response.success = True
-            return response
-
-        driver.create_service(Trigger, "/test/halt", on_halt)
-        executor.add_node(driver)
-        made.append((rig, context))
+        rig = open_rig(suite_config(tmp_path / "suite.yaml", calibration_dir, respawn=respawn), ros_domain)
+        made.append(rig)
         for name in NODES:
             rig.wait_healthy(name)
         return rig
 
     yield make
-    for rig, context in made:
-        rig.executor.shutdown()
-        rig.driver.destroy_node()
-        rclpy.try_shutdown(context=context)
-        rig.launch.kill()
+    for rig in made:
+        rig.close()
 
 
 def _unknown_naming(rig: Rig, rollout_id: int, detector: str) -> Callable[[], bool]:

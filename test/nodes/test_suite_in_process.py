@@ -10,10 +10,8 @@ import pytest
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.monitor import predict_rollout
-from helpers.suite import Suite
+from helpers.suite import STATE, Suite
 from helpers.synthetic import FAIL_FROM, make_calibration, make_rollout
-
-STATE = {FailureAlarm.STATE_OK: "ok", FailureAlarm.STATE_ALARM: "alarm", FailureAlarm.STATE_UNKNOWN: "unknown"}
 
 
 def _expected_states(prediction) -> list[str]:  # noqa: ANN001
@@ -106,6 +104,29 @@ def test_a_repeated_start_keeps_the_latch_and_the_windows(suite: Suite, calibrat
     for t in range(half, rollout.length):  # the windows went on where they were: the same numbers as offline
         assert alarms[t].eta_obs == np.float32(prediction.obs_windowed[t])
         assert alarms[t].eta_act == np.float32(prediction.act_windowed[t])
+
+
+def test_a_rollout_started_again_after_its_end_is_judged_afresh(suite: Suite) -> None:
+    # Found by test/nodes/test_fuzz.py: the fusion node took a START of the rollout id that had just ended for a
+    # repeated START and ignored it, while the scoring nodes began the rollout again from step 0. The new run was
+    # then judged with the old one's latch and step bookkeeping: all ALARM after a failed run, and OK after a gap
+    # of steps the new run never had judged (the old run had judged them).
+    drv = suite.driver
+    failing = make_rollout(307, fail=True)
+    assert suite.run(failing, rollout_id=13)[FAIL_FROM].state == FailureAlarm.STATE_ALARM  # ends with END
+    drv.start(13)
+    assert suite.spin_until(lambda: suite.rnd_oe.rollouts.active is not None and suite.ace.rollouts.active is not None
+                            and (suite.fusion.fuser.active_rollout == 13 or suite.fusion.repeated_starts == 1))
+    fine = make_rollout(308)
+    steps = [0, 1, 5, 6, 7, 8]  # steps 2-4 never come
+    for step in steps:
+        drv.step(13, step, fine.embeddings[step], fine.actions[step], fine.exec_steps)
+        assert suite.spin_until(lambda s=step: sum(m.step == s for m in drv.alarms if m.rollout_id == 13
+                                                   and not m.heartbeat) == 2), step  # this run's verdict too
+    again = {m.step: m for m in drv.alarms if m.rollout_id == 13 and not m.heartbeat}  # the later verdict per step
+    assert [again[t].state for t in (0, 1)] == [FailureAlarm.STATE_OK] * 2, [again[t].reason for t in (0, 1)]
+    assert [again[t].state for t in steps[2:]] == [FailureAlarm.STATE_UNKNOWN] * 4, [again[t].reason for t in steps]
+    assert suite.fusion.repeated_starts == 0
 
 
 def test_after_the_end_of_a_latched_rollout_the_heartbeat_names_it(suite: Suite) -> None:

@@ -36,6 +36,14 @@ def test_embedding_rejections(data: list[float], shape: list[int], dim: int | No
     assert _reason(lambda: validation.embedding(data, shape, dim)) == reason
 
 
+def test_a_declared_shape_whose_product_overflows_int64_is_rejected() -> None:
+    # Found by test/nodes/test_fuzz.py: np.prod wrapped this shape's product (about 1.2e21) to exactly 16 in
+    # int64, so 16 values with this declared shape were scored as a valid embedding.
+    shape = [16, 3702849463, 793907557, 251]
+    assert int(np.prod(np.asarray(shape, dtype=np.uint32))) == 16
+    assert _reason(lambda: validation.embedding(np.zeros(16, np.float32), shape, 16)) == validation.SHAPE
+
+
 def test_oversize_is_rejected_before_anything_else() -> None:
     assert _reason(lambda: validation.embedding(np.zeros(11), [11], 11, max_elements=10)) == validation.OVERSIZE
     assert _reason(lambda: validation.action_batch(np.zeros(12), 2, 2, 3, 1, max_elements=10)) == validation.OVERSIZE

@@ -16,7 +16,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from fiper_ros.bags import robot_options
+from fiper_ros.bags import live_options, robot_options
 from fiper_ros.bags.atomic import atomic_output, check_new
 from fiper_ros.bags.convert_options import parse_channels
 from fiper_ros.bags.errors import BagError, fail
@@ -129,6 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-epochs", type=int, default=0, help="cap RND-OE training epochs (0: the preset's)")
     parser.add_argument("--action-dims", default=None, help="action channels ACE uses, START:STOP (default: 0:3)")
     parser.add_argument("--force", action="store_true", help="replace DIR if it exists")
+    live_options.add_strict_argument(parser)
     robot_options.add_arguments(parser)
 
 
@@ -137,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         settings = settings_from(args)
         fk = robot_options.fk_of(robot_options.robot_from(args))
-        bags = find_bags(args.bags)
+        bags = find_bags(args.bags, strict=args.strict, command="calibrate")
         calibration = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
     except BagError as error:
         return fail("calibrate", error)

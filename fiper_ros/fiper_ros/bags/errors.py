@@ -16,3 +16,9 @@ def fail(command: str, error: object) -> int:
     text = " ".join(str(error).split())
     print(f"fiper {command}: {text}", file=sys.stderr)
     return EXIT_USAGE
+
+
+def warn(command: str, text: object) -> None:
+    """Print ``fiper COMMAND: warning: TEXT`` on one line to stderr (the command goes on)."""
+    line = " ".join(str(text).split())
+    print(f"fiper {command}: warning: {line}", file=sys.stderr, flush=True)

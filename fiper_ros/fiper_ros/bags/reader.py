@@ -2,7 +2,8 @@
 
 Every problem becomes a :class:`~fiper_ros.bags.errors.BagError` of one line naming the bag or file: a
 missing or malformed ``metadata.yaml``, an empty, foreign or truncated MCAP file
-(:func:`fiper_ros.bags.storage.check_mcap`, before ``rosbags`` opens it), corrupt MCAP data, a message
+(:func:`fiper_ros.bags.storage.check_mcap`, before ``rosbags`` opens it; an unfinished bag is read through a
+recovered copy if :func:`find_bags` was allowed to make one), corrupt MCAP data, a message
 that does not decode, and a schema topic whose type or definition (RIHS01 hash) is not the installed
 ``fiper_msgs`` one (:meth:`BagReader.check_schema`).
 """
@@ -14,66 +15,29 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection, Qos
 
 from fiper_ros.bags.errors import BagError
+from fiper_ros.bags.recover import read_unfinished, readable_copy, unfinished
 from fiper_ros.bags.schema import TOPICS, BagInfo, typestore
-from fiper_ros.bags.storage import check_mcap
-
-METADATA = "metadata.yaml"
+from fiper_ros.bags.storage import METADATA, bag_directories, check_mcap, read_metadata, storage_files
 
 
-def _below(root: Path, pattern: str) -> Iterator[Path]:
-    """Files matching ``pattern`` below ``root``, outside hidden directories."""
-    return (f for f in root.rglob(pattern) if not any(part.startswith(".") for part in f.relative_to(root).parts))
-
-
-def find_bags(paths: Iterable[Path]) -> list[Path]:
-    """The bags named by ``paths``: a bag directory itself, or every bag below a directory (sorted;
-    hidden directories, such as a writer's staging, left out). A directory of MCAP data without
-    ``metadata.yaml`` (an unfinished recording) is refused rather than skipped."""
-    found: list[Path] = []
-    for path in map(Path, paths):
-        if (path / METADATA).is_file():
-            found.append(path)
-        elif path.is_file() and path.suffix == ".mcap":
-            raise BagError(f"{path}: give the bag directory (the one with {METADATA}), not the .mcap file")
-        elif path.is_dir():
-            bare = sorted({f.parent for f in _below(path, "*.mcap") if not (f.parent / METADATA).is_file()})
-            if bare:
-                raise BagError(f"{bare[0]}: MCAP data but no {METADATA}: not a finished rosbag2 bag (the recording "
-                               "did not end, or the file was removed)")
-            below = sorted(p.parent for p in _below(path, METADATA))
-            if not below:
-                raise BagError(f"{path}: no bag ({METADATA}) in this directory")
-            found.extend(below)
-        else:
-            raise BagError(f"{path}: no such bag")
-    return found
-
-
-def _read_metadata(path: Path) -> dict[str, Any]:
-    try:
-        with (path / METADATA).open() as stream:
-            content = yaml.safe_load(stream)
-    except (OSError, yaml.YAMLError) as error:
-        raise BagError(f"{path}: unreadable {METADATA}: {error}") from error
-    info = content.get("rosbag2_bagfile_information") if isinstance(content, dict) else None
-    if not isinstance(info, dict):
-        raise BagError(f"{path}: {METADATA} is not rosbag2 metadata")
-    return info
-
-
-def _storage_files(path: Path, metadata: dict[str, Any]) -> list[Path]:
-    """The MCAP files ``metadata.yaml`` lists (none for another storage plugin)."""
-    if metadata.get("storage_identifier") != "mcap":
-        return []
-    names = metadata.get("relative_file_paths")
-    if not isinstance(names, list) or not names:
-        raise BagError(f"{path}: {METADATA} lists no storage files (relative_file_paths)")
-    return [path / str(name) for name in names]
+def find_bags(paths: Iterable[Path], *, strict: bool = True, command: str = "") -> list[Path]:
+    """The bags named by ``paths``: a bag directory itself, or every bag below a directory (sorted; hidden
+    directories, such as a writer's staging, left out). An unfinished bag (MCAP data without
+    ``metadata.yaml``, or an MCAP file that does not end) is refused with ``strict``; else it is recovered
+    into a temporary copy that :class:`BagReader` reads, with a one-line warning (``fiper COMMAND: ...``)."""
+    bags = bag_directories(paths)
+    for bag in bags:
+        reason = unfinished(bag)
+        if reason is None:
+            continue
+        if strict:
+            raise BagError(f"{reason}; 'fiper bag recover {bag}' finishes it")
+        read_unfinished(bag, command)
+    return bags
 
 
 @dataclass(frozen=True)
@@ -94,18 +58,20 @@ class BagReader:
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
-        if not (self.path / METADATA).is_file():
+        self._data = readable_copy(self.path) or self.path
+        """Where the bag's files are: the bag, or the recovered copy of an unfinished bag (:func:`find_bags`)."""
+        if not (self._data / METADATA).is_file():
             raise BagError(f"{self.path}: not a rosbag2 bag (no {METADATA})")
-        metadata = _read_metadata(self.path)
+        metadata = read_metadata(self._data)
         self.info = BagInfo.from_custom_data(metadata.get("custom_data"), str(self.path))
-        self._files = _storage_files(self.path, metadata)
+        self._files = storage_files(self._data, metadata)
         self._reader: AnyReader | None = None
 
     def __enter__(self) -> BagReader:
         for file in self._files:
             check_mcap(file)
         try:
-            self._reader = AnyReader([self.path])
+            self._reader = AnyReader([self._data])
             self._reader.open()
         except Exception as error:  # noqa: BLE001 - any rosbags/MCAP failure is a bad bag
             self._reader = None

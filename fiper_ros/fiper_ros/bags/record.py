@@ -2,9 +2,11 @@
 
 Subscribes to the given topics (default: every topic of the bag schema, as soon as it has a
 publisher) with raw subscriptions and writes the CDR bytes as received, with each connection's
-offered QoS and the receive time as log time, until Ctrl-C / SIGTERM or ``--duration``. The bag is
-written under a temporary name and appears complete when recording stops. :class:`Recorder` also
-serves ``fiper demo`` (one bag) and ``fiper collect --ros`` (a bag per rollout).
+offered QoS and the receive time as log time, until Ctrl-C / SIGTERM or ``--duration``. The bag is live
+(:class:`~fiper_ros.bags.live_options.LiveChunks`): at its path from the start, a chunk on disk at least every
+``--chunk-s`` seconds, ``metadata.yaml`` written when recording stops; a killed recorder leaves an
+unfinished bag that ``fiper bag recover`` finishes. :class:`Recorder` also serves ``fiper demo`` (one bag)
+and ``fiper collect --ros`` (a bag per rollout), both staged (complete or not there).
 """
 from __future__ import annotations
 
@@ -14,8 +16,10 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
+from fiper_ros.bags import live_options
 from fiper_ros.bags.capture import InfoTracker, TopicTap
 from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.live_options import LiveChunks
 from fiper_ros.bags.schema import BagInfo
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.writer import BagWriter
@@ -60,15 +64,19 @@ class Recorder:
         """``custom_data`` learned so far (shapes, task, calibration hash, source)."""
         return self.tracker.info
 
-    def start(self, out: Path, overwrite: bool = False) -> None:
-        """Open a bag at ``out`` (``overwrite``: replace an existing one when finished)."""
+    def start(self, out: Path, overwrite: bool = False, live: LiveChunks | None = None) -> None:
+        """Open a bag at ``out`` (``overwrite``: replace an existing one; ``live``: write it live, else staged)."""
         if self.writer is not None:
             raise BagError(f"{out}: the bag {self.writer.path} is still open")
-        self.writer = BagWriter(out, overwrite=overwrite)
+        self.writer = BagWriter(out, overwrite=overwrite, live=live)
         self.counts = Counter()
 
     def poll(self) -> list[str]:
-        """Subscribe to wanted topics that appeared (at most every :data:`GRAPH_POLL_S`); the new ones."""
+        """Hand a live bag's chunk to the disk when due (with the ``custom_data`` learned so far); subscribe
+        to wanted topics that appeared (at most every :data:`GRAPH_POLL_S`); the new ones."""
+        if self.writer is not None:
+            self.writer.info = self.info
+            self.writer.tick()
         if time.monotonic() < self._next_poll:
             return []
         self._next_poll = time.monotonic() + GRAPH_POLL_S
@@ -98,11 +106,13 @@ class Recorder:
         return writer
 
 
-def record(out: Path, topics: list[str], duration: float | None, domain: int | None, overwrite: bool) -> int:
-    """Record until stopped; returns the number of messages written."""
+def record(out: Path, topics: list[str], duration: float | None, domain: int | None, overwrite: bool,
+           live: LiveChunks) -> int:
+    """Record until stopped; returns the number of messages written. An error stops the recording and leaves
+    the bag unfinished (with everything received)."""
     with RosSession("fiper_record", domain) as session:
         recorder = Recorder(session, topics)
-        recorder.start(out, overwrite)
+        recorder.start(out, overwrite, live)
         print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:
@@ -124,12 +134,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, help="stop after this many seconds")
     parser.add_argument("--domain", type=int, help="ROS domain (default: ROS_DOMAIN_ID)")
     parser.add_argument("--force", action="store_true", help="replace the bag if it exists")
+    live_options.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """``fiper record``."""
     try:
-        count = record(args.out, args.topics, args.duration, args.domain, args.force)
+        count = record(args.out, args.topics, args.duration, args.domain, args.force, live_options.chunks_from(args))
     except BagError as error:
         return fail("record", error)
     print(f"{args.out}: {count} messages")

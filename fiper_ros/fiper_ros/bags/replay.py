@@ -34,7 +34,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
-from fiper_ros.bags import robot_options
+from fiper_ros.bags import live_options, robot_options
 from fiper_ros.bags.atomic import atomic_output
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import BagReader, find_bags
@@ -305,13 +305,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clock-hz", type=float, default=100.0, help="/clock ticks per simulated second (--rate)")
     parser.add_argument("--report", type=Path, help="write the per-step results as JSON to this file")
     parser.add_argument("--verbose", action="store_true", help="show the launched suite's output")
+    live_options.add_strict_argument(parser)
     robot_options.add_arguments(parser, control_dt=False)
 
 
 def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | None]:
     """The bags (each read once, so a bad one is refused before anything starts) and the calibration
     directory to use."""
-    bags = find_bags(args.bags)
+    bags = find_bags(args.bags, strict=args.strict, command="replay")
     for bag in bags:
         with BagReader(bag) as reader:
             reader.require_any(INPUT_TOPICS)

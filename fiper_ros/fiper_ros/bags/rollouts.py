@@ -234,6 +234,22 @@ def _to_rollout(record: _Collected, path: Path) -> Rollout:
         raise BagError(f"{path}: rollout {record.rollout_id}: {error}") from error
 
 
+def _drop_cut_step(record: _Collected, path: Path) -> None:
+    """A rollout the bag cuts off (no END: the recording stopped, or ended unfinished) may end inside its last
+    step, with its embedding but not its batch or the reverse: that step is left out, with a warning."""
+    steps = set(record.embeddings) | set(record.batches)
+    if record.outcome is not None or not steps:
+        return
+    last = max(steps)
+    if (last in record.embeddings) == (last in record.batches):
+        return
+    held = "observation embedding" if last in record.embeddings else "action batch"
+    LOG.warning("%s: rollout %d ends inside step %d (only its %s, no END): that step is left out", path,
+                record.rollout_id, last, held)
+    for table in (record.embeddings, record.batches, record.joints):
+        table.pop(last, None)
+
+
 def read_rollouts(path: Path) -> list[Rollout]:
     """The rollouts of one bag, in the order they start; rollouts without any step are left out, a bag
     without embeddings and action batches is refused."""
@@ -242,6 +258,7 @@ def read_rollouts(path: Path) -> list[Rollout]:
         collected = _collect(bag)
     rollouts = []
     for record in collected:
+        _drop_cut_step(record, path)
         if not record.embeddings and not record.batches:
             LOG.warning("%s: rollout %d has no steps; left out", path, record.rollout_id)
             continue

@@ -1,42 +1,99 @@
-"""The MCAP files of a bag: checked before ``rosbags`` reads them, and given chunk checksums when
-written. The reader layer's one home for "this file is empty, not MCAP, cut short or corrupt"
-(docs/reliability.md, "Bags and calibration files").
+"""The files of a bag: ``metadata.yaml`` and its MCAP files, checked before ``rosbags`` reads them, and the
+readable part of an MCAP file that did not finish. The reader layer's one home for "this file is empty,
+not MCAP, cut short or corrupt" (docs/reliability.md, "Bags and calibration files" and "Recordings").
 
 An MCAP file (https://mcap.dev/spec) begins and ends with the magic bytes; in between come records
-(opcode byte, uint64 length, body): a header, the data section (chunks of messages and their message
-indexes), a data-end record, the summary section and the footer. A recording that did not finish (a
-killed recorder, a full disk) or a file cut in transfer lacks the trailing magic; :func:`check_mcap`
-then walks the records from the start and says where the file ends: inside which record, after how
-many complete chunks. A truncated file is refused for now; reading it up to its last complete chunk
-would start from that walk.
+(opcode byte, uint64 length, body): a header, the data section (chunks of messages, each followed by its
+message indexes, and metadata records), a data-end record, the summary section (schemas, channels, one
+chunk index per chunk, statistics) and the footer. A recording that did not finish (a killed recorder, a
+power cut, a full disk) or a file cut in transfer lacks the summary and the trailing magic;
+:func:`check_mcap` then walks the records from the start and says where the file ends: inside which
+record, after how many complete chunks. :class:`Salvage` reads such a file up to its last complete,
+intact chunk (each chunk is self-contained: the schema and channel records of its messages come before
+them in the same or an earlier chunk), which is what a crash leaves readable.
 
-A chunk record has a CRC-32 of its uncompressed records, which ``rosbags`` checks on reading but
-writes as 0 ("not computed"): :func:`add_chunk_crcs` fills it in, so a byte changed inside a chunk of a
-bag of this suite is refused ("Chunk checksum mismatch") instead of read as other values.
+Every chunk carries the CRC-32 of its uncompressed records (the suite's writer fills it in; ``rosbags``
+checks it on reading), so a byte changed inside a chunk is refused ("Chunk checksum mismatch") instead of
+read as other values, and a chunk a power cut left half on disk ends a salvage instead of being read.
 """
 from __future__ import annotations
 
 import struct
-import zlib
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from io import BytesIO
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
-from rosbags.rosbag2.storage_mcap import decompress
+import yaml
+from mcap.data_stream import ReadDataStream
+from mcap.records import Channel, Chunk, McapRecord, Message, Metadata, Schema
+from mcap.stream_reader import breakup_chunk
 
 from fiper_ros.bags.errors import BagError
 
+METADATA = "metadata.yaml"
 MAGIC = b"\x89MCAP0\r\n"
 #: opcode + uint64 body length
 RECORD_HEAD = 9
-HEADER, CHUNK, DATA_END, FOOTER = 0x01, 0x06, 0x0F, 0x02
-RECORD_NAMES = {HEADER: "header", FOOTER: "footer", 0x03: "schema", 0x04: "channel", 0x05: "message", CHUNK: "chunk",
-                0x07: "message index", 0x08: "chunk index", 0x09: "attachment", 0x0A: "attachment index",
-                0x0B: "statistics", 0x0C: "metadata", 0x0D: "metadata index", 0x0E: "summary offset",
-                DATA_END: "data end"}
-#: Offset of ``uncompressed_crc`` in a chunk body (after start time, end time, uncompressed size).
-CHUNK_CRC_OFFSET = 24
+HEADER, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK, MESSAGE_INDEX = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
+ATTACHMENT, METADATA_RECORD, DATA_END = 0x09, 0x0C, 0x0F
+RECORD_NAMES = {HEADER: "header", FOOTER: "footer", SCHEMA: "schema", CHANNEL: "channel", MESSAGE: "message",
+                CHUNK: "chunk", MESSAGE_INDEX: "message index", 0x08: "chunk index", ATTACHMENT: "attachment",
+                0x0A: "attachment index", 0x0B: "statistics", METADATA_RECORD: "metadata", 0x0D: "metadata index",
+                0x0E: "summary offset", DATA_END: "data end"}
+#: Records a salvage skips: they index or attach, they hold no message.
+SKIPPED = {MESSAGE_INDEX, ATTACHMENT}
+#: Largest uncompressed chunk a salvage decompresses (the suite writes chunks of ``--chunk-mb``, 1 MiB by
+#: default); a larger size field is damage.
+MAX_CHUNK_BYTES = 1 << 30
+
+
+def _below(root: Path, pattern: str) -> Iterator[Path]:
+    """Files matching ``pattern`` below ``root``, outside hidden directories (a writer's staging)."""
+    return (f for f in root.rglob(pattern) if not any(part.startswith(".") for part in f.relative_to(root).parts))
+
+
+def bag_directories(paths: Iterable[Path]) -> list[Path]:
+    """The bag directories named by ``paths``, finished (``metadata.yaml``) or not (MCAP data only): a bag
+    directory itself, or every bag below a directory (sorted; hidden directories left out)."""
+    found: list[Path] = []
+    for path in map(Path, paths):
+        if (path / METADATA).is_file() or (path.is_dir() and any(path.glob("*.mcap"))):
+            found.append(path)
+        elif path.is_file() and path.suffix == ".mcap":
+            raise BagError(f"{path}: give the bag directory (the one with {METADATA}), not the .mcap file")
+        elif path.is_dir():
+            below = sorted({f.parent for pattern in (METADATA, "*.mcap") for f in _below(path, pattern)})
+            if not below:
+                raise BagError(f"{path}: no bag ({METADATA}) in this directory")
+            found.extend(below)
+        else:
+            raise BagError(f"{path}: no such bag")
+    return found
+
+
+def read_metadata(path: Path) -> dict[str, Any]:
+    """The ``rosbag2_bagfile_information`` mapping of the bag directory ``path``."""
+    try:
+        with (path / METADATA).open() as stream:
+            content = yaml.safe_load(stream)
+    except (OSError, yaml.YAMLError) as error:
+        raise BagError(f"{path}: unreadable {METADATA}: {error}") from error
+    info = content.get("rosbag2_bagfile_information") if isinstance(content, dict) else None
+    if not isinstance(info, dict):
+        raise BagError(f"{path}: {METADATA} is not rosbag2 metadata")
+    return info
+
+
+def storage_files(path: Path, metadata: dict[str, Any]) -> list[Path]:
+    """The MCAP files ``metadata.yaml`` lists (none for another storage plugin)."""
+    if metadata.get("storage_identifier") != "mcap":
+        return []
+    names = metadata.get("relative_file_paths")
+    if not isinstance(names, list) or not names:
+        raise BagError(f"{path}: {METADATA} lists no storage files (relative_file_paths)")
+    return [path / str(name) for name in names]
 
 
 @dataclass(frozen=True)
@@ -96,25 +153,13 @@ def _where_cut(path: Path, size: int) -> str:
     return f"cut at byte {position}{inside} {_section(last, summary)}, after {chunks} complete chunk(s)"
 
 
-def add_chunk_crcs(path: Path) -> None:
-    """Write the CRC-32 of every chunk's uncompressed records into its ``uncompressed_crc`` (in place:
-    no offset changes)."""
-    size = path.stat().st_size
-    with path.open("r+b") as stream:
-        for record in [r for r in _records(stream, size) if r.opcode == CHUNK]:
-            stream.seek(record.position + RECORD_HEAD)
-            body = stream.read(record.length)
-            (uncompressed_size,) = struct.unpack_from("<Q", body, 16)
-            (name_length,) = struct.unpack_from("<I", body, 28)
-            compression = body[32:32 + name_length].decode()
-            data = body[32 + name_length + 8:]
-            raw = decompress(data, compression, uncompressed_size, 0)
-            stream.seek(record.position + RECORD_HEAD + CHUNK_CRC_OFFSET)
-            stream.write(struct.pack("<I", zlib.crc32(raw)))
+class TruncatedMcap(BagError):
+    """An MCAP file that begins as one but does not end: an unfinished recording, or a file cut short."""
 
 
 def check_mcap(path: Path) -> None:
-    """Raise :class:`BagError` unless ``path`` is a whole MCAP file (both magics; the records are read later)."""
+    """Raise :class:`BagError` unless ``path`` is a whole MCAP file (both magics; the records are read later);
+    :class:`TruncatedMcap` if it begins as one and does not end."""
     try:
         size = path.stat().st_size
         with path.open("rb") as stream:
@@ -122,7 +167,7 @@ def check_mcap(path: Path) -> None:
             stream.seek(max(0, size - len(MAGIC)))
             tail = stream.read()
     except FileNotFoundError as error:
-        raise BagError(f"{path}: missing (metadata.yaml lists it)") from error
+        raise BagError(f"{path}: missing ({METADATA} lists it)") from error
     except OSError as error:
         raise BagError(f"{path}: unreadable ({error.strerror or error})") from error
     if size == 0:
@@ -131,5 +176,70 @@ def check_mcap(path: Path) -> None:
         raise BagError(f"{path}: not an MCAP file (it does not begin with the MCAP magic bytes)")
     if size < 2 * len(MAGIC) or tail != MAGIC:
         where = "cut inside the leading magic" if size < len(MAGIC) else _where_cut(path, size)
-        raise BagError(f"{path}: truncated MCAP file of {size} bytes ({where}): the recording did not finish, "
-                       "or the file was cut")
+        raise TruncatedMcap(f"{path}: truncated MCAP file of {size} bytes ({where}): the recording did not finish, "
+                            "or the file was cut")
+
+
+class Salvage:
+    """The readable part of one MCAP file, whole or not: the schema, channel, message and metadata records
+    of its data section in file order, up to the data end or to the first record the file cuts or that is
+    damaged (a chunk that does not decompress or fails its CRC-32; bytes that are no record).
+
+    Iterate :meth:`records` once; then :attr:`chunks` is the number of chunks read and :attr:`end` says why
+    the walk stopped before the data end ("" if it reached it)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.chunks = 0
+        self.end = ""
+        try:
+            check_mcap(self.path)
+        except TruncatedMcap as cut:
+            self.end = str(cut)
+
+    def records(self) -> Iterator[McapRecord]:
+        """The records (:class:`mcap.records.Schema`, ``Channel``, ``Message``, ``Metadata``) in file order."""
+        size = self.path.stat().st_size
+        with self.path.open("rb") as stream:
+            for record in _records(stream, size):
+                if record.end > size:
+                    return  # the cut that check_mcap described
+                if record.opcode == DATA_END:
+                    return
+                if record.opcode in SKIPPED or (record.opcode == HEADER and record.position == len(MAGIC)):
+                    continue
+                stream.seek(record.position + RECORD_HEAD)
+                body = ReadDataStream(BytesIO(stream.read(record.length)))
+                try:
+                    found = self._parse(record, body)
+                except Exception as error:  # noqa: BLE001 - whatever a damaged record raises ends the walk
+                    self.end = (f"{self.path}: damaged {RECORD_NAMES.get(record.opcode, 'record')} record at byte "
+                                f"{record.position} ({type(error).__name__}: {error}), after {self.chunks} complete "
+                                "chunk(s)")
+                    return
+                if found is None:
+                    self.end = (f"{self.path}: no MCAP record at byte {record.position} (opcode {record.opcode:#04x}), "
+                                f"after {self.chunks} complete chunk(s)")
+                    return
+                yield from found
+                self.chunks += record.opcode == CHUNK
+        if not self.end:  # the file ends without a data end, and yet with the trailing magic
+            self.end = f"{self.path}: no data end record, after {self.chunks} complete chunk(s)"
+
+    @staticmethod
+    def _parse(record: Record, body: ReadDataStream) -> list[McapRecord] | None:
+        """The records one data-section record holds; None if it is not one a data section holds."""
+        if record.opcode == CHUNK:
+            chunk = Chunk.read(body)
+            if not 0 < chunk.uncompressed_size <= MAX_CHUNK_BYTES:  # 0: zeros, the blocks a power cut left unwritten
+                raise ValueError(f"a chunk of {chunk.uncompressed_size} bytes (1 to {MAX_CHUNK_BYTES} expected)")
+            return [r for r in breakup_chunk(chunk, validate_crc=True) if isinstance(r, (Schema, Channel, Message))]
+        if record.opcode == SCHEMA:
+            return [Schema.read(body)]
+        if record.opcode == CHANNEL:
+            return [Channel.read(body)]
+        if record.opcode == MESSAGE:
+            return [Message.read(body, record.length)]
+        if record.opcode == METADATA_RECORD:
+            return [Metadata.read(body)]
+        return None

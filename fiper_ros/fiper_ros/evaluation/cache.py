@@ -1,8 +1,13 @@
-"""On-disk cache of per-step score streams: one ``<key>.npz`` per (dataset, stream, settings, seed).
+"""On-disk cache of per-step score streams: one ``<key>.npz`` per (dataset, stream, settings, split, seed).
 
-The key is a SHA-256 over the dataset digest, the stream name and settings, the seed (for streams
-that use one) and the code version (a hash of the source files that compute scores), so a changed
-dataset, setting or scoring code never reads stale scores.
+The key is a SHA-256 over the dataset digest, the stream name and settings (with the calibration split
+for streams fitted on the calibration successes), the seed (for streams that use one, the split's
+included) and the code version (a hash of the source files that compute scores), so a changed
+dataset, setting, split or scoring code never reads stale scores.
+
+What is cached is :class:`RolloutScores`, the scores of every successful calibration rollout and every
+test rollout; :meth:`StreamScores.of` then separates the calibration successes into the fit part and the
+conformal part of the split (:func:`fiper_ros.core.calibration.split_successes`).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from typing import Any
 import numpy as np
 
 import fiper_ros
+from fiper_ros.core.calibration import CalibrationSplit
 
 LOG = logging.getLogger(__name__)
 
@@ -27,11 +33,44 @@ _SCORING_MODULES = ("evaluation/scoring.py", "evaluation/methods.py")
 
 
 @dataclass
-class StreamScores:
-    """Per-step scores of one stream: the successful calibration rollouts and the test rollouts."""
+class RolloutScores:
+    """Per-step scores of one stream: every successful calibration rollout (in order) and every test rollout.
+
+    A calibration success's scores come from the model that the split lets see it: with ``"split"`` the
+    model fitted on the fit part (which saw the fit part and not the conformal part), with ``"cross"``
+    the model of the other folds, with ``"same"`` the model fitted on all. Test scores come from the
+    deployed model (fitted on the fit part with ``"split"``, on all successes otherwise).
+    """
 
     calibration: list[np.ndarray]
     test: list[np.ndarray]
+
+
+@dataclass
+class StreamScores:
+    """Per-step scores of one stream, the calibration successes separated by the split.
+
+    ``fit``: the fit part's curves, which give the thresholds' per-step shape (``I1`` of ``cp_band``,
+    ``cp_scaled``, ``gaussian``: ``shape_curves`` of :func:`fiper_ros.core.thresholds.fit_threshold`);
+    ``None`` where the fit part is not disjoint from the conformal part (``"same"``, ``"cross"``): the
+    core then splits ``I1`` off the conformal curves, as :func:`fiper_ros.core.calibration.calibrate`
+    does. ``conformal``: the curves the thresholds' conformal quantiles are taken over. ``test``: the
+    test rollouts.
+    """
+
+    fit: list[np.ndarray] | None
+    conformal: list[np.ndarray]
+    test: list[np.ndarray]
+
+    @classmethod
+    def of(cls, scores: RolloutScores, split: CalibrationSplit) -> StreamScores:
+        """``scores`` separated as ``split`` says (its indices count the calibration successes)."""
+        count = len(split.conformal) + (len(split.fit) if split.mode == "split" else 0)
+        if len(scores.calibration) != count:
+            raise ValueError(f"a split of {count} successes for {len(scores.calibration)} scored ones")
+        conformal = [scores.calibration[i] for i in split.conformal]
+        fit = [scores.calibration[i] for i in split.fit] if split.mode == "split" else None
+        return cls(fit, conformal, scores.test)
 
 
 def code_version() -> str:
@@ -64,7 +103,7 @@ def _unpack(flat: np.ndarray, lengths: np.ndarray) -> list[np.ndarray]:
 
 
 class ScoreCache:
-    """A directory of cached :class:`StreamScores`; counts hits and misses."""
+    """A directory of cached :class:`RolloutScores`; counts hits and misses."""
 
     def __init__(self, directory: str | Path = DEFAULT_DIRECTORY) -> None:
         self.directory = Path(directory)
@@ -74,7 +113,7 @@ class ScoreCache:
     def _path(self, key: str) -> Path:
         return self.directory / f"{key}.npz"
 
-    def get(self, key: str) -> StreamScores | None:
+    def get(self, key: str) -> RolloutScores | None:
         """The cached scores of ``key`` or ``None`` (a miss)."""
         path = self._path(key)
         if not path.is_file():
@@ -82,7 +121,7 @@ class ScoreCache:
             return None
         try:
             with np.load(path, allow_pickle=False) as data:
-                scores = StreamScores(_unpack(data["calibration"], data["calibration_lengths"]),
+                scores = RolloutScores(_unpack(data["calibration"], data["calibration_lengths"]),
                                       _unpack(data["test"], data["test_lengths"]))
         except (OSError, KeyError, ValueError) as error:
             LOG.warning("ignoring unreadable score cache file %s: %s", path, error)
@@ -91,7 +130,7 @@ class ScoreCache:
         self.hits += 1
         return scores
 
-    def put(self, key: str, scores: StreamScores) -> None:
+    def put(self, key: str, scores: RolloutScores) -> None:
         """Store ``scores`` under ``key`` (written to a temporary file, then renamed)."""
         self.directory.mkdir(parents=True, exist_ok=True)
         calibration, calibration_lengths = _pack(scores.calibration)

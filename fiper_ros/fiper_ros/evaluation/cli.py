@@ -4,9 +4,13 @@ Examples::
 
     fiper evaluate --data sorting=rollouts/sorting.npz --data push_t=rollouts/push_t/ --out results/
     fiper evaluate --synthetic sorting,stacking,push_t --seeds 0,1,2 --protocol paper,clean --out results/
+    fiper evaluate --data sorting=data/study/sorting --split same --out results-same/   # the paper's Remark 1
 
 Each ``--data TASK=PATH[,PATH...]`` names a task and its rollout files (``RolloutSet.save_npz``) or
-directories of them; ``--synthetic`` generates the SYNTHETIC benchmark instead. The output directory
+directories of them; ``--synthetic`` generates the SYNTHETIC benchmark instead. ``--split`` chooses
+which calibration successes fit the score models and which the thresholds (default ``split``: split
+conformal, as ``fiper calibrate``; ``cross``: K-fold cross-fitting; ``same``: the paper's same-data
+calibration, not covered by Proposition 1). The output directory
 receives ``results.md``, ``results.json`` and PNG figures. Per-step scores are cached in
 ``--cache-dir`` (default ``.cache/fiper-eval``), so a second run with other sweep or protocol options
 only re-runs the sweep.
@@ -26,17 +30,22 @@ from collections.abc import Callable  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from fiper_ros.bags import robot_options  # noqa: E402
+import numpy as np  # noqa: E402
+
+from fiper_ros.bags import live_options, robot_options  # noqa: E402
 from fiper_ros.bags.atomic import atomic_files, check_directory  # noqa: E402
 from fiper_ros.bags.errors import BagError, fail  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.methods import METHODS, MethodSettings  # noqa: E402
+from fiper_ros.core.calibration import SPLITS  # noqa: E402
+from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
-from fiper_ros.evaluation.report import config_text, write_reports  # noqa: E402
-from fiper_ros.evaluation.scoring import robot_for  # noqa: E402
+from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
+from fiper_ros.evaluation.scoring import check_split, robot_for  # noqa: E402
 from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
+from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
 from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
 
 LOG = logging.getLogger(__name__)
@@ -85,13 +94,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help=f"generate the SYNTHETIC benchmark for these tasks ({', '.join(TASKS)})")
     data.add_argument("--synthetic-test", type=int, default=240, help="synthetic test rollouts per task")
     data.add_argument("--synthetic-scale", type=float, default=1.0, help="shrink synthetic shapes (tests)")
+    live_options.add_strict_argument(data)
     sweep = parser.add_argument_group("sweep")
     sweep.add_argument("--methods", type=name_list(tuple(METHODS)), default=tuple(METHODS))
     sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
     sweep.add_argument("--no-cumulative", action="store_true", help="do not sweep the cumulative sum")
     sweep.add_argument("--deltas", type=delta_list, default=DELTAS, help="comma list or 'paper' (0.01..0.10)")
-    sweep.add_argument("--thresholds", type=name_list(("cp_band", "cp_constant", "time_varying")),
-                       default=("cp_band", "cp_constant", "time_varying"))
+    sweep.add_argument("--thresholds", type=name_list(GRID_KINDS), default=SweepSettings().kinds,
+                       help=f"comma list of {', '.join(GRID_KINDS)} (default: all)")
     sweep.add_argument("--combines", type=name_list(("and", "or")), default=("and", "or"))
     sweep.add_argument("--pairs", choices=PAIR_GRIDS, default="coarse", help="FIPER (w_O, w_A) grid")
     protocol = parser.add_argument_group("protocol")
@@ -101,8 +111,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     protocol.add_argument("--select-cumulative", action="store_true",
                           help="let the selection also pick the cumulative sum (paper: windows only)")
     protocol.add_argument("--default-window", type=int, default=5)
-    protocol.add_argument("--default-threshold", choices=("cp_band", "cp_constant", "time_varying"), default="cp_band")
+    protocol.add_argument("--default-threshold", choices=GRID_KINDS, default="cp_band")
     methods = parser.add_argument_group("methods")
+    methods.add_argument("--split", choices=SPLITS, default="split",
+                         help="calibration successes for the score models and for the thresholds: split conformal "
+                              "(default), cross-fitted, or the paper's same data (not covered by Prop. 1)")
     methods.add_argument("--profile", choices=("paper", "reference"), default="paper")
     methods.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke tests only)")
     robot_options.add_arguments(methods)
@@ -121,7 +134,7 @@ def datasets_from(args: argparse.Namespace) -> list[Dataset]:
         task, sep, paths = spec.partition("=")
         if not sep or not task or not paths:
             raise DatasetError(f"--data expects TASK=PATH[,PATH...], got {spec!r}")
-        datasets.append(load_dataset(task, paths.split(",")))
+        datasets.append(load_dataset(task, paths.split(","), strict=args.strict))
     for task in args.synthetic or ():
         rollouts = make_task(task, test=args.synthetic_test, scale=args.synthetic_scale)
         datasets.append(Dataset(task, rollouts.calibration, rollouts.test))
@@ -135,7 +148,7 @@ def settings_from(args: argparse.Namespace) -> EngineSettings:
     if args.default_window not in args.windows:
         raise ValueError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
-    method_settings = replace(method_settings, robot=robot_options.robot_from(args))
+    method_settings = replace(method_settings, robot=robot_options.robot_from(args), split=args.split)
     sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
                           kinds=args.thresholds, combines=args.combines, pairs=args.pairs)
     return EngineSettings(methods=args.methods, seeds=args.seeds, sweep=sweep, method_settings=method_settings,
@@ -146,10 +159,13 @@ def settings_from(args: argparse.Namespace) -> EngineSettings:
 
 
 def summary(result: EvaluationResult, markdown: Path) -> str:
-    """The closing line: size, time, cache and the best method by average TWA."""
+    """The closing line: size, time, cache and the best method by average TWA (and its gain over the
+    elapsed-time baseline)."""
     protocol = next(iter(result.protocols.values()))
-    ranked = sorted(protocol.selected.values(), key=lambda r: -float(r.average()[0][0]))
-    best = f"best TWA {METHODS[ranked[0].method].label} {ranked[0].average()[0][0]:.3f} ({config_text(ranked[0].group)})"
+    ranked = sorted(protocol.selected.values(), key=lambda r: -np.nan_to_num(r.average()[0][0], nan=-np.inf))
+    best = f"best TWA {METHODS[ranked[0].method].label} {ranked[0].average()[0][0]:.3f} ({config_text(ranked[0].group)}"
+    floor = protocol.selected.get(ELAPSED)
+    best += f", {gain(ranked[0], floor, None)[0]:+.3f} over the elapsed time)" if floor is not None else ")"
     t = result.timings
     return (f"fiper evaluate: {len(result.tasks)} task(s), {len(result.settings.methods)} method(s), "
             f"{len(result.settings.seeds)} seed(s), {len(result.groups) * len(result.settings.sweep.deltas)} "
@@ -168,6 +184,7 @@ def run(args: argparse.Namespace) -> int:
         robot_options.fk_of(settings.method_settings.robot)
         for dataset in datasets:
             robot_for(dataset, settings.method_settings)
+            check_split(dataset, settings.method_settings)
     except (DatasetError, BagError, ValueError) as error:
         return fail("evaluate", error)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)

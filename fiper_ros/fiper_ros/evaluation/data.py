@@ -57,6 +57,12 @@ class Dataset:
         return np.array([bool(r.failed) for r in self.test])
 
     @property
+    def held_out_id_successes(self) -> np.ndarray:
+        """Indices of the test rollouts that succeeded in the ID scenario: new successes exchangeable with
+        the calibration successes, on which a threshold's false-alarm rate is set beside delta (Prop. 1)."""
+        return np.array([i for i, r in enumerate(self.test) if r.success and not r.is_ood], dtype=int)
+
+    @property
     def lengths(self) -> np.ndarray:
         """Per test rollout, ``T``."""
         return np.array([r.length for r in self.test])
@@ -100,8 +106,9 @@ def _npz_files(path: Path) -> list[Path]:
     return [path]
 
 
-def _bag_split(path: Path) -> tuple[list[Rollout], list[Rollout]]:
-    """The rollouts of the bags at ``path``, split by each bag's ``custom_data`` split."""
+def _bag_split(path: Path, strict: bool) -> tuple[list[Rollout], list[Rollout]]:
+    """The rollouts of the bags at ``path``, split by each bag's ``custom_data`` split (``strict``: refuse an
+    unfinished bag instead of reading it up to its last complete chunk)."""
     from fiper_ros.bags.errors import BagError  # noqa: PLC0415 - bags need the ROS message build
     from fiper_ros.bags.reader import BagReader, find_bags  # noqa: PLC0415
     from fiper_ros.bags.rollouts import read_rollouts  # noqa: PLC0415
@@ -109,7 +116,7 @@ def _bag_split(path: Path) -> tuple[list[Rollout], list[Rollout]]:
     calibration: list[Rollout] = []
     test: list[Rollout] = []
     try:
-        for bag in find_bags([path]):
+        for bag in find_bags([path], strict=strict, command="evaluate"):
             with BagReader(bag) as reader:
                 split = reader.info.split
             if split not in ("calibration", "test"):
@@ -126,14 +133,15 @@ def _is_bag_input(path: Path) -> bool:
         any(path.rglob(pattern)) for pattern in ("metadata.yaml", "*.mcap"))
 
 
-def load_dataset(task: str, paths: Sequence[str | Path]) -> Dataset:
+def load_dataset(task: str, paths: Sequence[str | Path], strict: bool = True) -> Dataset:
     """Read the rollout sets at ``paths`` (``.npz`` files, folders of them, or bag folders) into one
-    :class:`Dataset`. Bags are split by their ``custom_data`` split (``fiper convert`` writes it)."""
+    :class:`Dataset`. Bags are split by their ``custom_data`` split (``fiper convert`` writes it); an
+    unfinished bag is refused with ``strict``, else read up to its last complete chunk with a warning."""
     calibration: list[Rollout] = []
     test: list[Rollout] = []
     for path in map(Path, paths):
         if _is_bag_input(path):
-            cal, tst = _bag_split(path)
+            cal, tst = _bag_split(path, strict)
             calibration.extend(cal)
             test.extend(tst)
             continue

@@ -15,7 +15,8 @@ from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.methods import METHODS, MethodSettings, streams_of
 from fiper_ros.evaluation.progress import Progress
-from fiper_ros.evaluation.protocol import PROTOCOLS, ProtocolResult, alarm_metrics, run_protocol, validation_split
+from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, ProtocolResult, alarm_metrics, run_protocol,
+                                           validation_split)
 from fiper_ros.evaluation.scoring import compute_streams
 from fiper_ros.evaluation.sweep import Group, SweepSettings, sweep_task
 
@@ -59,22 +60,37 @@ class EngineSettings:
             raise ValueError("at least one seed is needed")
 
     def calibration_settings(self, seed: int) -> CalibrationSettings:
-        """The core calibration settings whose threshold rules the sweep uses (profile, seed)."""
-        return CalibrationSettings(profile=self.method_settings.profile, seed=seed)
+        """The core calibration settings whose threshold rules and split the sweep uses (profile, split, seed)."""
+        return self.method_settings.calibration_settings(seed)
+
+
+@dataclass
+class SweepOutcome:
+    """Every configuration's numbers over all tasks and seeds.
+
+    ``metrics[subset]`` is ``[tasks, seeds, groups, deltas, 5]`` for subsets ``"all"`` and, with the
+    clean protocol, ``"validation"`` and ``"report"``, NaN where a threshold is +inf (``infinite``,
+    ``[tasks, seeds, groups, deltas]``; ``conformal`` ``[tasks, seeds, groups]`` counts the rollouts behind
+    each configuration's conformal quantile). ``held_out[subset]`` ``[tasks, seeds, groups, deltas]`` is the
+    false-alarm rate on the ID successes of the test rollouts (``"all"``) or of the report half
+    (``"report"``), and ``id_successes[subset]`` their number per task.
+    """
+
+    groups: list[Group]
+    metrics: dict[str, np.ndarray]
+    infinite: np.ndarray
+    conformal: np.ndarray
+    held_out: dict[str, np.ndarray]
+    id_successes: dict[str, list[int]]
 
 
 @dataclass
 class EvaluationResult:
-    """All numbers of one run.
-
-    ``metrics[subset]`` is ``[tasks, seeds, groups, deltas, 5]`` for subsets ``"all"`` and, with the
-    clean protocol, ``"validation"`` and ``"report"``. ``streams`` keeps the first seed's scores for plots.
-    """
+    """All numbers of one run. ``streams`` keeps the first seed's scores for plots."""
 
     settings: EngineSettings
     datasets: list[Dataset]
-    groups: list[Group]
-    metrics: dict[str, np.ndarray]
+    sweep: SweepOutcome
     protocols: dict[str, ProtocolResult]
     streams: dict[str, dict[str, StreamScores]]
     timings: dict[str, float]
@@ -86,9 +102,21 @@ class EvaluationResult:
         """Task names in input order."""
         return [d.task for d in self.datasets]
 
+    @property
+    def groups(self) -> list[Group]:
+        """Every configuration (without its delta)."""
+        return self.sweep.groups
+
+    @property
+    def metrics(self) -> dict[str, np.ndarray]:
+        """Metrics per subset (:class:`SweepOutcome`)."""
+        return self.sweep.metrics
+
 
 def horizons(dataset: Dataset, profile: str) -> np.ndarray | int:
-    """``T`` of the DT formula: each rollout's length (paper) or ``T_max`` over both splits (reference)."""
+    """``T`` of the DT formula: each rollout's own length (paper, App. B.4: a failed episode of length ``T``
+    flagged at ``t`` is predicted right at ``T - t`` of its ``T`` steps) or ``T_max`` over both splits
+    (reference: the authors' code, ``t / (T_max - 1)``)."""
     return dataset.lengths if get_profile(profile).dt_mode == "paper" else dataset.max_length
 
 
@@ -115,30 +143,47 @@ def sweep_all(
     datasets: Sequence[Dataset],
     scores: dict[tuple[str, int], dict[str, StreamScores]],
     settings: EngineSettings,
-) -> tuple[list[Group], dict[str, np.ndarray]]:
+) -> SweepOutcome:
     """Sweep every (task, seed) and evaluate the metrics on the subsets the protocols need."""
     dt_mode = get_profile(settings.method_settings.profile).dt_mode
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
+    held_out: dict[str, list[np.ndarray]] = {"all": [d.held_out_id_successes for d in datasets]}
     if "clean" in settings.protocols:
         splits = [validation_split(d.failed, settings.split_seed) for d in datasets]
         subsets["validation"] = [s[0] for s in splits]
         subsets["report"] = [s[1] for s in splits]
+        held_out["report"] = [np.intersect1d(s[1], d.held_out_id_successes) for s, d in zip(splits, datasets)]
     progress = Progress("sweep", len(datasets) * len(settings.seeds), settings.progress)
     groups: list[Group] = []
-    metrics: dict[str, list[list[np.ndarray]]] = {name: [] for name in subsets}
+    metrics: dict[str, list[list[np.ndarray]]] = {name: [[] for _ in datasets] for name in subsets}
+    rates: dict[str, list[list[np.ndarray]]] = {name: [[] for _ in datasets] for name in held_out}
+    infinite: list[list[np.ndarray]] = [[] for _ in datasets]
+    conformal: list[list[np.ndarray]] = [[] for _ in datasets]
+    tnr = METRICS.index("tnr")
     for t, dataset in enumerate(datasets):
-        rows: dict[str, list[np.ndarray]] = {name: [] for name in subsets}
+        t_max = horizons(dataset, settings.method_settings.profile)
         for seed in settings.seeds:
             base = settings.calibration_settings(seed).threshold_settings()
-            groups, alarms = sweep_task(scores[(dataset.task, seed)], list(settings.methods), settings.sweep, base)
+            swept = sweep_task(scores[(dataset.task, seed)], list(settings.methods), settings.sweep, base)
+            groups = swept.groups
             for name, per_task in subsets.items():
-                rows[name].append(alarm_metrics(alarms, dataset.failed, horizons(dataset, settings.method_settings.profile),
-                                                dt_mode, per_task[t]))
+                values = alarm_metrics(swept.alarms, dataset.failed, t_max, dt_mode, per_task[t])
+                values[swept.infinite] = np.nan  # a +inf threshold has no metrics: never averaged
+                metrics[name][t].append(values)
+            for name, members in held_out.items():
+                # every member is a success: the false-alarm rate is 1 - TNR (NaN without members)
+                rate = 1.0 - alarm_metrics(swept.alarms, dataset.failed, t_max, dt_mode, members[t])[..., tnr]
+                rate[swept.infinite] = np.nan
+                rates[name][t].append(rate)
+            infinite[t].append(swept.infinite)
+            conformal[t].append(swept.conformal)
             progress.advance(note=f"{dataset.task} seed {seed}: {len(groups)} configurations")
-        for name in subsets:
-            metrics[name].append(np.stack(rows[name]))
     progress.close()
-    return groups, {name: np.stack(per_task) for name, per_task in metrics.items()}
+    return SweepOutcome(groups, {name: np.stack([np.stack(rows) for rows in per]) for name, per in metrics.items()},
+                        np.stack([np.stack(rows) for rows in infinite]),
+                        np.stack([np.stack(rows) for rows in conformal]),
+                        {name: np.stack([np.stack(rows) for rows in per]) for name, per in rates.items()},
+                        {name: [len(m) for m in members] for name, members in held_out.items()})
 
 
 def run_evaluation(
@@ -151,19 +196,20 @@ def run_evaluation(
     start = time.perf_counter()
     scores, computing = score_all(datasets, settings, cache)
     scored = time.perf_counter()
-    groups, metrics = sweep_all(datasets, scores, settings)
+    outcome = sweep_all(datasets, scores, settings)
     swept = time.perf_counter()
     protocols: dict[str, ProtocolResult] = {}
     for protocol in settings.protocols:
         selection, report = ("all", "all") if protocol == "paper" else ("validation", "report")
-        protocols[protocol] = run_protocol(protocol, groups, metrics[selection], metrics[report], settings.methods,
-                                           settings.default_window, settings.default_kind,
-                                           settings.select_aggregations)
+        protocols[protocol] = run_protocol(protocol, outcome.groups, outcome.metrics[selection],
+                                           outcome.metrics[report], settings.methods, settings.default_window,
+                                           settings.default_kind, settings.select_aggregations, outcome.infinite,
+                                           outcome.held_out[report])
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
                "total": time.perf_counter() - start}
-    LOG.info("evaluation: %d configurations x %d deltas, %.1f s", len(groups), len(settings.sweep.deltas),
+    LOG.info("evaluation: %d configurations x %d deltas, %.1f s", len(outcome.groups), len(settings.sweep.deltas),
              timings["total"])
     first = settings.seeds[0]
-    return EvaluationResult(settings, list(datasets), groups, metrics, protocols,
+    return EvaluationResult(settings, list(datasets), outcome, protocols,
                             {d.task: scores[(d.task, first)] for d in datasets}, timings,
                             cache.hits if cache else 0, cache.misses if cache else 0)

@@ -1,9 +1,15 @@
-"""The seven evaluated methods and the per-step score streams they read (Table 1 of the paper).
+"""The evaluated methods and the per-step score streams they read (Table 1 of the paper, plus a floor).
 
 A *stream* is one per-step score per rollout step (``s_RND``, ``s_ACE`` or a baseline's score). Every
 method but FIPER thresholds one stream; FIPER fuses the RND-OE and ACE streams with AND/OR (eq. 7).
 :class:`MethodSettings` holds every hyperparameter that changes a stream, so it is part of the
 score-cache key.
+
+The elapsed-time baseline (issue #19) is the floor every detector has to beat: its per-step score is 1,
+so its cumulative sum at policy step ``t`` is ``t + 1``, the steps elapsed, and with the CP constant
+threshold it alarms at step ``k`` of every rollout longer than ``k``, ``k`` the conformal quantile of
+the calibration successes' lengths (calibrated as every other method, on the same conformal part). It
+has this one configuration (:attr:`Method.fixed`): nothing is selected for it.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from typing import Any
 from fiper_ros.baselines.logpzo import LogpZOConfig
 from fiper_ros.baselines.pca_kmeans import PCAKMeansConfig
 from fiper_ros.baselines.rnd_a import RNDAConfig
+from fiper_ros.core.calibration import SPLITS, CalibrationSettings
 from fiper_ros.core.compat import get_profile
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.rnd_oe import RNDConfig
@@ -25,10 +32,15 @@ class Method:
 
     label: str
     streams: tuple[str, ...]
+    fixed: tuple[str, str] | None = None
+    """``(window label, threshold kind)`` of a method with a single configuration; ``None``: swept."""
 
 
-#: Methods in the column order of Table 1.
+ELAPSED = "elapsed"
+
+#: Methods in the column order of Table 1, after the elapsed-time floor.
 METHODS: dict[str, Method] = {
+    ELAPSED: Method("Elapsed", (ELAPSED,), ("cum", "cp_constant")),
     "pca_kmeans": Method("PCA-kmeans", ("pca_kmeans",)),
     "logpzo": Method("logpZO", ("logpzo",)),
     "rnd_a": Method("RND-A", ("rnd_a",)),
@@ -38,8 +50,10 @@ METHODS: dict[str, Method] = {
     "fiper": Method("FIPER", ("rnd_oe", "ace")),
 }
 
-#: Streams whose scores do not depend on the seed (no training, no random split).
-SEEDLESS_STREAMS = frozenset({"stac", "ace"})
+#: Streams fitted on nothing: their scores depend neither on the calibration split nor on the seed.
+UNFITTED_STREAMS = frozenset({"stac", ELAPSED})
+#: Streams fitted without randomness (ACE's ``R_d``): they depend on the seed only through the split.
+DETERMINISTIC_FITS = frozenset({"ace"})
 
 #: Evaluation default for RND-OE: the core's small network with a CPU training budget
 #: (lr 1e-3, at most 50 epochs, early stopping as in the paper).
@@ -58,6 +72,8 @@ class MethodSettings:
         pca_kmeans, logpzo, rnd_a: The baselines' configurations.
         robot: FK and control period for ACE on joint-space actions (App. A.1); ``None`` for
             end-effector actions.
+        split: Which calibration successes fit the score models and which the thresholds' conformal
+            quantiles (:data:`fiper_ros.core.calibration.SPLITS`; ``"split"``, split conformal, by default).
     """
 
     profile: str = "paper"
@@ -67,9 +83,27 @@ class MethodSettings:
     logpzo: LogpZOConfig = field(default_factory=LogpZOConfig)
     rnd_a: RNDAConfig = field(default_factory=RNDAConfig)
     robot: RobotModel | None = None
+    split: str = "split"
 
     def __post_init__(self) -> None:
         get_profile(self.profile)
+        if self.split not in SPLITS:
+            raise ValueError(f"unknown split {self.split!r}; expected one of {SPLITS}")
+
+    def calibration_settings(self, seed: int) -> CalibrationSettings:
+        """The core calibration settings of ``seed``: profile, split and the seed of the split and CP band."""
+        return CalibrationSettings(profile=self.profile, seed=seed, split=self.split)
+
+    def split_settings(self) -> dict[str, Any]:
+        """The split and its own settings, as the core writes them (part of a fitted stream's cache key)."""
+        data = self.calibration_settings(0).to_dict()
+        return {key: data[key] for key in ("split", "conformal_fraction", "folds") if key in data} or {"split": "same"}
+
+    def stream_seed(self, stream: str, seed: int) -> int | None:
+        """The seed ``stream``'s scores depend on (``None``: none): through training and through the split."""
+        if stream in UNFITTED_STREAMS or (stream in DETERMINISTIC_FITS and self.split == "same"):
+            return None
+        return seed
 
     @classmethod
     def tiny(cls, profile: str = "paper") -> MethodSettings:
@@ -85,8 +119,12 @@ class MethodSettings:
 
     def stream_settings(self, stream: str, joint_space: bool = False) -> dict[str, Any]:
         """The settings that determine ``stream`` (plain data, for the cache key); the robot model
-        only for ACE on a task with ``joint_space`` actions."""
+        only for ACE on a task with ``joint_space`` actions, the split for every fitted stream."""
         common: dict[str, Any] = {"profile": self.profile}
+        if stream == ELAPSED:
+            return {}
+        if stream not in UNFITTED_STREAMS:
+            common.update(self.split_settings())
         if stream == "rnd_oe":
             return {**common, "rnd": self.rnd.to_dict()}
         if stream == "ace":

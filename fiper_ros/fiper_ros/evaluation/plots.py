@@ -31,23 +31,23 @@ from fiper_ros.evaluation.data import CATEGORIES  # noqa: E402
 from fiper_ros.evaluation.engine import EvaluationResult  # noqa: E402
 from fiper_ros.evaluation.methods import METHODS  # noqa: E402
 from fiper_ros.evaluation.protocol import METRICS, nanmean  # noqa: E402
-from fiper_ros.evaluation.report import KIND_LABELS, LABELS, config_text  # noqa: E402
+from fiper_ros.evaluation.report import KIND_LABELS, LABELS, config_text, middle_delta  # noqa: E402
 from fiper_ros.evaluation.sweep import FIPER, Group  # noqa: E402
 
 IMPACT_WINDOW = 15
 
 
 def _middle_delta(result: EvaluationResult) -> float:
-    deltas = result.settings.sweep.deltas
-    return 0.05 if 0.05 in deltas else deltas[len(deltas) // 2]
+    return middle_delta(result.settings.sweep.deltas)
 
 
 def _fit(stream: StreamScores, window: int | None, kind: str, result: EvaluationResult) -> Threshold:
-    """The core threshold of one single configuration (the sweep's rules, first seed)."""
+    """The core threshold of one single configuration (the sweep's rules and split, first seed)."""
     settings = result.settings.calibration_settings(result.settings.seeds[0]).threshold_settings()
     mode = "cumulative" if window is None else "window"
-    curves = [aggregate(c, mode, window or 1) for c in stream.calibration]
-    return fit_threshold(curves, replace(settings, kind=kind, delta=_middle_delta(result)))
+    curves = [aggregate(c, mode, window or 1) for c in stream.conformal]
+    shape = None if stream.fit is None else [aggregate(c, mode, window or 1) for c in stream.fit]
+    return fit_threshold(curves, replace(settings, kind=kind, delta=_middle_delta(result)), shape)
 
 
 def scores_by_category(result: EvaluationResult, path: Path) -> None:
@@ -97,6 +97,11 @@ def _series(result: EvaluationResult, method: str, kind: str, labels: list[str])
     return np.stack(rows)
 
 
+def _swept(result: EvaluationResult) -> list[str]:
+    """The methods with a window and threshold grid (not the elapsed-time baseline's single configuration)."""
+    return [m for m in result.settings.methods if METHODS[m].fixed is None]
+
+
 def window_impact(result: EvaluationResult, path: Path) -> None:
     """Metrics against the window size, one column per threshold type."""
     kinds = result.settings.sweep.kinds
@@ -104,7 +109,7 @@ def window_impact(result: EvaluationResult, path: Path) -> None:
     figure, axes = plt.subplots(len(METRICS), len(kinds), figsize=(4 * len(kinds), 2.2 * len(METRICS)),
                                 squeeze=False, sharex=True)
     for k, kind in enumerate(kinds):
-        for method in result.settings.methods:
+        for method in _swept(result):
             values = nanmean(_series(result, method, kind, [str(w) for w in windows]), axis=1)
             for m, metric in enumerate(METRICS):
                 axes[m, k].plot(windows, values[:, m], label=METHODS[method].label, linewidth=1.2)
@@ -128,7 +133,7 @@ def delta_impact(result: EvaluationResult, path: Path) -> None:
     figure, axes = plt.subplots(len(METRICS), len(kinds), figsize=(4 * len(kinds), 2.2 * len(METRICS)),
                                 squeeze=False, sharex=True)
     for k, kind in enumerate(kinds):
-        for method in result.settings.methods:
+        for method in _swept(result):
             values = _series(result, method, kind, [str(window)])[0]
             for m in range(len(METRICS)):
                 axes[m, k].plot(levels, values[:, m], marker=".", label=METHODS[method].label, linewidth=1.2)

@@ -13,8 +13,17 @@ Protocols:
   stratified by outcome), reported on the disjoint other half.
 
 A fixed default configuration (window and threshold type given, FIPER ``w/w`` with AND) is reported
-too. With several seeds, values are mean and standard deviation over seeds; the task average is taken
-per seed first.
+too. A method with a single configuration (the elapsed-time baseline) is reported with it in both. With
+several seeds, values are mean and standard deviation over seeds; the task average is taken per seed first.
+
+No silent infinities: a (configuration, task, seed, delta) whose threshold is +inf (too few conformal
+rollouts for delta) has no metrics (NaN): it is never part of an average over deltas, and a
+configuration that has no finite delta on some task and seed is never selected. :class:`MethodResult`
+keeps which of its cells were infinite, so the report shows them.
+
+The promise (issue #19): for every reported configuration the false-alarm rate on the held-out ID
+successes (the test set's successful ID-scenario rollouts; with the clean protocol those of the report
+half) per delta, to set beside delta.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fiper_ros.core.metrics import evaluate
+from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.sweep import FIPER, Group
 
 METRICS = ("twa", "acc", "dt", "tpr", "tnr")
@@ -78,11 +88,20 @@ def validation_split(failed: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndar
 
 @dataclass
 class MethodResult:
-    """One method at one configuration: metrics ``[tasks, seeds, 5]`` (mean over deltas)."""
+    """One method at one configuration: metrics per delta ``[tasks, seeds, deltas, 5]`` and their state."""
 
     method: str
     group: Group
-    values: np.ndarray
+    per_delta: np.ndarray
+    infinite: np.ndarray
+    """``[tasks, seeds, deltas]``: the configuration's threshold is +inf there (its metrics are NaN)."""
+    false_alarms: np.ndarray
+    """``[tasks, seeds, deltas]``: false-alarm rate on the held-out ID successes (NaN: none, or +inf)."""
+
+    @property
+    def values(self) -> np.ndarray:
+        """Metrics averaged over the finite deltas, ``[tasks, seeds, 5]``."""
+        return delta_mean(self.per_delta)
 
     def per_task(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean and std over seeds, ``[tasks, 5]`` each."""
@@ -106,8 +125,8 @@ class ProtocolResult:
 
 
 def delta_mean(metrics: np.ndarray) -> np.ndarray:
-    """Average over the delta axis: ``[tasks, seeds, groups, deltas, 5]`` -> ``[tasks, seeds, groups, 5]``."""
-    return nanmean(metrics, axis=3)
+    """Average over the delta axis (the second to last), NaN (+inf threshold) cells left out."""
+    return nanmean(metrics, axis=metrics.ndim - 2)
 
 
 def best_group(groups: Sequence[Group], scores: np.ndarray, allowed: Sequence[int]) -> int:
@@ -126,31 +145,46 @@ def run_protocol(
     default_window: int,
     default_kind: str,
     select_aggregations: Sequence[str] = ("window",),
+    infinite: np.ndarray | None = None,
+    held_out: np.ndarray | None = None,
 ) -> ProtocolResult:
-    """Select on ``selection_metrics`` and report ``report_metrics`` (both ``[tasks, seeds, groups, deltas, 5]``)."""
-    selection = delta_mean(selection_metrics)
-    report = delta_mean(report_metrics)
-    twa = nanmean(selection[..., METRICS.index("twa")], axis=(0, 1))
+    """Select on ``selection_metrics`` and report ``report_metrics`` (both ``[tasks, seeds, groups, deltas, 5]``).
+
+    ``infinite`` ``[tasks, seeds, groups, deltas]`` marks +inf thresholds (default: none), whose metrics must
+    be NaN already; ``held_out`` ``[tasks, seeds, groups, deltas]`` is the false-alarm rate on the held-out
+    ID successes (default: NaN).
+    """
+    shape = report_metrics.shape[:-1]
+    infinite = np.zeros(shape, dtype=bool) if infinite is None else infinite
+    held_out = np.full(shape, np.nan) if held_out is None else held_out
+    twa = nanmean(delta_mean(selection_metrics)[..., METRICS.index("twa")], axis=(0, 1))
+    twa[infinite.all(axis=3).any(axis=(0, 1))] = np.nan  # no finite delta on some task and seed: never selected
+
+    def result(method: str, index: int) -> MethodResult:
+        return MethodResult(method, groups[index], report_metrics[:, :, index], infinite[:, :, index],
+                            held_out[:, :, index])
+
     selected: dict[str, MethodResult] = {}
     default: dict[str, MethodResult] = {}
     scores: dict[str, float] = {}
     for method in methods:
-        members = [i for i, g in enumerate(groups) if g.method == method and g.aggregation in select_aggregations]
+        fixed = METHODS[method].fixed if method in METHODS else None
+        members = [i for i, g in enumerate(groups)
+                   if g.method == method and (fixed is not None or g.aggregation in select_aggregations)]
         if not members:
             continue
         best = best_group(groups, twa, members)
-        selected[method] = MethodResult(method, groups[best], report[:, :, best])
+        selected[method] = result(method, best)
         scores[method] = float(twa[best])
         label = f"{default_window}/{default_window}" if method == FIPER else str(default_window)
-        wanted = Group(method, label, default_kind, "and" if method == FIPER else "")
+        wanted = groups[members[0]] if fixed is not None else Group(method, label, default_kind,
+                                                                     "and" if method == FIPER else "")
         if wanted in groups:
-            index = list(groups).index(wanted)
-            default[method] = MethodResult(method, wanted, report[:, :, index])
+            default[method] = result(method, list(groups).index(wanted))
     combine_kind: dict[tuple[str, str], MethodResult] = {}
     fiper_groups = [(i, g) for i, g in enumerate(groups) if g.method == FIPER and g.aggregation in select_aggregations]
     for combine in dict.fromkeys(g.combine for _, g in fiper_groups):
         for kind in dict.fromkeys(g.kind for _, g in fiper_groups):
             members = [i for i, g in fiper_groups if g.combine == combine and g.kind == kind]
-            best = best_group(groups, twa, members)
-            combine_kind[(combine, kind)] = MethodResult(FIPER, groups[best], report[:, :, best])
+            combine_kind[(combine, kind)] = result(FIPER, best_group(groups, twa, members))
     return ProtocolResult(protocol, selected, default, combine_kind, scores)

@@ -1,8 +1,16 @@
-"""``results.md`` (the paper's Table 1 and Table 2 layouts) and ``results.json`` (every number).
+"""``results.md`` (the paper's Table 1 and Table 2 layouts, and the promise) and ``results.json`` (every number).
 
 Cells are ``mean ± std`` over seeds (just the mean with one seed). As in the paper, a DT is put in
 brackets when the TPR or TNR of the same cell is below 0.4, and the best value of every row
 (Table 1) or column (Table 2) is bold: highest TWA, Acc, TPR, TNR; lowest DT among DTs not in brackets.
+
+No silent infinities: a cell whose threshold is +inf at every delta reads ``inf (M=12 < 19)`` (``M``
+rollouts behind the conformal quantile, fewer than the largest delta needs); a cell averaged over only
+some of the deltas (the others +inf) or some of the tasks carries ``‡`` and a line under the table says
+which. With the elapsed-time baseline among the methods, every table shows each method's TWA minus the
+baseline's (per seed, then mean ± std). The promise table sets the false-alarm rate on the held-out ID
+successes beside delta, with its binomial standard error ``sqrt(p (1 - p) / n)``, flagged ``⚠`` when above
+``delta + 2 sigma``, and the TPR at that delta.
 """
 
 from __future__ import annotations
@@ -14,14 +22,27 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
 from fiper_ros.evaluation.engine import EvaluationResult
-from fiper_ros.evaluation.methods import METHODS
-from fiper_ros.evaluation.protocol import METRICS, MethodResult, ProtocolResult, nanmean
-from fiper_ros.evaluation.sweep import CUMULATIVE, Group
+from fiper_ros.evaluation.methods import ELAPSED, METHODS, UNFITTED_STREAMS
+from fiper_ros.evaluation.protocol import METRICS, MethodResult, ProtocolResult, nanmean, nanstd
+from fiper_ros.evaluation.sweep import CUMULATIVE, FIPER, Group
 
 LABELS = {"twa": "TWA ↑", "acc": "Acc. ↑", "dt": "DT ↓", "tpr": "TPR ↑", "tnr": "TNR ↑"}
-KIND_LABELS = {"cp_band": "CP band", "cp_constant": "CP constant", "time_varying": "time-var."}
+KIND_LABELS = {"cp_band": "CP band", "cp_constant": "CP constant", "time_varying": "time-var.",
+               "cp_scaled": "CP scaled"}
+SPLIT_TEXT = {
+    "split": "split conformal (the default): score models and the thresholds' per-step shape fitted on one half "
+             "of the calibration successes, the conformal quantiles on the other half (Proposition 1 holds)",
+    "cross": "cross-fitted (K-fold): every calibration success scored by models fitted without its fold, the "
+             "test rollouts by models fitted on all (an approximate guarantee)",
+    "same": "same data (the paper's Remark 1): models and thresholds on the same calibration successes "
+            "(not covered by Proposition 1)",
+}
 POOR = 0.4
+PARTIAL = "‡"
+FLAG = "⚠"
+TWA = METRICS.index("twa")
 
 
 def window_text(group: Group) -> str:
@@ -35,11 +56,71 @@ def config_text(group: Group) -> str:
     return f"w {window_text(group)}, {KIND_LABELS[group.kind]}{combine}"
 
 
+def middle_delta(deltas: tuple[float, ...]) -> float:
+    """The delta a single-delta figure or column shows: 0.05 (the calibration default) when swept."""
+    return 0.05 if 0.05 in deltas else deltas[len(deltas) // 2]
+
+
+def _deltas_text(deltas: list[float]) -> str:
+    return ", ".join(f"{d:g}" for d in deltas)
+
+
+class Cells:
+    """Which cells of a run are infinite and how they are written (one per :class:`EvaluationResult`)."""
+
+    def __init__(self, result: EvaluationResult) -> None:
+        self.result = result
+        self.deltas = list(result.settings.sweep.deltas)
+        self.index = {g: i for i, g in enumerate(result.groups)}
+
+    def behind(self, group: Group, task: int) -> int:
+        """Rollouts behind ``group``'s conformal quantile on ``task`` (the split fixes it for every seed)."""
+        return int(self.result.sweep.conformal[task, 0, self.index[group]])
+
+    def inf_text(self, chosen: MethodResult, task: int) -> str | None:
+        """``"inf (M=12 < 19)"`` when every delta of ``task`` is +inf, else ``None``."""
+        if not chosen.infinite[task].all():
+            return None
+        return f"inf (M={self.behind(chosen.group, task)} < {minimum_conformal_set(max(self.deltas))})"
+
+    def partial_note(self, chosen: MethodResult, task: int) -> str | None:
+        """The line explaining a task cell averaged over only its finite deltas, else ``None``."""
+        infinite = chosen.infinite[task].any(axis=0)
+        if not infinite.any() or infinite.all():
+            return None
+        skipped = [d for d, bad in zip(self.deltas, infinite) if bad]
+        return (f"{self.result.tasks[task]}: averaged over delta "
+                f"{_deltas_text([d for d, bad in zip(self.deltas, infinite) if not bad])} only; +inf at delta "
+                f"{_deltas_text(skipped)} (M={self.behind(chosen.group, task)} < {minimum_conformal_set(max(skipped))})")
+
+    def average_note(self, chosen: MethodResult) -> str | None:
+        """The line explaining a task average that leaves out a task with no finite delta, else ``None``."""
+        missing = [task for t, task in enumerate(self.result.tasks) if chosen.infinite[t].all()]
+        if not missing:
+            return None
+        return (f"Average over {len(self.result.tasks) - len(missing)} of {len(self.result.tasks)} tasks "
+                f"({', '.join(missing)}: inf)")
+
+    def notes(self, chosen: MethodResult, task: int | None) -> list[str]:
+        """The notes of one cell: of ``task``, or of the task average (``None``: every task's and its own)."""
+        if task is not None:
+            notes = [self.partial_note(chosen, task)]
+        else:
+            notes = [self.partial_note(chosen, t) for t in range(len(self.result.tasks))] + [self.average_note(chosen)]
+        return [n for n in notes if n]
+
+
 def _cell(mean: float, std: float, seeds: int, bracket: bool) -> str:
     if math.isnan(mean):
         return "–"
     text = f"{mean:.2f}" + (f" ± {std:.2f}" if seeds > 1 else "")
     return f"({text})" if bracket else text
+
+
+def _signed(mean: float, std: float, seeds: int) -> str:
+    if math.isnan(mean):
+        return "–"
+    return f"{mean:+.2f}" + (f" ± {std:.2f}" if seeds > 1 else "")
 
 
 def _bold_index(values: list[float], metric: str, eligible: list[bool]) -> int | None:
@@ -49,15 +130,21 @@ def _bold_index(values: list[float], metric: str, eligible: list[bool]) -> int |
     return (min(candidates) if metric == "dt" else max(candidates, key=lambda c: (c[0], -c[1])))[1]
 
 
-def _metric_row(means: np.ndarray, stds: np.ndarray, seeds: int) -> dict[str, tuple[list[str], int | None]]:
-    """Per metric: formatted cells over the columns and the bold column. ``means [columns, 5]``."""
+def _metric_row(means: np.ndarray, stds: np.ndarray, seeds: int, marks: list[str] | None = None,
+                replaced: list[str | None] | None = None) -> dict[str, tuple[list[str], int | None]]:
+    """Per metric: formatted cells over the columns and the bold column. ``means [columns, 5]``; ``marks``
+    are appended to a column's cells, ``replaced`` (e.g. ``inf (M=12 < 19)``) stands for all of them."""
+    columns = means.shape[0]
+    marks = marks or [""] * columns
+    replaced = replaced or [None] * columns
     tpr, tnr = means[:, METRICS.index("tpr")], means[:, METRICS.index("tnr")]
     poor = [bool(a < POOR or b < POOR) for a, b in zip(tpr, tnr)]
     rows: dict[str, tuple[list[str], int | None]] = {}
     for m, metric in enumerate(METRICS):
         bracket = poor if metric == "dt" else [False] * len(poor)
-        cells = [_cell(float(means[c, m]), float(stds[c, m]), seeds, bracket[c]) for c in range(means.shape[0])]
-        eligible = [not b for b in bracket]
+        cells = [replaced[c] or _cell(float(means[c, m]), float(stds[c, m]), seeds, bracket[c]) + marks[c]
+                 for c in range(columns)]
+        eligible = [not b and replaced[c] is None for c, b in enumerate(bracket)]
         rows[metric] = (cells, _bold_index([float(v) for v in means[:, m]], metric, eligible))
     return rows
 
@@ -66,43 +153,175 @@ def _emphasise(cells: list[str], bold: int | None) -> list[str]:
     return [f"**{c}**" if i == bold else c for i, c in enumerate(cells)]
 
 
+def _legend(notes: list[tuple[str, str]]) -> list[str]:
+    """``‡`` lines under a table: each note once, with the columns or rows it applies to."""
+    grouped: dict[str, list[str]] = {}
+    for note, who in notes:
+        grouped.setdefault(note, [])
+        if who not in grouped[note]:
+            grouped[note].append(who)
+    return ["", *(f"{PARTIAL} {note}: {', '.join(who)}." for note, who in grouped.items())] if grouped else []
+
+
+def gain(chosen: MethodResult, floor: MethodResult, task: int | None) -> tuple[float, float]:
+    """TWA of ``chosen`` minus the elapsed-time baseline's, per seed (task average per seed for
+    ``task=None``): mean and std over seeds."""
+    if task is None:
+        per_seed = nanmean(chosen.values[..., TWA], axis=0) - nanmean(floor.values[..., TWA], axis=0)
+    else:
+        per_seed = chosen.values[task, :, TWA] - floor.values[task, :, TWA]
+    return float(nanmean(per_seed, axis=0)), float(nanstd(per_seed, axis=0))
+
+
 def table1(result: EvaluationResult, chosen: dict[str, MethodResult]) -> str:
-    """Table 1 / Table 5 layout: tasks x metrics rows, methods as columns."""
+    """Table 1 / Table 5 layout: tasks x metrics rows, methods as columns, the gain over the elapsed-time
+    baseline under each task, notes on infinite thresholds below."""
+    cells = Cells(result)
     methods = [m for m in result.settings.methods if m in chosen]
     seeds = len(result.settings.seeds)
+    floor = chosen.get(ELAPSED)
     header = ["Task", "Metric", *(METHODS[m].label for m in methods)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines.append("| Best w | | " + " | ".join(window_text(chosen[m].group) for m in methods) + " |")
     lines.append("| Best threshold | | " + " | ".join(
         KIND_LABELS[chosen[m].group.kind] + (f", {chosen[m].group.combine.upper()}" if chosen[m].group.combine else "")
         for m in methods) + " |")
-    blocks: list[tuple[str, np.ndarray, np.ndarray]] = []
+    notes: list[tuple[str, str]] = []
     per_task = {m: chosen[m].per_task() for m in methods}
-    for t, task in enumerate(result.tasks):
-        blocks.append((task, np.stack([per_task[m][0][t] for m in methods]), np.stack([per_task[m][1][t] for m in methods])))
     averages = {m: chosen[m].average() for m in methods}
-    blocks.append(("Average", np.stack([averages[m][0] for m in methods]), np.stack([averages[m][1] for m in methods])))
-    for name, means, stds in blocks:
-        for i, (metric, (cells, bold)) in enumerate(_metric_row(means, stds, seeds).items()):
-            lines.append(f"| {name if i == 0 else ''} | {LABELS[metric]} | " + " | ".join(_emphasise(cells, bold)) + " |")
-    return "\n".join(lines)
+    blocks: list[tuple[str, int | None]] = [(task, t) for t, task in enumerate(result.tasks)] + [("Average", None)]
+    for name, t in blocks:
+        if t is None:
+            means = np.stack([averages[m][0] for m in methods])
+            stds = np.stack([averages[m][1] for m in methods])
+            replaced: list[str | None] = [None] * len(methods)
+        else:
+            means = np.stack([per_task[m][0][t] for m in methods])
+            stds = np.stack([per_task[m][1][t] for m in methods])
+            replaced = [cells.inf_text(chosen[m], t) for m in methods]
+        cell_notes = [cells.notes(chosen[m], t) for m in methods]
+        notes += [(n, METHODS[m].label) for m, ns in zip(methods, cell_notes) for n in ns]
+        marks = [PARTIAL if ns and r is None else "" for ns, r in zip(cell_notes, replaced)]
+        for i, (metric, (row, bold)) in enumerate(_metric_row(means, stds, seeds, marks, replaced).items()):
+            lines.append(f"| {name if i == 0 else ''} | {LABELS[metric]} | " + " | ".join(_emphasise(row, bold)) + " |")
+        if floor is not None:
+            lines.append(f"| | TWA − {METHODS[ELAPSED].label} | " + " | ".join(
+                _signed(*gain(chosen[m], floor, t), seeds) for m in methods) + " |")
+    return "\n".join(lines + _legend(notes))
 
 
 def table2(result: EvaluationResult, protocol: ProtocolResult) -> str:
-    """Table 2 layout: FIPER's operator x threshold type, task averages."""
+    """Table 2 layout: FIPER's operator x threshold type, task averages (and the gain over the elapsed time)."""
     keys = list(protocol.combine_kind)
     if not keys:
         return "_FIPER was not evaluated._"
+    cells = Cells(result)
     seeds = len(result.settings.seeds)
-    means = np.stack([protocol.combine_kind[k].average()[0] for k in keys])
-    stds = np.stack([protocol.combine_kind[k].average()[1] for k in keys])
-    columns = _metric_row(means, stds, seeds)
-    lines = ["| Operator | Threshold | Best w | " + " | ".join(LABELS[m] for m in METRICS) + " |", "|" + "---|" * 8]
-    for row, (combine, kind) in enumerate(keys):
-        cells = [f"**{columns[m][0][row]}**" if columns[m][1] == row else columns[m][0][row] for m in METRICS]
-        group = protocol.combine_kind[(combine, kind)].group
-        lines.append(f"| {combine.upper()} | {KIND_LABELS[kind]} | {window_text(group)} | " + " | ".join(cells) + " |")
+    floor = protocol.selected.get(ELAPSED)
+    chosen = [protocol.combine_kind[k] for k in keys]
+    means = np.stack([c.average()[0] for c in chosen])
+    stds = np.stack([c.average()[1] for c in chosen])
+    cell_notes = [cells.notes(c, None) for c in chosen]
+    notes = [(n, f"{c.group.combine.upper()} {KIND_LABELS[c.group.kind]}") for c, ns in zip(chosen, cell_notes)
+             for n in ns]
+    columns = _metric_row(means, stds, seeds, [PARTIAL if ns else "" for ns in cell_notes])
+    extra = [f"TWA − {METHODS[ELAPSED].label}"] if floor is not None else []
+    header = ["Operator", "Threshold", "Best w", *(LABELS[m] for m in METRICS), *extra]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row, ((combine, kind), c) in enumerate(zip(keys, chosen)):
+        values = [f"**{columns[m][0][row]}**" if columns[m][1] == row else columns[m][0][row] for m in METRICS]
+        if floor is not None:
+            values.append(_signed(*gain(c, floor, None), seeds))
+        lines.append(f"| {combine.upper()} | {KIND_LABELS[kind]} | {window_text(c.group)} | " + " | ".join(values) + " |")
+    return "\n".join(lines + _legend(notes))
+
+
+def guarantee_text(chosen: MethodResult, split: str) -> str:
+    """What a configuration promises about false alarms on new successes (docs/method.md, "What each
+    threshold guarantees"): the bound, or why there is none."""
+    if chosen.group.kind not in GUARANTEED_KINDS:
+        return "none (per-step quantile)"
+    bound = "2δ (OR)" if chosen.group.combine == "or" else "δ"
+    if all(s in UNFITTED_STREAMS for s in METHODS[chosen.method].streams) or split == "split":
+        return f"≤ {bound}"  # nothing fitted on the conformal rollouts
+    return f"≈ {bound} (cross-fitted)" if split == "cross" else "not covered (same data)"
+
+
+def _shown_deltas(deltas: list[float]) -> list[float]:
+    if len(deltas) <= 3:
+        return deltas
+    return list(dict.fromkeys([min(deltas), middle_delta(tuple(deltas)), max(deltas)]))
+
+
+def promise_rows(result: EvaluationResult, chosen: MethodResult, task: int, held_out: str) -> list[dict[str, Any]]:
+    """Per delta: the false-alarm rate on the held-out ID successes (mean over seeds), its binomial
+    standard error, whether it is above ``delta + 2 sigma``, the TPR, and whether the threshold is +inf."""
+    n = result.sweep.id_successes[held_out][task]
+    rows = []
+    for d, delta in enumerate(result.settings.sweep.deltas):
+        infinite = bool(chosen.infinite[task, :, d].any())
+        rate = float(nanmean(chosen.false_alarms[task, :, d], axis=0)) if not infinite else math.nan
+        sigma = math.sqrt(rate * (1.0 - rate) / n) if n and not math.isnan(rate) else math.nan
+        tpr = float(nanmean(chosen.per_delta[task, :, d, METRICS.index("tpr")], axis=0))
+        rows.append({"delta": delta, "n": n, "infinite": infinite, "rate": rate, "standard_error": sigma,
+                     "above": bool(rate > delta + 2.0 * sigma) if not math.isnan(sigma) else False, "tpr": tpr})
+    return rows
+
+
+def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
+    """Every method's selected configuration: false alarms on held-out ID successes beside delta."""
+    cells = Cells(result)
+    held_out = "all" if protocol.protocol == "paper" else "report"
+    shown = _shown_deltas(cells.deltas)
+    floor = protocol.selected.get(ELAPSED)
+    extra = [f"TWA − {METHODS[ELAPSED].label}"] if floor is not None else []
+    header = ["Method", "Config", "Guarantee", "Task", "n", *(f"FA / TPR at δ = {d:g}" for d in shown),
+              "δ with FA > δ + 2σ", *extra]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    split = result.settings.method_settings.split
+    seeds = len(result.settings.seeds)
+    for method, chosen in protocol.selected.items():
+        for t, task in enumerate(result.tasks):
+            rows = promise_rows(result, chosen, t, held_out)
+            by_delta = {row["delta"]: row for row in rows}
+            values = []
+            for delta in shown:
+                row = by_delta[delta]
+                if row["infinite"]:
+                    values.append(f"inf (M={cells.behind(chosen.group, t)} < {minimum_conformal_set(delta)})")
+                elif math.isnan(row["rate"]):
+                    values.append("–")
+                else:
+                    values.append(f"{row['rate']:.2f} ± {row['standard_error']:.2f}{' ' + FLAG if row['above'] else ''}"
+                                  f" / {row['tpr']:.2f}")
+            above = [row["delta"] for row in rows if row["above"]]
+            first = t == 0
+            lines.append("| " + " | ".join([
+                METHODS[method].label if first else "", config_text(chosen.group) if first else "",
+                guarantee_text(chosen, split) if first else "", task, str(rows[0]["n"]), *values,
+                _deltas_text(above) if above else "none",
+                *([_signed(*gain(chosen, floor, t), seeds)] if floor is not None else [])]) + " |")
     return "\n".join(lines)
+
+
+def _infinite_summary(result: EvaluationResult) -> list[str]:
+    """One line per task: the rollouts behind each conformal kind's quantiles and the deltas they cannot serve."""
+    deltas = list(result.settings.sweep.deltas)
+    lines = []
+    for t, task in enumerate(result.tasks):
+        kinds: dict[int, set[str]] = {}
+        for group, behind in zip(result.groups, result.sweep.conformal[t, 0]):
+            if group.kind in GUARANTEED_KINDS:
+                kinds.setdefault(int(behind), set()).add(group.kind)
+        parts = []
+        for behind, members in sorted(kinds.items()):
+            infinite = [d for d in deltas if minimum_conformal_set(d) > behind]
+            tail = f"+inf at delta {_deltas_text(infinite)}" if infinite else "finite at every delta"
+            labels = ", ".join(KIND_LABELS[k] for k in GUARANTEED_KINDS if k in members)
+            parts.append(f"{labels} over {behind} rollouts: {tail}")
+        if parts:
+            lines.append(f"- {task}: {'; '.join(parts)}.")
+    return lines
 
 
 def markdown(result: EvaluationResult, figures: list[str]) -> str:
@@ -115,21 +334,37 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   "they say nothing about real policies.", ""]
     lines += [
         f"Tasks: {', '.join(result.tasks)}. Seeds: {', '.join(map(str, s.seeds))}. Profile: {s.method_settings.profile}.",
+        f"Calibration: {SPLIT_TEXT[s.method_settings.split]}; the same split of every task and seed for every method.",
         f"Sweep: windows {min(s.sweep.windows)}..{max(s.sweep.windows)}"
         f"{' + cumulative' if s.sweep.cumulative else ''}, 1-delta in "
         f"{{{', '.join(f'{1 - d:.2f}' for d in s.sweep.deltas)}}} (metrics averaged over them), thresholds "
         f"{', '.join(KIND_LABELS[k] for k in s.sweep.kinds)}, FIPER pairs '{s.sweep.pairs}', "
         f"{'/'.join(c.upper() for c in s.sweep.combines)}; {len(result.groups)} configurations per task and seed.",
-        "DT in brackets: TPR or TNR below 0.4. Bold: best of the row (Table 1) or column (Table 2).", "",
+        "DT (each rollout's own length, App. B.4) in brackets: TPR or TNR below 0.4. Bold: best of the row "
+        "(Table 1) or column (Table 2).",
     ]
+    if ELAPSED in s.methods:
+        lines.append(f"{METHODS[ELAPSED].label}: the elapsed-time baseline, alarm after k steps with k the conformal "
+                     "quantile of the calibration successes' lengths; 'TWA − Elapsed' is each method's gain over it.")
+    summary = _infinite_summary(result)
+    if summary:
+        lines += ["", "Conformal quantiles (+inf where fewer rollouts than delta needs: those cells are left out of "
+                  "every average and selection):", *summary]
+    lines.append("")
     for name, protocol in result.protocols.items():
         title = ("paper protocol (selection and report on all test rollouts)" if name == "paper"
                  else "clean protocol (selection on a validation half, report on the disjoint half)")
+        held = "all test rollouts'" if name == "paper" else "the report half's"
         lines += [f"## Table 1: failure prediction, {title}", "",
                   "Each method's window and threshold type maximise the mean TWA across tasks.", "",
                   table1(result, protocol.selected), "",
                   f"## Table 2: FIPER operator and threshold type, {name} protocol (task average)", "",
-                  table2(result, protocol), ""]
+                  table2(result, protocol), "",
+                  f"## The promise: false alarms on held-out ID successes, {name} protocol", "",
+                  f"FA: the fraction of {held} ID-scenario successes alarmed (mean over seeds) ± its binomial "
+                  f"standard error; {FLAG}: above δ + 2σ. TPR: over all failures, at the same δ. Guarantee: "
+                  "docs/method.md, 'What each threshold guarantees'.", "",
+                  promise_table(result, protocol), ""]
         if protocol.default:
             lines += [f"## Fixed default configuration, {name} protocol "
                       f"(w = {s.default_window}, {KIND_LABELS[s.default_kind]}, FIPER AND)", "",
@@ -151,14 +386,25 @@ def _clean(value: Any) -> Any:
     return value
 
 
-def _method_json(result: EvaluationResult, chosen: MethodResult) -> dict[str, Any]:
+def _method_json(result: EvaluationResult, chosen: MethodResult, held_out: str, floor: MethodResult | None) -> dict[str, Any]:
+    cells = Cells(result)
     mean, std = chosen.per_task()
     average_mean, average_std = chosen.average()
+    split = result.settings.method_settings.split
     return {
         "config": {"window": chosen.group.window, "threshold": chosen.group.kind, "combine": chosen.group.combine},
-        "tasks": {task: {m: {"mean": mean[t, i], "std": std[t, i], "seeds": chosen.values[t, :, i]}
-                         for i, m in enumerate(METRICS)} for t, task in enumerate(result.tasks)},
-        "average": {m: {"mean": average_mean[i], "std": average_std[i]} for i, m in enumerate(METRICS)},
+        "guarantee": guarantee_text(chosen, split),
+        "tasks": {task: {**{m: {"mean": mean[t, i], "std": std[t, i], "seeds": chosen.values[t, :, i]}
+                            for i, m in enumerate(METRICS)},
+                         "conformal_rollouts": cells.behind(chosen.group, t),
+                         "infinite_deltas": [d for d, bad in zip(cells.deltas, chosen.infinite[t].any(axis=0)) if bad],
+                         "held_out_false_alarms": promise_rows(result, chosen, t, held_out),
+                         **({"twa_gain_over_elapsed": dict(zip(("mean", "std"), gain(chosen, floor, t)))}
+                            if floor is not None else {})}
+                  for t, task in enumerate(result.tasks)},
+        "average": {**{m: {"mean": average_mean[i], "std": average_std[i]} for i, m in enumerate(METRICS)},
+                    **({"twa_gain_over_elapsed": dict(zip(("mean", "std"), gain(chosen, floor, None)))}
+                       if floor is not None else {})},
     }
 
 
@@ -167,26 +413,36 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
     s = result.settings
     protocols = {}
     for name, protocol in result.protocols.items():
-        protocols[name] = {
-            "selected": {m: _method_json(result, r) for m, r in protocol.selected.items()},
-            "selection_twa": protocol.selection_twa,
-            "default": {m: _method_json(result, r) for m, r in protocol.default.items()},
-            "fiper_combine_threshold": {f"{c}/{k}": _method_json(result, r) for (c, k), r in protocol.combine_kind.items()},
-        }
+        held_out = "all" if name == "paper" else "report"
+        floor = protocol.selected.get(ELAPSED)
+
+        def entries(chosen: dict[Any, MethodResult]) -> dict[str, Any]:
+            return {"/".join(k) if isinstance(k, tuple) else k: _method_json(result, r, held_out, floor)
+                    for k, r in chosen.items()}
+
+        protocols[name] = {"selected": entries(protocol.selected), "selection_twa": protocol.selection_twa,
+                           "default": entries(protocol.default),
+                           "fiper_combine_threshold": entries(protocol.combine_kind)}
     seed_mean = nanmean(result.metrics["all"], axis=1)
+    deltas = list(s.sweep.deltas)
+    infinite = result.sweep.infinite.any(axis=1)  # [tasks, groups, deltas], over seeds
     sweep = [
         {"method": g.method, "window": g.window, "threshold": g.kind, "combine": g.combine,
-         "metrics": {task: {m: seed_mean[t, i, :, k] for k, m in enumerate(METRICS)} for t, task in enumerate(result.tasks)}}
+         "metrics": {task: {m: seed_mean[t, i, :, k] for k, m in enumerate(METRICS)} for t, task in enumerate(result.tasks)},
+         "infinite_deltas": {task: [d for d, bad in zip(deltas, infinite[t, i]) if bad]
+                             for t, task in enumerate(result.tasks) if infinite[t, i].any()}}
         for i, g in enumerate(result.groups)
     ]
     document = {
         "synthetic": any(r.metadata.get("synthetic") for d in result.datasets for r in d.test),
         "tasks": {d.task: {"calibration_successes": len(d.calibration_successes), "test": len(d.test),
-                           "test_failures": int(d.failed.sum())} for d in result.datasets},
+                           "test_failures": int(d.failed.sum()),
+                           "held_out_id_successes": len(d.held_out_id_successes)} for d in result.datasets},
         "settings": {"methods": list(s.methods), "seeds": list(s.seeds), "profile": s.method_settings.profile,
                      "windows": list(s.sweep.windows), "cumulative": s.sweep.cumulative, "deltas": list(s.sweep.deltas),
                      "thresholds": list(s.sweep.kinds), "combines": list(s.sweep.combines), "pairs": s.sweep.pairs,
                      "protocols": list(s.protocols), "split_seed": s.split_seed,
+                     "calibration_split": s.method_settings.split_settings(),
                      "default": {"window": s.default_window, "threshold": s.default_kind}},
         "metrics_order": list(METRICS),
         "timings_s": result.timings,

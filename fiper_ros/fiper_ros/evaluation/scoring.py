@@ -1,19 +1,30 @@
-"""Per-step scores of every stream of a dataset, computed once per (dataset, settings, seed) and cached.
+"""Per-step scores of every stream of a dataset, computed once per (dataset, settings, split, seed) and cached.
 
 RND-OE and ACE come from :func:`fiper_ros.core.calibration.calibrate` and
 :mod:`fiper_ros.core.scores` (the functions :func:`fiper_ros.core.monitor.predict_rollout` uses), so
-the evaluation sees exactly the numbers of the runtime monitor. The baselines are fitted on the
-successful calibration rollouts. Scores are kept for the successful calibration rollouts (to fit the
-thresholds on) and for all test rollouts. Every per-step score gets the profile's ``score_epsilon``
-(0 in the paper profile; the authors' code adds 1e-6 to every score, baselines included).
+the evaluation sees exactly the numbers of the runtime monitor. Every learned quantity a threshold
+depends on (RND-OE, ``R_d``, the baselines' models) is fitted on the successes the calibration split
+gives it (:func:`fiper_ros.core.calibration.split_successes`, the same split for every stream of a task
+and seed):
+
+- ``"split"``: fitted on the fit part; every calibration success and test rollout scored by that model;
+- ``"cross"``: each fold of the successes scored by a model fitted on the other folds, the test rollouts
+  by a model fitted on all successes (the deployed one);
+- ``"same"``: fitted on all successes, which are then scored by it (the paper's Remark 1).
+
+Scores are kept for the successful calibration rollouts (:class:`fiper_ros.evaluation.cache.RolloutScores`;
+:class:`fiper_ros.evaluation.cache.StreamScores` separates them into the fit and the conformal part) and
+for all test rollouts. Every per-step score gets the profile's ``score_epsilon`` (0 in the paper profile;
+the authors' code adds 1e-6 to every score, baselines included); the elapsed-time stream is exactly 1.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -23,14 +34,14 @@ from fiper_ros.baselines.logpzo import LogpZO
 from fiper_ros.baselines.pca_kmeans import PCAKMeans
 from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC
-from fiper_ros.core.calibration import CalibrationSettings, calibrate
+from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
 from fiper_ros.core.compat import get_profile
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
-from fiper_ros.evaluation.cache import ScoreCache, StreamScores, cache_key, code_version
+from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores, cache_key, code_version
 from fiper_ros.evaluation.data import Dataset, DatasetError
-from fiper_ros.evaluation.methods import SEEDLESS_STREAMS, MethodSettings
+from fiper_ros.evaluation.methods import ELAPSED, UNFITTED_STREAMS, MethodSettings
 
 LOG = logging.getLogger(__name__)
 
@@ -58,9 +69,10 @@ def _baseline(stream: str, settings: MethodSettings) -> Baseline:
     raise ValueError(f"{stream!r} is not a baseline stream")
 
 
-def _apply(score: Callable[[Rollout], np.ndarray], dataset: Dataset, epsilon: float) -> StreamScores:
-    calibration = [np.asarray(score(r), dtype=np.float64) + epsilon for r in dataset.calibration_successes]
-    return StreamScores(calibration, [np.asarray(score(r), dtype=np.float64) + epsilon for r in dataset.test])
+Scorer = Callable[[Rollout], np.ndarray]
+#: Fits score models on some successful calibration rollouts; returns the scorer of every stream it serves.
+Fitter = Callable[[Sequence[Rollout]], dict[str, Scorer]]
+FIPER_PAIR = ("rnd_oe", "ace")
 
 
 def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
@@ -74,30 +86,85 @@ def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
     return settings.robot
 
 
-def fiper_streams(dataset: Dataset, settings: MethodSettings, seed: int) -> dict[str, StreamScores]:
-    """RND-OE and ACE scores through the core calibration (``core.scores``; epsilon included there)."""
+def calibration_split(dataset: Dataset, settings: MethodSettings, seed: int) -> CalibrationSplit:
+    """The split of ``dataset``'s calibration successes for ``seed``: the core's, shared by every stream."""
+    try:
+        return split_successes(len(dataset.calibration_successes), settings.calibration_settings(seed))
+    except CalibrationError as error:
+        raise DatasetError(f"task {dataset.task!r}: {error}") from error
+
+
+def check_split(dataset: Dataset, settings: MethodSettings) -> None:
+    """Refuse a dataset whose split leaves a score model fewer successes than the core calibration needs."""
+    split = calibration_split(dataset, settings, 0)
+    count = len(dataset.calibration_successes)
+    need = settings.calibration_settings(0).min_rollouts
+    fitted = ([count - len(fold) for fold in split.folds] if split.mode == "cross" else [len(split.fit)])
+    if min(fitted) < need:
+        raise DatasetError(f"task {dataset.task!r}: the {split.mode} calibration split fits the score models on "
+                           f"{min(fitted)} of {count} successes, fewer than the {need} they need (more "
+                           "calibration successes, or --split same)")
+
+
+def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int) -> Fitter:
+    """RND-OE and ACE fitted through the core calibration on the successes given, with the calibration
+    failures where the profile takes ``R_d`` over them too (``core.scores``; epsilon included there).
+
+    The core calibrates them with ``split="same"``: the split is the caller's (:func:`split_scores`), so
+    RND-OE and ``R_d`` are those :func:`fiper_ros.core.calibration.calibrate` fits on the split's fit part.
+    """
     robot = robot_for(dataset, settings)
-    calibration_settings = CalibrationSettings(alpha=settings.alpha, rnd=settings.rnd, seed=seed,
-                                               profile=settings.profile, split="same",
-                                               control_dt=None if robot is None else robot.control_dt)
+    calibration_settings = replace(settings.calibration_settings(seed), alpha=settings.alpha, rnd=settings.rnd,
+                                   split="same", control_dt=None if robot is None else robot.control_dt)
     fk = None if robot is None else robot.forward_kinematics()
-    calibration = calibrate(dataset.calibration, calibration_settings, fk=fk, refuse_infinite=False)
-    projection = calibration.projection(fk)
-    profile = calibration.profile
+    failed = [r for r in dataset.calibration if r.success is not True]
 
-    def ace(rollout: Rollout) -> np.ndarray:
-        return act_scores(rollout_positions(rollout, projection), calibration.cell, profile)
+    def fit(successes: Sequence[Rollout]) -> dict[str, Scorer]:
+        calibration = calibrate([*successes, *failed], calibration_settings, fk=fk, refuse_infinite=False)
+        projection = calibration.projection(fk)
+        profile = calibration.profile
 
-    def rnd(rollout: Rollout) -> np.ndarray:
-        return obs_scores(calibration.rnd, rollout.embeddings, profile)
+        def ace(rollout: Rollout) -> np.ndarray:
+            return act_scores(rollout_positions(rollout, projection), calibration.cell, profile)
 
-    return {"rnd_oe": _apply(rnd, dataset, 0.0), "ace": _apply(ace, dataset, 0.0)}  # epsilon added by core
+        def rnd(rollout: Rollout) -> np.ndarray:
+            return obs_scores(calibration.rnd, rollout.embeddings, profile)
+
+        return {"rnd_oe": rnd, "ace": ace}
+
+    return fit
 
 
-def baseline_stream(stream: str, dataset: Dataset, settings: MethodSettings, seed: int) -> StreamScores:
-    """Fit a baseline on the calibration successes and score every kept rollout."""
-    baseline = _baseline(stream, settings).fit(dataset.calibration, seed)
-    return _apply(baseline.scores, dataset, get_profile(settings.profile).score_epsilon)
+def baseline_fitter(stream: str, settings: MethodSettings, seed: int) -> Fitter:
+    """A baseline (or the elapsed-time stream) fitted on the successes given; its scores get the epsilon."""
+    if stream == ELAPSED:
+        return lambda successes: {ELAPSED: lambda rollout: np.ones(rollout.length)}
+    epsilon = get_profile(settings.profile).score_epsilon
+
+    def fit(successes: Sequence[Rollout]) -> dict[str, Scorer]:
+        baseline = _baseline(stream, settings).fit(successes, seed)
+        return {stream: lambda rollout: np.asarray(baseline.scores(rollout), dtype=np.float64) + epsilon}
+
+    return fit
+
+
+def split_scores(fit: Fitter, dataset: Dataset, split: CalibrationSplit) -> dict[str, RolloutScores]:
+    """Scores of the calibration successes and the test rollouts with models fitted as ``split`` says
+    (see the module docstring), for every stream ``fit`` serves."""
+    good = dataset.calibration_successes
+    if split.mode == "cross":
+        calibration: list[dict[str, np.ndarray]] = [{} for _ in good]
+        for fold in split.folds:
+            scorers = fit([good[i] for i in range(len(good)) if i not in fold])
+            for i in fold:
+                calibration[i] = {name: score(good[i]) for name, score in scorers.items()}
+        deployed = fit(good)
+    else:
+        deployed = fit([good[i] for i in split.fit])
+        calibration = [{name: score(r) for name, score in deployed.items()} for r in good]
+    return {name: RolloutScores([np.asarray(c[name], dtype=np.float64) for c in calibration],
+                                [np.asarray(score(r), dtype=np.float64) for r in dataset.test])
+            for name, score in deployed.items()}
 
 
 def compute_streams(
@@ -108,39 +175,45 @@ def compute_streams(
     cache: ScoreCache | None = None,
     threads: int = 1,
 ) -> tuple[dict[str, StreamScores], dict[str, float]]:
-    """Scores of ``streams`` for one dataset and seed, from the cache where possible.
+    """Scores of ``streams`` for one dataset and seed, from the cache where possible, separated by the
+    split of ``seed`` (:func:`calibration_split`).
 
     Returns the scores and the seconds spent computing each stream (0 for cache hits).
     """
+    split = calibration_split(dataset, settings, seed)
     data_digest = dataset.digest() if cache is not None else ""
     version = code_version() if cache is not None else ""
     joint_space = dataset.action_space != "ee_position"
-    keys = {s: cache_key(data_digest, s, settings.stream_settings(s, joint_space),
-                         None if s in SEEDLESS_STREAMS else seed, version)
+    keys = {s: cache_key(data_digest, s, settings.stream_settings(s, joint_space), settings.stream_seed(s, seed),
+                         version)
             for s in streams}
-    out: dict[str, StreamScores] = {}
+    raw: dict[str, RolloutScores] = {}
     seconds: dict[str, float] = {}
     for stream in streams:
         cached = cache.get(keys[stream]) if cache is not None else None
         if cached is not None:
-            out[stream], seconds[stream] = cached, 0.0
-    missing = [s for s in streams if s not in out]
+            raw[stream], seconds[stream] = cached, 0.0
+    missing = [s for s in streams if s not in raw]
     with torch_threads(threads):
-        if any(s in ("rnd_oe", "ace") for s in missing):
+        if any(s in FIPER_PAIR for s in missing):
             start = time.perf_counter()
-            both = fiper_streams(dataset, settings, seed)
+            both = split_scores(fiper_fitter(dataset, settings, seed), dataset, split)
             elapsed = time.perf_counter() - start
-            for stream in ("rnd_oe", "ace"):
+            for stream in FIPER_PAIR:
                 if stream in missing:
-                    out[stream], seconds[stream] = both[stream], elapsed / 2.0
+                    raw[stream], seconds[stream] = both[stream], elapsed / 2.0
         for stream in missing:
-            if stream not in out:
+            if stream not in raw:
                 start = time.perf_counter()
-                out[stream] = baseline_stream(stream, dataset, settings, seed)
+                # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
+                own = calibration_split(dataset, replace(settings, split="same"), seed) \
+                    if stream in UNFITTED_STREAMS else split
+                raw[stream] = split_scores(baseline_fitter(stream, settings, seed), dataset, own)[stream]
                 seconds[stream] = time.perf_counter() - start
     if cache is not None:
         for stream in missing:
-            cache.put(keys[stream], out[stream])
+            cache.put(keys[stream], raw[stream])
     for stream in missing:
-        LOG.info("%s %s seed %d: scores in %.1f s", dataset.task, stream, seed, seconds[stream])
-    return {s: out[s] for s in streams}, seconds
+        LOG.info("%s %s seed %d (%s split): scores in %.1f s", dataset.task, stream, seed, split.mode,
+                 seconds[stream])
+    return {s: StreamScores.of(raw[s], split) for s in streams}, seconds

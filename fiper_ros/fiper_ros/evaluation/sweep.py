@@ -7,11 +7,18 @@ numbers in the same order as :func:`fiper_ros.core.window.windowed`, so every cu
 to the core's. The cumulative sum (``w = inf``, label ``"cum"``) is ``np.cumsum`` as in the core.
 Single-step aggregation is ``w = 1``.
 
-Thresholds are fitted on the successful calibration rollouts' curves with the core's rules
-(:mod:`.threshold_grid`, all deltas at once) and extended with :meth:`Threshold.over`; alarms are the
-core's strict ``eta > gamma`` (:func:`fiper_ros.core.fusion.exceeds`), FIPER fuses the RND-OE and
-ACE decisions with :func:`fiper_ros.core.fusion.fuse`, and the first alarm of every rollout is kept
-(-1 for none), vectorised over kinds, deltas and rollouts.
+Thresholds are fitted with the core's rules (:mod:`.threshold_grid`, all deltas at once) on the
+conformal part's curves, with the fit part's curves as the shape (``shape_curves``) where the split has
+one (:class:`fiper_ros.evaluation.cache.StreamScores`), exactly as :func:`fiper_ros.core.calibration.calibrate`
+does, and extended with :meth:`Threshold.over`; alarms are the core's strict ``eta > gamma``
+(:func:`fiper_ros.core.fusion.exceeds`), FIPER fuses the RND-OE and ACE decisions with
+:func:`fiper_ros.core.fusion.fuse`, and the first alarm of every rollout is kept (-1 for none),
+vectorised over kinds, deltas and rollouts. A threshold that is +inf (a conformal quantile of too few
+rollouts for its delta) is recorded (:attr:`TaskSweep.infinite`) with the number of rollouts behind
+it, so that no table averages or selects it.
+
+A method with a single configuration (:attr:`fiper_ros.evaluation.methods.Method.fixed`, the
+elapsed-time baseline) gets only that one, whatever the grid.
 
 FIPER's ``(w_O, w_A)`` grid (``pairs``): ``"diagonal"`` (``w_O = w_A``, every window), ``"coarse"``
 (the diagonal plus all pairs of :data:`COARSE_WINDOWS`, the default) or ``"full"`` (all pairs; slow).
@@ -27,6 +34,7 @@ import numpy as np
 from fiper_ros.core.fusion import COMBINES, exceeds, fuse
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
+from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.threshold_grid import GRID_KINDS, fit_threshold_grid
 
 DELTAS: tuple[float, ...] = tuple(round(0.01 * i, 2) for i in range(1, 11))
@@ -44,7 +52,7 @@ class SweepSettings:
     windows: tuple[int, ...] = tuple(range(1, 51))
     cumulative: bool = True
     deltas: tuple[float, ...] = DELTAS
-    kinds: tuple[str, ...] = ("cp_band", "cp_constant", "time_varying")
+    kinds: tuple[str, ...] = ("cp_band", "cp_constant", "time_varying", "cp_scaled")
     combines: tuple[str, ...] = COMBINES
     pairs: str = "coarse"
 
@@ -121,43 +129,97 @@ def first_alarms(exceeded: np.ndarray) -> np.ndarray:
     return np.where(exceeded.any(axis=-1), exceeded.argmax(axis=-1), -1).astype(np.int32)
 
 
+@dataclass
+class LabelAlarms:
+    """One window label of one stream: per kind and delta, the first alarms and the thresholds' state."""
+
+    label: str
+    first: np.ndarray
+    """First alarm steps ``[kinds, deltas, test rollouts]`` (-1: none)."""
+    exceeded: np.ndarray | None
+    """``eta > gamma`` ``[kinds, deltas, test rollouts, T]``, kept only for the labels FIPER fuses."""
+    infinite: np.ndarray
+    """``[kinds, deltas]``: the threshold is +inf somewhere (it never alarms there)."""
+    conformal: np.ndarray
+    """``[kinds]``: how many rollouts the threshold's quantile is taken over (``M``, or ``M2`` of a band)."""
+
+
 def _stream_alarms(
     stream: StreamScores, settings: SweepSettings, base: ThresholdSettings, keep: set[str]
-) -> Iterator[tuple[str, np.ndarray, np.ndarray | None]]:
-    """Per window label: first alarms ``[K, D, N]`` and, for labels in ``keep``, the exceedances."""
-    lengths = [c.shape[0] for c in stream.calibration]
+) -> Iterator[LabelAlarms]:
+    """Per window label of ``settings``: the first alarms, the kept exceedances and the thresholds' state."""
+    conformal_lengths = [c.shape[0] for c in stream.conformal]
+    fit_lengths = [c.shape[0] for c in stream.fit] if stream.fit is not None else []
     test = padded(stream.test)
-    calibration_windows = aggregated(padded(stream.calibration), settings)
-    for (label, eta_test), (_, eta_cal) in zip(aggregated(test, settings), calibration_windows):
-        curves = [eta_cal[i, :length] for i, length in enumerate(lengths)]
-        grid = fit_threshold_grid(curves, settings.kinds, settings.deltas, base)
+    conformal_windows = aggregated(padded(stream.conformal), settings)
+    fit_windows = aggregated(padded(stream.fit), settings) if stream.fit is not None else None
+    for label, eta_test in aggregated(test, settings):
+        _, eta_conformal = next(conformal_windows)
+        curves = [eta_conformal[i, :length] for i, length in enumerate(conformal_lengths)]
+        shape = None
+        if fit_windows is not None:
+            _, eta_fit = next(fit_windows)
+            shape = [eta_fit[i, :length] for i, length in enumerate(fit_lengths)]
+        grid = fit_threshold_grid(curves, settings.kinds, settings.deltas, base, shape)
         gamma = np.stack([[t.over(test.shape[1]) for t in grid[kind]] for kind in settings.kinds])
         exceeded = np.asarray(exceeds(eta_test[None, None], gamma[:, :, None, :]), dtype=bool)
-        yield label, first_alarms(exceeded), exceeded if label in keep else None
+        infinite = np.array([[bool(np.isinf(t.values).any()) for t in grid[kind]] for kind in settings.kinds])
+        behind = np.array([int(grid[kind][0].params.get("m2", grid[kind][0].params["m"])) for kind in settings.kinds])
+        yield LabelAlarms(label, first_alarms(exceeded), exceeded if label in keep else None, infinite, behind)
+
+
+@dataclass
+class TaskSweep:
+    """Every configuration of one task and seed."""
+
+    groups: list[Group]
+    alarms: np.ndarray
+    """First alarm steps ``[groups, deltas, test rollouts]`` (-1: none)."""
+    infinite: np.ndarray
+    """``[groups, deltas]``: a threshold of the configuration is +inf (FIPER: either one)."""
+    conformal: np.ndarray
+    """``[groups]``: rollouts behind the configuration's conformal quantile (FIPER: the fewer of its two)."""
+
+
+def _fixed_settings(settings: SweepSettings, label: str, kind: str) -> SweepSettings:
+    """A grid that holds the single configuration ``(label, kind)`` (the sweep's deltas)."""
+    cumulative = label == CUMULATIVE
+    return SweepSettings(windows=(1,) if cumulative else (int(label),), cumulative=cumulative,
+                         deltas=settings.deltas, kinds=(kind,), combines=settings.combines, pairs="diagonal")
 
 
 def sweep_task(
     streams: dict[str, StreamScores], methods: list[str], settings: SweepSettings, base: ThresholdSettings
-) -> tuple[list[Group], np.ndarray]:
-    """Groups and first-alarm steps ``[groups, deltas, test rollouts]`` of one task and seed.
+) -> TaskSweep:
+    """Every configuration's first alarms ``[groups, deltas, test rollouts]`` of one task and seed.
 
     ``base`` carries the profile's threshold rules and the seed of the CP band split.
     """
     groups: list[Group] = []
     alarms: list[np.ndarray] = []
+    infinite: list[np.ndarray] = []
+    conformal: list[int] = []
     pairs = settings.fiper_pairs() if FIPER in methods else []
-    kept: dict[str, dict[str, np.ndarray]] = {s: {} for s in FIPER_STREAMS}
+    kept: dict[str, dict[str, LabelAlarms]] = {s: {} for s in FIPER_STREAMS}
     for name, stream in streams.items():
         keep = {pair[FIPER_STREAMS.index(name)] for pair in pairs} if name in FIPER_STREAMS else set()
-        for label, first, exceeded in _stream_alarms(stream, settings, base, keep):
-            if exceeded is not None:
-                kept[name][label] = exceeded
-            if name in methods:
-                groups.extend(Group(name, label, kind) for kind in settings.kinds)
-                alarms.extend(first)
+        fixed = METHODS[name].fixed if name in METHODS else None
+        grid = settings if fixed is None else _fixed_settings(settings, *fixed)
+        for result in _stream_alarms(stream, grid, base, keep):
+            if result.exceeded is not None:
+                kept[name][result.label] = result
+            if name in methods and (fixed is None or result.label == fixed[0]):
+                groups.extend(Group(name, result.label, kind) for kind in grid.kinds)
+                alarms.extend(result.first)
+                infinite.extend(result.infinite)
+                conformal.extend(result.conformal.tolist())
     for obs_label, act_label in pairs:
+        obs, act = kept["rnd_oe"][obs_label], kept["ace"][act_label]
+        assert obs.exceeded is not None and act.exceeded is not None
         for combine in settings.combines:
-            fused = np.asarray(fuse(kept["rnd_oe"][obs_label], kept["ace"][act_label], combine), dtype=bool)
+            fused = np.asarray(fuse(obs.exceeded, act.exceeded, combine), dtype=bool)
             groups.extend(Group(FIPER, f"{obs_label}/{act_label}", kind, combine) for kind in settings.kinds)
             alarms.extend(first_alarms(fused))
-    return groups, np.stack(alarms)
+            infinite.extend(obs.infinite | act.infinite)
+            conformal.extend(np.minimum(obs.conformal, act.conformal).tolist())
+    return TaskSweep(groups, np.stack(alarms), np.stack(infinite), np.array(conformal, dtype=int))

@@ -1,17 +1,22 @@
 """Core thresholds for many deltas at once, bit-identical to :func:`fiper_ros.core.thresholds.fit_threshold`.
 
 The sweep fits every (stream, window, kind) threshold for ten deltas. Only a conformal quantile (CP
-constant, CP band) or the per-step quantile level (time-varying) depends on delta, so the
-delta-independent statistics are computed once with the core's own helpers:
+constant, CP band) or the per-step quantile level (time-varying, and the shape of CP scaled) depends on
+delta, so the delta-independent statistics are computed once with the core's own helpers:
 
 - ``cp_constant``: the per-rollout maxima, then one quantile per delta;
 - ``cp_band``: the core's :func:`band_statistics` once, then ``k`` per delta;
 - ``time_varying``: the per-step quantiles for all levels at once: the calibration curves are sorted
   per step once and numpy's linear interpolation (the core's ``np.nanquantile``) is applied to the
-  non-NaN order statistics with numpy's own float operations, vectorised over steps and levels.
+  non-NaN order statistics with numpy's own float operations, vectorised over steps and levels;
+- ``cp_scaled``: the per-step quantiles ``q(t)`` of the shape curves for all levels at once (as for
+  ``time_varying``), then per delta the core's floor, scores ``max_t eta_i(t) / q(t)`` and ``k``.
 
-``test/evaluation/test_threshold_grid.py`` checks the equality with ``fit_threshold`` for every kind,
-both profiles' settings and ragged curves.
+``shape_curves`` is the core's: the fit part's curves, ``I1`` of the band kinds (every given curve is
+then in ``I2``); ``None`` splits ``I1`` off the given curves, seeded, as the core does.
+
+``test/evaluation/test_threshold_grid.py`` checks the equality with ``fit_threshold`` (values and
+parameters) for every kind, both profiles' settings, with and without shape curves, and ragged curves.
 """
 
 from __future__ import annotations
@@ -21,17 +26,20 @@ from collections.abc import Sequence
 import numpy as np
 
 from fiper_ros.core.thresholds import (
+    BandStatistics,
     Threshold,
     ThresholdSettings,
     _carried,
+    _floored,
     _padded,
     _quantile,
+    _shape_and_conformal,
     _supported_length,
     _validated,
     band_statistics,
 )
 
-GRID_KINDS = ("cp_constant", "cp_band", "time_varying")
+GRID_KINDS = ("cp_constant", "cp_band", "time_varying", "cp_scaled")
 
 
 def _linear_quantiles(sorted_head: np.ndarray, counts: np.ndarray, levels: np.ndarray) -> np.ndarray:
@@ -61,20 +69,44 @@ def _time_varying(matrix: np.ndarray, levels: np.ndarray, min_support: int | Non
     return np.stack([_carried(row, supported, matrix.shape[1]) for row in values])
 
 
-def _cp_band(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings) -> np.ndarray:
+def _cp_band(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings,
+             shape: list[np.ndarray] | None) -> tuple[np.ndarray, list[dict[str, float | int]]]:
     """``mu + k(delta) s`` ``[len(deltas), length]``: the core's band statistics once, ``k`` per delta."""
-    stats = band_statistics(curves, length, s)
-    return np.stack([stats.values(_quantile(stats.band_scores, delta, s.conformal)) for delta in deltas])
+    stats = band_statistics(curves, length, s, shape)
+    ks = [_quantile(stats.band_scores, delta, s.conformal) for delta in deltas]
+    return (np.stack([stats.values(k) for k in ks]),
+            [{"k": float(k), "m1": stats.m1, "m2": stats.m2, "s_floor": stats.floor} for k in ks])
+
+
+def _cp_scaled(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings,
+               shape: list[np.ndarray] | None) -> tuple[np.ndarray, list[dict[str, float | int]]]:
+    """``k(delta) q_delta(t)`` ``[len(deltas), length]``: every level's ``q`` at once, then the core's rules."""
+    set1, set2 = _shape_and_conformal(curves, s, shape)
+    padded = _padded(set1, length)
+    quantiles = _time_varying(padded, np.array([1.0 - d for d in deltas]), s.min_support)
+    supported = _supported_length(padded, s.min_support)
+    rows, params = [], []
+    for delta, q in zip(deltas, quantiles):
+        scale, floor = _floored(q, supported, s, q)
+        stats = BandStatistics(np.zeros(length), scale, np.array([np.max(c / scale[: c.shape[0]]) for c in set2]),
+                               len(set1), len(set2), floor)
+        k = _quantile(stats.band_scores, delta, s.conformal)
+        rows.append(stats.values(k))
+        params.append({"k": float(k), "m1": stats.m1, "m2": stats.m2, "q_floor": stats.floor})
+    return np.stack(rows), params
 
 
 def fit_threshold_grid(
-    curves: Sequence[np.ndarray], kinds: Sequence[str], deltas: Sequence[float], settings: ThresholdSettings
+    curves: Sequence[np.ndarray], kinds: Sequence[str], deltas: Sequence[float], settings: ThresholdSettings,
+    shape_curves: Sequence[np.ndarray] | None = None,
 ) -> dict[str, list[Threshold]]:
-    """Per kind, ``[fit_threshold(curves, replace(settings, kind=kind, delta=d)) for d in deltas]``."""
+    """Per kind, ``[fit_threshold(curves, replace(settings, kind=kind, delta=d), shape_curves) for d in deltas]``."""
     checked = _validated(curves)
-    length = max(curve.shape[0] for curve in checked)
+    shape = None if shape_curves is None else _validated(shape_curves)
+    length = max(curve.shape[0] for curve in checked + (shape or []))
     out: dict[str, list[Threshold]] = {}
     for kind in kinds:
+        params: list[dict[str, float | int]] = [{} for _ in deltas]
         if kind == "cp_constant":
             maxima = np.array([curve.max() for curve in checked])
             values = np.stack([np.full(length, _quantile(maxima, d, settings.conformal)) for d in deltas])
@@ -82,8 +114,11 @@ def fit_threshold_grid(
             levels = np.array([1.0 - d for d in deltas])
             values = _time_varying(_padded(checked, length), levels, settings.min_support)
         elif kind == "cp_band":
-            values = _cp_band(checked, length, deltas, settings)
+            values, params = _cp_band(checked, length, deltas, settings, shape)
+        elif kind == "cp_scaled":
+            values, params = _cp_scaled(checked, length, deltas, settings, shape)
         else:
             raise ValueError(f"threshold kind {kind!r} is not swept; expected one of {GRID_KINDS}")
-        out[kind] = [Threshold(kind, float(d), row, settings.extension) for d, row in zip(deltas, values)]
+        out[kind] = [Threshold(kind, float(d), row, settings.extension, {"m": len(checked), **extra})
+                     for d, row, extra in zip(deltas, values, params)]
     return out

@@ -94,6 +94,10 @@ class AceNode(DetectorNode):
         self._gate.push(super()._on_event, msg, None, self.steady.now().nanoseconds)
 
     def _on_joint_state(self, msg: JointState) -> None:
+        if msg.position and len(msg.position) != len(msg.name):  # sensor_msgs: one position per name, or none
+            self.reject(InputRejected(validation.SHAPE, f"joint state of {len(msg.name)} names and "
+                                                        f"{len(msg.position)} positions"))
+            return
         positions = dict(zip(msg.name, msg.position))
         names = self.get_parameter("joint_names").value
         if all(name in positions for name in names):

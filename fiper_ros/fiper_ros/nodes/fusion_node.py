@@ -30,7 +30,7 @@ from fiper_ros.runtime.alarm import (ALARM, DETECTORS, NO_ROLLOUT, OK, UNKNOWN, 
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.publishers import Expected
 from fiper_ros.runtime.rollouts import RolloutTracker
-from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, InputRejected
+from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
 STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
 
@@ -70,7 +70,6 @@ class FusionNode(FiperNode):
         self.fuser: AlarmFuser | None = None
         self.pending: PendingBuffer[DetectorScore] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
         self.ended: deque[int] = deque(maxlen=16)
-        self.dropped_early = 0
         #: STARTs of the rollout already active (ignored: its latch is kept).
         self.repeated_starts = 0
         self.rollouts = RolloutTracker()
@@ -148,9 +147,9 @@ class FusionNode(FiperNode):
     def _on_event(self, msg: RolloutEvent) -> None:
         now = self.now_ns()
         if msg.event == RolloutEvent.EVENT_START:
-            if self.fuser.rollout_id == msg.rollout_id:
+            if self.fuser.active_rollout == msg.rollout_id:
                 self.repeated_starts += 1
-                return  # a repeated START: keep the rollout's state (and its latch)
+                return  # a repeated START of the running rollout: keep its state (and its latch)
             self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
             self.fuser.start(msg.rollout_id, now)
             for early in self.pending.take(msg.rollout_id):
@@ -165,19 +164,28 @@ class FusionNode(FiperNode):
 
     def _on_score(self, msg: Score) -> None:
         started = self.timed()
-        self.tick(f"scores/{msg.detector}")
-        if msg.detector not in DETECTORS:
+        if msg.detector not in DETECTORS:  # before any per-detector state: a name must not size memory
             self.reject(InputRejected(UNKNOWN_DETECTOR, f"score of unknown detector {msg.detector!r}"))
             return
+        self.tick(f"scores/{msg.detector}")
         score = DetectorScore(msg.detector, msg.rollout_id, msg.step, msg.windowed_score, msg.threshold,
                               stamp_ns(msg.header.stamp), msg.complete, msg.exceeded, math.isfinite(msg.score))
         now = self.now_ns()
-        self.dropped_early += len(self.pending.expire(now))
-        if msg.rollout_id != self.fuser.rollout_id and msg.rollout_id not in self.ended:
-            self.dropped_early += len(self.pending.add(msg.rollout_id, score, now))  # its START is still on the way
+        for expired in self.pending.expire(now):
+            self._reject_unknown(expired, "no START within start_wait_s")
+        if msg.rollout_id != self.fuser.rollout_id:
+            if msg.rollout_id in self.ended:  # late, after the next rollout started
+                self._reject_unknown(score, f"its rollout ended, rollout {self.fuser.rollout_id} runs")
+                return
+            for dropped in self.pending.add(msg.rollout_id, score, now):  # its START is still on the way
+                self._reject_unknown(dropped, "dropped from the full START wait buffer")
             return
         self._fuse(score)
         self.record_latency(started)
+
+    def _reject_unknown(self, score: DetectorScore, why: str) -> None:
+        self.reject(InputRejected(UNKNOWN_ROLLOUT, f"{score.detector} score of rollout {score.rollout_id} step "
+                                                   f"{score.step}: {why}"))
 
     def _fuse(self, score: DetectorScore) -> None:
         state = self.fuser.add(score, self.now_ns())
@@ -264,7 +272,7 @@ class FusionNode(FiperNode):
             values |= {"matched": str(self.fuser.matched), "evicted": str(self.fuser.evicted),
                        "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
                        "lost_streams": ",".join(sorted(self.lost)) or "none",
-                       "waiting_for_start": str(len(self.pending)), "dropped_without_start": str(self.dropped_early),
+                       "waiting_for_start": str(len(self.pending)),
                        "repeated_starts": str(self.repeated_starts),
                        "scores_in_doubt": self.fuser.suspicion or self.fuser.tainted or "no",
                        "deadline_ms": f"{self.fuser.deadline() / 1e6:.1f}",

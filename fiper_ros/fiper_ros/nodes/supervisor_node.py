@@ -11,6 +11,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -22,7 +23,7 @@ from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
 from fiper_ros.runtime.publishers import Expected, resolve_node
-from fiper_ros.runtime.supervision import HaltDecision, SupervisorLogic
+from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
 STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
 
@@ -54,6 +55,9 @@ class SupervisorNode(Node):
                                      self.get_parameter("silence_periods").value,
                                      int(self.get_parameter("silence_floor_s").value * 1e9))
         self.halts: list[HaltDecision] = []
+        #: Halts decided since the start (``halts`` keeps only the recent ones).
+        self.halted = 0
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state; with the
         # lease, liveliness counts the live publishers of the alarm.
@@ -67,14 +71,14 @@ class SupervisorNode(Node):
         self.create_timer(0.02, self._on_clock)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics,
-                          clock=self.publisher_check.steady)
+                          clock=self._steady)
 
     def _now(self) -> int:
         return self.get_clock().now().nanoseconds
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
         decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now(),
-                                       msg.step, msg.heartbeat)
+                                       msg.step, msg.heartbeat, self._steady.now().nanoseconds)
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:
             self.get_logger().warning(
                 f"ALARM rollout {msg.rollout_id} step {msg.step}: eta_obs {msg.eta_obs:.3g} > {msg.gamma_obs:.3g}"
@@ -86,11 +90,12 @@ class SupervisorNode(Node):
         return [Expected(self.alarm_topic, frozenset(resolve_node(n, self.get_namespace()) for n in names))]
 
     def _on_publishers(self) -> None:
-        self._act(self.logic.suspect(self.publisher_check.watch.doubt((self.alarm_topic,)), self._now()))
+        self._act(self.logic.suspect(self.publisher_check.watch.doubt((self.alarm_topic,)), self._now(),
+                                     self._steady.now().nanoseconds))
 
     def _publish_diagnostics(self) -> None:
         error = self.publisher_check.error()
-        values = {"halts": str(len(self.halts))} | self.publisher_check.diagnostic_values()
+        values = {"halts": str(self.halted)} | self.publisher_check.diagnostic_values()
         self._diagnostics.publish(diagnostic_array(self, DiagnosticStatus.ERROR if error else DiagnosticStatus.OK,
                                                    error or "watching", values))
 
@@ -98,12 +103,14 @@ class SupervisorNode(Node):
         self.logic.on_event(msg.rollout_id, msg.event == RolloutEvent.EVENT_START)
 
     def _on_clock(self) -> None:
-        self._act(self.logic.on_clock(self._now()))
+        self._act(self.logic.on_clock(self._now(), self._steady.now().nanoseconds))
 
     def _act(self, decision: HaltDecision | None) -> None:
         if decision is None:
             return
         self.halts.append(decision)
+        self.halted += 1
+        del self.halts[:-HALTED_MEMORY]  # the recent ones: one per new rollout id would grow without end
         self.get_logger().warning(f"halting the robot (rollout {decision.rollout_id}): {decision.reason}")
         if self._halt.service_is_ready():
             self._halt.call_async(Trigger.Request())

@@ -279,7 +279,7 @@ class AlarmFuser:
         if self.active_rollout is None:
             return []
         deadline = self.deadline()
-        return [d for d in DETECTORS if now_ns - self._last_seen.get(d, now_ns) > deadline]
+        return [d for d in DETECTORS if now_ns - self._last_seen[d] > deadline]
 
     def check(self, now_ns: int, lost: frozenset[str] = frozenset()) -> AlarmState | None:
         """UNKNOWN state if a stream is stale or ``lost`` (liveliness), else ``None``."""

@@ -6,10 +6,13 @@ is per rollout: it restarts when the rollout changes, and the monitor's idle sta
 active rollout") never arms it, since no robot is moving then. While a rollout runs (between its START
 and END events) the silence deadline follows the measured period of the monitor's per-step decisions
 (``silence_periods`` of them, at least ``silence_floor_ns``): a fusion node that died or hangs is noticed
-within a few policy periods; otherwise it is the deadline. At most one halt per rollout (and one per
-silence episode). While the alarm stream cannot be attributed to the suite (:meth:`SupervisorLogic.suspect`:
-a second or unexpected publisher of the alarm topic), an OK counts as UNKNOWN, from the moment the doubt
-arises: the supervisor halts when it lasts longer than the deadline. An ALARM halts at once, whoever said it.
+within a few policy periods; otherwise it is the deadline. Under simulated time silence must also have
+lasted ``silence_floor_ns`` of wall-clock (steady) time: a supervisor starved of CPU can take a burst of
+``/clock`` before the alarm messages queued beside it, and sim time then jumps past a deadline that no
+silence caused. At most one halt per rollout (and one per silence episode). While the alarm stream cannot
+be attributed to the suite (:meth:`SupervisorLogic.suspect`: a second or unexpected publisher of the alarm
+topic), an OK counts as UNKNOWN, from the moment the doubt arises: the supervisor halts when it lasts longer
+than the deadline. An ALARM halts at once, whoever said it.
 """
 from __future__ import annotations
 
@@ -18,6 +21,9 @@ from dataclasses import dataclass
 
 from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, UNKNOWN
 from fiper_ros.runtime.stats import PeriodEstimator
+
+#: How many recent halts the supervisor remembers (to halt each rollout once): bounded, whatever the rollout ids.
+HALTED_MEMORY = 64
 
 
 @dataclass(frozen=True)
@@ -40,9 +46,10 @@ class SupervisorLogic:
         self.period = PeriodEstimator()
         self._running: int | None = None
         self._last_heard_ns: int | None = None
+        self._last_heard_steady_ns: int | None = None
         self._unknown_since_ns: int | None = None
         self._rollout_id = NO_ROLLOUT
-        self._halted: deque[int] = deque(maxlen=64)  # the recent rollouts halted (bounded)
+        self._halted: deque[int] = deque(maxlen=HALTED_MEMORY)  # the recent rollouts halted
         self._silence_reported = False
         self._unknown_reason = ""
         self.suspicion = ""
@@ -64,9 +71,11 @@ class SupervisorLogic:
         return self.period.deadline_ns(self.silence_periods, self.silence_floor_ns, self.deadline_ns)
 
     def on_state(self, rollout_id: int, state: str, reason: str, now_ns: int, step: int = 0,
-                 heartbeat: bool = True) -> HaltDecision | None:
-        """One FailureAlarm arrived (``heartbeat`` False: a new step's decision)."""
+                 heartbeat: bool = True, steady_ns: int | None = None) -> HaltDecision | None:
+        """One FailureAlarm arrived (``heartbeat`` False: a new step's decision; ``steady_ns``: the wall-clock
+        time, when ``now_ns`` is simulated)."""
         self._last_heard_ns = now_ns
+        self._last_heard_steady_ns = steady_ns
         self._silence_reported = False
         if not heartbeat and rollout_id == self._running:
             self.period.add(step, now_ns)
@@ -82,27 +91,31 @@ class SupervisorLogic:
             if self._unknown_since_ns is None:
                 self._unknown_since_ns = now_ns
             self._unknown_reason = reason
-            return self.on_clock(now_ns)
+            return self.on_clock(now_ns, steady_ns)
         self._unknown_since_ns = None
         return None
 
-    def suspect(self, reason: str, now_ns: int) -> HaltDecision | None:
+    def suspect(self, reason: str, now_ns: int, steady_ns: int | None = None) -> HaltDecision | None:
         """Say why the alarm stream cannot be attributed to the suite now (``""``: it can again). The
-        UNKNOWN clock of a rollout runs from now; the next OK without doubt stops it."""
+        UNKNOWN clock of a rollout runs from now; the next OK without doubt stops it (``steady_ns``: see
+        :meth:`on_state`)."""
         self.suspicion = reason
         if reason and self._rollout_id != NO_ROLLOUT and self._unknown_since_ns is None:
             self._unknown_since_ns = now_ns
             self._unknown_reason = self._doubt()
-        return self.on_clock(now_ns)
+        return self.on_clock(now_ns, steady_ns)
 
     def _doubt(self) -> str:
         return f"the alarm stream cannot be attributed to the suite: {self.suspicion}"
 
-    def on_clock(self, now_ns: int) -> HaltDecision | None:
-        """Periodic check for silence and lasting UNKNOWN."""
+    def on_clock(self, now_ns: int, steady_ns: int | None = None) -> HaltDecision | None:
+        """Periodic check for silence and lasting UNKNOWN (``steady_ns``: see :meth:`on_state`)."""
         if self._last_heard_ns is None:
             return None  # never heard the monitor: nothing is running yet
-        if now_ns - self._last_heard_ns > self.silence_deadline() and not self._silence_reported:
+        quiet_in_wall_time = (steady_ns is None or self._last_heard_steady_ns is None
+                              or steady_ns - self._last_heard_steady_ns > self.silence_floor_ns)
+        if now_ns - self._last_heard_ns > self.silence_deadline() and quiet_in_wall_time \
+                and not self._silence_reported:
             self._silence_reported = True
             return HaltDecision(self._rollout_id, f"no alarm message for {(now_ns - self._last_heard_ns) / 1e9:.2f} s")
         if self._unknown_since_ns is not None and now_ns - self._unknown_since_ns > self.deadline_ns:

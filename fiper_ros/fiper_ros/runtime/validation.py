@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import array
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -20,6 +21,8 @@ ACTION_SPACE = "action_space"
 NO_JOINT_STATE = "no_joint_state"
 INTERNAL = "internal_error"
 ENCODING = "encoding"
+#: A robot command while the previous one still executes (the sim bridge).
+BUSY = "busy"
 OUT_OF_RANGE = "out_of_range"
 NON_FINITE_SCORE = "non_finite_score"
 UNKNOWN_DETECTOR = "unknown_detector"
@@ -27,7 +30,7 @@ STEP_GAP = "step_gap"
 BEYOND_MAX_STEPS = "beyond_max_steps"
 TASK_MISMATCH = "task_mismatch"
 REASONS = (
-    SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT,
+    SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT, BUSY,
     DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
     OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS, TASK_MISMATCH,
 )
@@ -83,7 +86,7 @@ def embedding(data: Sequence[float] | np.ndarray, shape: Sequence[int], expected
     """
     values = np.asarray(data, dtype=np.float32)
     _size(values.size, max_elements, "embedding")
-    declared = int(np.prod(shape)) if len(shape) else values.size
+    declared = math.prod(int(d) for d in shape) if len(shape) else values.size  # exact: np.prod wraps in int64
     if values.ndim != 1 or declared != values.size or any(int(d) <= 0 for d in shape):
         raise InputRejected(SHAPE, f"embedding has {values.size} values but declares shape {list(shape)}")
     if values.size == 0:
