@@ -108,6 +108,8 @@ def test_a_second_process_publishing_ok_on_the_alarm_makes_the_supervisor_report
         assert found - seen <= NOTICED_WITHIN_S, found - seen
         assert suite.spin_until(lambda: [f.kind for f in supervisor.publisher_check.watch.findings] == kinds)
         halted = paced.until(lambda: bool(halts))
+        print(f"{namespace}/{name}: in doubt {found - seen:.2f} s after the graph showed it, halted "
+              f"{halted - found:.2f} s later (deadline 0.5 s)")
         assert halted - found <= 0.5 + NOTICED_WITHIN_S, halted - found  # its deadline, and the clock of its timer
         assert "cannot be attributed" in supervisor.halts[-1].reason, supervisor.halts[-1]
         assert set(paced.states()) == {FailureAlarm.STATE_OK}  # the suite itself judged every step OK
@@ -136,6 +138,8 @@ def test_a_foreign_publisher_on_a_score_topic_is_reported_and_the_fusion_never_s
         found = paced.until(lambda: suite.fusion.fuser.suspicion != "")
         assert found - matched <= NOTICED_WITHIN_S, found - matched
         named = paced.until(lambda: "/intruder" in suite.fusion.fuser.suspicion)  # its node's name may come later
+        print(f"foreign score publisher: in doubt {found - matched:.2f} s after the fusion's subscription matched "
+              f"it, named {named - matched:.2f} s after")
         assert named - matched <= NOTICED_WITHIN_S + 1.0, named - matched  # the grace of a node not named yet
         level, message = suite.fusion.diagnostic_level()
         assert level == DiagnosticStatus.ERROR and "/intruder" in message, message
@@ -195,7 +199,8 @@ def test_a_second_suite_in_the_same_domain_and_namespace_is_reported_by_both(
         for s in (first, second):
             level, message = s.fusion.diagnostic_level()
             assert level == DiagnosticStatus.ERROR and "2 publishers" in message and "/fiper/rnd_oe_node" in message
-            assert first.spin_until(lambda s=s: s.fusion.fuser.suspicion != "")  # no OK from this data (2nd: its thread)
+            # no OK from this data (the second suite spins in its thread)
+            assert first.spin_until(lambda s=s: s.fusion.fuser.suspicion != "")
             for detector in (s.rnd_oe, s.ace):  # the two drivers: two publishers of each input
                 assert first.spin_until(lambda d=detector: d.diagnostic_level()[0] == DiagnosticStatus.ERROR)
     finally:
@@ -218,7 +223,8 @@ def _reset(suite: Suite, requester: str, reason: str) -> ResetAlarm.Response:
 def _latch(suite: Suite, rollout_id: int) -> None:
     rollout = make_rollout(rollout_id, fail=True)
     suite.run(rollout, rollout_id=rollout_id, end=False)
-    assert suite.driver.alarms_of(rollout_id)[FAIL_FROM].state == FailureAlarm.STATE_ALARM and suite.fusion.fuser.latched
+    assert suite.driver.alarms_of(rollout_id)[FAIL_FROM].state == FailureAlarm.STATE_ALARM
+    assert suite.fusion.fuser.latched
 
 
 def _diagnostics(suite: Suite, key: str, value: str) -> bool:
@@ -226,7 +232,8 @@ def _diagnostics(suite: Suite, key: str, value: str) -> bool:
                             timeout=5.0)
 
 
-def test_a_reset_clears_the_latch_and_is_logged_with_who_and_why(suite: Suite, capfd: pytest.CaptureFixture[str]) -> None:
+def test_a_reset_clears_the_latch_and_is_logged_with_who_and_why(suite: Suite,
+                                                                 capfd: pytest.CaptureFixture[str]) -> None:
     _latch(suite, 51)
     response = _reset(suite, "operator jane", "gripper freed by hand, rollout goes on")
     assert response.success and "cleared" in response.message, response.message

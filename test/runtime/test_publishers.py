@@ -56,6 +56,19 @@ def test_two_publishers_of_the_same_name_are_a_second_suite_unless_one_is_known_
     assert judge(SCORE_TOPIC, [_pub(RND)], speaking=2) == (Finding(SCORES, SEVERAL, (RND,), 2),)
 
 
+def test_with_an_allow_list_one_publisher_per_allowed_node() -> None:
+    both = Expected("/fiper/rollout_events", frozenset({"/sim/bridge_node", "/tools/replay"}))
+    assert judge(both, [_pub("/sim/bridge_node"), _pub("/tools/replay")], speaking=2) == ()
+    three = [_pub("/sim/bridge_node", "a"), _pub("/sim/bridge_node", "b"), _pub("/tools/replay")]
+    assert judge(both, three, speaking=3) == (Finding(both.topic, SEVERAL, ("/sim/bridge_node", "/sim/bridge_node",
+                                                                             "/tools/replay"), 3, 2),)
+    assert str(judge(both, three, speaking=3)[0]).startswith("/fiper/rollout_events: 3 publishers where the suite "
+                                                             "has 2")
+    # a foreign publisher makes no room for itself: one allowed node present, so one publisher
+    assert judge(both, [_pub("/sim/bridge_node"), _pub("/x")], speaking=2) == (
+        Finding(both.topic, FOREIGN, ("/x",)), Finding(both.topic, SEVERAL, ("/sim/bridge_node", "/x"), 2))
+
+
 def test_without_an_allow_list_any_node_but_only_one() -> None:
     inputs = Expected("/fiper/observation_embedding")
     assert judge(inputs, [_pub("/anyone")]) == ()
@@ -63,7 +76,7 @@ def test_without_an_allow_list_any_node_but_only_one() -> None:
 
 
 def test_an_output_allows_only_its_node_and_no_count() -> None:
-    own = Expected("/fiper/alarm", frozenset({"/fiper/fusion_node"}), most=None)
+    own = Expected("/fiper/alarm", frozenset({"/fiper/fusion_node"}), limited=False)
     assert judge(own, [_pub("/fiper/fusion_node", "a"), _pub("/fiper/fusion_node", "b")]) == ()
     assert judge(own, [_pub("/fiper/fusion_node"), _pub("/test")]) == (Finding(own.topic, FOREIGN, ("/test",)),)
 

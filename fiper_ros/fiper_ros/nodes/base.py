@@ -13,11 +13,12 @@ from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.graph_watch import PublisherCheck
@@ -184,26 +185,27 @@ class FiperNode(LifecycleNode):
         """Check the graph's publishers of this node's topics (:meth:`expected_publishers`) every
         ``PUBLISHER_CHECK_PERIOD_S``; an unexpected one is an ERROR on /diagnostics (docs/reliability.md,
         "Who may speak")."""
-        self.declare_parameter("allowed_publishers", [], ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description="nodes that may publish this node's inputs (relative names: in its namespace); empty: "
-                        "any node, but one publisher per input topic"))
+        # No default value: an empty list would be typed as bytes; unset, it reads as the empty list (any node).
+        self.declare_parameter("allowed_publishers", Parameter.Type.STRING_ARRAY, describe(
+            "nodes that may publish this node's inputs, one publisher each (relative names: in its namespace); "
+            "unset or empty: any node, but one publisher per input topic", read_only=True))
         self.publisher_check = PublisherCheck(self, self.expected_publishers, PUBLISHER_CHECK_PERIOD_S, on_change)
         return self.publisher_check
 
     def allowed(self, parameter: str) -> frozenset[str]:
         """The fully qualified node names a string-array parameter lists."""
-        return frozenset(resolve_node(name, self.get_namespace()) for name in self.get_parameter(parameter).value or ()
-                         if name)
+        return frozenset(resolve_node(name, self.get_namespace())
+                         for name in self.get_parameter_or(parameter).value or () if name)
 
     def expected_publishers(self) -> list[Expected]:
         """What the node expects of its topics' publishers: for each input (a subscription now open) one
-        publisher, of ``allowed_publishers`` if that is set; for each output only this node (a second
-        publisher of the same name is for the topic's consumer to tell: only it sees the liveliness)."""
+        publisher, or one per node of ``allowed_publishers`` if that is set (and no other node); for each output
+        only this node (a second publisher of the same name is for the topic's consumer to tell: only it sees
+        the liveliness)."""
         allowed = self.allowed("allowed_publishers")
         me = frozenset({self.get_fully_qualified_name()})
         inputs = {s.topic_name: Expected(s.topic_name, allowed) for s in self.subscriptions if own_topic(s.topic_name)}
-        outputs = {p.topic_name: Expected(p.topic_name, me, most=None) for p in self.publishers
+        outputs = {p.topic_name: Expected(p.topic_name, me, limited=False) for p in self.publishers
                    if own_topic(p.topic_name)}
         return list((inputs | outputs).values())
 

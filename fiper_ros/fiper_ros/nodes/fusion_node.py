@@ -16,7 +16,6 @@ from collections import Counter, deque
 from dataclasses import replace
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
@@ -64,9 +63,9 @@ class FusionNode(FiperNode):
         self.declare_parameter("allow_reset", True,
                                describe("~/reset may clear a latched alarm (false: only the next START does)",
                                         read_only=True))
-        self.declare_parameter("score_publishers", [f"{d}_node" for d in DETECTORS], ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description="nodes that may publish the score topics (relative names: in this node's namespace)"))
+        self.declare_parameter("score_publishers", [f"{d}_node" for d in DETECTORS], describe(
+            "nodes that may publish the score topics, one publisher each (relative names: in this node's namespace)",
+            read_only=True))
         self.fuser: AlarmFuser | None = None
         self.pending: PendingBuffer[DetectorScore] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
         self.ended: deque[int] = deque(maxlen=16)

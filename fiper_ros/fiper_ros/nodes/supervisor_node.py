@@ -10,7 +10,6 @@ import sys
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -46,9 +45,9 @@ class SupervisorNode(Node):
                                describe("the period-based silence deadline is never shorter", low=0.0, high=600.0))
         self.declare_parameter("events_topic", "/fiper/rollout_events",
                                describe("RolloutEvent topic: which rollout is running", read_only=True))
-        self.declare_parameter("alarm_publishers", ["/fiper/fusion_node"], ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description="the nodes that may publish the alarm topic (relative names: in this node's namespace)"))
+        self.declare_parameter("alarm_publishers", ["/fiper/fusion_node"], describe(
+            "nodes that may publish the alarm topic, one publisher each (relative names: in this node's namespace)",
+            read_only=True))
         self.declare_parameter("diagnostics_period_s", 1.0,
                                describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
         self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),

@@ -63,9 +63,16 @@ class Expected:
     """Fully qualified topic name."""
     nodes: frozenset[str] = field(default_factory=frozenset)
     """The nodes that may publish it (fully qualified); empty: any node."""
-    most: int | None = 1
-    """At most this many publishers; ``None``: no limit (a node's own output, whose second publisher its
-    consumer reports: only a consumer sees the topic's liveliness)."""
+    limited: bool = True
+    """At most one publisher per node of ``nodes`` that publishes it (two of one name are two suites), one in
+    all when ``nodes`` is empty; False: no limit (a node's own output, whose second publisher its consumer
+    reports: only a consumer sees the topic's liveliness)."""
+
+    def most(self, publishers: Sequence[Publisher]) -> int | None:
+        """How many of ``publishers`` may speak at once (``None``: any number)."""
+        if not self.limited:
+            return None
+        return max(1, len({p.node for p in publishers if p.node in self.nodes})) if self.nodes else 1
 
 
 @dataclass(frozen=True)
@@ -78,6 +85,8 @@ class Finding:
     """The publishers' node names (``""``: not named yet); for :data:`SEVERAL`, all of the topic's."""
     count: int = 0
     """For :data:`SEVERAL`: how many publishers (those that may speak, when liveliness tells)."""
+    most: int = 1
+    """For :data:`SEVERAL`: how many the suite has there."""
 
     def __str__(self) -> str:
         names = ", ".join(node or "(a node not named yet)" for node in self.nodes)
@@ -85,7 +94,8 @@ class Finding:
             return f"{self.topic}: publisher(s) the suite does not expect: {names}"
         if self.kind == UNIDENTIFIED:
             return f"{self.topic}: {len(self.nodes)} publisher(s) of a node the graph does not name yet"
-        return f"{self.topic}: {self.count} publishers where the suite has one: {names}"
+        return f"{self.topic}: {self.count} publishers where the suite has {'one' if self.most == 1 else self.most}: " \
+               f"{names}"
 
 
 def judge(expected: Expected, publishers: Sequence[Publisher], speaking: int | None = None,
@@ -101,8 +111,8 @@ def judge(expected: Expected, publishers: Sequence[Publisher], speaking: int | N
 
     Returns:
         :data:`UNIDENTIFIED` if a publisher's node is not named (and not ``young``), :data:`FOREIGN` for
-        nodes outside ``expected.nodes`` (when given), :data:`SEVERAL` for more than ``expected.most``
-        publishers; empty when the topic's publishers are as expected (none at all is staleness's
+        nodes outside ``expected.nodes`` (when given), :data:`SEVERAL` for more publishers than
+        :meth:`Expected.most`; empty when the topic's publishers are as expected (none at all is staleness's
         business, not this rule's).
     """
     found = []
@@ -113,8 +123,9 @@ def judge(expected: Expected, publishers: Sequence[Publisher], speaking: int | N
     if foreign:
         found.append(Finding(expected.topic, FOREIGN, foreign))
     count = len(publishers) if speaking is None else speaking
-    if expected.most is not None and count > expected.most:
-        found.append(Finding(expected.topic, SEVERAL, tuple(sorted(p.node for p in publishers)), count))
+    most = expected.most(publishers)
+    if most is not None and count > most:
+        found.append(Finding(expected.topic, SEVERAL, tuple(sorted(p.node for p in publishers)), count, most))
     return tuple(found)
 
 
