@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from fiper_ros.bags import convert_fiper, convert_generic, convert_sentinel
-from fiper_ros.bags.atomic import atomic_output
+from fiper_ros.bags.atomic import atomic_output, check_new
 from fiper_ros.bags.convert_options import DEFAULT_MAX_MB, EXEC_STEPS, ConvertOptions, Converted, Keys, parse_channels
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.rollouts import DEFAULT_START_NS, write_rollouts
@@ -36,6 +36,7 @@ def bag_name(split: str) -> str:
 def convert(fmt: str, src: Path, out: Path, options: ConvertOptions, overwrite: bool = False) -> dict[str, int]:
     """Convert ``src`` (layout ``fmt``) into bags under ``out``; returns rollouts per written bag."""
     loader, description = FORMATS[fmt]
+    check_new(Path(out), overwrite)  # before reading SRC, which may be large
     converted = loader(Path(src), options)
     counts: dict[str, int] = {}
     with atomic_output(Path(out), overwrite) as staging:
