@@ -57,8 +57,7 @@ SUCCESS_OF = {v: k for k, v in OUTCOME_OF.items()}
 
 
 def shape_info(rollouts: Sequence[Rollout], base: BagInfo) -> BagInfo:
-    """``base`` with the shapes and action space of ``rollouts`` (which must all agree; B, H, D = 0 for
-    rollouts without action batches)."""
+    """``base`` with the shapes and action space of ``rollouts`` (which must all agree)."""
     def layout(r: Rollout) -> tuple[int, ...]:
         _, b, h, d = (0, 0, 0, 0) if r.actions is None else r.actions.shape
         return b, h, d, r.exec_steps, r.embeddings.shape[1]

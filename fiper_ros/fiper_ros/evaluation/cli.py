@@ -37,11 +37,12 @@ from fiper_ros.bags.atomic import atomic_files, check_directory  # noqa: E402
 from fiper_ros.bags.errors import BagError, fail  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
-from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation  # noqa: E402
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.methods import METHODS, MethodSettings  # noqa: E402
 from fiper_ros.core.calibration import SPLITS  # noqa: E402
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
+from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
 from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
 from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402

@@ -57,9 +57,9 @@ def nanstd(values: np.ndarray, axis: int) -> np.ndarray:
 def alarm_metrics(
     alarms: np.ndarray, failed: np.ndarray, horizons: np.ndarray | int, dt_mode: str, subset: np.ndarray | None = None
 ) -> np.ndarray:
-    """:data:`METRICS` ``[..., 5]`` of first-alarm steps ``[..., N]`` (-1: none) with the core's ``evaluate``
-    (NaN where a rate has no rollouts, e.g. over an empty ``subset``)."""
-    index = np.arange(alarms.shape[-1]) if subset is None else np.asarray(subset, dtype=int)
+    """:data:`METRICS` ``[..., 5]`` of first-alarm steps ``[..., N]`` (-1: none) with the core's ``evaluate``."""
+    index = np.arange(alarms.shape[-1]) if subset is None else np.asarray(subset)
+    # Not reshape(-1, n): an empty subset (a task without ID test successes) has no -1 to resolve.
     flat = alarms[..., index].reshape(int(np.prod(alarms.shape[:-1])), index.shape[0])
     outcomes = [bool(f) for f in failed[index]]
     t_max: int | list[int] = horizons if isinstance(horizons, int) else [int(h) for h in horizons[index]]

@@ -86,26 +86,6 @@ def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
     return settings.robot
 
 
-def calibration_split(dataset: Dataset, settings: MethodSettings, seed: int) -> CalibrationSplit:
-    """The split of ``dataset``'s calibration successes for ``seed``: the core's, shared by every stream."""
-    try:
-        return split_successes(len(dataset.calibration_successes), settings.calibration_settings(seed))
-    except CalibrationError as error:
-        raise DatasetError(f"task {dataset.task!r}: {error}") from error
-
-
-def check_split(dataset: Dataset, settings: MethodSettings) -> None:
-    """Refuse a dataset whose split leaves a score model fewer successes than the core calibration needs."""
-    split = calibration_split(dataset, settings, 0)
-    count = len(dataset.calibration_successes)
-    need = settings.calibration_settings(0).min_rollouts
-    fitted = ([count - len(fold) for fold in split.folds] if split.mode == "cross" else [len(split.fit)])
-    if min(fitted) < need:
-        raise DatasetError(f"task {dataset.task!r}: the {split.mode} calibration split fits the score models on "
-                           f"{min(fitted)} of {count} successes, fewer than the {need} they need (more "
-                           "calibration successes, or --split same)")
-
-
 def check_streams(dataset: Dataset, streams: Sequence[str]) -> None:
     """Refuse a dataset a stream cannot score (STAC: chunks without an overlap, ``h = H``), before any work."""
     if "stac" not in streams:
@@ -124,6 +104,26 @@ def check_dataset(dataset: Dataset, settings: MethodSettings, streams: Sequence[
     robot_for(dataset, settings)
     check_split(dataset, settings)
     check_streams(dataset, streams)
+
+
+def calibration_split(dataset: Dataset, settings: MethodSettings, seed: int) -> CalibrationSplit:
+    """The split of ``dataset``'s calibration successes for ``seed``: the core's, shared by every stream."""
+    try:
+        return split_successes(len(dataset.calibration_successes), settings.calibration_settings(seed))
+    except CalibrationError as error:
+        raise DatasetError(f"task {dataset.task!r}: {error}") from error
+
+
+def check_split(dataset: Dataset, settings: MethodSettings) -> None:
+    """Refuse a dataset whose split leaves a score model fewer successes than the core calibration needs."""
+    split = calibration_split(dataset, settings, 0)
+    count = len(dataset.calibration_successes)
+    need = settings.calibration_settings(0).min_rollouts
+    fitted = ([count - len(fold) for fold in split.folds] if split.mode == "cross" else [len(split.fit)])
+    if min(fitted) < need:
+        raise DatasetError(f"task {dataset.task!r}: the {split.mode} calibration split fits the score models on "
+                           f"{min(fitted)} of {count} successes, fewer than the {need} they need (more "
+                           "calibration successes, or --split same)")
 
 
 def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int) -> Fitter:
