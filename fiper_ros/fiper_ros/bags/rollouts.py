@@ -2,7 +2,8 @@
 
 Writing lays rollouts out one after another on the bag's time line: a RolloutEvent START, then per
 policy step an ObservationEmbedding and an ActionChunkBatch with the same ``(rollout_id, step)`` and
-stamp, then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
+stamp (no batch for a rollout without action batches, observation-only data: its bag has no
+``/fiper/action_chunks``), then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
 same code a policy node uses. A rollout with ``metadata["joint_positions"]`` (``[T, 7]``, the measured
 arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at each step's stamp, written
 before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
@@ -58,7 +59,7 @@ SUCCESS_OF = {v: k for k, v in OUTCOME_OF.items()}
 def shape_info(rollouts: Sequence[Rollout], base: BagInfo) -> BagInfo:
     """``base`` with the shapes and action space of ``rollouts`` (which must all agree)."""
     def layout(r: Rollout) -> tuple[int, ...]:
-        _, b, h, d = r.actions.shape
+        _, b, h, d = (0, 0, 0, 0) if r.actions is None else r.actions.shape
         return b, h, d, r.exec_steps, r.embeddings.shape[1]
 
     first = rollouts[0]
@@ -114,7 +115,8 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
 
     Args:
         path: The bag directory to create.
-        rollouts: Rollouts of one layout (B, H, D, h, E, action space).
+        rollouts: Rollouts of one layout (B, H, D, h, E, action space); rollouts whose ``actions`` are None
+            are written without action batches.
         ids: ``rollout_id`` of each rollout in the messages.
         info: ``custom_data``; the shapes are filled in from the rollouts.
         start_ns: Time of the first START.
@@ -139,8 +141,10 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
                     writer.write(JOINT_STATES, stamp, _joint_state_cdr(stamp, joints[step]))
                 writer.write(EMBEDDING, stamp, _cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]),
                                                     EMBEDDING))
-                writer.write(ACTIONS, stamp, _cdr(action_batch_msg(
-                    rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps, rollout.action_space), ACTIONS))
+                if rollout.actions is not None:
+                    writer.write(ACTIONS, stamp, _cdr(action_batch_msg(
+                        rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps, rollout.action_space),
+                        ACTIONS))
             control_steps = rollout.metadata.get("control_steps")
             end = (stamp + rollout.exec_steps * env_dt_ns if control_steps is None
                    else now + EVENT_LEAD_NS + int(control_steps) * env_dt_ns)

@@ -59,7 +59,8 @@ def alarm_metrics(
 ) -> np.ndarray:
     """:data:`METRICS` ``[..., 5]`` of first-alarm steps ``[..., N]`` (-1: none) with the core's ``evaluate``."""
     index = np.arange(alarms.shape[-1]) if subset is None else np.asarray(subset)
-    flat = alarms[..., index].reshape(-1, index.shape[0])
+    # Not reshape(-1, n): an empty subset (a task without ID test successes) has no -1 to resolve.
+    flat = alarms[..., index].reshape(int(np.prod(alarms.shape[:-1])), index.shape[0])
     outcomes = [bool(f) for f in failed[index]]
     t_max: int | list[int] = horizons if isinstance(horizons, int) else [int(h) for h in horizons[index]]
     out = np.empty((flat.shape[0], len(METRICS)))
