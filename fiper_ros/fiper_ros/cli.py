@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "snapshot": ("fiper_ros.bags.snapshot", "black box: write a bag around every alarm rise"),
     "bag": ("fiper_ros.bags.recover", "'fiper bag recover BAG': finish a recording that did not stop cleanly"),
     "evaluate": ("fiper_ros.evaluation.cli", "evaluate FIPER and the baselines on rollout datasets"),
+    "security": ("fiper_ros.security", "write or check the SROS2 access-control policy of the suite's nodes"),
 }
 
 #: Modules whose absence means the workspace was not set up or not sourced.

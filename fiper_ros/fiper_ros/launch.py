@@ -8,7 +8,9 @@ A node that exits is reported and the others keep running (a monitor must notice
 the node is marked ``required``; a node marked ``respawn`` is started again ``respawn_delay`` seconds
 after it exited (launch_ros's semantics: not while the launch stops). The launcher's exit status is 1 if
 any node exited on its own. Every node process dies with the launcher (``FIPER_PARENT_PID``), even when
-the launcher is killed. ``--in-process`` runs all nodes in one process on a multi-threaded executor.
+the launcher is killed. With ``ROS_SECURITY_ENABLE=true`` each node process runs in its own SROS2 enclave,
+named as the node (docs/security.md). ``--in-process`` runs all nodes in one process on a multi-threaded
+executor (one DDS participant: one enclave for all).
 Before any node starts, the launcher removes the Fast DDS shared-memory files that dead processes left
 (:mod:`fiper_ros.shm`) and prints how many.
 """
@@ -33,6 +35,10 @@ from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.shm import clean_stale
 
 
+#: ROS 2's switch for SROS2 security: when it is ``true``, every launched node runs in its own enclave.
+SECURITY_ENABLE_ENV = "ROS_SECURITY_ENABLE"
+
+
 class LaunchError(ValueError):
     """The launch configuration is unusable."""
 
@@ -53,9 +59,16 @@ class NodeSpec:
     respawn_delay: float = 0.0
     """Seconds between an exit and the respawn."""
 
-    def ros_args(self, use_sim_time: bool) -> list[str]:
-        """The ``--ros-args`` of this node's command line."""
+    @property
+    def fqn(self) -> str:
+        """The node's fully qualified name; also its SROS2 enclave (docs/security.md)."""
+        return f"{self.namespace.rstrip('/')}/{self.name}"
+
+    def ros_args(self, use_sim_time: bool, enclave: bool = False) -> list[str]:
+        """The ``--ros-args`` of this node's command line (``enclave``: with its own security enclave)."""
         args = ["--ros-args", "-r", f"__node:={self.name}", "-r", f"__ns:={self.namespace}"]
+        if enclave:
+            args += ["--enclave", self.fqn]
         for path in self.parameter_files:
             args += ["--params-file", str(path)]
         params = dict(self.parameters)
@@ -136,7 +149,8 @@ class ProcessGroup:
         """Start one node process and a thread relaying its output."""
         if use_sim_time is not None:
             self.use_sim_time = use_sim_time
-        cmd = [sys.executable, "-m", spec.module, *spec.ros_args(self.use_sim_time)]
+        secure = os.environ.get(SECURITY_ENABLE_ENV, "").lower() == "true"  # then each node in its own enclave
+        cmd = [sys.executable, "-m", spec.module, *spec.ros_args(self.use_sim_time, enclave=secure)]
         env = os.environ | {"PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid())}
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,  # noqa: S603
                                 start_new_session=True, env=env)
@@ -214,11 +228,27 @@ def run_processes(config: LaunchConfig, grace_s: float) -> int:
     return status
 
 
+def build_node(spec: NodeSpec, use_sim_time: bool, context: Any = None) -> Any:
+    """The node of ``spec`` built in this process (``context``: an rclpy context, default the global one),
+    with the parameters its process would get: the parameter files' entries for it, then its inline ones."""
+    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file  # noqa: PLC0415 - rclpy only in-process
+
+    overrides: dict[str, Parameter] = {}
+    for file in spec.parameter_files:
+        if spec.fqn not in (yaml.safe_load(file.read_text()) or {}):
+            continue  # a shared file without an entry for this node (nodes.yaml and the sim bridge)
+        overrides |= {name: Parameter.from_parameter_msg(msg)
+                      for name, msg in parameter_dict_from_yaml_file(str(file), target_nodes=[spec.fqn]).items()}
+    values = {"use_sim_time": use_sim_time} | spec.parameters
+    overrides |= {k: Parameter(k, value=v) for k, v in values.items()}
+    node_class = importlib.import_module(spec.module).NODE_CLASS
+    return node_class(namespace=spec.namespace, parameter_overrides=list(overrides.values()), context=context)
+
+
 def run_in_process(config: LaunchConfig) -> int:
     """Run every node in this process on one multi-threaded executor."""
     import rclpy  # noqa: PLC0415 - only this mode needs rclpy in the launcher itself
     from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
-    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file  # noqa: PLC0415
 
     from fiper_ros.nodes.main import spin_until_shutdown  # noqa: PLC0415
 
@@ -227,13 +257,7 @@ def run_in_process(config: LaunchConfig) -> int:
     try:
         executor = MultiThreadedExecutor()
         for spec in config.nodes:
-            node_class = importlib.import_module(spec.module).NODE_CLASS
-            overrides: dict[str, Parameter] = {}
-            for file in spec.parameter_files:
-                overrides |= parameter_dict_from_yaml_file(str(file), target_nodes=[f"{spec.namespace}/{spec.name}"])
-            values = {"use_sim_time": config.use_sim_time} | spec.parameters
-            overrides |= {k: Parameter(k, value=v) for k, v in values.items()}
-            node = node_class(namespace=spec.namespace, parameter_overrides=list(overrides.values()))
+            node = build_node(spec, config.use_sim_time)
             nodes.append(node)
             executor.add_node(node)
             print(f"[launch] {spec.name} running in-process ({spec.module})", flush=True)

@@ -10,12 +10,11 @@ from pathlib import Path
 import numpy as np
 import pandas
 import pytest
-import yaml
 
 from fiper_ros.bags.convert import convert
 from fiper_ros.bags.convert_options import ConvertOptions
 from fiper_ros.bags.errors import BagError
-from fiper_ros.bags.rollouts import read_rollouts
+from helpers.converted import read_converted
 
 E, B, H = 12, 6, 8
 
@@ -68,22 +67,11 @@ def _sentinel_fixture(root: Path, dims: int = 7) -> dict[str, tuple[str, str, bo
     return expected
 
 
-def _converted(out: Path) -> dict[str, tuple[str, object]]:
-    """source file -> (split, rollout) over the bags written into ``out``."""
-    result = {}
-    for bag in sorted(out.iterdir()):
-        custom = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["custom_data"]
-        sources = yaml.safe_load(custom["rollout_sources"])
-        for rollout in read_rollouts(bag):
-            result[sources[rollout.rollout_id]] = (custom["split"], rollout)
-    return result
-
-
 def test_fiper_pickles(tmp_path: Path) -> None:
     expected = _fiper_fixture(tmp_path / "src")
     counts = convert("fiper", tmp_path / "src" / "pretzel", tmp_path / "out", ConvertOptions(max_steps=70))
     assert counts == {"calibration_rollouts": 2, "test_rollouts": 5}
-    converted = _converted(tmp_path / "out")
+    converted = read_converted(tmp_path / "out")
     assert sorted(converted) == sorted(expected)
     for name, (split, scenario, success, embeddings, actions) in expected.items():
         bag_split, rollout = converted[name]
@@ -97,7 +85,7 @@ def test_fiper_pickles(tmp_path: Path) -> None:
 def test_sentinel_dataframes_default_pushchair_channels(tmp_path: Path) -> None:
     expected = _sentinel_fixture(tmp_path / "src")
     convert("sentinel", tmp_path / "src" / "push_chair", tmp_path / "out", ConvertOptions())
-    converted = _converted(tmp_path / "out")
+    converted = read_converted(tmp_path / "out")
     assert sorted(converted) == sorted(expected)
     for name, (split, scenario, success, embeddings, actions) in expected.items():
         bag_split, rollout = converted[name]
@@ -112,8 +100,8 @@ def test_sentinel_channel_option(tmp_path: Path) -> None:
     convert("sentinel", tmp_path / "src" / "push_chair", tmp_path / "all", ConvertOptions(channels="all"))
     convert("sentinel", tmp_path / "src" / "push_chair", tmp_path / "two", ConvertOptions(channels=(0, 2)))
     for name, (*_, actions) in expected.items():
-        assert np.array_equal(_converted(tmp_path / "all")[name][1].actions, actions)
-        assert np.array_equal(_converted(tmp_path / "two")[name][1].actions, actions[..., 0:2])
+        assert np.array_equal(read_converted(tmp_path / "all")[name][1].actions, actions)
+        assert np.array_equal(read_converted(tmp_path / "two")[name][1].actions, actions[..., 0:2])
 
 
 def test_bad_source_is_refused_and_nothing_is_written(tmp_path: Path) -> None:
@@ -139,3 +127,13 @@ def test_unknown_split_code_is_named(tmp_path: Path) -> None:
     (directory / "ep0000.pkl").write_bytes(b"")
     with pytest.raises(BagError, match="no split code"):
         convert("sentinel", tmp_path / "src" / "chair", tmp_path / "out", ConvertOptions())
+
+
+def test_max_mb_refuses_a_pickle_before_unpickling_it(tmp_path: Path) -> None:
+    """The bound is checked on the file's size: a 2 MB file that is no pickle is refused for its size."""
+    _fiper_fixture(tmp_path / "src")
+    big = tmp_path / "src" / "pretzel" / "rollouts" / "test" / "zz_big.pkl"
+    big.write_bytes(b"x" * 2_000_000)
+    with pytest.raises(BagError, match=r"zz_big.pkl: 2.0 MB on disk, with 0.\d MB converted before, exceeds --max-mb 1$"):
+        convert("fiper", tmp_path / "src" / "pretzel", tmp_path / "out", ConvertOptions(max_mb=1))
+    assert not (tmp_path / "out").exists()

@@ -162,7 +162,10 @@ def test_evaluate_reads_an_unfinished_bag(damage: str, recorded_bag: Path, tmp_p
     test = tmp_path / "test_rollouts"
     write_rollouts(test, [make_rollout(50, length=60), make_rollout(51, length=60, fail=True)], [101, 102],
                    BagInfo(task="synthetic", synthetic=True, source="test", split="test"))
-    argv = ["evaluate", "--data", f"synthetic={bag},{test}", "--tiny", "--no-cache", "--quiet", "--no-plots"]
+    # --split same: the bag cut inside its second chunk keeps 7 successes, too few to split (that refusal is
+    # tested in test/evaluation); what is tested here is reading the cut bag
+    argv = ["evaluate", "--data", f"synthetic={bag},{test}", "--tiny", "--no-cache", "--quiet", "--no-plots",
+            "--split", "same"]
     assert main([*argv, "--out", str(out / "results")]) == 0
     err = capsys.readouterr().err
     assert f"fiper evaluate: warning: " in err and f"('fiper bag recover {bag}' finishes the bag)" in err, err

@@ -28,10 +28,12 @@ def test_demo_with_the_cp_band_calibration_alarms_as_the_offline_oracle(tmp_path
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["problems"] == [] and Path(summary["calibration"]) == CP_BAND
+    log = (out / "suite.log").read_text()
+    why = "\n".join(line for line in log.splitlines() if "halting" in line or "ended:" in line) + run.stdout[-2000:]
     offline = {r.rollout_id: r for r in predict_bag(out / "bag", calibration)}
     for live in summary["rollouts"]:
         oracle = offline[live["rollout_id"]]
-        assert oracle.first_alarm == live["alarm_step"], live["label"]
+        assert oracle.first_alarm == live["alarm_step"], (live["label"], why)
         steps = sorted(oracle.steps)
         assert len(steps) == live["policy_steps"]
         assert np.array_equal(np.float32([oracle.steps[t].eta_obs for t in steps]),
@@ -39,6 +41,6 @@ def test_demo_with_the_cp_band_calibration_alarms_as_the_offline_oracle(tmp_path
         # the thresholds the suite published are the band's gamma_t, step by step (not one constant)
         assert np.array_equal(np.float32(live["rnd_oe"]["threshold"]),
                               np.float32(calibration.threshold_obs.over(len(steps))))
-        assert len(set(live["rnd_oe"]["threshold"])) > 5
+        assert len(set(live["rnd_oe"]["threshold"])) > 5, why
     in_dist, ood = summary["rollouts"]
     assert in_dist["alarm_step"] is None and ood["alarm_step"] is not None  # the band, too, tells the two apart

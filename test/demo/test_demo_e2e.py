@@ -25,13 +25,14 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
     assert summary["problems"] == []
     in_dist, ood = summary["rollouts"]
     assert (in_dist["scenario"], ood["scenario"]) == ("id", "box_pos")
-    assert in_dist["outcome"] == "success" and in_dist["alarm_step"] is None
+    log = (out / "suite.log").read_text()
+    why = "\n".join(line for line in log.splitlines() if "halting" in line or "ended:" in line) + run.stdout[-2000:]
+    assert in_dist["outcome"] == "success" and in_dist["alarm_step"] is None, why
     assert ood["outcome"] == "failure" and ood["alarm_step"] is not None
     # The supervisor halted the robot on the alarm: the bridge says why the rollout ended. The monitor scores
     # step t beside the policy computing step t + 1 (as on a robot), so the halt lands in step t + 1 or t + 2
     # (26 steps after an alarm at step 25); how far the policy gets meanwhile is a race that load can
     # shift, so the bound is 10 steps (4 s of robot time), still far below a missed halt (75 steps).
-    log = (out / "suite.log").read_text()
     assert f"halting the robot (rollout {ood['rollout_id']}): ALARM" in log
     assert f"rollout {ood['rollout_id']} ended: failure (halted)" in log
     assert ood["alarm_step"] + 1 <= ood["policy_steps"] <= ood["alarm_step"] + 10, "the supervisor halts the robot"

@@ -8,7 +8,7 @@ import pytest
 
 from fiper_ros.demo.figure import plot_trace
 from fiper_ros.demo.run import demo_config, problems_of
-from fiper_ros.demo.trace import ACE, RND_OE, RolloutEvents, RolloutTrace
+from fiper_ros.demo.trace import ACE, EARLY_MESSAGES, RND_OE, RolloutEvents, RolloutTrace
 from fiper_ros.launch import load_config
 
 
@@ -106,3 +106,23 @@ def test_an_early_end_of_another_rollout_ends_no_trace() -> None:
     assert not trace.ended
     events.end(8, 60, "failure")
     assert trace.ended and events.follow(RolloutTrace("x", "id", 4, rollout_id=7)).ended
+
+
+def test_messages_before_the_resets_answer_reach_their_trace() -> None:
+    """Under load the first step's score came before the reset's answer and was dropped (the demo failed with
+    "26 policy steps, only 25 scored by both detectors"): it is kept for the trace, and only for its own."""
+    events = RolloutEvents()
+    events.defer(5, lambda trace: trace.scores[RND_OE].add(0, 1.5, 3.0, False))
+    events.defer(4, lambda trace: trace.scores[RND_OE].add(9, 9.0, 3.0, True))  # another rollout's late step
+    trace = events.follow(RolloutTrace("in-distribution", "id", 1, rollout_id=5))
+    assert trace.scores[RND_OE].windowed == {0: 1.5}
+    other = events.follow(RolloutTrace("in-distribution", "id", 2, rollout_id=6))
+    assert other.scores[RND_OE].windowed == {}
+
+
+def test_early_messages_are_bounded_oldest_first() -> None:
+    events = RolloutEvents()
+    for step in range(EARLY_MESSAGES + 10):
+        events.defer(5, lambda trace, step=step: trace.scores[ACE].add(step, float(step), 1.0, True))
+    trace = events.follow(RolloutTrace("in-distribution", "id", 1, rollout_id=5))
+    assert sorted(trace.scores[ACE].windowed) == list(range(10, EARLY_MESSAGES + 10))

@@ -43,6 +43,13 @@ def _rollout(name: str, length: int, success: bool) -> Rollout:
                    actions=np.zeros((length, 2, 2, 2)), exec_steps=1, success=success)
 
 
+def test_alarm_metrics_over_no_rollouts_are_nan() -> None:
+    """A test set without ID successes has no held-out false-alarm rate: NaN (before: a reshape error)."""
+    alarms = np.array([[[2, -1, 0], [1, 1, -1]], [[-1, -1, -1], [0, 0, 0]]])  # 2 groups, 2 deltas, 3 rollouts
+    metrics = alarm_metrics(alarms, np.array([True, True, False]), 10, "paper", np.array([], dtype=int))
+    assert metrics.shape == (2, 2, len(METRICS)) and np.isnan(metrics).all()
+
+
 def test_detection_time_is_relative_to_each_rollouts_own_length() -> None:
     # App. B.4: a failed episode of length T flagged at t is predicted right at T - t of its T steps. A failure
     # that ends early (a block off the table, 20 steps) is judged on its own length, not on the 75-step limit.

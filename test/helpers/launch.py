@@ -133,9 +133,10 @@ class Rig:
 
 
 def suite_config(path: Path, calibration_dir: Path, *, respawn: bool = False,
-                 scoring: dict[str, object] | None = None) -> Path:
+                 scoring: dict[str, object] | None = None, fusion: dict[str, object] | None = None) -> Path:
     """Write a launch YAML to ``path``: the scoring nodes on ``calibration_dir`` (and ``scoring`` parameters), the
-    fusion node (``respawn`` with a delay of 0.5 s for all three) and the example supervisor calling ``/test/halt``."""
+    fusion node (and ``fusion`` parameters; ``respawn`` with a delay of 0.5 s for all three) and the example
+    supervisor calling ``/test/halt``."""
     share = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "config"
     parameters = {"calibration_dir": str(calibration_dir), **(scoring or {})}
     respawning = {"respawn": respawn, "respawn_delay": 0.5}
@@ -145,7 +146,7 @@ def suite_config(path: Path, calibration_dir: Path, *, respawn: bool = False,
         "nodes": {
             "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": parameters, **respawning},
             "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": parameters, **respawning},
-            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", **respawning},
+            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": fusion or {}, **respawning},
             "supervisor_node": {"module": "fiper_ros.nodes.supervisor_node",
                                 "parameters": {"halt_service": "/test/halt", "deadline_s": 2.0}},
         },

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from helpers.samples import sample_messages, topic_of
+from helpers.spin import spin_until_interrupted
 
 
 def main() -> None:
@@ -22,13 +22,7 @@ def main() -> None:
 
     node.create_timer(0.1, tick)
     print("publishing", flush=True)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    spin_until_interrupted(node)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,13 @@
-"""Spinning an executor until something happened, with a timeout (shared by the DDS tests)."""
+"""Spinning an executor until something happened, with a timeout (shared by the DDS tests), and a helper
+process's node until it is interrupted."""
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
 
-from rclpy.executors import Executor
+import rclpy
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.node import Node
 
 
 def spin_until(executor: Executor, condition: Callable[[], bool], timeout: float = 10.0, step: float = 0.01) -> bool:
@@ -15,3 +18,14 @@ def spin_until(executor: Executor, condition: Callable[[], bool], timeout: float
             return True
         executor.spin_once(timeout_sec=step)
     return condition()
+
+
+def spin_until_interrupted(node: Node) -> None:
+    """Spin ``node`` of a helper process until SIGINT or an external shutdown; then destroy it, shut rclpy down."""
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -19,7 +19,9 @@ What the malformed messages may not do is change the valid rollout's verdicts le
   never started: the nodes hold them for their START and then reject them as ``unknown_rollout`` (content of an
   admitted step is rejected in ``test_bad_input.py`` and the fuzz tests);
 - the fusion node's Score input gets only other rollout ids: a foreign publisher of Scores of the valid rollout
-  could legitimately make the fusion node say UNKNOWN (issue #26 is about such publishers);
+  could legitimately make the fusion node say UNKNOWN. The flood is a publisher the suite does not expect (issue
+  #26: while one speaks on a score topic the fusion node never says OK), so the launch names it in the allow-lists
+  (``score_publishers``, ``allowed_publishers``): the test is about malformed messages, not about who sends them;
 - no START of another rollout (that would end the valid one) and no END of the valid one.
 
 Bursts stay below the subscriptions' queue depths (inputs 100, scores 50, events 10), so that the flood does not
@@ -69,7 +71,11 @@ def pretzel() -> tuple[Rollout, RolloutPrediction]:
 
 @pytest.fixture
 def rig(tmp_path: Path, ros_domain: int) -> Iterator[Rig]:
-    config = suite_config(tmp_path / "suite.yaml", PRETZEL / "calibration", scoring={"max_elements": MAX_ELEMENTS})
+    senders = ["test_driver", "flood"]  # the allow-lists: the test's driver and the flood (see the docstring)
+    config = suite_config(tmp_path / "suite.yaml", PRETZEL / "calibration",
+                          scoring={"max_elements": MAX_ELEMENTS, "allowed_publishers": senders},
+                          fusion={"score_publishers": ["rnd_oe_node", "ace_node", "flood"],
+                                  "allowed_publishers": senders})
     rig = open_rig(config, ros_domain)
     try:
         for name in NODES[:3]:
@@ -213,6 +219,9 @@ def test_a_flood_of_malformed_messages_changes_no_verdict_of_a_valid_rollout_and
         values = driver.diagnostics[f"fiper: /fiper/{name}"]
         assert all(int(values.get(f"rejected.{r}", 0)) > 0 for r in reasons), (name, values)
         assert values["lifecycle_state"] == "active", (name, values)
+    # the allow-lists took: the fusion node found no publisher it does not expect, the flood included
+    assert driver.diagnostics["fiper: /fiper/fusion_node"]["unexpected_publishers_seen"] == "0"
+    assert "/fiper/flood" in driver.diagnostics["fiper: /fiper/fusion_node"]["publishers./fiper/scores/ace"]
 
     # every process alive, none restarted, no traceback
     assert rig.launch.proc.poll() is None

@@ -34,9 +34,9 @@ from rclpy.context import Context
 from rclpy.lifecycle import TransitionCallbackReturn
 from sensor_msgs.msg import JointState
 from sim_bridge.robot import URDF_PATH
-from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
+from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration import Calibration, load_calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import RolloutPrediction, predict_rollout
@@ -554,7 +554,8 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
             elif kind == "reset":
                 note("reset")
                 contract.on_reset()
-                assert fusion._on_reset(Trigger.Request(), Trigger.Response()).success  # noqa: SLF001
+                request = ResetAlarm.Request(requester="test_fuzz", reason="a fuzzed reset")
+                assert fusion._on_reset(request, ResetAlarm.Response()).success  # noqa: SLF001
             elif kind == "score":
                 send(draw_score(data.draw, fusion))
             else:  # the two Scores of one step, in either order

@@ -1,7 +1,8 @@
 """The nodes on an observation-only calibration, in one process over real DDS (loopback; issue #19): the policy
 publishes embeddings only, the fusion node (reading the calibration's declared detectors) judges every step
 by RND-OE alone at once, never waits for ACE scores nor reports that stream missing, and says the core's
-verdict; an ace_node given that calibration stays unconfigured and says why in one line."""
+verdict, also while a node it does not know publishes on scores/ace (a topic it reads nothing from); an
+ace_node given that calibration stays unconfigured and says why in one line."""
 from __future__ import annotations
 
 import math
@@ -10,13 +11,16 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+import rclpy.node
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
+from fiper_msgs.msg import Score
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import OBSERVATION_ONLY
 from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.nodes import qos
 from fiper_ros.nodes.conversions import embedding_msg
 from helpers.spin import spin_until
 from helpers.suite import STATE, STEP_NS, Driver
@@ -40,7 +44,10 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
              FusionNode(context=context, namespace="/fiper", parameter_overrides=params),
              AceNode(context=context, namespace="/fiper", parameter_overrides=params)]
     driver = Driver(context)
-    for node in [*nodes, driver]:
+    # A node the suite does not know publishes on scores/ace: an observation-only fusion reads nothing there.
+    intruder = rclpy.node.Node("intruder", context=context)
+    intruder.create_publisher(Score, "/fiper/scores/ace", qos.SCORE_PUB)
+    for node in [*nodes, driver, intruder]:
         executor.add_node(node)
     rnd_oe, fusion, ace = nodes
     try:
@@ -53,6 +60,8 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
             f"configure failed: calibration {directory} is observation-only (detectors rnd_oe): nothing for ace_node "
             "to score; launch the suite without it (fiper_ros/config/suite_obs.yaml)")
         assert ace.lifecycle_state() == "unconfigured" and fusion.fuser.detectors == OBSERVATION_ONLY
+        assert spin_until(executor, lambda: "intruder" in [i.node_name for i in
+                                                          driver.get_publishers_info_by_topic("/fiper/scores/ace")])
         assert spin_until(executor, lambda: driver.embeddings.get_subscription_count() >= 1
                           and driver.events.get_subscription_count() >= 3)
         for rollout_id, fail in ((1, True), (2, False)):
@@ -80,13 +89,14 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
                 assert alarms[prediction.first_alarm_step].reason == \
                     "exceeded: rnd_oe (rnd_oe alone: combine does not apply)"
                 assert prediction.first_alarm_step >= FAIL_FROM
+        assert fusion.fuser.suspicion == "" and fusion.publisher_check.watch.findings == ()
         said = [m.reason for m in driver.alarms]  # verdicts and heartbeats: not a word about ACE
         assert len(said) >= 2 * 20 and not [r for r in said if "ace" in r], [r for r in said if "ace" in r][:3]
         driver.diagnostics.pop("fiper: /fiper/fusion_node", None)
         assert spin_until(executor, lambda: "detectors" in status("fusion_node"))
         assert (status("fusion_node")["detectors"], status("fusion_node")["lost_streams"]) == ("rnd_oe", "none")
     finally:
-        for node in [*nodes, driver]:
+        for node in [*nodes, driver, intruder]:
             executor.remove_node(node)
             node.destroy_node()
         executor.shutdown()

@@ -43,20 +43,6 @@ def test_start_resets_the_latch_and_the_windows(suite: Suite) -> None:
     assert all(fine[t].state == FailureAlarm.STATE_OK for t in fine)
 
 
-def test_reset_service_clears_a_latched_alarm(suite: Suite) -> None:
-    from std_srvs.srv import Trigger  # noqa: PLC0415
-
-    rollout = make_rollout(302, fail=True)
-    suite.run(rollout, rollout_id=5, end=False)
-    assert suite.fusion.fuser.latched
-    client = suite.driver.create_client(Trigger, "/fiper/fusion_node/reset")
-    assert suite.spin_until(client.service_is_ready)
-    future = client.call_async(Trigger.Request())
-    assert suite.spin_until(future.done)
-    assert future.result().success and "cleared" in future.result().message
-    assert not suite.fusion.fuser.latched
-
-
 def test_inputs_that_overtake_their_start_wait_for_it(suite: Suite) -> None:
     rollout = make_rollout(303)
     drv = suite.driver

@@ -95,7 +95,7 @@ def test_halt_ends_the_rollout_as_failure(bridge: BridgeHarness) -> None:
 def test_the_example_supervisor_halts_the_bridge_on_alarm(bridge: BridgeHarness) -> None:
     supervisor = SupervisorNode(context=bridge.context)
     bridge.executor.add_node(supervisor)
-    alarms = bridge.client.create_publisher(FailureAlarm, "/fiper/alarm", qos.ALARM)
+    alarms = bridge.client.create_publisher(FailureAlarm, "/fiper/alarm", qos.ALARM_PUB)  # as the fusion node
     try:
         response = bridge.reset("stacking", "id", 9)
         bridge.first_tick(response.rollout_id)

@@ -23,10 +23,20 @@ def remove(path: Path) -> None:
         path.unlink()
 
 
+def _check_parents(path: Path) -> None:
+    """Refuse an output below a file: its nearest existing ancestor must be a directory."""
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise BagError(f"{path}: {parent} is not a directory")
+            return
+
+
 def check_new(path: Path, overwrite: bool = False) -> None:
     """Refuse an existing output unless ``overwrite``; make sure its parent directory exists."""
     if path.exists() and not overwrite:
         raise BagError(f"{path} exists already (choose another name or pass --force)")
+    _check_parents(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
 
@@ -59,9 +69,10 @@ def atomic_output(path: Path, overwrite: bool = False) -> Iterator[Path]:
 
 
 def check_directory(directory: Path) -> None:
-    """Refuse an output directory that exists as something else (a file)."""
+    """Refuse an output directory that exists as something else (a file), or lies below a file."""
     if directory.exists() and not directory.is_dir():
         raise BagError(f"{directory} exists and is not a directory")
+    _check_parents(directory)
 
 
 @contextmanager

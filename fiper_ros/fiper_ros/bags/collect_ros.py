@@ -38,7 +38,7 @@ from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_R
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain
-from fiper_ros.demo.driver import Driver, SuiteFailed, node_path
+from fiper_ros.demo.driver import SETTLE_S, Driver, SuiteFailed, node_path
 from fiper_ros.demo.trace import RolloutTrace
 from fiper_ros.launch import LaunchConfig, LaunchError, dump_config, load_config
 
@@ -52,8 +52,6 @@ WORK_DIR = ".collect-ros"
 READY_TIMEOUT_S = 90.0
 #: Seconds one rollout may take in all (a stalled one fails after ``driver.STALL_TIMEOUT_S``).
 ROLLOUT_TIMEOUT_S = 600.0
-#: Seconds after the END for the rollout's messages (and scores) to land in the bag.
-SETTLE_S = 2.0
 #: Seconds spun after that, for the fusion node's last alarm.
 CATCH_UP_S = 0.2
 

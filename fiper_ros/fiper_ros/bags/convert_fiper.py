@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.bags.convert_options import ConvertOptions, Converted, select_channels
+from fiper_ros.bags.convert_options import Budget, ConvertOptions, Converted, select_channels
 from fiper_ros.bags.errors import BagError
 from fiper_ros.core.rollout import ID_SCENARIO, Rollout, RolloutError
 
@@ -94,10 +94,13 @@ def load(src: Path, options: ConvertOptions) -> Converted:
     root = rollouts_root(src)
     task = options.task or (root.parent.name if root.name == "rollouts" else root.name)
     converted: Converted = {}
+    budget = Budget(options.max_mb)
     for split in SPLITS:
         for path in sorted((root / split).glob("*.pkl")):
-            converted.setdefault(split, []).append(
-                (load_rollout(path, split, task, options), str(path.relative_to(root))))
+            budget.check_file(path, path.stat().st_size)
+            rollout = load_rollout(path, split, task, options)
+            budget.take(str(path), rollout)
+            converted.setdefault(split, []).append((rollout, str(path.relative_to(root))))
     if not converted:
         raise BagError(f"{root}: no *.pkl rollout files in {' or '.join(SPLITS)}/")
     return converted

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fiper_ros.bags.convert_options import AUTO, ConvertOptions, Converted, select_channels
+from fiper_ros.bags.convert_options import AUTO, Budget, ConvertOptions, Converted, select_channels
 from fiper_ros.bags.errors import BagError
 from fiper_ros.core.rollout import ID_SCENARIO, Rollout, RolloutError
 
@@ -96,8 +96,11 @@ def load(src: Path, options: ConvertOptions) -> Converted:
         raise BagError(f"{src}: no episodes/ep*.pkl files (Sentinel layout <split dir>/episodes/ep0000.pkl)")
     task = options.task or src.name
     converted: Converted = {}
+    budget = Budget(options.max_mb)
     for path in files:
         code = split_code(path, src)
-        converted.setdefault(SPLIT_CODES[code][0], []).append(
-            (load_episode(path, code, task, options), str(path.relative_to(src))))
+        budget.check_file(path, path.stat().st_size)
+        rollout = load_episode(path, code, task, options)
+        budget.take(str(path), rollout)
+        converted.setdefault(SPLIT_CODES[code][0], []).append((rollout, str(path.relative_to(src))))
     return dict(sorted(converted.items()))

@@ -2,7 +2,8 @@
 
 Writing lays rollouts out one after another on the bag's time line: a RolloutEvent START, then per
 policy step an ObservationEmbedding and an ActionChunkBatch with the same ``(rollout_id, step)`` and
-stamp, then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
+stamp (no batch for a rollout without action batches, observation-only data: its bag has no
+``/fiper/action_chunks``), then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
 same code a policy node uses. A rollout with ``metadata["joint_positions"]`` (``[T, 7]``, the measured
 arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at each step's stamp, written
 before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
@@ -119,7 +120,8 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
 
     Args:
         path: The bag directory to create.
-        rollouts: Rollouts of one layout (B, H, D, h, E, action space).
+        rollouts: Rollouts of one layout (B, H, D, h, E, action space); rollouts whose ``actions`` are None
+            are written without action batches.
         ids: ``rollout_id`` of each rollout in the messages.
         info: ``custom_data``; the shapes are filled in from the rollouts.
         start_ns: Time of the first START.

@@ -67,14 +67,19 @@ def _block_scores(prev: np.ndarray, curr: np.ndarray) -> np.ndarray:
     return np.where(has_positive, np.maximum(k_xx + k_yy - 2.0 * k_xy, 0.0), 0.0)
 
 
+def check_overlap(exec_steps: int, horizon: int) -> None:
+    """Refuse a layout without an overlap of consecutive chunks: STAC needs ``1 <= h < H``."""
+    if not 1 <= exec_steps < horizon:
+        raise BaselineError(f"STAC needs 1 <= h < H for an overlap, got h={exec_steps}, H={horizon}")
+
+
 def stac_scores(actions: np.ndarray, exec_steps: int) -> np.ndarray:
     """STAC scores ``[T]`` of a rollout's sampled chunks ``[T, B, H, D]`` with ``h = exec_steps``."""
     actions = np.asarray(actions, dtype=np.float64)
     if actions.ndim != 4:
         raise BaselineError(f"actions must be [T, B, H, D], got shape {actions.shape}")
     steps, samples, horizon, _ = actions.shape
-    if not 1 <= exec_steps < horizon:
-        raise BaselineError(f"STAC needs 1 <= h < H for an overlap, got h={exec_steps}, H={horizon}")
+    check_overlap(exec_steps, horizon)
     scores = np.zeros(steps)
     if steps < 2:
         return scores

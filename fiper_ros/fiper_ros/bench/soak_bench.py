@@ -35,8 +35,8 @@ from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.dds import allocate_domain
-from fiper_ros.demo.driver import Driver, SuiteFailed, state_name
-from fiper_ros.demo.run import MANAGED_NODES, SETTLE_S, SUPERVISOR, Plan, demo_config
+from fiper_ros.demo.driver import SETTLE_S, Driver, SuiteFailed, state_name
+from fiper_ros.demo.run import MANAGED_NODES, SUPERVISOR, Plan, demo_config
 from fiper_ros.demo.trace import RolloutTrace
 from fiper_ros.launch import dump_config, load_config
 from fiper_ros.nodes import qos

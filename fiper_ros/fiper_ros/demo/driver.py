@@ -40,6 +40,10 @@ OUTCOMES = {RolloutEvent.OUTCOME_SUCCESS: "success", RolloutEvent.OUTCOME_FAILUR
 RESET_TIMEOUT_S = 30.0
 #: Seconds a running rollout may go without a new action-chunk batch.
 STALL_TIMEOUT_S = 30.0
+#: Seconds to wait after a rollout's END for what it left in flight (its last scores, its messages in a bag):
+#: the wait ends as soon as they are in, so the bound only matters when something is lost (2 s was too short
+#: under load 14: the last step's scores came later).
+SETTLE_S = 10.0
 
 #: Called with every alarm decision (not heartbeats) of a rollout the driver follows, after its bookkeeping.
 AlarmDisplay = Callable[[RolloutTrace, FailureAlarm], None]
@@ -114,15 +118,24 @@ class Driver:
         for status in msg.status:
             self.diagnostics[status.hardware_id] = {v.key: v.value for v in status.values}
 
+    def _route(self, rollout_id: int, apply: Callable[[RolloutTrace], None]) -> None:
+        """``apply`` a message to its rollout's trace, or keep it for the trace the reset's answer brings."""
+        trace = self.traces.get(rollout_id)
+        if trace is None:
+            self.events.defer(rollout_id, apply)
+        else:
+            apply(trace)
+
     def _on_score(self, msg: Score) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is not None and msg.detector in trace.scores:
-            trace.scores[msg.detector].add(msg.step, msg.windowed_score, msg.threshold, msg.exceeded)
+        def apply(trace: RolloutTrace) -> None:
+            if msg.detector in trace.scores:
+                trace.scores[msg.detector].add(msg.step, msg.windowed_score, msg.threshold, msg.exceeded)
+        self._route(msg.rollout_id, apply)
 
     def _on_actions(self, msg: ActionChunkBatch) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is not None:
+        def apply(trace: RolloutTrace) -> None:
             trace.steps_started = max(trace.steps_started, msg.step + 1)
+        self._route(msg.rollout_id, apply)
 
     def _on_event(self, msg: RolloutEvent) -> None:
         if msg.event == RolloutEvent.EVENT_START:
@@ -131,17 +144,19 @@ class Driver:
             self.events.end(msg.rollout_id, stamp_ns(msg.header.stamp), OUTCOMES.get(msg.outcome, "unknown"))
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
-        trace = self.traces.get(msg.rollout_id)
-        if trace is None or msg.heartbeat:
+        if msg.heartbeat:
             return
-        state = state_name(msg)
-        if state == "UNKNOWN":
-            trace.unknown_steps.add(msg.step)
-        elif state == "ALARM" and trace.alarm_step is None:
-            trace.alarm_step = msg.step
-            trace.alarm_text = alarm_line(msg)
-        if self.display is not None:
-            self.display(trace, msg)
+
+        def apply(trace: RolloutTrace) -> None:
+            state = state_name(msg)
+            if state == "UNKNOWN":
+                trace.unknown_steps.add(msg.step)
+            elif state == "ALARM" and trace.alarm_step is None:
+                trace.alarm_step = msg.step
+                trace.alarm_text = alarm_line(msg)
+            if self.display is not None:
+                self.display(trace, msg)
+        self._route(msg.rollout_id, apply)
 
     # driving ------------------------------------------------------------------------------------------
     def spin(self, seconds: float) -> None:

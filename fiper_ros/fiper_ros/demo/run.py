@@ -28,7 +28,7 @@ from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain
-from fiper_ros.demo.driver import Driver, SuiteFailed, alarm_line, state_name
+from fiper_ros.demo.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, state_name
 from fiper_ros.demo.figure import plot_trace
 from fiper_ros.demo.trace import ACE, RND_OE, RolloutTrace
 from fiper_ros.launch import LaunchError, dump_config, load_config
@@ -43,8 +43,6 @@ SUPERVISOR = "/fiper/supervisor_node"
 EXTRA_TOPICS = ("/camera/wrist/image_raw", "/camera/third/image_raw", "/sim/proprio", "/sim/action", "/clock")
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
 PROGRESS_EVERY = 5
-#: Seconds to wait for the last scores of a rollout after its END.
-SETTLE_S = 2.0
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,8 @@ and ``fiper collect --ros`` read it back.
 """
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,6 +15,9 @@ import numpy as np
 
 #: Detector names as in ``fiper_msgs/Score.DETECTOR_*``.
 RND_OE, ACE = "rnd_oe", "ace"
+#: Messages of rollouts without a trace kept for it (the oldest go first): a rollout's first scores,
+#: batches and alarms can arrive before the reset's answer that names it.
+EARLY_MESSAGES = 256
 
 
 @dataclass
@@ -110,15 +115,17 @@ class RolloutTrace:
 class RolloutEvents:
     """The START / END stamps of rollouts, paired with their traces whichever comes first.
 
-    A rollout's START, and even its END (a halt right after the start), can arrive before the reset's
-    answer that names the rollout and creates its trace. Kept: the START stamps of rollouts not ended
-    yet, and the one last END of a rollout without a trace.
+    A rollout's START, its first steps' messages and even its END (a halt right after the start) can
+    arrive before the reset's answer that names the rollout and creates its trace. Kept: the START stamps
+    of rollouts not ended yet, the last :data:`EARLY_MESSAGES` messages of rollouts without a trace
+    (:meth:`defer`) and the one last END of a rollout without a trace.
     """
 
     def __init__(self) -> None:
         self.traces: dict[int, RolloutTrace] = {}
         self._starts: dict[int, int] = {}
         self._early_end: tuple[int, int, str] | None = None
+        self._early: deque[tuple[int, Callable[[RolloutTrace], None]]] = deque(maxlen=EARLY_MESSAGES)
 
     def start(self, rollout_id: int, stamp_ns: int) -> None:
         """A START event."""
@@ -132,9 +139,17 @@ class RolloutEvents:
         else:
             self._close(trace, stamp_ns, outcome)
 
+    def defer(self, rollout_id: int, apply: Callable[[RolloutTrace], None]) -> None:
+        """A message of ``rollout_id``, which has no trace (yet): ``apply`` it to the trace :meth:`follow` brings."""
+        self._early.append((rollout_id, apply))
+
     def follow(self, trace: RolloutTrace) -> RolloutTrace:
-        """Keep ``trace`` (its rollout's END may already be here); ``trace``."""
+        """Keep ``trace`` (its rollout's first messages and END may already be here); ``trace``."""
         self.traces[trace.rollout_id] = trace
+        early = [apply for rollout_id, apply in self._early if rollout_id == trace.rollout_id]
+        self._early = deque(((r, a) for r, a in self._early if r != trace.rollout_id), maxlen=EARLY_MESSAGES)
+        for apply in early:
+            apply(trace)
         if self._early_end is not None and self._early_end[0] == trace.rollout_id:
             self._close(trace, *self._early_end[1:])
             self._early_end = None

@@ -47,8 +47,8 @@ from fiper_ros.evaluation.methods import METHODS, MethodSettings, observation_me
 from fiper_ros.core.calibration import SPLITS  # noqa: E402
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
+from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
-from fiper_ros.evaluation.scoring import check_split, robot_for  # noqa: E402
 from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
 from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
 from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
@@ -74,7 +74,10 @@ def delta_list(text: str) -> tuple[float, ...]:
     """``"0.01,0.05"`` -> deltas; ``"paper"`` -> 0.01..0.10."""
     if text == "paper":
         return DELTAS
-    return tuple(float(part) for part in text.split(",") if part.strip())
+    deltas = tuple(float(part) for part in text.split(",") if part.strip())
+    if not deltas:
+        raise argparse.ArgumentTypeError(f"no deltas in {text!r}")
+    return deltas
 
 
 def name_list(choices: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
@@ -204,13 +207,13 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         check_directory(args.out)
+        if not args.no_cache:
+            check_directory(args.cache_dir)
         datasets = datasets_from(args)
         args.methods = methods_for(args.methods, datasets)
         settings = settings_from(args)
         robot_options.fk_of(settings.method_settings.robot)
-        for dataset in datasets:
-            robot_for(dataset, settings.method_settings)
-            check_split(dataset, settings.method_settings)
+        check_evaluation(datasets, settings)
     except (DatasetError, BagError, ValueError) as error:
         return fail("evaluate", error)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)

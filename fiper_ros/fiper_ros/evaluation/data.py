@@ -2,7 +2,8 @@
 
 A dataset is read from one or more ``.npz`` files written by
 :meth:`fiper_ros.core.rollout.RolloutSet.save_npz` (or directories of them); the calibration and
-test splits of all files are concatenated in file-name order.
+test splits of all files are concatenated in file-name order. All rollouts of a dataset have one layout
+(:func:`layout`): the score models are fitted for one.
 """
 
 from __future__ import annotations
@@ -102,6 +103,29 @@ class Dataset:
         return digest.hexdigest()
 
 
+def layout(rollout: Rollout) -> tuple[tuple[str, object], ...]:
+    """What the score models of a task are fitted for: E, H, D, h and the action space of a rollout."""
+    horizon, dims = (None, None) if rollout.actions is None else rollout.actions.shape[2:]
+    return (("E", rollout.embeddings.shape[1]), ("H", horizon), ("D", dims), ("h", rollout.exec_steps),
+            ("action space", rollout.action_space))
+
+
+def check_layout(sources: Sequence[tuple[Rollout, str]]) -> None:
+    """Refuse rollouts (each with the file or bag it came from) of more than one :func:`layout`, naming the
+    first that differs and the first rollout."""
+    if not sources:
+        return
+    first, origin = sources[0]
+    expected = layout(first)
+    for rollout, source in sources[1:]:
+        got = layout(rollout)
+        if got != expected:
+            name = next(key for (key, value), (_, want) in zip(got, expected) if value != want)
+            raise DatasetError(f"{source}: rollout {rollout.rollout_id!r} has {name} = {dict(got)[name]}, rollout "
+                               f"{first.rollout_id!r} of {origin} {name} = {dict(expected)[name]}: one task's "
+                               "rollouts share one layout")
+
+
 def _npz_files(path: Path) -> list[Path]:
     if path.is_dir():
         files = sorted(path.glob("*.npz"))
@@ -113,22 +137,22 @@ def _npz_files(path: Path) -> list[Path]:
     return [path]
 
 
-def _bag_split(path: Path, strict: bool) -> tuple[list[Rollout], list[Rollout]]:
-    """The rollouts of the bags at ``path``, split by each bag's ``custom_data`` split (``strict``: refuse an
-    unfinished bag instead of reading it up to its last complete chunk)."""
+def _bag_split(path: Path, strict: bool) -> tuple[list[tuple[Rollout, str]], list[tuple[Rollout, str]]]:
+    """The rollouts of the bags at ``path`` with their bag, split by each bag's ``custom_data`` split
+    (``strict``: refuse an unfinished bag instead of reading it up to its last complete chunk)."""
     from fiper_ros.bags.errors import BagError  # noqa: PLC0415 - bags need the ROS message build
     from fiper_ros.bags.reader import BagReader, find_bags  # noqa: PLC0415
     from fiper_ros.bags.rollouts import read_rollouts  # noqa: PLC0415
 
-    calibration: list[Rollout] = []
-    test: list[Rollout] = []
+    calibration: list[tuple[Rollout, str]] = []
+    test: list[tuple[Rollout, str]] = []
     try:
         for bag in find_bags([path], strict=strict, command="evaluate"):
             with BagReader(bag) as reader:
                 split = reader.info.split
             if split not in ("calibration", "test"):
                 raise DatasetError(f"{bag}: custom_data split is {split!r}; expected 'calibration' or 'test'")
-            (calibration if split == "calibration" else test).extend(read_rollouts(bag))
+            (calibration if split == "calibration" else test).extend((r, str(bag)) for r in read_rollouts(bag))
     except BagError as error:
         raise DatasetError(str(error)) from error
     return calibration, test
@@ -143,9 +167,10 @@ def _is_bag_input(path: Path) -> bool:
 def load_dataset(task: str, paths: Sequence[str | Path], strict: bool = True) -> Dataset:
     """Read the rollout sets at ``paths`` (``.npz`` files, folders of them, or bag folders) into one
     :class:`Dataset`. Bags are split by their ``custom_data`` split (``fiper convert`` writes it); an
-    unfinished bag is refused with ``strict``, else read up to its last complete chunk with a warning."""
-    calibration: list[Rollout] = []
-    test: list[Rollout] = []
+    unfinished bag is refused with ``strict``, else read up to its last complete chunk with a warning; rollouts
+    of more than one layout are refused (:func:`check_layout`)."""
+    calibration: list[tuple[Rollout, str]] = []
+    test: list[tuple[Rollout, str]] = []
     for path in map(Path, paths):
         if _is_bag_input(path):
             cal, tst = _bag_split(path, strict)
@@ -156,7 +181,10 @@ def load_dataset(task: str, paths: Sequence[str | Path], strict: bool = True) ->
             try:
                 rollouts = RolloutSet.load_npz(file)
             except RolloutError as error:
-                raise DatasetError(str(error)) from error
-            calibration.extend(rollouts.calibration)
-            test.extend(rollouts.test)
-    return Dataset(task, calibration, test)
+                # the rollout's own checks (shapes, NaN) do not know the file: name it
+                text = str(error)
+                raise DatasetError(text if text.startswith(str(file)) else f"{file}: {text}") from error
+            calibration.extend((r, str(file)) for r in rollouts.calibration)
+            test.extend((r, str(file)) for r in rollouts.test)
+    check_layout([*calibration, *test])
+    return Dataset(task, [r for r, _ in calibration], [r for r, _ in test])

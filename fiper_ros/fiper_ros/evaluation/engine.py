@@ -12,12 +12,12 @@ import numpy as np
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.compat import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
-from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.methods import METHODS, MethodSettings, streams_of
 from fiper_ros.evaluation.progress import Progress
 from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, ProtocolResult, alarm_metrics, run_protocol,
                                            validation_split)
-from fiper_ros.evaluation.scoring import compute_streams
+from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import Group, SweepSettings, sweep_task
 
 LOG = logging.getLogger(__name__)
@@ -58,6 +58,9 @@ class EngineSettings:
             raise ValueError(f"protocols must be among {PROTOCOLS}, got {self.protocols}")
         if not self.seeds:
             raise ValueError("at least one seed is needed")
+        if min(*self.seeds, self.split_seed) < 0:
+            raise ValueError(f"seeds must be >= 0, got --seeds {','.join(map(str, self.seeds))} and --split-seed "
+                             f"{self.split_seed}")
 
     def calibration_settings(self, seed: int) -> CalibrationSettings:
         """The core calibration settings whose threshold rules and split the sweep uses (profile, split, seed)."""
@@ -118,6 +121,17 @@ def horizons(dataset: Dataset, profile: str) -> np.ndarray | int:
     flagged at ``t`` is predicted right at ``T - t`` of its ``T`` steps) or ``T_max`` over both splits
     (reference: the authors' code, ``t / (T_max - 1)``)."""
     return dataset.lengths if get_profile(profile).dt_mode == "paper" else dataset.max_length
+
+
+def check_evaluation(datasets: Sequence[Dataset], settings: EngineSettings) -> None:
+    """Refuse, before any work, what the run would stop on (:class:`DatasetError`): task names that are not
+    distinct, and each dataset's :func:`~fiper_ros.evaluation.scoring.check_dataset`."""
+    tasks = [d.task for d in datasets]
+    if len(set(tasks)) != len(tasks):
+        raise DatasetError(f"task names must be distinct, got {tasks}")
+    streams = streams_of(list(settings.methods))
+    for dataset in datasets:
+        check_dataset(dataset, settings.method_settings, streams)
 
 
 def score_all(
@@ -190,9 +204,7 @@ def run_evaluation(
     datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None = None
 ) -> EvaluationResult:
     """Scores, sweep, metrics and protocols for ``datasets`` (distinct task names)."""
-    tasks = [d.task for d in datasets]
-    if len(set(tasks)) != len(tasks):
-        raise ValueError(f"task names must be distinct, got {tasks}")
+    check_evaluation(datasets, settings)
     start = time.perf_counter()
     scores, computing = score_all(datasets, settings, cache)
     scored = time.perf_counter()

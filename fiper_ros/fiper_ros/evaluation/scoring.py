@@ -29,11 +29,11 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from fiper_ros.baselines.base import Baseline
+from fiper_ros.baselines.base import Baseline, BaselineError
 from fiper_ros.baselines.logpzo import LogpZO
 from fiper_ros.baselines.pca_kmeans import PCAKMeans
 from fiper_ros.baselines.rnd_a import RNDA
-from fiper_ros.baselines.stac import STAC
+from fiper_ros.baselines.stac import STAC, check_overlap
 from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
 from fiper_ros.core.compat import get_profile
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY
@@ -85,6 +85,26 @@ def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
         raise DatasetError(f"task {dataset.task!r} has {dataset.action_space} actions: ACE needs the robot's "
                            "URDF and EE frame (and the control period for velocities)")
     return settings.robot
+
+
+def check_streams(dataset: Dataset, streams: Sequence[str]) -> None:
+    """Refuse a dataset a stream cannot score (STAC: chunks without an overlap, ``h = H``), before any work."""
+    if "stac" not in streams:
+        return
+    for rollout in (*dataset.calibration, *dataset.test):
+        try:
+            check_overlap(rollout.exec_steps, rollout.actions.shape[2])
+        except BaselineError as error:
+            raise DatasetError(f"task {dataset.task!r}, rollout {rollout.rollout_id!r}: {error} (leave STAC out: "
+                               "--methods without stac)") from error
+
+
+def check_dataset(dataset: Dataset, settings: MethodSettings, streams: Sequence[str]) -> None:
+    """Everything the scores of ``dataset`` would stop on, checked before any work (:class:`DatasetError`):
+    the robot model of joint-space actions, the calibration split, what the streams need."""
+    robot_for(dataset, settings)
+    check_split(dataset, settings)
+    check_streams(dataset, streams)
 
 
 def calibration_split(dataset: Dataset, settings: MethodSettings, seed: int) -> CalibrationSplit:

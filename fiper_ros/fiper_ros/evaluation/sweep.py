@@ -65,8 +65,8 @@ class SweepSettings:
             raise ValueError(f"combines must be among {COMBINES}, got {self.combines}")
         if self.pairs not in PAIR_GRIDS:
             raise ValueError(f"pairs must be one of {PAIR_GRIDS}, got {self.pairs!r}")
-        if any(not 0.0 < d < 1.0 for d in self.deltas):
-            raise ValueError(f"deltas must be in (0, 1), got {self.deltas}")
+        if not self.deltas or any(not 0.0 < d < 1.0 for d in self.deltas):
+            raise ValueError(f"deltas must be in (0, 1), at least one, got {self.deltas}")
 
     def labels(self) -> list[str]:
         """Window labels in sweep order: ``"1"``, ``"2"``, ... and ``"cum"``."""

@@ -17,8 +17,12 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from fiper_ros.nodes import qos
+from fiper_ros.nodes.graph_watch import PublisherCheck
+from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
 from fiper_ros.runtime.validation import InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
@@ -26,6 +30,13 @@ from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 LEVEL_NAMES = {DiagnosticStatus.OK: "OK", DiagnosticStatus.WARN: "WARN", DiagnosticStatus.ERROR: "ERROR"}
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", "/diagnostics")
+#: How often a node that watches its topics' publishers looks at the graph (a second suite: noticed within 1 s).
+PUBLISHER_CHECK_PERIOD_S = 0.25
+
+
+def own_topic(topic: str) -> bool:
+    """Whether ``topic`` (fully qualified) is one of the suite's, not ROS's infrastructure or lifecycle events."""
+    return not topic.startswith(INFRASTRUCTURE_TOPICS) and not topic.endswith("/transition_event")
 
 
 def describe(description: str, *, read_only: bool = False, low: float | None = None, high: float | None = None,
@@ -38,6 +49,16 @@ def describe(description: str, *, read_only: bool = False, low: float | None = N
         else:
             descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
     return descriptor
+
+
+def diagnostic_array(node: Node, level: int, message: str, values: dict[str, str]) -> DiagnosticArray:
+    """The one-status /diagnostics message of ``node`` (``name`` = ``fiper: <fully qualified name>``)."""
+    status = DiagnosticStatus(level=level, name=f"fiper: {node.get_fully_qualified_name()}", message=message,
+                              hardware_id=node.get_fully_qualified_name(),
+                              values=[KeyValue(key=k, value=v) for k, v in values.items()])
+    msg = DiagnosticArray(status=[status])
+    msg.header.stamp = node.get_clock().now().to_msg()
+    return msg
 
 
 class FiperNode(LifecycleNode):
@@ -62,6 +83,7 @@ class FiperNode(LifecycleNode):
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self.publish_diagnostics, clock=self.steady)
+        self.publisher_check: PublisherCheck | None = None
         self._autostart_timer = None
         if self.get_parameter("autostart").value:
             self._autostart_timer = self.create_timer(0.0, self._autostart, clock=self.steady)
@@ -159,6 +181,34 @@ class FiperNode(LifecycleNode):
             f"QoS incompatible with a peer on {topic} (policy id {info.last_policy_kind}); messages are not delivered"
         )
 
+    def watch_publishers(self, on_change: Callable[[], None] | None = None) -> PublisherCheck:
+        """Check the graph's publishers of this node's topics (:meth:`expected_publishers`) every
+        ``PUBLISHER_CHECK_PERIOD_S``; an unexpected one is an ERROR on /diagnostics (docs/reliability.md,
+        "Who may speak")."""
+        # No default value: an empty list would be typed as bytes; unset, it reads as the empty list (any node).
+        self.declare_parameter("allowed_publishers", Parameter.Type.STRING_ARRAY, describe(
+            "nodes that may publish this node's inputs, one publisher each (relative names: in its namespace); "
+            "unset or empty: any node, but one publisher per input topic", read_only=True))
+        self.publisher_check = PublisherCheck(self, self.expected_publishers, PUBLISHER_CHECK_PERIOD_S, on_change)
+        return self.publisher_check
+
+    def allowed(self, parameter: str) -> frozenset[str]:
+        """The fully qualified node names a string-array parameter lists."""
+        return frozenset(resolve_node(name, self.get_namespace())
+                         for name in self.get_parameter_or(parameter).value or () if name)
+
+    def expected_publishers(self) -> list[Expected]:
+        """What the node expects of its topics' publishers: for each input (a subscription now open) one
+        publisher, or one per node of ``allowed_publishers`` if that is set (and no other node); for each output
+        only this node (a second publisher of the same name is for the topic's consumer to tell: only it sees
+        the liveliness)."""
+        allowed = self.allowed("allowed_publishers")
+        me = frozenset({self.get_fully_qualified_name()})
+        inputs = {s.topic_name: Expected(s.topic_name, allowed) for s in self.subscriptions if own_topic(s.topic_name)}
+        outputs = {p.topic_name: Expected(p.topic_name, me, limited=False) for p in self.publishers
+                   if own_topic(p.topic_name)}
+        return list((inputs | outputs).values())
+
     def timed(self) -> float:
         """Start a latency measurement; pass the result to :meth:`record_latency`."""
         return time.perf_counter()
@@ -178,13 +228,10 @@ class FiperNode(LifecycleNode):
         """DDS-level matches of the node's own topics (not ROS's infrastructure): per publisher the
         subscriptions it has matched, per subscription the publishers (read by
         :func:`fiper_ros.runtime.wiring.missing_matches`)."""
-        def own(topic: str) -> bool:
-            return not topic.startswith(INFRASTRUCTURE_TOPICS) and not topic.endswith("/transition_event")
-
         values = {f"{MATCHED_SUBSCRIBERS}{p.topic_name}": str(p.get_subscription_count())
-                  for p in self.publishers if own(p.topic_name)}
+                  for p in self.publishers if own_topic(p.topic_name)}
         values |= {f"{MATCHED_PUBLISHERS}{s.topic_name}": str(s.get_publisher_count())
-                   for s in self.subscriptions if own(s.topic_name)}
+                   for s in self.subscriptions if own_topic(s.topic_name)}
         return dict(sorted(values.items()))
 
     def diagnostic_level(self) -> tuple[int, str]:
@@ -193,6 +240,8 @@ class FiperNode(LifecycleNode):
             return DiagnosticStatus.ERROR, "QoS incompatible: " + ", ".join(sorted(self.qos_incompatible))
         if self.config_error:
             return DiagnosticStatus.ERROR, self.config_error
+        if self.publisher_check is not None and self.publisher_check.watch.findings:
+            return DiagnosticStatus.ERROR, self.publisher_check.error()
         state = self.lifecycle_state()
         if state != "active":
             return DiagnosticStatus.WARN, f"lifecycle state {state}"
@@ -213,12 +262,7 @@ class FiperNode(LifecycleNode):
         values |= {f"rejected.{reason}": str(n) for reason, n in sorted(self.rejected.items())}
         values |= {f"qos_incompatible.{topic}": str(n) for topic, n in sorted(self.qos_incompatible.items())}
         values |= self.matched_endpoints()
+        if self.publisher_check is not None:
+            values |= self.publisher_check.diagnostic_values()
         values |= self.diagnostic_values()
-        status = DiagnosticStatus(
-            level=level, name=f"fiper: {self.get_fully_qualified_name()}", message=message,
-            hardware_id=self.get_fully_qualified_name(),
-            values=[KeyValue(key=k, value=v) for k, v in values.items()],
-        )
-        msg = DiagnosticArray(status=[status])
-        msg.header.stamp = self.get_clock().now().to_msg()
-        self._diagnostics.publish(msg)
+        self._diagnostics.publish(diagnostic_array(self, level, message, values))

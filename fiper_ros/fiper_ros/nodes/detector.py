@@ -72,6 +72,7 @@ class DetectorNode(FiperNode):
         # Events are followed in every state, so a rollout started before activation is known.
         self.create_subscription(RolloutEvent, "rollout_events", self._on_event, qos.EVENT,
                                  event_callbacks=self.subscription_events("rollout_events"))
+        self.watch_publishers()  # one publisher per input (of allowed_publishers, if set); the scores only from here
 
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:

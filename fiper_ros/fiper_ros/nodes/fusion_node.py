@@ -4,29 +4,33 @@ With ``calibration_dir`` it fuses the detectors that calibration declares: for a
 (RND-OE alone) it follows ``scores/rnd_oe`` only and its alarm is RND-OE's exceedance.
 
 The contract for supervisors is in docs/alarm-contract.md: RELIABLE + TRANSIENT_LOCAL + KEEP_LAST(1);
-ALARM latches until ``~/reset`` or the next START; UNKNOWN, never OK, while a score stream is
-missing, stale (older than ``deadline_s``), not alive, or uncalibrated; and a heartbeat repeats the
-current state every ``heartbeat_s`` so that silence itself means the monitor is gone.
+ALARM latches until ``~/reset`` (``fiper_msgs/ResetAlarm``: who and why, logged and counted; refused with
+``allow_reset`` false) or the next START; UNKNOWN, never OK, while a score stream is missing, stale (older
+than ``deadline_s``), not alive, or uncalibrated, and while a score topic has a publisher the suite does not
+expect (the rest of that rollout); and a heartbeat repeats the current state every ``heartbeat_s`` so that
+silence itself means the monitor is gone.
 """
 from __future__ import annotations
 
 import math
 import sys
-from collections import deque
+from collections import Counter, deque
+from dataclasses import replace
 from typing import Any
 
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
+from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import (ALARM, DETECTORS, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState,
-                                     DetectorScore)
+                                     DetectorScore, reset_refusal)
 from fiper_ros.runtime.pending import PendingBuffer
+from fiper_ros.runtime.publishers import Expected
 from fiper_ros.runtime.rollouts import RolloutTracker
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
@@ -62,6 +66,12 @@ class FusionNode(FiperNode):
         self.declare_parameter("start_wait_s", 1.0,
                                describe("how long a score may wait for its rollout's START", read_only=True,
                                         low=0.0, high=60.0))
+        self.declare_parameter("allow_reset", True,
+                               describe("~/reset may clear a latched alarm (false: only the next START does)",
+                                        read_only=True))
+        self.declare_parameter("score_publishers", [f"{d}_node" for d in DETECTORS], describe(
+            "nodes that may publish the score topics, one publisher each (relative names: in this node's namespace)",
+            read_only=True))
         self.fuser: AlarmFuser | None = None
         self.pending: PendingBuffer[DetectorScore] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
         self.ended: deque[int] = deque(maxlen=16)
@@ -75,10 +85,16 @@ class FusionNode(FiperNode):
         self._inputs: list[Any] = []
         self._timer: Any = None
         self._alarm_pub = self.create_lifecycle_publisher(
-            FailureAlarm, "alarm", qos.ALARM, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            FailureAlarm, "alarm", qos.ALARM_PUB, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             event_callbacks=self.publisher_events("alarm"),
         )
-        self.create_service(Trigger, "~/reset", self._on_reset)
+        # Liveliness (a DDS lease, wall clock): a supervisor counts the live publishers of the alarm.
+        self.create_timer(qos.ALARM_HEARTBEAT_S, self._alarm_pub.assert_liveliness, clock=self.steady)
+        self.create_service(ResetAlarm, "~/reset", self._on_reset)
+        #: Reset requests, by outcome ("accepted", "refused").
+        self.resets: Counter[str] = Counter()
+        self.score_topics = {d: self.resolve_topic_name(f"scores/{d}") for d in DETECTORS}
+        self.watch_publishers(self._on_publishers)
 
     def configure(self) -> None:
         combine = self.get_parameter("combine").value
@@ -90,6 +106,7 @@ class FusionNode(FiperNode):
         alone = "" if self.fuser.combined else ": alone, combine does not apply"
         self.get_logger().info(f"fusing {', '.join(detectors)}{alone}"
                                + (f" (calibration {directory})" if directory else ""))
+        self._on_publishers()
 
     def activate(self) -> None:
         for detector in self.fuser.detectors:
@@ -114,8 +131,21 @@ class FusionNode(FiperNode):
     def cleanup(self) -> None:
         self.fuser = None
 
+    def expected_publishers(self) -> list[Expected]:
+        """The shell's expectations, with each score topic published by one of ``score_publishers``."""
+        scorers = self.allowed("score_publishers")
+        topics = set(self.score_topics.values())
+        return [replace(e, nodes=scorers) if e.topic in topics else e for e in super().expected_publishers()]
+
     # callbacks ----------------------------------------------------------------------------------------
+    def _on_publishers(self) -> None:
+        """The publishers of a watched topic changed: score topics in doubt make the state UNKNOWN (said by the
+        next check, within ``check_period_s``)."""
+        if self.fuser is not None:
+            self.fuser.suspect(self.publisher_check.watch.doubt(tuple(self.score_topics.values())))
+
     def _on_liveliness(self, detector: str, info: Any) -> None:
+        self.publisher_check.set_liveliness(self.score_topics[detector], info.not_alive_count)
         if info.alive_count == 0:
             if detector not in self.lost:
                 self.get_logger().error(f"score stream {detector} lost liveliness: its node is gone")
@@ -182,9 +212,12 @@ class FusionNode(FiperNode):
         now = self.now_ns()
         state = self.fuser.check(now, frozenset(self.lost))
         quiet = now - self._last_publish_ns >= self.repeat_ns()
+        if state is None and self.fuser.suspicion:
+            state = self.heartbeat_state(now)
         if state is not None:
+            state = self.fuser.doubted(state)
             if quiet or self._last_published != (state.rollout_id, state.state, state.reason):
-                self.publish(state, heartbeat=True)  # a stream just went stale or lost: said at once
+                self.publish(state, heartbeat=True)  # a stream just went stale, lost or in doubt: said at once
         elif quiet:
             self.publish(self.heartbeat_state(now), heartbeat=True)
 
@@ -206,20 +239,31 @@ class FusionNode(FiperNode):
                           gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combined,
                           reason=reason, stamp_ns=now)
 
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        del request
-        if self.fuser is None:
-            response.success, response.message = False, "fusion node is not configured"
+    def _on_reset(self, request: ResetAlarm.Request, response: ResetAlarm.Response) -> ResetAlarm.Response:
+        refusal = reset_refusal(self.get_parameter("allow_reset").value, request.requester, request.reason)
+        if not refusal and self.fuser is None:
+            refusal = "fusion node is not configured"
+        if refusal:
+            self.resets["refused"] += 1
+            response.success, response.message = False, f"reset refused: {refusal}"
+            self.get_logger().warning(f"~/reset by {request.requester[:80]!r} ({request.reason[:80]!r}): "
+                                      f"{response.message}")
             return response
         was = self.fuser.latched
         self.fuser.reset()
+        self.resets["accepted"] += 1
         response.success = True
-        response.message = "latched alarm cleared" if was else "no alarm was latched"
-        self.get_logger().info(f"~/reset: {response.message}")
+        response.message = f"latched alarm of rollout {self.fuser.rollout_id} cleared" if was else \
+            "no alarm was latched"
+        self.get_logger().warning(f"~/reset by {request.requester!r}, reason {request.reason!r}: {response.message}")
         return response
 
     def publish(self, state: AlarmState, heartbeat: bool = False) -> None:
-        """Publish one FailureAlarm (``heartbeat``: a repeat, not a new step's decision)."""
+        """Publish one FailureAlarm (``heartbeat``: a repeat, not a new step's decision); never an OK while the
+        scores cannot be attributed (a publisher that appeared since the last look is judged first)."""
+        if state.state == OK:
+            self.publisher_check.check_if_matched()
+        state = self.fuser.doubted(state)
         msg = FailureAlarm(rollout_id=state.rollout_id, step=state.step, state=STATES[state.state],
                            latched=state.latched, obs_exceeded=state.obs_exceeded, act_exceeded=state.act_exceeded,
                            eta_obs=state.eta_obs, gamma_obs=state.gamma_obs, eta_act=state.eta_act,
@@ -233,6 +277,7 @@ class FusionNode(FiperNode):
 
     def diagnostic_values(self) -> dict[str, str]:
         values = {f"published.{k}": str(v) for k, v in self.states.items()}
+        values |= {f"resets.{outcome}": str(self.resets[outcome]) for outcome in ("accepted", "refused")}
         if self.fuser is not None:
             values |= {"matched": str(self.fuser.matched), "evicted": str(self.fuser.evicted),
                        "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
@@ -240,6 +285,7 @@ class FusionNode(FiperNode):
                        "detectors": ",".join(self.fuser.detectors),
                        "waiting_for_start": str(len(self.pending)),
                        "repeated_starts": str(self.repeated_starts),
+                       "scores_in_doubt": self.fuser.suspicion or self.fuser.tainted or "no",
                        "deadline_ms": f"{self.fuser.deadline() / 1e6:.1f}",
                        "policy_period_ms": "unknown" if (p := self.fuser.period.period_ns()) is None else f"{p / 1e6:.1f}"}
         return values

@@ -1,21 +1,27 @@
 """Example safety supervisor: subscribes to /fiper/alarm as the contract says and halts the robot
 (a std_srvs/Trigger service, the sim bridge's ``halt``) on ALARM, and on UNKNOWN or silence that
-lasts longer than its own ``deadline_s``.
+lasts longer than its own ``deadline_s``. While the alarm topic has a publisher other than
+``alarm_publishers``, or more than one live publisher, the stream cannot be attributed to the suite: an OK
+counts as UNKNOWN (reported as an ERROR on /diagnostics).
 """
 from __future__ import annotations
 
 import sys
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.nodes import qos
-from fiper_ros.nodes.base import describe
+from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
+from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
+from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
 STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
@@ -39,16 +45,32 @@ class SupervisorNode(Node):
                                describe("the period-based silence deadline is never shorter", low=0.0, high=600.0))
         self.declare_parameter("events_topic", "/fiper/rollout_events",
                                describe("RolloutEvent topic: which rollout is running", read_only=True))
+        self.declare_parameter("alarm_publishers", ["/fiper/fusion_node"], describe(
+            "nodes that may publish the alarm topic, one publisher each (relative names: in this node's namespace)",
+            read_only=True))
+        self.declare_parameter("diagnostics_period_s", 1.0,
+                               describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
         self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),
                                      self.get_parameter("silence_periods").value,
                                      int(self.get_parameter("silence_floor_s").value * 1e9))
         self.halts: list[HaltDecision] = []
+        #: Halts decided since the start (``halts`` keeps only the recent ones).
+        self.halted = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
-        # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state.
-        self.create_subscription(FailureAlarm, self.get_parameter("alarm_topic").value, self._on_alarm, qos.ALARM)
+        # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state; with the
+        # lease, liveliness counts the live publishers of the alarm.
+        self.alarm_topic = self.resolve_topic_name(self.get_parameter("alarm_topic").value)
+        self.publisher_check = PublisherCheck(self, self._expected, PUBLISHER_CHECK_PERIOD_S, self._on_publishers)
+        self.create_subscription(FailureAlarm, self.alarm_topic, self._on_alarm, qos.ALARM_LIVE,
+                                 event_callbacks=SubscriptionEventCallbacks(
+                                     liveliness=lambda info: self.publisher_check.set_liveliness(
+                                         self.alarm_topic, info.not_alive_count)))
         self.create_subscription(RolloutEvent, self.get_parameter("events_topic").value, self._on_event, qos.EVENT)
         self.create_timer(0.02, self._on_clock)
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+        self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics,
+                          clock=self._steady)
 
     def _now(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -62,6 +84,20 @@ class SupervisorNode(Node):
                 f" = {msg.obs_exceeded}, eta_act {msg.eta_act:.3g} > {msg.gamma_act:.3g} = {msg.act_exceeded}")
         self._act(decision)
 
+    def _expected(self) -> list[Expected]:
+        names = self.get_parameter("alarm_publishers").value
+        return [Expected(self.alarm_topic, frozenset(resolve_node(n, self.get_namespace()) for n in names))]
+
+    def _on_publishers(self) -> None:
+        self._act(self.logic.suspect(self.publisher_check.watch.doubt((self.alarm_topic,)), self._now(),
+                                     self._steady.now().nanoseconds))
+
+    def _publish_diagnostics(self) -> None:
+        error = self.publisher_check.error()
+        values = {"halts": str(self.halted)} | self.publisher_check.diagnostic_values()
+        self._diagnostics.publish(diagnostic_array(self, DiagnosticStatus.ERROR if error else DiagnosticStatus.OK,
+                                                   error or "watching", values))
+
     def _on_event(self, msg: RolloutEvent) -> None:
         self.logic.on_event(msg.rollout_id, msg.event == RolloutEvent.EVENT_START)
 
@@ -72,6 +108,7 @@ class SupervisorNode(Node):
         if decision is None:
             return
         self.halts.append(decision)
+        self.halted += 1
         del self.halts[:-HALTED_MEMORY]  # the recent ones: one per new rollout id would grow without end
         self.get_logger().warning(f"halting the robot (rollout {decision.rollout_id}): {decision.reason}")
         if self._halt.service_is_ready():

@@ -10,7 +10,8 @@ Contract (docs/alarm-contract.md): one :class:`AlarmState` per policy step whose
 arrived; ALARM latches until :meth:`AlarmFuser.reset` or the next rollout START, and the latch wins over
 everything that arrives after it (missing or infinite thresholds, stale streams, non-finite or
 contradictory scores); UNKNOWN, never OK, while a stream is missing, older than ``deadline_ns``, carries
-no finite threshold or score, or contradicts itself.
+no finite threshold or score, or contradicts itself, and while the scores cannot be attributed to the
+suite (:meth:`AlarmFuser.suspect`: an unexpected publisher on a score topic), for the rest of the rollout.
 
 A step's exceedance is the detector's own decision (``Score.exceeded``, made in float64 by
 :func:`fiper_ros.core.fusion.exceeds`), not a comparison of the float32 numbers the message carries:
@@ -32,6 +33,26 @@ ALARM = "alarm"
 UNKNOWN = "unknown"
 #: Rollout id of a state about no rollout (the fusion node is idle); the suite's rollout ids are > 0.
 NO_ROLLOUT = 0
+#: Longest requester or reason of a reset, in characters (what is logged stays one line of the log).
+MAX_RESET_TEXT = 200
+
+
+def reset_refusal(allowed: bool, requester: str, reason: str) -> str:
+    """Why a request to clear the latch (the fusion node's ``~/reset``) is refused; ``""`` if it is not.
+
+    A reset is a deliberate act: refused when resets are switched off (``allow_reset`` false), and unless
+    it names who asks and why, each in one printable line of at most :data:`MAX_RESET_TEXT` characters.
+    """
+    if not allowed:
+        return "resets are switched off (allow_reset false): only the next rollout's START clears the latch"
+    fields = (("requester", requester), ("reason", reason))
+    empty = [name for name, text in fields if not text.strip()]
+    if empty:
+        return f"a reset names who asks and why: {' and '.join(empty)} empty"
+    bad = [name for name, text in fields if len(text) > MAX_RESET_TEXT or not text.isprintable()]
+    if bad:
+        return f"{' and '.join(bad)} not one printable line of at most {MAX_RESET_TEXT} characters"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -120,6 +141,10 @@ class AlarmFuser:
         self._next_step = 0
         self.unjudged: tuple[int, int] | None = None
         """The first and last policy step of this rollout that never got a verdict here, if any."""
+        self.suspicion = ""
+        """Why the score streams cannot be attributed to the suite now (``""``: they can)."""
+        self.tainted = ""
+        """Why scores of this rollout could not be attributed (``""``: they could, all along)."""
         self._pending: OrderedDict[tuple[int, int], dict[str, DetectorScore]] = OrderedDict()
         self._last_seen: dict[str, int] = {}
         self.matched = 0
@@ -138,6 +163,7 @@ class AlarmFuser:
         self.last = None
         self._next_step = 0
         self.unjudged = None
+        self.tainted = self.suspicion
         self.period.reset()
         self._last_seen = {d: now_ns for d in self.detectors}  # the deadline runs from the START
 
@@ -159,6 +185,28 @@ class AlarmFuser:
         self.alarm_step = None
         self.last = None
         self.unjudged = None
+        self.tainted = self.suspicion
+
+    def suspect(self, reason: str) -> None:
+        """Say why the score streams cannot be attributed to the suite now (``""``: they can again).
+
+        While a reason is set no state is OK (:meth:`doubted`), and a rollout running meanwhile stays
+        doubted until its end: a step fused from a foreign score may have hidden an alarm (the latch)."""
+        self.suspicion = reason
+        if reason and self.active_rollout is not None and not self.tainted:
+            self.tainted = reason
+
+    def doubted(self, state: AlarmState) -> AlarmState:
+        """``state`` as it may be published: an OK becomes UNKNOWN while the scores cannot be attributed,
+        or could not during this rollout (ALARM and UNKNOWN stay: doubt never clears an alarm)."""
+        if state.state != OK or not (self.suspicion or self.tainted):
+            return state
+        if self.suspicion:
+            reason = f"scores cannot be attributed to the suite: {self.suspicion}"
+        else:
+            reason = f"scores of this rollout could not be attributed to the suite ({self.tainted}): an alarm " \
+                     "cannot be ruled out"
+        return replace(state, state=UNKNOWN, reason=reason)
 
     def deadline(self) -> int:
         """The staleness deadline now: ``deadline_periods`` measured policy periods of this rollout (at

@@ -9,7 +9,10 @@ and END events) the silence deadline follows the measured period of the monitor'
 within a few policy periods; otherwise it is the deadline. Under simulated time silence must also have
 lasted ``silence_floor_ns`` of wall-clock (steady) time: a supervisor starved of CPU can take a burst of
 ``/clock`` before the alarm messages queued beside it, and sim time then jumps past a deadline that no
-silence caused. At most one halt per rollout (and one per silence episode).
+silence caused. At most one halt per rollout (and one per silence episode). While the alarm stream cannot
+be attributed to the suite (:meth:`SupervisorLogic.suspect`: a second or unexpected publisher of the alarm
+topic), an OK counts as UNKNOWN, from the moment the doubt arises: the supervisor halts when it lasts longer
+than the deadline. An ALARM halts at once, whoever said it.
 """
 from __future__ import annotations
 
@@ -48,6 +51,9 @@ class SupervisorLogic:
         self._rollout_id = NO_ROLLOUT
         self._halted: deque[int] = deque(maxlen=HALTED_MEMORY)  # the recent rollouts halted
         self._silence_reported = False
+        self._unknown_reason = ""
+        self.suspicion = ""
+        """Why the alarm stream cannot be attributed to the suite now (``""``: it can)."""
 
     def on_event(self, rollout_id: int, started: bool) -> None:
         """A RolloutEvent: ``started`` for its START, False for its END."""
@@ -79,12 +85,28 @@ class SupervisorLogic:
         if state == ALARM:
             self._unknown_since_ns = None
             return self._halt(f"ALARM: {reason}")
+        if self.suspicion:
+            state, reason = UNKNOWN, self._doubt()
         if state == UNKNOWN and rollout_id != NO_ROLLOUT:
             if self._unknown_since_ns is None:
                 self._unknown_since_ns = now_ns
+            self._unknown_reason = reason
             return self.on_clock(now_ns, steady_ns)
         self._unknown_since_ns = None
         return None
+
+    def suspect(self, reason: str, now_ns: int, steady_ns: int | None = None) -> HaltDecision | None:
+        """Say why the alarm stream cannot be attributed to the suite now (``""``: it can again). The
+        UNKNOWN clock of a rollout runs from now; the next OK without doubt stops it (``steady_ns``: see
+        :meth:`on_state`)."""
+        self.suspicion = reason
+        if reason and self._rollout_id != NO_ROLLOUT and self._unknown_since_ns is None:
+            self._unknown_since_ns = now_ns
+            self._unknown_reason = self._doubt()
+        return self.on_clock(now_ns, steady_ns)
+
+    def _doubt(self) -> str:
+        return f"the alarm stream cannot be attributed to the suite: {self.suspicion}"
 
     def on_clock(self, now_ns: int, steady_ns: int | None = None) -> HaltDecision | None:
         """Periodic check for silence and lasting UNKNOWN (``steady_ns``: see :meth:`on_state`)."""
@@ -97,7 +119,7 @@ class SupervisorLogic:
             self._silence_reported = True
             return HaltDecision(self._rollout_id, f"no alarm message for {(now_ns - self._last_heard_ns) / 1e9:.2f} s")
         if self._unknown_since_ns is not None and now_ns - self._unknown_since_ns > self.deadline_ns:
-            return self._halt(f"UNKNOWN for {(now_ns - self._unknown_since_ns) / 1e9:.2f} s")
+            return self._halt(f"UNKNOWN for {(now_ns - self._unknown_since_ns) / 1e9:.2f} s ({self._unknown_reason})")
         return None
 
     def _halt(self, reason: str) -> HaltDecision | None:
