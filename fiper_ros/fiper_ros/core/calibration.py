@@ -518,17 +518,28 @@ def false_alarm_estimate(obs: list[np.ndarray], act: list[np.ndarray],
             "held_out_from_models": settings.split != "same"}
 
 
+def promised_rate(settings: CalibrationSettings) -> float:
+    """The bound on the false-alarm rate over new successful rollouts that Prop. 1 gives these settings
+    (if their split and threshold kind are covered at all, see :func:`guarantee`): ``delta`` with AND (an
+    alarm needs both detectors' thresholds exceeded, each at most ``delta`` of the time), ``2 delta`` with OR
+    (either of two thresholds at ``delta`` each: the union bound)."""
+    return settings.delta * (2.0 if settings.combine == "or" else 1.0)
+
+
 def guarantee(settings: CalibrationSettings) -> str:
     """What the calibration promises about false alarms on new successful rollouts, in one sentence."""
     if settings.threshold not in GUARANTEED_KINDS:
         return (f"none: a {settings.threshold} threshold bounds each step, not a whole rollout "
                 "(docs/method.md, 'What each threshold guarantees')")
+    rate = promised_rate(settings)
+    how = "" if settings.combine != "or" else (f"; OR of two thresholds at delta {settings.delta:g} each: the union "
+                                               f"bound, calibrate at --delta {settings.delta / 2:g} for {settings.delta:g}")
     if settings.split == "split":
-        return (f"at most {settings.delta:g} of new successful rollouts alarmed (Proposition 1: split conformal, "
-                "models and thresholds on disjoint successes)")
+        return (f"at most {rate:g} of new successful rollouts alarmed (Proposition 1: split conformal, "
+                f"models and thresholds on disjoint successes{how})")
     if settings.split == "cross":
-        return (f"about {settings.delta:g} (cross-fitted: approximate, the deployed model saw every calibration "
-                "rollout; no finite-sample guarantee)")
+        return (f"about {rate:g} (cross-fitted: approximate, the deployed model saw every calibration "
+                f"rollout; no finite-sample guarantee{how})")
     return "not covered by Proposition 1 (models and thresholds on the same successes, --same-data)"
 
 
