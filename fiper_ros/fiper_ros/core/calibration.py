@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from fiper_ros.core.ace import action_ranges, cell_size
+from fiper_ros.core.ace import action_ranges, cell_size, check_alpha
 from fiper_ros.core.compat import Profile, get_profile
 from fiper_ros.core.fusion import COMBINES, exceeds, fuse
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
@@ -140,6 +140,14 @@ class CalibrationSettings:
             raise CalibrationError("window sizes must be >= 1")
         if self.min_rollouts < 2:
             raise CalibrationError(f"min_rollouts must be >= 2, got {self.min_rollouts}")
+        if self.seed < 0:
+            raise CalibrationError(f"seed must be >= 0, got {self.seed}")
+        try:
+            if self.alpha is not None:
+                check_alpha(self.alpha)
+            self.threshold_settings()  # delta, band_split, ...: refused now, not after RND-OE's training
+        except ValueError as error:
+            raise CalibrationError(str(error)) from error
 
     @property
     def resolved_alpha(self) -> float:
