@@ -5,8 +5,10 @@
 
 Every rollout of the bags is judged by the core (``fiper replay --offline``'s ``predict_bag``); the
 report gives, per scenario, the false-alarm rate on its successes (an alarm at any step of a successful
-rollout) beside ``delta`` and ``delta + 2 sigma`` (sigma = sqrt(delta (1 - delta) / n), the binomial spread
-of n held-out successes), and the alarm rate on its failures (TPR). Rollouts used to fit or calibrate the
+rollout) beside the promised rate ``r`` (``delta``; ``2 delta`` with OR: ``core.calibration.promised_rate``)
+and ``r + 2 sigma`` (sigma = sqrt(r (1 - r) / n), the binomial spread of n held-out successes), and the alarm rate on its failures (TPR), then the same over all scenarios.
+Prop. 1 promises the rate only for successes from the calibration's distribution (``--id``, default the
+``id`` scenario); other scenarios' rates are shown, not judged. Rollouts used to fit or calibrate the
 calibration must not be among the bags: the check is only meaningful on held-out rollouts.
 """
 from __future__ import annotations
@@ -24,6 +26,7 @@ from fiper_ros.bags.offline import bag_layout, calibration_for, predict_bag
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.robot_options import add_arguments as add_robot_arguments
 from fiper_ros.bags.robot_options import fk_of, robot_from
+from fiper_ros.core.calibration import guarantee, promised_rate
 
 
 def tally(results: list[Any]) -> dict[str, dict[str, int]]:
@@ -43,17 +46,18 @@ def tally(results: list[Any]) -> dict[str, dict[str, int]]:
     return dict(counts)
 
 
-def report(counts: dict[str, dict[str, int]], delta: float) -> list[str]:
-    """Markdown table lines: one row per scenario."""
-    lines = ["| scenario | successes | false alarms | rate | delta + 2 sigma | kept | failures | TPR | rollouts with UNKNOWN |",
+def report(counts: dict[str, dict[str, int]], rate: float, promised: str) -> list[str]:
+    """Markdown table lines: one row per scenario, then all of them."""
+    lines = ["| scenario | successes | false alarms | rate | promise + 2 sigma | kept | failures | TPR | rollouts with UNKNOWN |",
              "| --- | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: |"]
-    for scenario, row in sorted(counts.items()):
+    total = {key: sum(row[key] for row in counts.values()) for key in next(iter(counts.values()), {})}
+    for scenario, row in [*sorted(counts.items()), ("all", total)]:
         n = row["successes"]
-        rate = row["false_alarms"] / n if n else math.nan
-        bound = delta + 2 * math.sqrt(delta * (1 - delta) / n) if n else math.nan
-        kept = "" if not n else ("yes" if rate <= bound else "**no**")
+        observed = row["false_alarms"] / n if n else math.nan
+        bound = rate + 2 * math.sqrt(rate * (1 - rate) / n) if n else math.nan
+        kept = "" if not n or scenario != promised else ("yes" if observed <= bound else "**no**")
         tpr = f"{row['detected'] / row['failures']:.2f}" if row["failures"] else ""
-        lines.append(f"| {scenario} | {n} | {row['false_alarms']} | {rate:.3f} | {bound:.3f} | {kept} | "
+        lines.append(f"| {scenario} | {n} | {row['false_alarms']} | {observed:.3f} | {bound:.3f} | {kept} | "
                      f"{row['failures']} | {tpr} | {row['with_unknown']} |")
     return lines
 
@@ -62,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("calibration", type=Path)
     parser.add_argument("bags", type=Path, nargs="+")
+    parser.add_argument("--id", default="id", help="the scenario whose successes Prop. 1 covers (default id)")
     parser.add_argument("--json", type=Path, help="also write the counts per scenario as JSON")
     add_robot_arguments(parser)
     args = parser.parse_args(argv)
@@ -74,11 +79,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"heldout: {error}", file=sys.stderr)
         return 1
     counts = tally(results)
-    delta = float(calibration.settings.delta)
-    print(f"{args.calibration}: delta {delta:g}, {len(results)} rollouts in {len(bags)} bags")
-    print("\n".join(report(counts, delta)))
+    rate = promised_rate(calibration.settings)
+    print(f"{args.calibration}: delta {calibration.settings.delta:g}, {calibration.settings.combine}, promise: "
+          f"{guarantee(calibration.settings)}; {len(results)} rollouts in {len(bags)} bags")
+    print("\n".join(report(counts, rate, args.id)))
     if args.json:
-        args.json.write_text(json.dumps({"calibration": str(args.calibration), "delta": delta, "scenarios": counts},
+        args.json.write_text(json.dumps({"calibration": str(args.calibration), "promised_rate": rate, "scenarios": counts},
                                         indent=1) + "\n")
     return 0
 

@@ -74,7 +74,10 @@ while IFS= read -r f; do build_inputs+=("$f"); done < <(
     \( -name package.xml -o -name CMakeLists.txt -o -name setup.py -o -name setup.cfg \
        -o -name '*.msg' -o -name '*.srv' -o -path '*/config/*.yaml' \) -type f | sort | sed "s|^|$ROOT/|")
 build_hash="$(hash_of "${build_inputs[@]}")"
-if ! stamp_ok colcon "$build_hash" || [ ! -f "$ROOT/install/local_setup.sh" ]; then
+# The build's stamp lives in this checkout's install space, not in the venv: worktrees that share one venv
+# each build their own install/ (a shared stamp once left a checkout's build stale).
+build_stamp="$ROOT/install/.fiper-build-stamp"
+if [ ! -f "$build_stamp" ] || [ "$(cat "$build_stamp")" != "$build_hash" ] || [ ! -f "$ROOT/install/local_setup.sh" ]; then
   say "colcon build"
   mkdir -p "$ROOT/log"
   (
@@ -88,7 +91,7 @@ if ! stamp_ok colcon "$build_hash" || [ ! -f "$ROOT/install/local_setup.sh" ]; t
       --event-handlers console_cohesion+ summary+ > "$ROOT/log/colcon-build.txt" 2>&1 \
       || { tail -n 60 "$ROOT/log/colcon-build.txt" >&2; die "colcon build failed (full log: log/colcon-build.txt)"; }
   )
-  stamp_set colcon "$build_hash"
+  printf '%s' "$build_hash" > "$build_stamp"
 fi
 
 say "ready in $((SECONDS - t0)) s: source ./env.sh to use the workspace"

@@ -50,3 +50,20 @@ def test_calibrate_refuses_an_existing_directory(tmp_path: Path, small_bag: Path
     assert main(["calibrate", str(small_bag), "-o", str(tmp_path / "calibration"), "--min-rollouts", "3",
                  *SETTINGS]) == 2
     assert "exists already" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--delta", "0"], "delta must be in (0, 1), got 0.0"),
+    (["--delta", "1.5"], "delta must be in (0, 1), got 1.5"),
+    (["--alpha", "0"], "cell size factor alpha must be in (0, 1), got 0.0"),
+    (["--alpha", "-1"], "cell size factor alpha must be in (0, 1), got -1.0"),
+    (["--seed", "-1"], "seed must be >= 0, got -1"),
+    (["--max-epochs", "-3"], "RND-OE needs at least one training epoch, got max_epochs -3"),
+])
+def test_bad_settings_are_one_line_before_training(small_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                   option: list[str], message: str) -> None:
+    """Before: a traceback after RND-OE's training (delta, alpha), from numpy (seed), or, for --max-epochs -3,
+    a calibration written with an untrained RND-OE."""
+    assert main(["calibrate", str(small_bag), "-o", str(tmp_path / "cal"), "--min-rollouts", "2", *option]) == 2
+    assert capsys.readouterr().err == f"fiper calibrate: {message}\n"
+    assert not (tmp_path / "cal").exists()

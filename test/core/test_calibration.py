@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ from fiper_ros.core.calibration import (
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.thresholds import GUARANTEED_KINDS
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = sorted([*ROOT.glob("models/*/calibration"), *ROOT.glob("bags/*/calibration")])
@@ -102,15 +104,38 @@ def test_the_task_is_recorded_and_rollouts_of_several_tasks_are_refused(
         calibrate(mixed, settings)
 
 
-@pytest.mark.parametrize("directory", SHIPPED, ids=lambda d: str(d.relative_to(ROOT)))
+def _content(directory: Path) -> dict[str, Any]:
+    return yaml.safe_load((directory / CALIBRATION_FILE).read_text())
+
+
+WITHOUT_TASK = [d for d in SHIPPED if "task" not in _content(d)]
+MODELS_CALIBRATIONS = sorted(ROOT.glob("models/*/calibration*"))
+
+
+@pytest.mark.parametrize("directory", WITHOUT_TASK, ids=lambda d: str(d.relative_to(ROOT)))
 def test_shipped_calibrations_without_a_task_keep_their_content_hash(directory: Path) -> None:
     """Written before the task (and the detectors, issue #19) were recorded: they still load, with their stored
     hash, fit any task and declare FIPER's pair."""
-    content = yaml.safe_load((directory / CALIBRATION_FILE).read_text())
+    content = _content(directory)
     loaded = load_calibration(directory)
-    assert "task" not in content and loaded.task == "" and loaded.content_hash == content["content_hash"]
+    assert loaded.task == "" and loaded.content_hash == content["content_hash"]
     loaded.check_compatible(task="any task")
     assert "detectors" not in content["settings"] and loaded.detectors == declared_detectors(directory) == DETECTORS
+
+
+def test_old_format_calibrations_are_still_shipped() -> None:
+    """The test above must have something to check (the sample sets' calibrations are of the old format)."""
+    assert len(WITHOUT_TASK) >= 3
+
+
+@pytest.mark.parametrize("directory", MODELS_CALIBRATIONS, ids=lambda d: str(d.relative_to(ROOT)))
+def test_shipped_model_calibrations_keep_the_promise_by_construction(directory: Path) -> None:
+    """Issue #19: the policies' calibrations are split conformal (models and thresholds on disjoint successes)
+    with a guaranteed threshold kind, and name the policy's task."""
+    content = _content(directory)
+    assert content["task"] == directory.parent.name and content["split"]["mode"] == "split"
+    assert content["threshold_kind"] in GUARANTEED_KINDS
+    assert not set(content["split"]["fit"]) & set(content["split"]["conformal"])
 
 
 def test_check_compatible(calibration: Calibration) -> None:
@@ -204,3 +229,15 @@ def test_the_split_is_recorded_and_each_kind_states_its_guarantee(calibration: C
         assert guarantee(CalibrationSettings(threshold=kind)).startswith(promise), kind
     assert guarantee(CalibrationSettings(split="same")).startswith("not covered by Proposition 1")
     assert guarantee(CalibrationSettings(split="cross")).startswith("about")
+
+
+def test_or_promises_twice_delta_and_says_how_to_get_delta() -> None:
+    """OR alarms when either threshold is exceeded, each on at most delta of new successes: the union bound
+    2 delta (the old text promised delta for OR too)."""
+    from fiper_ros.core.calibration import guarantee, promised_rate  # noqa: PLC0415
+
+    assert promised_rate(CalibrationSettings(delta=0.05, combine="and")) == 0.05
+    assert promised_rate(CalibrationSettings(delta=0.05, combine="or")) == 0.1
+    text = guarantee(CalibrationSettings(delta=0.05, combine="or"))
+    assert text.startswith("at most 0.1 of new successful rollouts") and "--delta 0.025 for 0.05" in text
+    assert guarantee(CalibrationSettings(delta=0.05, combine="and")).startswith("at most 0.05 of new")

@@ -18,7 +18,9 @@ from fiper_ros.core.calibration import (
     CalibrationError,
     CalibrationSettings,
     calibrate,
+    guarantee,
     load_calibration,
+    promised_rate,
 )
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY, check_detectors, parse_detectors
@@ -62,6 +64,14 @@ def test_one_detector_alone_is_its_own_decision(combine: str) -> None:
     assert [s.alarm for s in states] == decisions.tolist() and states[-1].first_alarm_step == 1
     with pytest.raises(ValueError):
         fuse_declared([], combine)
+
+
+def test_rnd_oe_alone_promises_its_thresholds_delta_whatever_the_combine(settings: CalibrationSettings) -> None:
+    for combine in ("and", "or"):
+        alone = dataclasses.replace(settings, detectors=OBSERVATION_ONLY, combine=combine, threshold="cp_constant")
+        assert promised_rate(alone) == settings.delta
+        assert guarantee(alone) == guarantee(dataclasses.replace(alone, combine="and"))
+    assert promised_rate(dataclasses.replace(settings, combine="or")) == 2 * settings.delta  # the pair's OR
 
 
 def test_an_observation_only_calibration_has_no_ace_part(observation_only: Calibration) -> None:

@@ -94,13 +94,13 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
 
 def settings_from(args: argparse.Namespace) -> CalibrationSettings:
     """The calibration settings of the command line."""
-    rnd = RND_PRESETS[args.rnd_preset]()
-    if args.max_epochs:
-        rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
     dims = None if args.action_dims is None else parse_channels(args.action_dims)
     if isinstance(dims, str):
         raise BagError("--action-dims must be START:STOP")
     try:
+        rnd = RND_PRESETS[args.rnd_preset]()
+        if args.max_epochs:
+            rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
         return CalibrationSettings(alpha=args.alpha, window_obs=args.window_obs, window_act=args.window_act,
                                    threshold=args.threshold, delta=args.delta, combine=args.combine, rnd=rnd,
                                    seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,

@@ -28,10 +28,15 @@ import numpy as np
 _MAX_CODE_BITS = 62.0
 
 
-def cell_size(ranges: np.ndarray, alpha: float) -> np.ndarray:
-    """Cell size ``alpha * R_d`` per action dimension (App. A.1); ``alpha`` in (0, 1)."""
+def check_alpha(alpha: float) -> None:
+    """Refuse a cell size factor outside (0, 1) (App. A.1)."""
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"cell size factor alpha must be in (0, 1), got {alpha}")
+
+
+def cell_size(ranges: np.ndarray, alpha: float) -> np.ndarray:
+    """Cell size ``alpha * R_d`` per action dimension (App. A.1); ``alpha`` in (0, 1)."""
+    check_alpha(alpha)
     ranges = np.asarray(ranges, dtype=np.float64)
     if ranges.ndim != 1 or np.any(~np.isfinite(ranges)) or np.any(ranges < 0):
         raise ValueError(f"ranges must be a finite non-negative vector, got {ranges}")

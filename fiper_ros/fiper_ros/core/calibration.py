@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from fiper_ros.core.ace import action_ranges, cell_size
+from fiper_ros.core.ace import action_ranges, cell_size, check_alpha
 # CALIBRATION_FILE, FORMAT_VERSION and CalibrationError live in calibration_file (torch-free) and are used from here.
 from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, CalibrationError, check_files, one_line,
                                              read_yaml)
@@ -152,6 +152,14 @@ class CalibrationSettings:
             raise CalibrationError("window sizes must be >= 1")
         if self.min_rollouts < 2:
             raise CalibrationError(f"min_rollouts must be >= 2, got {self.min_rollouts}")
+        if self.seed < 0:
+            raise CalibrationError(f"seed must be >= 0, got {self.seed}")
+        try:
+            if self.alpha is not None:
+                check_alpha(self.alpha)
+            self.threshold_settings()  # delta, band_split, ...: refused now, not after RND-OE's training
+        except ValueError as error:
+            raise CalibrationError(str(error)) from error
 
     @property
     def has_ace(self) -> bool:
@@ -561,17 +569,34 @@ def false_alarm_estimate(curves: Curves, shape: Curves | None, settings: Calibra
             "held_out_from_models": settings.split != "same"}
 
 
+def _or_of_two(settings: CalibrationSettings) -> bool:
+    """Whether an alarm is either of two thresholds' (OR of RND-OE and ACE; not RND-OE alone)."""
+    return settings.has_ace and settings.combine == "or"
+
+
+def promised_rate(settings: CalibrationSettings) -> float:
+    """The bound on the false-alarm rate over new successful rollouts that Prop. 1 gives these settings
+    (if their split and threshold kind are covered at all, see :func:`guarantee`): ``delta`` with AND (an
+    alarm needs both detectors' thresholds exceeded, each at most ``delta`` of the time) and with RND-OE
+    alone (its one threshold), ``2 delta`` with OR (either of two thresholds at ``delta`` each: the union
+    bound)."""
+    return settings.delta * (2.0 if _or_of_two(settings) else 1.0)
+
+
 def guarantee(settings: CalibrationSettings) -> str:
     """What the calibration promises about false alarms on new successful rollouts, in one sentence."""
     if settings.threshold not in GUARANTEED_KINDS:
         return (f"none: a {settings.threshold} threshold bounds each step, not a whole rollout "
                 "(docs/method.md, 'What each threshold guarantees')")
+    rate = promised_rate(settings)
+    how = "" if not _or_of_two(settings) else (f"; OR of two thresholds at delta {settings.delta:g} each: the union "
+                                               f"bound, calibrate at --delta {settings.delta / 2:g} for {settings.delta:g}")
     if settings.split == "split":
-        return (f"at most {settings.delta:g} of new successful rollouts alarmed (Proposition 1: split conformal, "
-                "models and thresholds on disjoint successes)")
+        return (f"at most {rate:g} of new successful rollouts alarmed (Proposition 1: split conformal, "
+                f"models and thresholds on disjoint successes{how})")
     if settings.split == "cross":
-        return (f"about {settings.delta:g} (cross-fitted: approximate, the deployed model saw every calibration "
-                "rollout; no finite-sample guarantee)")
+        return (f"about {rate:g} (cross-fitted: approximate, the deployed model saw every calibration "
+                f"rollout; no finite-sample guarantee{how})")
     return "not covered by Proposition 1 (models and thresholds on the same successes, --same-data)"
 
 

@@ -60,6 +60,10 @@ class RNDConfig:
     patience: int = 7
     val_fraction: float = 0.1
 
+    def __post_init__(self) -> None:
+        if self.max_epochs < 1:
+            raise RNDError(f"RND-OE needs at least one training epoch, got max_epochs {self.max_epochs}")
+
     @classmethod
     def paper(cls) -> RNDConfig:
         """The paper's model: ``E-1024-2048-4096-m`` target, ``...-2048-1024-m`` predictor, ``m = 512``."""
