@@ -78,6 +78,25 @@ def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_do
         assert report["seconds"] >= _bag_seconds([sample_set]) / float(pacing[1]) * 0.95
 
 
+@pytest.mark.slow
+def test_the_observation_only_suite_replays_as_the_offline_oracle(
+        observation_bags: dict[str, Path], observation_calibration: Path, ros_domain: int, tmp_path: Path) -> None:
+    """Issue #19 end to end: an observation-only calibration (``fiper calibrate --detectors rnd_oe``, the
+    fixture) -> replay launches its suite (suite_obs.yaml: no ace_node, the fusion node on RND-OE alone) ->
+    every step's alarm is the offline oracle's, for a bag without action batches and for one with them (they
+    are not played: nothing in this suite reads them)."""
+    bags = [observation_bags["test"], observation_bags["calibration_full"]]
+    report, result = _replay([*map(str, bags), "--calibration", str(observation_calibration), "--fast",
+                              "--step-timeout", "30", "--verbose"], ros_domain, tmp_path / "report.json")
+    assert "[launch] started rnd_oe_node" in result.stderr and "[launch] started fusion_node" in result.stderr
+    assert "ace_node" not in result.stderr and "fusing rnd_oe: alone, combine does not apply" in result.stderr
+    expected = {r["rollout_id"]: r for r in _offline(bags, observation_calibration)}
+    assert report["missing"] == [] and len(expected) == 3 + 12
+    assert {r["rollout_id"]: r for r in report["rollouts"]} == expected
+    assert [expected[i]["first_alarm"] is not None for i in (21, 22, 23)] == [False, True, False]  # failure predicted
+    assert all(s["eta_act"] is None for r in expected.values() for s in r["steps"])
+
+
 def test_replay_exits_1_when_a_step_gets_no_alarm(small_calibration: Path, ros_domain: int, tmp_path: Path) -> None:
     """A bag recorded from after a rollout's START: the suite never fuses that rollout's steps (the fusion
     node waits for the START), so replay names each of them and exits 1; the complete rollout is answered."""

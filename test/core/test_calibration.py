@@ -24,6 +24,8 @@ from fiper_ros.core.calibration import (
     calibrate,
     load_calibration,
 )
+from fiper_ros.core.calibration_file import declared_detectors
+from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.thresholds import GUARANTEED_KINDS
 
@@ -112,10 +114,13 @@ MODELS_CALIBRATIONS = sorted(ROOT.glob("models/*/calibration*"))
 
 @pytest.mark.parametrize("directory", WITHOUT_TASK, ids=lambda d: str(d.relative_to(ROOT)))
 def test_shipped_calibrations_without_a_task_keep_their_content_hash(directory: Path) -> None:
-    """Written before the task was recorded: they still load, with their stored hash, and fit any task."""
+    """Written before the task (and the detectors, issue #19) were recorded: they still load, with their stored
+    hash, fit any task and declare FIPER's pair."""
+    content = _content(directory)
     loaded = load_calibration(directory)
-    assert loaded.task == "" and loaded.content_hash == _content(directory)["content_hash"]
+    assert loaded.task == "" and loaded.content_hash == content["content_hash"]
     loaded.check_compatible(task="any task")
+    assert "detectors" not in content["settings"] and loaded.detectors == declared_detectors(directory) == DETECTORS
 
 
 def test_old_format_calibrations_are_still_shipped() -> None:

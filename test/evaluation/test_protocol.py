@@ -30,6 +30,14 @@ def test_alarm_metrics_match_hand_computed_values() -> None:
     assert twa == 0.5 * ((1 - 0.2) / 2 + 0.5)
 
 
+def test_alarm_metrics_of_an_empty_subset_are_nan() -> None:
+    # A task without ID test successes (the shipped sample sets) has no held-out false-alarm rate: NaN, not a
+    # crash (reshape(-1, 0) cannot resolve -1).
+    alarms = np.array([[[2, -1, 0, -1]], [[1, 1, 1, 1]]])
+    empty = alarm_metrics(alarms, np.array([True, True, False, False]), 10, "paper", np.array([], dtype=int))
+    assert empty.shape == (2, 1, len(METRICS)) and np.isnan(empty[..., METRICS.index("tnr")]).all()
+
+
 def _rollout(name: str, length: int, success: bool) -> Rollout:
     return Rollout(rollout_id=name, task="hand", scenario="id", embeddings=np.zeros((length, 2)),
                    actions=np.zeros((length, 2, 2, 2)), exec_steps=1, success=success)

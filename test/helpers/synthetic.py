@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
+from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 
@@ -18,6 +19,10 @@ E, B, H, D, EXEC = 16, 32, 8, 2, 4
 LENGTH = 20
 FAIL_FROM = 8
 TINY_RND = RNDConfig(trunk=(32, 32), head=(32,), out_dim=16, max_epochs=10, batch_size=64, lr=1e-3)
+#: ``fiper calibrate`` options of a small, quick observation-only calibration (same-data: 12 successes allow
+#: delta 0.1).
+OBSERVATION_CALIBRATE = ["--detectors", "rnd_oe", "--same-data", "--threshold", "cp_constant", "--delta", "0.1",
+                         "--window-obs", "3", "--max-epochs", "10"]
 
 
 def make_rollout(seed: int, *, fail: bool = False, length: int = LENGTH) -> Rollout:
@@ -38,11 +43,11 @@ def make_rollout(seed: int, *, fail: bool = False, length: int = LENGTH) -> Roll
 
 
 def make_calibration(directory: Path, *, combine: str = "and", threshold: str = "cp_constant",
-                     delta: float = 0.1) -> Path:
-    """Fit a small calibration on 24 synthetic successes (split conformal, the default: 12 fit RND-OE and R_d,
-    12 the thresholds) and save it to ``directory``."""
+                     delta: float = 0.1, detectors: tuple[str, ...] = DETECTORS) -> Path:
+    """Fit a small calibration of ``detectors`` on 24 synthetic successes (split conformal, the default: 12 fit
+    RND-OE and R_d, 12 the thresholds) and save it to ``directory``."""
     rollouts = [make_rollout(seed) for seed in range(24)]
     settings = CalibrationSettings(window_obs=3, window_act=3, threshold=threshold, delta=delta, combine=combine,
-                                   rnd=TINY_RND, seed=0)
+                                   rnd=TINY_RND, seed=0, detectors=detectors)
     calibrate(rollouts, settings).save(directory)
     return directory

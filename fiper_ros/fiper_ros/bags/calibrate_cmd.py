@@ -7,6 +7,10 @@ quantiles on the other; ``--split cross`` or ``--same-data`` instead), fits ever
 name, renamed when complete) and prints what it fitted: the split, the rollouts behind each threshold,
 a leave-one-out estimate of the false-alarm rate and the guarantee. Too few successes, or a threshold that
 would be +inf: one line, exit status 2.
+
+``--detectors rnd_oe`` writes an observation-only calibration (RND-OE alone: its alarm is RND-OE's
+exceedance), which needs no action batches; bags without them and no ``--detectors rnd_oe`` are refused
+with one line saying so.
 """
 from __future__ import annotations
 
@@ -22,8 +26,10 @@ from fiper_ros.bags.convert_options import parse_channels
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bags.schema import ACTIONS
 from fiper_ros.core.calibration import SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate
 from fiper_ros.core.compat import PROFILE_NAMES
+from fiper_ros.core.detectors import DETECTOR_SETS, LABELS, SIDES, parse_detectors
 from fiper_ros.core.fusion import COMBINES
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
@@ -68,6 +74,10 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
     if len(good) < settings.min_rollouts:
         raise BagError(f"too few successful rollouts to calibrate: {len(good)} of {len(rollouts)} in {names} "
                        f"(need at least {settings.min_rollouts}, see --min-rollouts)")
+    without = sorted({str(r.metadata.get("bag", "")) for r in rollouts if not r.has_actions})
+    if settings.has_ace and without:
+        raise BagError(f"no action batches ({ACTIONS}) in {', '.join(without)}: ACE cannot be calibrated; for an "
+                       "observation-only calibration (RND-OE alone) give --detectors rnd_oe")
     if not quiet:
         print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
               f"{len(rollouts)} in {names}", flush=True)
@@ -96,7 +106,8 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
                                    seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,
                                    action_dims=dims, control_dt=args.control_dt,
                                    split="same" if args.same_data else args.split,
-                                   conformal_fraction=args.conformal_fraction, folds=args.folds)
+                                   conformal_fraction=args.conformal_fraction, folds=args.folds,
+                                   detectors=args.detectors)
     except (CalibrationError, ValueError) as error:
         raise BagError(str(error)) from error
 
@@ -112,6 +123,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--delta", type=float, default=defaults.delta, help="target false-alarm rate")
     parser.add_argument("--alpha", type=float, default=None, help="ACE cell size factor (default: the profile's)")
     parser.add_argument("--combine", choices=COMBINES, default=defaults.combine, help="fusion of the two predictors")
+    parser.add_argument("--detectors", type=_detectors, default=defaults.detectors,
+                        help=f"detectors calibrated and fused: {' or '.join(','.join(s) for s in DETECTOR_SETS)} "
+                             "(observation-only: RND-OE alone, no action batches needed)")
     parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of RND-OE and of the splits")
     parser.add_argument("--split", choices=SPLITS, default=defaults.split,
                         help="which successes fit what: 'split' conformal (default; Proposition 1 holds), 'cross' "
@@ -144,8 +158,13 @@ def run(args: argparse.Namespace) -> int:
         return fail("calibrate", error)
     shown = {k: v for k, v in settings.to_dict().items() if k != "rnd"}
     print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
-    print(f"layout: E={calibration.embedding_dim} H={calibration.horizon} D={calibration.action_dim} "
-          f"h={calibration.exec_steps} {calibration.action_space}; R_d={[round(float(r), 4) for r in calibration.ranges]}")
+    if calibration.has_ace:
+        print(f"layout: E={calibration.embedding_dim} H={calibration.horizon} D={calibration.action_dim} "
+              f"h={calibration.exec_steps} {calibration.action_space}; "
+              f"R_d={[round(float(r), 4) for r in calibration.ranges]}")
+    else:
+        print(f"layout: E={calibration.embedding_dim}; observation-only: RND-OE alone (its alarm is its exceedance, no "
+              "action batches used)")
     for line in summary(calibration):
         print(line)
     print(f"calibration {args.out} written (hash {calibration.content_hash})")
@@ -155,13 +174,14 @@ def run(args: argparse.Namespace) -> int:
 def summary(calibration: Calibration) -> list[str]:
     """What the calibration fitted on which rollouts, and what it promises (lines to print)."""
     split, estimate, settings = calibration.split, calibration.false_alarms, calibration.settings
-    lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted RND-OE and R_d, "
+    fitted = "RND-OE and R_d" if calibration.has_ace else "RND-OE"
+    lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted {fitted}, "
              f"{len(split['conformal'])} the thresholds" + (f" ({len(split['folds'])} folds)" if "folds" in split else "")]
-    for name, threshold in (("RND-OE", calibration.threshold_obs), ("ACE", calibration.threshold_act)):
-        behind = split["behind_thresholds"]["obs" if name == "RND-OE" else "act"]
-        parts = ", ".join(f"{k} {v}" for k, v in behind.items())
-        lines.append(f"threshold {name}: {threshold.kind}, delta {threshold.delta:g}, gamma {value_range(threshold)} "
-                     f"({parts} rollouts)")
+    for detector in calibration.detectors:
+        threshold = calibration.threshold(detector)
+        parts = ", ".join(f"{k} {v}" for k, v in split["behind_thresholds"][SIDES[detector]].items())
+        lines.append(f"threshold {LABELS[detector]}: {threshold.kind}, delta {threshold.delta:g}, "
+                     f"gamma {value_range(threshold)} ({parts} rollouts)")
     lines.append(f"false alarms on held-out successes, {estimate['method']}: {estimate['false_alarms']} of "
                  f"{estimate['rollouts']} ({estimate['rate']:.3f} +- {estimate['standard_error']:.3f})"
                  + ("" if estimate["held_out_from_models"] else "; optimistic: the models saw these rollouts"))
@@ -169,6 +189,14 @@ def summary(calibration: Calibration) -> list[str]:
     if settings.split == "same":
         lines.append("warning: same-data calibration (--same-data): not covered by Proposition 1")
     return lines
+
+
+def _detectors(text: str) -> tuple[str, ...]:
+    """``--detectors``: a supported detector set."""
+    try:
+        return parse_detectors(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from error
 
 
 def value_range(threshold: Threshold) -> str:

@@ -3,7 +3,8 @@
 ``fiper replay --offline`` prints what the live suite would say; the replay test checks that the live
 path (real node processes over DDS) says exactly this, step for step. :func:`calibration_for` is how
 every command loads a calibration: refused with one line naming the file, and checked against the
-bags or the policy it is used with (task, shapes, action space).
+bags or the policy it is used with (task, shapes, action space; a calibration with ACE needs bags with
+action batches, an observation-only one takes any).
 """
 from __future__ import annotations
 
@@ -39,7 +40,12 @@ def policy_layout(config: PolicyConfig, model: Path) -> tuple[BagInfo, str]:
 
 def check_fits(calibration: Calibration, calibration_dir: Path, layout: BagInfo, what: str) -> None:
     """Raise :class:`BagError` if ``layout``'s task, embedding size, action shape or action space differ
-    (fields the layout leaves empty are not checked)."""
+    (fields the layout leaves empty are not checked), or if the calibration declares ACE and the layout has
+    no action batches."""
+    if calibration.has_ace and not layout.action_dim:
+        raise BagError(f"calibration {calibration_dir} declares {', '.join(calibration.detectors)}, but {what} has "
+                       "no action batches for ACE: use an observation-only calibration (fiper calibrate --detectors "
+                       "rnd_oe)")
     try:
         calibration.check_compatible(
             embedding_dim=layout.embedding_dim or None, action_dim=layout.action_dim or None,
@@ -73,8 +79,11 @@ def predict_bag(bag: Path, calibration: Calibration, fk: ForwardKinematics | Non
             raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}; give the robot model with --urdf "
                            "and --ee-frame") from error
         latched = np.logical_or.accumulate(prediction.alarms)
-        # As the fusion node (runtime.alarm): the latch first, then a missing (infinite) threshold is UNKNOWN.
-        calibrated = np.isfinite(prediction.obs_thresholds) & np.isfinite(prediction.act_thresholds)
+        # As the fusion node (runtime.alarm): the latch first, then a missing (infinite) threshold of a declared
+        # detector is UNKNOWN.
+        calibrated = np.isfinite(prediction.obs_thresholds)
+        if calibration.has_ace:
+            calibrated &= np.isfinite(prediction.act_thresholds)
         steps = {
             t: StepResult(ALARM if latched[t] else OK if calibrated[t] else UNKNOWN, bool(prediction.obs_exceeded[t]),
                           bool(prediction.act_exceeded[t]), as_float32(prediction.obs_windowed[t]),

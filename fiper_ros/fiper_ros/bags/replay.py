@@ -13,9 +13,11 @@ acknowledged it, then ``--settle`` seconds more, so that the nodes have started 
 its first step arrives.
 
 By default the suite is started here (``fiper launch`` of ``--launch CONFIG``, default the installed
-suite.yaml, with use_sim_time and ``--calibration DIR``, or the ``calibration/`` directory next to
-the bags) in a private ROS domain; ``--no-launch`` plays into a suite already running in this
-shell's domain. ``--offline`` prints what the suite would say, computed without DDS by the core.
+suite of the calibration's detectors: suite.yaml, or suite_obs.yaml for an observation-only calibration,
+with use_sim_time and ``--calibration DIR``, or the ``calibration/`` directory next to the bags) in a
+private ROS domain; ``--no-launch`` plays into a suite already running in this shell's domain. With an
+observation-only calibration no action batches or joint states are played (no node of that suite reads
+them). ``--offline`` prints what the suite would say, computed without DDS by the core.
 """
 from __future__ import annotations
 
@@ -38,11 +40,14 @@ from fiper_ros.bags import live_options, robot_options
 from fiper_ros.bags.atomic import atomic_output
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult
+from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult, as_float32
 from fiper_ros.bags.rollouts import ROLLOUT_GAP_NS, SUCCESS_OF
-from fiper_ros.bags.schema import ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.bags.schema import (ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, JOINT_STATES,
+                                   SCORE_ACE, SCORE_RND_OE, TOPICS)
 from fiper_ros.bags.session import RosSession
-from fiper_ros.bags.suite_process import SuiteProcess, installed_config, replay_config
+from fiper_ros.bags.suite_process import SUITE_CONFIGS, SuiteProcess, installed_config, replay_config
+from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
+from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
 from fiper_ros.dds import allocate_domain
 from fiper_ros.echo import message_class
 from fiper_ros.nodes import qos
@@ -52,10 +57,36 @@ if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
 
 STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
-#: Subscribers a launched suite has per topic (the scoring nodes and the fusion node).
-SUITE_SUBSCRIBERS = {EMBEDDING: 1, ACTIONS: 1, EVENTS: 3, SCORE_RND_OE: 1, SCORE_ACE: 1}
+#: Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores.
+DETECTOR_TOPICS = {RND_OE: (EMBEDDING, (), SCORE_RND_OE), ACE: (ACTIONS, (JOINT_STATES,), SCORE_ACE)}
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
 WARM_UP_S = 1.0
+
+
+def suite_subscribers(detectors: tuple[str, ...]) -> dict[str, int]:
+    """Subscribers a launched suite of ``detectors`` has per topic: each scoring node its input, the fusion
+    node each score, every node the rollout events."""
+    needed = {EVENTS: len(detectors) + 1}
+    for detector in detectors:
+        step_input, _, score = DETECTOR_TOPICS[detector]
+        needed[step_input] = needed[score] = 1
+    return needed
+
+
+def played_topics(detectors: tuple[str, ...]) -> tuple[str, ...]:
+    """The policy-side topics replayed into a suite of ``detectors`` (none that only another detector reads)."""
+    others = {t for d, (step_input, extra, _) in DETECTOR_TOPICS.items() if d not in detectors
+              for t in (step_input, *extra)}
+    return tuple(t for t in INPUT_TOPICS if t not in others)
+
+
+def detectors_of(directory: Path | None) -> tuple[str, ...]:
+    """The detectors the calibration in ``directory`` declares (FIPER's pair without one), read without loading
+    its score models."""
+    try:
+        return DETECTORS if directory is None else declared_detectors(directory)
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
 
 
 def find_calibration(bags: Sequence[Path]) -> Path | None:
@@ -164,12 +195,13 @@ class Player:
     def play(self, bag: BagReader, shift_ns: int) -> int:
         """Publish the bag's played topics; returns the (shifted) log time of its last message."""
         last = 0
+        step_topics = {EMBEDDING, ACTIONS} & set(self.publishers)  # a step is sent once all of them are
         for message in bag.messages([t for t in bag.topics if t in self.publishers]):
             if self.session.stop.is_set():
                 break
             sim_ns = message.log_time_ns + shift_ns
             key, event = None, None
-            if message.topic in (EMBEDDING, ACTIONS):
+            if message.topic in step_topics:
                 msg = bag.decode(message)
                 key = (int(msg.rollout_id), int(msg.step))
             elif message.topic == EVENTS:
@@ -190,7 +222,7 @@ class Player:
             if key is not None:
                 sent = self._sent.setdefault(key, set())
                 sent.add(message.topic)
-                if len(sent) == 2:
+                if len(sent) == len(step_topics):
                     self.steps += 1
                     if self.flow_controlled:
                         self._pending = key
@@ -207,7 +239,7 @@ class Player:
     def steps_of(self, rollout_id: int) -> dict[int, StepResult]:
         """The per-step states received for ``rollout_id``."""
         return {step: StepResult(STATE_NAMES.get(m.state, UNKNOWN), bool(m.obs_exceeded), bool(m.act_exceeded),
-                                 float(m.eta_obs), float(m.eta_act))
+                                 as_float32(m.eta_obs), as_float32(m.eta_act))
                 for (rid, step), m in sorted(self.alarms.items()) if rid == rollout_id}
 
     def collect(self) -> list[RolloutResult]:
@@ -223,6 +255,7 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
     play every bag, collect the alarms."""
     with ExitStack() as stack:
         launch = not args.no_launch
+        detectors = detectors_of(directory)
         domain = args.domain
         if domain is None and launch:
             domain = stack.enter_context(allocate_domain())
@@ -230,8 +263,8 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
         if launch:
             assert directory is not None
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
-            config = replay_config(args.launch or installed_config(), directory, workdir / "suite.yaml",
-                                   robot_options.robot_from(args))
+            config = replay_config(args.launch or installed_config(SUITE_CONFIGS[detectors]), directory,
+                                   workdir / "suite.yaml", robot_options.robot_from(args))
             suite = SuiteProcess(config, domain, echo=args.verbose)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)
@@ -240,10 +273,10 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
         readers = [stack.enter_context(BagReader(bag)) for bag in bags]
         for reader in readers:
             for topic, msgtype in reader.topics.items():
-                if topic in INPUT_TOPICS or (args.all_topics and args.no_launch):
+                if topic in played_topics(detectors) or (args.all_topics and args.no_launch):
                     player.add_topic(topic, msgtype, any(q.durability.name == "TRANSIENT_LOCAL"
                                                          for q in reader.offered_qos(topic)))
-        needed = dict(SUITE_SUBSCRIBERS) if launch else {t: 1 for t in player.publishers}
+        needed = suite_subscribers(detectors) if launch else {t: 1 for t in player.publishers}
         print(f"waiting for the suite in ROS domain {session.domain} ...", file=sys.stderr, flush=True)
         player.wait_for_subscribers(needed, args.wait, suite)
         started = time.monotonic()
@@ -294,7 +327,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pace.add_argument("--fast", action="store_true", help="as fast as the suite answers (flow-controlled)")
     parser.add_argument("--calibration", type=Path, help="calibration directory (default: calibration/ next to the bags)")
     suite = parser.add_mutually_exclusive_group()
-    suite.add_argument("--launch", type=Path, help="launch YAML of the suite to start (default: the installed suite.yaml)")
+    suite.add_argument("--launch", type=Path, help="launch YAML of the suite to start (default: the installed "
+                                                   "suite.yaml, suite_obs.yaml for an observation-only calibration)")
     suite.add_argument("--no-launch", action="store_true", help="play into a suite already running in this domain")
     suite.add_argument("--offline", action="store_true", help="compute the alarms with the core, without DDS")
     parser.add_argument("--all-topics", action="store_true", help="with --no-launch: also play recorded outputs")

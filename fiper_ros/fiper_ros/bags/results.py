@@ -2,7 +2,8 @@
 
 A step's ``state`` is ``"ok"``, ``"alarm"`` (latched: from the first alarm of the rollout on, as on
 /fiper/alarm) or ``"unknown"``; ``eta_*`` are the windowed scores as float32 (the precision of the
-Score and FailureAlarm messages), so live and offline results compare exactly.
+Score and FailureAlarm messages), so live and offline results compare exactly, and ``None`` for a detector
+the calibration does not declare (``eta_act`` of an observation-only one: NaN on /fiper/alarm).
 """
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ class StepResult:
     state: str
     obs_exceeded: bool
     act_exceeded: bool
-    eta_obs: float
-    eta_act: float
+    eta_obs: float | None
+    eta_act: float | None
 
 
 @dataclass
@@ -59,6 +60,7 @@ class RolloutResult:
         return data
 
 
-def as_float32(value: float) -> float:
-    """``value`` rounded to float32 (as a message carries it), back as a Python float."""
-    return float(np.float32(value))
+def as_float32(value: float) -> float | None:
+    """``value`` rounded to float32 (as a message carries it), back as a Python float; ``None`` for NaN (a
+    detector not judged), which compares equal where NaN would not."""
+    return None if np.isnan(value) else float(np.float32(value))

@@ -11,6 +11,10 @@ takes task, scenario and outcome from the rollout's events, and restores ``joint
 ace_node sees them: per step, the arm joints of the ``/joint_states`` with the latest stamp not after
 the batch's (:mod:`fiper_ros.runtime.joint_history`; a live recording also holds the states of the
 control steps that ran while the batch travelled).
+
+Observation-only data (issue #19): a rollout without action batches (``actions`` ``None``) is written
+without ActionChunkBatch messages, and a bag without the action topic is read as such rollouts (their
+``exec_steps`` from ``custom_data``, else 1: it only spaces a written bag's steps).
 """
 from __future__ import annotations
 
@@ -38,7 +42,7 @@ from fiper_ros.bags.schema import (
     typestore,
 )
 from fiper_ros.bags.writer import BagWriter
-from fiper_ros.core.rollout import Rollout, RolloutError
+from fiper_ros.core.rollout import ACTION_SPACES, Rollout, RolloutError
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
 from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg, stamp_ns
 from fiper_ros.runtime.joint_history import JointHistory
@@ -57,7 +61,8 @@ SUCCESS_OF = {v: k for k, v in OUTCOME_OF.items()}
 
 
 def shape_info(rollouts: Sequence[Rollout], base: BagInfo) -> BagInfo:
-    """``base`` with the shapes and action space of ``rollouts`` (which must all agree)."""
+    """``base`` with the shapes and action space of ``rollouts`` (which must all agree; without action batches
+    B, H, D are 0 and the action space "")."""
     def layout(r: Rollout) -> tuple[int, ...]:
         _, b, h, d = (0, 0, 0, 0) if r.actions is None else r.actions.shape
         return b, h, d, r.exec_steps, r.embeddings.shape[1]
@@ -70,7 +75,7 @@ def shape_info(rollouts: Sequence[Rollout], base: BagInfo) -> BagInfo:
                            f"({first.action_space}): one bag holds one layout")
     b, h, d, exec_steps, e = layout(first)
     return replace(base, batch_size=b, horizon=h, action_dim=d, exec_steps=exec_steps, embedding_dim=e,
-                   action_space=first.action_space)
+                   action_space=first.action_space if first.has_actions else "")
 
 
 def _env_steps(rollout: Rollout) -> np.ndarray:
@@ -190,7 +195,8 @@ def _collect(bag: BagReader) -> list[_Collected]:
             if all(name in msg.name for name in ARM_JOINT_NAMES):
                 joints.add(stamp_ns(msg.header.stamp), _arm_joints(msg))
             continue
-        record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task))
+        record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task,
+                                                                     exec_steps=bag.info.exec_steps))
         if message.topic == EVENTS:
             if msg.event == RolloutEvent.EVENT_START:
                 record.task, record.scenario, record.max_steps = msg.task or record.task, msg.scenario, msg.max_steps
@@ -212,10 +218,11 @@ def _collect(bag: BagReader) -> list[_Collected]:
     return list(rollouts.values())
 
 
-def _to_rollout(record: _Collected, path: Path) -> Rollout:
+def _to_rollout(record: _Collected, path: Path, has_actions: bool) -> Rollout:
     steps = sorted(set(record.embeddings) | set(record.batches))
+    tables = (("observation embedding", record.embeddings), ("action batch", record.batches))
     for step in range(len(steps)):
-        for name, table in (("observation embedding", record.embeddings), ("action batch", record.batches)):
+        for name, table in tables if has_actions else tables[:1]:
             if step not in table:
                 raise BagError(f"{path}: rollout {record.rollout_id} has no {name} for step {step} "
                                f"(steps {steps[0]}..{steps[-1]} present)")
@@ -230,9 +237,9 @@ def _to_rollout(record: _Collected, path: Path) -> Rollout:
         return Rollout(
             rollout_id=str(record.rollout_id), task=record.task, scenario=record.scenario,
             embeddings=np.stack([record.embeddings[s] for s in steps]),
-            actions=np.stack([record.batches[s] for s in steps]),
-            exec_steps=record.exec_steps, success=SUCCESS_OF.get(record.outcome),
-            action_space=record.action_space, metadata=metadata,
+            actions=np.stack([record.batches[s] for s in steps]) if has_actions else None,
+            exec_steps=record.exec_steps or 1, success=SUCCESS_OF.get(record.outcome),
+            action_space=record.action_space or ACTION_SPACES[0], metadata=metadata,
         )
     except (RolloutError, ValueError) as error:
         raise BagError(f"{path}: rollout {record.rollout_id}: {error}") from error
@@ -256,24 +263,30 @@ def _drop_cut_step(record: _Collected, path: Path) -> None:
 
 def read_rollouts(path: Path) -> list[Rollout]:
     """The rollouts of one bag, in the order they start; rollouts without any step are left out, a bag
-    without embeddings and action batches is refused."""
+    without embeddings and action batches is refused, and a bag without the action topic gives rollouts
+    without action batches (observation-only data)."""
     with BagReader(path) as bag:
         bag.require_any((EMBEDDING, ACTIONS))
+        has_actions = ACTIONS in bag.topics
         collected = _collect(bag)
     rollouts = []
     for record in collected:
-        _drop_cut_step(record, path)
+        if has_actions:
+            _drop_cut_step(record, path)
         if not record.embeddings and not record.batches:
             LOG.warning("%s: rollout %d has no steps; left out", path, record.rollout_id)
             continue
-        rollouts.append(_to_rollout(record, path))
+        rollouts.append(_to_rollout(record, path, has_actions))
     return rollouts
 
 
 def layout_of(bag: BagReader) -> BagInfo:
     """The bag's ``custom_data``, with the task, E, B, H, D, h and action space taken from its first
-    messages where ``custom_data`` does not say (e.g. a bag of ``fiper record`` or of another tool)."""
+    messages where ``custom_data`` does not say (e.g. a bag of ``fiper record`` or of another tool); a bag
+    without action batches has B, H, D 0 and no action space, whatever its ``custom_data`` says."""
     info = bag.info
+    if ACTIONS not in bag.topics:
+        info = replace(info, batch_size=0, horizon=0, action_dim=0, action_space="")
     if not info.task:
         tasks = (bag.decode(message).task for message in bag.messages([EVENTS]))
         info = replace(info, task=next((task for task in tasks if task), ""))

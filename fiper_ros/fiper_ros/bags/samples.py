@@ -13,6 +13,10 @@ path with a small per-sample spread (low action entropy). A failing rollout, fro
 out of distribution along a fixed embedding direction and its sampled chunks spread over many ACE
 cells (entropy rises), while its progress stalls until the step limit. Values are rounded to float16
 precision to keep the bags small.
+
+``python -m fiper_ros.bags.samples --observation-only BAG... --out DIR`` writes observation-only copies of
+bags instead (:func:`observation_only`: no action batches, no joint states; issue #19), e.g. of the
+shipped sets for an observation-only calibration and replay.
 """
 from __future__ import annotations
 
@@ -21,7 +25,7 @@ import math
 import pickle
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +35,9 @@ from fiper_ros.bags.atomic import atomic_output
 from fiper_ros.bags.calibrate_cmd import calibrate_bags
 from fiper_ros.bags.convert_options import ConvertOptions
 from fiper_ros.bags.errors import BagError, fail
+from fiper_ros.bags.reader import BagReader
+from fiper_ros.bags.schema import ACTIONS, JOINT_STATES
+from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.calibration import CalibrationSettings
 
 LATENT_DIM = 8
@@ -257,15 +264,39 @@ def make_set(spec: SampleSet, out: Path, seed: int, overwrite: bool = False) -> 
     return target
 
 
+#: What an observation-only copy leaves out: the action batches and the joint states only ACE reads.
+ACTION_TOPICS = (ACTIONS, JOINT_STATES)
+
+
+def observation_only(source: Path, out: Path, overwrite: bool = False) -> Path:
+    """Write ``out``: the bag ``source`` without its action batches and joint states (observation-only data),
+    every other message as recorded, byte for byte, at its log time; ``custom_data`` without the action
+    layout (B, H, D, action space) and its ``source`` naming the copy."""
+    with BagReader(source) as reader, BagWriter(out, overwrite=overwrite) as writer:
+        info = reader.info
+        origin = f"observation-only copy of {source}" + (f" ({info.source})" if info.source else "")
+        writer.info = replace(info, batch_size=0, horizon=0, action_dim=0, action_space="", source=origin)
+        for message in reader.messages([t for t in reader.topics if t not in ACTION_TOPICS]):
+            writer.write(message.topic, message.log_time_ns, message.raw, message.msgtype)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    """``python -m fiper_ros.bags.samples --out bags/``."""
+    """``python -m fiper_ros.bags.samples --out bags/`` (or ``--observation-only BAG... --out DIR``)."""
     parser = argparse.ArgumentParser(prog="python -m fiper_ros.bags.samples", description=__doc__.split("\n")[0])
     parser.add_argument("--out", type=Path, required=True, help="directory to write the sets into (e.g. bags/)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the generated data and the calibrations")
     parser.add_argument("--sets", nargs="+", choices=sorted(SETS), default=sorted(SETS), help="sets to make")
+    parser.add_argument("--observation-only", nargs="+", type=Path, metavar="BAG",
+                        help="instead: write observation-only copies of these bags into --out (same names)")
     parser.add_argument("--force", action="store_true", help="replace existing sets")
     args = parser.parse_args(argv)
-    for name in args.sets:
+    for bag in args.observation_only or ():
+        try:
+            print(observation_only(bag, args.out / bag.name, args.force))
+        except BagError as error:
+            return fail("samples", error)
+    for name in () if args.observation_only else args.sets:
         try:
             target = make_set(SETS[name], args.out, args.seed, args.force)
         except BagError as error:

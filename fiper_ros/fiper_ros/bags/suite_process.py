@@ -1,9 +1,10 @@
 """The node suite started for a replay (and for ``fiper demo`` and ``fiper collect --ros``): ``fiper launch``
 in a child process.
 
-For a replay the launch YAML (default: the installed ``config/suite.yaml``) is read with the launcher's
-own parser and written again with ``use_sim_time: true`` and the replay's calibration directory set on
-the scoring nodes, so the nodes are exactly those of a normal launch.
+For a replay the launch YAML (default: the installed suite of the calibration's detectors,
+``config/suite.yaml`` or, observation-only, ``config/suite_obs.yaml``) is read with the launcher's own parser
+and written again with ``use_sim_time: true`` and the replay's calibration directory set on the scoring
+nodes and the fusion node, so the nodes are exactly those of a normal launch.
 """
 from __future__ import annotations
 
@@ -20,13 +21,16 @@ from pathlib import Path
 import yaml
 
 from fiper_ros.bags.errors import BagError
+from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import local_env
 from fiper_ros.launch import LaunchError, dump_config, load_config
 
-#: Nodes that take ``calibration_dir``.
+#: Nodes that take ``calibration_dir``: the scoring nodes, and the fusion node (for the detectors it fuses).
 ACE_MODULE = "fiper_ros.nodes.ace_node"
-DETECTOR_MODULES = ("fiper_ros.nodes.rnd_oe_node", ACE_MODULE)
+CALIBRATED_MODULES = ("fiper_ros.nodes.rnd_oe_node", ACE_MODULE, "fiper_ros.nodes.fusion_node")
+#: The installed launch YAML of the scoring suite of each detector set a calibration may declare.
+SUITE_CONFIGS = {DETECTORS: "suite.yaml", OBSERVATION_ONLY: "suite_obs.yaml"}
 #: Lines of the suite's output kept for an error report.
 KEPT_LINES = 200
 #: The launcher's report of a node process it started.
@@ -48,7 +52,7 @@ def replay_config(config: Path, calibration: Path, out: Path, robot: RobotModel 
     except (LaunchError, yaml.YAMLError) as error:
         raise BagError(f"launch config {config}: {error}") from error
     detector = {"calibration_dir": str(calibration.resolve())}
-    parameters = {module: detector for module in DETECTOR_MODULES}
+    parameters = {module: detector for module in CALIBRATED_MODULES}
     if robot is not None:
         parameters[ACE_MODULE] = detector | {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
     parsed = parsed.with_parameters(lambda spec: parameters.get(spec.module, {}))

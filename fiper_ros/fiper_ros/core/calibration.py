@@ -20,6 +20,10 @@ the calibration steps, aggregates the scores (eqs. 2, 5) and fits the thresholds
   Not covered by Proposition 1: a model's scores of its own training rollouts are lower than those of new
   successes, so the thresholds come out too low (issue #19 measured 0.78 false alarms at delta = 0.05).
 
+A calibration declares its detectors (``settings.detectors``, :mod:`fiper_ros.core.detectors`): FIPER's
+pair, or RND-OE alone (observation-only: fitted on rollouts with or without action batches; no ``R_d``, no
+ACE threshold, and its alarm is RND-OE's exceedance).
+
 A calibration directory holds ``calibration.yaml`` and the RND-OE files (``rnd_oe.pt`` and
 ``rnd_oe.json``). The YAML carries the split used (which rollouts fitted what), the number of rollouts
 behind each threshold, a leave-one-out estimate of the false-alarm rate, and a content hash over its own
@@ -42,8 +46,12 @@ import numpy as np
 import yaml
 
 from fiper_ros.core.ace import action_ranges, cell_size, check_alpha
+# CALIBRATION_FILE, FORMAT_VERSION and CalibrationError live in calibration_file (torch-free) and are used from here.
+from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, CalibrationError, check_files, one_line,
+                                             read_yaml)
 from fiper_ros.core.compat import Profile, get_profile
-from fiper_ros.core.fusion import COMBINES, exceeds, fuse
+from fiper_ros.core.detectors import ACE, DETECTORS, LABELS, RND_OE, SIDES, check_detectors
+from fiper_ros.core.fusion import COMBINES, exceeds, fuse_declared
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
 from fiper_ros.core.rnd_oe import CONFIG_FILE as RND_CONFIG_FILE
 from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig, RNDError
@@ -56,14 +64,11 @@ from fiper_ros.core.window import MODES, aggregate
 
 LOG = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
 #: Which successes fit the score models and which the thresholds (see the module docstring).
 SPLITS = ("split", "cross", "same")
-CALIBRATION_FILE = "calibration.yaml"
-
-
-class CalibrationError(ValueError):
-    """A calibration cannot be fitted, read or used."""
+#: Settings only a calibration with ACE uses (with the fusion's ``combine``): an observation-only one does not
+#: write them.
+ACE_SETTINGS = ("alpha", "window_act", "action_dims", "control_dt", "combine")
 
 
 class CalibrationMismatch(CalibrationError):
@@ -102,6 +107,8 @@ class CalibrationSettings:
             same-data calibration, not covered by Proposition 1); see the module docstring.
         conformal_fraction: With ``"split"``: the fraction of the successes in the conformal set.
         folds: With ``"cross"``: the number of folds K.
+        detectors: The detectors calibrated and fused (:data:`fiper_ros.core.detectors.DETECTOR_SETS`):
+            FIPER's pair (default) or ``("rnd_oe",)``, observation-only.
     """
 
     alpha: float | None = None
@@ -123,8 +130,13 @@ class CalibrationSettings:
     split: str = "split"
     conformal_fraction: float = 0.5
     folds: int = 5
+    detectors: tuple[str, ...] = DETECTORS
 
     def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "detectors", check_detectors(self.detectors))
+        except ValueError as error:
+            raise CalibrationError(str(error)) from error
         if self.split not in SPLITS:
             raise CalibrationError(f"unknown split {self.split!r}; expected one of {SPLITS}")
         if not 0.0 < self.conformal_fraction < 1.0:
@@ -148,6 +160,11 @@ class CalibrationSettings:
             self.threshold_settings()  # delta, band_split, ...: refused now, not after RND-OE's training
         except ValueError as error:
             raise CalibrationError(str(error)) from error
+
+    @property
+    def has_ace(self) -> bool:
+        """Whether ACE is among the declared detectors (else: observation-only)."""
+        return ACE in self.detectors
 
     @property
     def resolved_alpha(self) -> float:
@@ -176,34 +193,44 @@ class CalibrationSettings:
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form for YAML. The split's own settings are written only where they apply, and not at
         all for ``"same"``: calibrations written before the split existed are same-data ones and keep
-        their content hash."""
+        their content hash. The detectors are written only for an observation-only calibration (which
+        leaves out :data:`ACE_SETTINGS`), so FIPER's calibrations keep their content hash too."""
         data = asdict(self)
         data["rnd"] = self.rnd.to_dict()
         data["action_dims"] = None if self.action_dims is None else list(self.action_dims)
+        data["detectors"] = list(self.detectors)
         unused = {"split": ("folds",), "cross": ("conformal_fraction",),
                   "same": ("split", "conformal_fraction", "folds")}[self.split]
+        unused += ("detectors",) if self.has_ace else ACE_SETTINGS
         return {k: v for k, v in data.items() if k not in unused}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> CalibrationSettings:
-        """Inverse of :meth:`to_dict` (no ``split``: a same-data calibration)."""
+        """Inverse of :meth:`to_dict` (no ``split``: a same-data calibration; no ``detectors``: FIPER's pair)."""
         data = dict(data)
         data.setdefault("split", "same")
         data["rnd"] = RNDConfig.from_dict(data["rnd"])
         if data.get("action_dims") is not None:
             data["action_dims"] = tuple(data["action_dims"])
+        if "detectors" in data:
+            data["detectors"] = tuple(data["detectors"])
         return cls(**data)
 
 
 @dataclass
 class Calibration:
-    """A fitted FIPER calibration; ``task`` is that of its rollouts ("" if they did not say)."""
+    """A fitted FIPER calibration; ``task`` is that of its rollouts ("" if they did not say).
+
+    An observation-only calibration (``settings.detectors`` ``("rnd_oe",)``) has no ACE part: ``ranges``
+    empty, ``threshold_act`` ``None``, and the action layout (``action_dim``, ``horizon``, ``exec_steps``,
+    ``action_space``) 0 and "": it fits data with any action batches, or none.
+    """
 
     settings: CalibrationSettings
     rnd: RNDOE
     ranges: np.ndarray
     threshold_obs: Threshold
-    threshold_act: Threshold
+    threshold_act: Threshold | None
     embedding_dim: int
     action_dim: int
     horizon: int
@@ -221,6 +248,23 @@ class Calibration:
     def profile(self) -> Profile:
         """The method profile."""
         return self.settings.profile_obj
+
+    @property
+    def detectors(self) -> tuple[str, ...]:
+        """The detectors this calibration declares (``settings.detectors``)."""
+        return self.settings.detectors
+
+    @property
+    def has_ace(self) -> bool:
+        """Whether ACE is calibrated (else: observation-only)."""
+        return self.settings.has_ace
+
+    def threshold(self, detector: str) -> Threshold:
+        """The threshold of a declared detector (``"rnd_oe"``: ``gamma_O``, ``"ace"``: ``gamma_A``)."""
+        if detector not in self.detectors:
+            raise CalibrationError(f"detector {detector!r} is not calibrated here (detectors "
+                                   f"{','.join(self.detectors)})")
+        return self.threshold_obs if detector == RND_OE else self.threshold_act
 
     @property
     def cell(self) -> np.ndarray:
@@ -242,19 +286,21 @@ class Calibration:
         task: str | None = None,
     ) -> None:
         """Raise :class:`CalibrationMismatch` naming the first field that differs (``None``: not checked;
-        a task is compared only when both this calibration and the caller know it)."""
-        for name, got in (("embedding_dim", embedding_dim), ("action_dim", action_dim), ("horizon", horizon),
-                          ("exec_steps", exec_steps)):
+        a task is compared only when both this calibration and the caller know it; the action layout only
+        when ACE is calibrated)."""
+        checked = (("embedding_dim", embedding_dim), ("action_dim", action_dim), ("horizon", horizon),
+                   ("exec_steps", exec_steps))
+        for name, got in checked if self.has_ace else checked[:1]:
             expected = getattr(self, name)
             if got is not None and int(got) != expected:
                 raise CalibrationMismatch(name, expected, int(got))
-        if action_space is not None and action_space != self.action_space:
+        if self.has_ace and action_space is not None and action_space != self.action_space:
             raise CalibrationMismatch("action_space", self.action_space, action_space)
         if task and self.task and task != self.task:
             raise CalibrationMismatch("task", self.task, task)
 
     def _content(self) -> dict[str, Any]:
-        return {
+        content = {
             "format_version": FORMAT_VERSION,
             "settings": self.settings.to_dict(),
             "profile": self.settings.profile,
@@ -264,7 +310,8 @@ class Calibration:
             "threshold_kind": self.settings.threshold,
             "alpha": float(self.settings.resolved_alpha),
             "ranges": [float(r) for r in self.ranges],
-            "thresholds": {"obs": self.threshold_obs.to_dict(), "act": self.threshold_act.to_dict()},
+            "thresholds": {"obs": self.threshold_obs.to_dict(),
+                           **({"act": self.threshold_act.to_dict()} if self.threshold_act is not None else {})},
             "embedding_dim": self.embedding_dim,
             "action_dim": self.action_dim,
             "horizon": self.horizon,
@@ -276,6 +323,11 @@ class Calibration:
             **({"split": self.split} if self.split else {}),
             **({"false_alarm_estimate": self.false_alarms} if self.false_alarms else {}),
         }
+        if not self.has_ace:  # observation-only: no ACE entries (the detectors are in the settings)
+            del content["windows"]["act"]
+            for key in _ACE_CONTENT:
+                del content[key]
+        return content
 
     @property
     def content_hash(self) -> str:
@@ -294,33 +346,14 @@ class Calibration:
         return path
 
 
+#: Entries of ``calibration.yaml`` about ACE, which an observation-only calibration does not have.
+_ACE_CONTENT = ("alpha", "ranges", "action_dim", "horizon", "exec_steps", "action_space")
+
+
 def _content_hash(content: dict[str, Any], rnd: RNDOE) -> str:
     digest = hashlib.sha256(yaml.safe_dump(content, sort_keys=True).encode())
     digest.update(rnd.digest().encode())
     return digest.hexdigest()
-
-
-def _one_line(error: object) -> str:
-    """``error`` as one line (YAML and torch errors span several)."""
-    return " ".join(str(error).split())
-
-
-def _read_yaml(path: Path) -> dict[str, Any]:
-    """``calibration.yaml`` as a mapping of the supported format version."""
-    try:
-        with path.open() as stream:
-            content = yaml.safe_load(stream)
-    except OSError as error:
-        raise CalibrationError(f"{path}: unreadable ({_one_line(error)})") from error
-    except yaml.YAMLError as error:
-        raise CalibrationError(f"{path}: not valid YAML ({_one_line(error)})") from error
-    if not isinstance(content, dict):
-        got = "an empty file" if content is None else f"a YAML {type(content).__name__}"
-        raise CalibrationError(f"{path}: not a calibration (a YAML mapping expected, got {got})")
-    if content.get("format_version") != FORMAT_VERSION:
-        raise CalibrationError(f"{path}: format_version {content.get('format_version')!r} not supported "
-                               f"(this code reads {FORMAT_VERSION})")
-    return content
 
 
 def _check_description(directory: Path, embedding_dim: int, settings: CalibrationSettings) -> None:
@@ -330,7 +363,7 @@ def _check_description(directory: Path, embedding_dim: int, settings: Calibratio
     try:
         described = json.loads(path.read_text())
     except (OSError, ValueError) as error:
-        raise CalibrationError(f"{path}: unreadable ({_one_line(error)})") from error
+        raise CalibrationError(f"{path}: unreadable ({one_line(error)})") from error
     expected = {"embedding_dim": embedding_dim, "seed": settings.seed, "config": settings.rnd.to_dict()}
     if described != expected:
         raise CalibrationError(f"{path}: does not describe the RND-OE network of {CALIBRATION_FILE} (file modified, "
@@ -358,23 +391,20 @@ def load_calibration(directory: str | Path) -> Calibration:
     """
     directory = Path(directory)
     path = directory / CALIBRATION_FILE
-    if not directory.is_dir():
-        raise CalibrationError(f"calibration directory not found: {directory}")
-    for name in (CALIBRATION_FILE, RND_CONFIG_FILE, RND_WEIGHTS_FILE):
-        if not (directory / name).is_file():
-            raise CalibrationError(f"calibration file not found: {directory / name}")
-    content = _read_yaml(path)
+    check_files(directory, (CALIBRATION_FILE, RND_CONFIG_FILE, RND_WEIGHTS_FILE))
+    content = read_yaml(path)
     try:
         settings = CalibrationSettings.from_dict(content["settings"])
+        has_ace = settings.has_ace
         fields = {
-            "ranges": np.asarray(content["ranges"], dtype=np.float64),
+            "ranges": np.asarray(content["ranges"] if has_ace else [], dtype=np.float64),
             "threshold_obs": Threshold.from_dict(content["thresholds"]["obs"]),
-            "threshold_act": Threshold.from_dict(content["thresholds"]["act"]),
+            "threshold_act": Threshold.from_dict(content["thresholds"]["act"]) if has_ace else None,
             "embedding_dim": int(content["embedding_dim"]),
-            "action_dim": int(content["action_dim"]),
-            "horizon": int(content["horizon"]),
-            "exec_steps": int(content["exec_steps"]),
-            "action_space": str(content["action_space"]),
+            "action_dim": int(content["action_dim"]) if has_ace else 0,
+            "horizon": int(content["horizon"]) if has_ace else 0,
+            "exec_steps": int(content["exec_steps"]) if has_ace else 0,
+            "action_space": str(content["action_space"]) if has_ace else "",
             "num_rollouts": int(content["num_rollouts"]),
             "task": str(content.get("task", "")),
             "split": dict(content.get("split", {})),
@@ -383,7 +413,7 @@ def load_calibration(directory: str | Path) -> Calibration:
     except KeyError as error:
         raise CalibrationError(f"{path}: missing entry {error}") from error
     except (TypeError, ValueError) as error:  # ThresholdError, RNDConfig and settings values
-        raise CalibrationError(f"{path}: malformed entry ({_one_line(error)})") from error
+        raise CalibrationError(f"{path}: malformed entry ({one_line(error)})") from error
     _check_description(directory, fields["embedding_dim"], settings)
     rnd = _load_rnd(directory)
     calibration = Calibration(settings=settings, rnd=rnd, **fields)
@@ -393,8 +423,19 @@ def load_calibration(directory: str | Path) -> Calibration:
     return calibration
 
 
-def _layout(rollout: Rollout) -> tuple[int, int, int, int, str]:
-    """``(embedding_dim, action_dim, horizon, exec_steps, action_space)`` of a rollout."""
+#: The layout fields of :func:`_layout`; an observation-only calibration has the first alone.
+_LAYOUT = ("embedding_dim", "action_dim", "horizon", "exec_steps", "action_space")
+
+
+def _layout(rollout: Rollout, has_ace: bool) -> tuple[int, int, int, int, str]:
+    """``(embedding_dim, action_dim, horizon, exec_steps, action_space)`` of a rollout (without ACE: the action
+    fields 0 and "", whatever the rollout holds)."""
+    if not has_ace:
+        return rollout.embeddings.shape[1], 0, 0, 0, ""
+    if rollout.actions is None:
+        raise CalibrationError(f"rollout {rollout.rollout_id!r} has no action batches, which ACE needs: calibrate "
+                               "RND-OE alone for an observation-only calibration (detectors rnd_oe, fiper calibrate "
+                               "--detectors rnd_oe)")
     shape = rollout.actions.shape
     return rollout.embeddings.shape[1], shape[3], shape[2], rollout.exec_steps, rollout.action_space
 
@@ -408,11 +449,10 @@ def _task_of(rollouts: Sequence[Rollout]) -> str:
     return tasks[0] if tasks else ""
 
 
-def _check_consistent(rollouts: Sequence[Rollout]) -> tuple[int, int, int, int, str]:
-    expected = _layout(rollouts[0])
-    names = ("embedding_dim", "action_dim", "horizon", "exec_steps", "action_space")
+def _check_consistent(rollouts: Sequence[Rollout], has_ace: bool) -> tuple[int, int, int, int, str]:
+    expected = _layout(rollouts[0], has_ace)
     for rollout in rollouts[1:]:
-        for name, want, have in zip(names, expected, _layout(rollout)):
+        for name, want, have in zip(_LAYOUT, expected, _layout(rollout, has_ace)):
             if want != have:
                 raise CalibrationMismatch(f"{name} of rollout {rollout.rollout_id!r}", want, have)
     return expected
@@ -450,29 +490,36 @@ def split_successes(count: int, settings: CalibrationSettings) -> CalibrationSpl
 
 @dataclass(frozen=True)
 class _Fitted:
-    """Score models fitted on some rollouts: RND-OE and the ACE cell."""
+    """Score models fitted on some rollouts: RND-OE and the ACE cell (empty without ACE)."""
 
     rnd: RNDOE
     ranges: np.ndarray
     cell: np.ndarray
 
 
+#: Aggregated curves (eqs. 2, 5) per declared detector, one per rollout.
+Curves = dict[str, list[np.ndarray]]
+
+
 def _fit_models(fit: Sequence[Rollout], extra_ranges: Sequence[Rollout], settings: CalibrationSettings,
-                projection: ActionProjection, progress: ProgressCallback | None) -> _Fitted:
+                projection: ActionProjection | None, progress: ProgressCallback | None) -> _Fitted:
     # Positions are recomputed when scoring instead of kept: a task with B = 256 holds hundreds of MB of them.
-    ranges = action_ranges(rollout_positions(r, projection) for r in [*fit, *extra_ranges])
+    ranges = (action_ranges(rollout_positions(r, projection) for r in [*fit, *extra_ranges]) if settings.has_ace
+              else np.zeros(0))
     rnd = RNDOE.fit(np.concatenate([r.embeddings for r in fit]), settings.rnd, settings.seed, progress)
     return _Fitted(rnd, ranges, cell_size(ranges, settings.resolved_alpha))
 
 
 def _curves(models: _Fitted, rollouts: Sequence[Rollout], settings: CalibrationSettings,
-            projection: ActionProjection) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """The aggregated RND-OE and ACE curves (eqs. 2, 5) of ``rollouts`` under ``models``."""
+            projection: ActionProjection | None) -> Curves:
+    """The aggregated curves (eqs. 2, 5) of ``rollouts`` under ``models``, per declared detector."""
     profile, mode = settings.profile_obj, settings.aggregation
-    obs = [aggregate(obs_scores(models.rnd, r.embeddings, profile), mode, settings.window_obs) for r in rollouts]
-    act = [aggregate(act_scores(rollout_positions(r, projection), models.cell, profile), mode, settings.window_act)
-           for r in rollouts]
-    return obs, act
+    curves = {RND_OE: [aggregate(obs_scores(models.rnd, r.embeddings, profile), mode, settings.window_obs)
+                       for r in rollouts]}
+    if settings.has_ace:
+        curves[ACE] = [aggregate(act_scores(rollout_positions(r, projection), models.cell, profile), mode,
+                                 settings.window_act) for r in rollouts]
+    return curves
 
 
 def _check_finite(threshold: Threshold, name: str, split: CalibrationSplit, settings: CalibrationSettings,
@@ -499,39 +546,41 @@ def _conformal_count(successes: int, mode: str, settings: CalibrationSettings) -
     return conformal
 
 
-def _fit_thresholds(obs: list[np.ndarray], act: list[np.ndarray], shape: tuple[list[np.ndarray], list[np.ndarray]] | None,
-                    settings: ThresholdSettings) -> tuple[Threshold, Threshold]:
-    return (fit_threshold(obs, settings, None if shape is None else shape[0]),
-            fit_threshold(act, settings, None if shape is None else shape[1]))
+def _fit_thresholds(curves: Curves, shape: Curves | None, settings: ThresholdSettings) -> dict[str, Threshold]:
+    return {name: fit_threshold(own, settings, None if shape is None else shape[name]) for name, own in curves.items()}
 
 
-def false_alarm_estimate(obs: list[np.ndarray], act: list[np.ndarray],
-                         shape: tuple[list[np.ndarray], list[np.ndarray]] | None, settings: CalibrationSettings) -> dict[str, Any]:
-    """Leave-one-out estimate of FIPER's false-alarm rate on new successes (eq. 7 at any step): each
-    conformal rollout judged by thresholds fitted without it. Its curves are held out from the score models
-    with ``"split"`` and ``"cross"``; with ``"same"`` the models saw it, so the estimate is optimistic."""
+def false_alarm_estimate(curves: Curves, shape: Curves | None, settings: CalibrationSettings) -> dict[str, Any]:
+    """Leave-one-out estimate of the false-alarm rate on new successes (eq. 7 over the declared detectors at
+    any step, :func:`~fiper_ros.core.fusion.fuse_declared`): each conformal rollout judged by thresholds
+    fitted without it. Its curves are held out from the score models with ``"split"`` and ``"cross"``; with
+    ``"same"`` the models saw it, so the estimate is optimistic."""
     threshold_settings = settings.threshold_settings()
+    n = len(curves[RND_OE])
     alarms = 0
-    for j in range(len(obs)):
-        others = [i for i in range(len(obs)) if i != j]
-        gamma_obs, gamma_act = _fit_thresholds([obs[i] for i in others], [act[i] for i in others], shape,
-                                               threshold_settings)
-        exceeded_obs = exceeds(obs[j], gamma_obs.over(obs[j].shape[0]))
-        exceeded_act = exceeds(act[j], gamma_act.over(act[j].shape[0]))
-        alarms += bool(np.any(fuse(exceeded_obs, exceeded_act, settings.combine)))
-    n = len(obs)
+    for j in range(n):
+        others = {name: [own[i] for i in range(n) if i != j] for name, own in curves.items()}
+        thresholds = _fit_thresholds(others, shape, threshold_settings)
+        exceeded = [exceeds(curves[d][j], thresholds[d].over(curves[d][j].shape[0])) for d in settings.detectors]
+        alarms += bool(np.any(fuse_declared(exceeded, settings.combine)))
     rate = alarms / n
     return {"method": "leave-one-out over the conformal rollouts", "rollouts": n, "false_alarms": alarms,
             "rate": rate, "standard_error": math.sqrt(rate * (1.0 - rate) / n),
             "held_out_from_models": settings.split != "same"}
 
 
+def _or_of_two(settings: CalibrationSettings) -> bool:
+    """Whether an alarm is either of two thresholds' (OR of RND-OE and ACE; not RND-OE alone)."""
+    return settings.has_ace and settings.combine == "or"
+
+
 def promised_rate(settings: CalibrationSettings) -> float:
     """The bound on the false-alarm rate over new successful rollouts that Prop. 1 gives these settings
     (if their split and threshold kind are covered at all, see :func:`guarantee`): ``delta`` with AND (an
-    alarm needs both detectors' thresholds exceeded, each at most ``delta`` of the time), ``2 delta`` with OR
-    (either of two thresholds at ``delta`` each: the union bound)."""
-    return settings.delta * (2.0 if settings.combine == "or" else 1.0)
+    alarm needs both detectors' thresholds exceeded, each at most ``delta`` of the time) and with RND-OE
+    alone (its one threshold), ``2 delta`` with OR (either of two thresholds at ``delta`` each: the union
+    bound)."""
+    return settings.delta * (2.0 if _or_of_two(settings) else 1.0)
 
 
 def guarantee(settings: CalibrationSettings) -> str:
@@ -540,7 +589,7 @@ def guarantee(settings: CalibrationSettings) -> str:
         return (f"none: a {settings.threshold} threshold bounds each step, not a whole rollout "
                 "(docs/method.md, 'What each threshold guarantees')")
     rate = promised_rate(settings)
-    how = "" if settings.combine != "or" else (f"; OR of two thresholds at delta {settings.delta:g} each: the union "
+    how = "" if not _or_of_two(settings) else (f"; OR of two thresholds at delta {settings.delta:g} each: the union "
                                                f"bound, calibrate at --delta {settings.delta / 2:g} for {settings.delta:g}")
     if settings.split == "split":
         return (f"at most {rate:g} of new successful rollouts alarmed (Proposition 1: split conformal, "
@@ -579,9 +628,10 @@ def calibrate(
             f"calibration needs at least {settings.min_rollouts} successful rollouts, got {len(good)} "
             f"(of {len(rollouts)} given)"
         )
-    embedding_dim, action_dim, horizon, exec_steps, action_space = _check_consistent(list(rollouts))
+    embedding_dim, action_dim, horizon, exec_steps, action_space = _check_consistent(list(rollouts), settings.has_ace)
     task = _task_of(rollouts)
-    projection = ActionProjection(action_space, settings.action_dims, fk, settings.control_dt)
+    projection = ActionProjection(action_space, settings.action_dims, fk, settings.control_dt) if settings.has_ace \
+        else None
     failed = [r for r in rollouts if r.success is not True] if settings.profile_obj.ranges_from_all else []
     split = split_successes(len(good), settings)
     fit = [good[i] for i in split.fit]
@@ -590,34 +640,35 @@ def calibrate(
     models = _fit_models(fit, failed, settings, projection, progress)
     shape = None
     if split.mode == "same":
-        obs, act = _curves(models, good, settings, projection)
+        curves = _curves(models, good, settings, projection)
     elif split.mode == "split":
         shape = _curves(models, fit, settings, projection)
-        obs, act = _curves(models, [good[i] for i in split.conformal], settings, projection)
+        curves = _curves(models, [good[i] for i in split.conformal], settings, projection)
     else:  # cross: each fold scored by models fitted without it, in the order of the successes
-        obs, act = [np.empty(0)] * len(good), [np.empty(0)] * len(good)
+        curves = {name: [np.empty(0)] * len(good) for name in settings.detectors}
         for fold in split.folds:
             rest = [good[i] for i in range(len(good)) if i not in fold]
-            fold_obs, fold_act = _curves(_fit_models(rest, failed, settings, projection, None),
-                                         [good[i] for i in fold], settings, projection)
-            for i, curve_obs, curve_act in zip(fold, fold_obs, fold_act):
-                obs[i], act[i] = curve_obs, curve_act
-    threshold_obs, threshold_act = _fit_thresholds(obs, act, shape, settings.threshold_settings())
-    for threshold, name in ((threshold_obs, "RND-OE"), (threshold_act, "ACE")):
-        if refuse_infinite:
-            _check_finite(threshold, name, split, settings, len(good))
+            fold_curves = _curves(_fit_models(rest, failed, settings, projection, None), [good[i] for i in fold],
+                                  settings, projection)
+            for name, own in fold_curves.items():
+                for i, curve in zip(fold, own):
+                    curves[name][i] = curve
+    thresholds = _fit_thresholds(curves, shape, settings.threshold_settings())
+    if refuse_infinite:
+        for name, threshold in thresholds.items():
+            _check_finite(threshold, LABELS[name], split, settings, len(good))
     ids = [str(r.rollout_id) for r in good]
     record = {"mode": split.mode, "seed": settings.seed, "successes": len(good),
               "fit": [ids[i] for i in split.fit], "conformal": [ids[i] for i in split.conformal],
               **({"folds": [[ids[i] for i in fold] for fold in split.folds]} if split.folds else {}),
-              "behind_thresholds": {"obs": _behind(threshold_obs), "act": _behind(threshold_act)},
+              "behind_thresholds": {SIDES[name]: _behind(t) for name, t in thresholds.items()},
               "guarantee": guarantee(settings)}
     return Calibration(
         settings=settings,
         rnd=models.rnd,  # with "cross", fitted on every success: the deployed model
         ranges=models.ranges,
-        threshold_obs=threshold_obs,
-        threshold_act=threshold_act,
+        threshold_obs=thresholds[RND_OE],
+        threshold_act=thresholds.get(ACE),
         embedding_dim=embedding_dim,
         action_dim=action_dim,
         horizon=horizon,
@@ -626,7 +677,7 @@ def calibrate(
         num_rollouts=len(good),
         task=task,
         split=record,
-        false_alarms=false_alarm_estimate(obs, act, shape, settings),
+        false_alarms=false_alarm_estimate(curves, shape, settings),
     )
 
 

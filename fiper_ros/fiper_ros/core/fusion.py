@@ -1,12 +1,15 @@
 """Combining the observation- and action-based predictors, eq. (7) and App. A.4.
 
 ``F = 1(eta_O > gamma_O,t AND eta_A > gamma_A,t)`` (default) or the OR variant; the comparisons are
-strict. A rollout is flagged as failing at its first alarm; :class:`FusionLatch` keeps that state
-for the rest of the rollout.
+strict. A calibration that declares one detector alone (observation-only, :mod:`fiper_ros.core.detectors`)
+has no second decision to combine: its alarm is that detector's exceedance and the AND/OR does not
+apply (:func:`fuse_declared`). A rollout is flagged as failing at its first alarm; :class:`FusionLatch`
+keeps that state for the rest of the rollout.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +33,17 @@ def fuse(exceeded_obs: np.ndarray | bool, exceeded_act: np.ndarray | bool, combi
     if _check_combine(combine) == "and":
         return np.logical_and(exceeded_obs, exceeded_act)
     return np.logical_or(exceeded_obs, exceeded_act)
+
+
+def fuse_declared(exceeded: Sequence[np.ndarray | bool], combine: str = "and") -> np.ndarray | bool:
+    """FIPER's decision over the declared detectors' decisions, in :data:`~fiper_ros.core.detectors.DETECTORS`
+    order: two are fused by :func:`fuse`; one alone is its own decision (``combine`` does not apply)."""
+    _check_combine(combine)
+    if len(exceeded) == 2:
+        return fuse(exceeded[0], exceeded[1], combine)
+    if len(exceeded) == 1:
+        return np.asarray(exceeded[0], dtype=bool)
+    raise ValueError(f"one or two detectors' decisions expected, got {len(exceeded)}")
 
 
 def first_alarm(alarms: np.ndarray) -> int | None:
@@ -70,12 +84,10 @@ class FusionLatch:
         self._step = 0
         self._first: int | None = None
 
-    def update(self, exceeded_obs: bool, exceeded_act: bool) -> FusionState:
-        """Fuse this step's two decisions ``F_O``, ``F_A``."""
-        if self.combine == "and":
-            alarm = bool(exceeded_obs) and bool(exceeded_act)
-        else:
-            alarm = bool(exceeded_obs) or bool(exceeded_act)
+    def update(self, exceeded_obs: bool, exceeded_act: bool | None = None) -> FusionState:
+        """Fuse this step's two decisions ``F_O``, ``F_A`` (``F_A`` ``None``: RND-OE alone, observation-only)."""
+        decisions = [exceeded_obs] if exceeded_act is None else [exceeded_obs, exceeded_act]
+        alarm = bool(fuse_declared(decisions, self.combine))
         if alarm and self._first is None:
             self._first = self._step
         self._step += 1

@@ -11,6 +11,10 @@ caller declares the lost steps with ``skip_to`` (then results are flagged ``comp
 missing step is inside the window). A step whose input was rejected, or whose score is not finite
 (:class:`~fiper_ros.core.scores.NonFiniteScore`), is declared with ``missing``: it enters the window as
 0 and its result carries only the lower bound. Every decision is :func:`fiper_ros.core.fusion.exceeds`.
+
+With an observation-only calibration (RND-OE alone, :mod:`fiper_ros.core.detectors`) there is no ACE
+part: :class:`ActionMonitor` refuses it, :class:`FiperMonitor` and :func:`predict_rollout` judge with
+RND-OE's exceedance alone (the ACE results are NaN / False), and no action batches are needed.
 """
 
 from __future__ import annotations
@@ -20,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fiper_ros.core.calibration import Calibration
-from fiper_ros.core.fusion import FusionLatch, FusionState, exceeds, first_alarm, fuse
+from fiper_ros.core.calibration import Calibration, CalibrationError
+from fiper_ros.core.fusion import FusionLatch, FusionState, exceeds, first_alarm, fuse_declared
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_score, act_scores, obs_score, obs_scores, rollout_positions
@@ -132,6 +136,10 @@ class ActionMonitor(_StreamingPredictor):
 
     def __init__(self, calibration: Calibration, fk: ForwardKinematics | None = None) -> None:
         settings = calibration.settings
+        if calibration.threshold_act is None:
+            raise CalibrationError(f"the calibration is observation-only (detectors "
+                                   f"{','.join(calibration.detectors)}): it has no ACE threshold to score action "
+                                   "batches with")
         super().__init__(calibration.threshold_act, settings.window_act, settings.aggregation)
         self._calibration = calibration
         self._projection = calibration.projection(fk)
@@ -153,39 +161,46 @@ class ActionMonitor(_StreamingPredictor):
 
 @dataclass(frozen=True)
 class FiperStep:
-    """Both predictors and their fusion (eq. 7) at one policy step."""
+    """The declared predictors and their fusion (eq. 7) at one policy step (``act`` ``None``: RND-OE alone)."""
 
     obs: StepScore
-    act: StepScore
+    act: StepScore | None
     fusion: FusionState
 
 
 class FiperMonitor:
-    """Streaming FIPER: both predictors plus the latched AND/OR fusion."""
+    """Streaming FIPER: the declared predictors plus the latched AND/OR fusion (RND-OE alone for an
+    observation-only calibration)."""
 
     def __init__(self, calibration: Calibration, fk: ForwardKinematics | None = None) -> None:
         self.observation = ObservationMonitor(calibration)
-        self.action = ActionMonitor(calibration, fk)
+        self.action = ActionMonitor(calibration, fk) if calibration.has_ace else None
         self.latch = FusionLatch(calibration.settings.combine)
 
     def reset(self) -> None:
         """Start a new rollout."""
         self.observation.reset()
-        self.action.reset()
+        if self.action is not None:
+            self.action.reset()
         self.latch.reset()
 
     def update(
-        self, step: int, embedding: np.ndarray, actions: np.ndarray, q_current: np.ndarray | None = None
+        self, step: int, embedding: np.ndarray, actions: np.ndarray | None = None, q_current: np.ndarray | None = None
     ) -> FiperStep:
-        """Process policy step ``step``."""
+        """Process policy step ``step`` (``actions`` are needed unless the calibration is observation-only)."""
+        if self.action is not None and actions is None:
+            raise MonitorError("the calibration declares ACE: the step's action batch is needed")
         obs = self.observation.update(step, embedding)
+        if self.action is None:
+            return FiperStep(obs, None, self.latch.update(obs.exceeded))
         act = self.action.update(step, actions, q_current)
         return FiperStep(obs, act, self.latch.update(obs.exceeded, act.exceeded))
 
 
 @dataclass(frozen=True)
 class RolloutPrediction:
-    """Vectorised FIPER output over one rollout (arrays of length ``T``)."""
+    """Vectorised FIPER output over one rollout (arrays of length ``T``; the ``act_*`` ones NaN / False for an
+    observation-only calibration, whose ``alarms`` are RND-OE's exceedances)."""
 
     obs_scores: np.ndarray
     act_scores: np.ndarray
@@ -202,19 +217,26 @@ class RolloutPrediction:
 def predict_rollout(
     rollout: Rollout, calibration: Calibration, fk: ForwardKinematics | None = None
 ) -> RolloutPrediction:
-    """Run FIPER over a recorded rollout."""
-    calibration.check_compatible(
-        embedding_dim=rollout.embeddings.shape[1], action_dim=rollout.actions.shape[3], horizon=rollout.actions.shape[2]
-    )
+    """Run FIPER over a recorded rollout (with the detectors the calibration declares)."""
     settings, profile = calibration.settings, calibration.profile
+    calibration.check_compatible(embedding_dim=rollout.embeddings.shape[1])
     s_obs = obs_scores(calibration.rnd, rollout.embeddings, profile)
-    s_act = act_scores(rollout_positions(rollout, calibration.projection(fk)), calibration.cell, profile)
     eta_obs = aggregate(s_obs, settings.aggregation, settings.window_obs)
-    eta_act = aggregate(s_act, settings.aggregation, settings.window_act)
     gamma_obs = calibration.threshold_obs.over(rollout.length)
-    gamma_act = calibration.threshold_act.over(rollout.length)
     obs_exceeded = np.asarray(exceeds(eta_obs, gamma_obs), dtype=bool)
-    act_exceeded = np.asarray(exceeds(eta_act, gamma_act), dtype=bool)
-    alarms = np.asarray(fuse(obs_exceeded, act_exceeded, settings.combine), dtype=bool)
+    if calibration.threshold_act is None:  # observation-only: RND-OE alone
+        s_act, eta_act, gamma_act = (np.full(rollout.length, np.nan) for _ in range(3))
+        act_exceeded = np.zeros(rollout.length, dtype=bool)
+        alarms = np.asarray(fuse_declared([obs_exceeded], settings.combine), dtype=bool)
+    else:
+        if rollout.actions is None:
+            raise MonitorError(f"rollout {rollout.rollout_id!r} has no action batches: the calibration declares ACE "
+                               "(an observation-only calibration scores it with RND-OE alone)")
+        calibration.check_compatible(action_dim=rollout.actions.shape[3], horizon=rollout.actions.shape[2])
+        s_act = act_scores(rollout_positions(rollout, calibration.projection(fk)), calibration.cell, profile)
+        eta_act = aggregate(s_act, settings.aggregation, settings.window_act)
+        gamma_act = calibration.threshold_act.over(rollout.length)
+        act_exceeded = np.asarray(exceeds(eta_act, gamma_act), dtype=bool)
+        alarms = np.asarray(fuse_declared([obs_exceeded, act_exceeded], settings.combine), dtype=bool)
     return RolloutPrediction(s_obs, s_act, eta_obs, eta_act, gamma_obs, gamma_act, obs_exceeded, act_exceeded, alarms,
                              first_alarm(alarms))

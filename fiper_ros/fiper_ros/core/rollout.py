@@ -40,7 +40,8 @@ class Rollout:
         task: Task name, e.g. ``"push_t"``.
         scenario: ``"id"`` or the name of an OOD scenario.
         embeddings: Observation embeddings, float32 ``[T, E]``.
-        actions: Sampled action-chunk batches, float32 ``[T, B, H, D]``.
+        actions: Sampled action-chunk batches, float32 ``[T, B, H, D]``; ``None`` for a rollout recorded
+            without them (observation-only data: only RND-OE can score it, issue #19).
         exec_steps: Executed actions per chunk, ``h`` (Sec. 3).
         success: Final outcome, ``None`` if unknown.
         action_space: ``"ee_position"``, ``"joint_position"`` or ``"joint_velocity"``.
@@ -53,7 +54,7 @@ class Rollout:
     task: str
     scenario: str
     embeddings: np.ndarray
-    actions: np.ndarray
+    actions: np.ndarray | None
     exec_steps: int
     success: bool | None
     action_space: str = "ee_position"
@@ -61,31 +62,46 @@ class Rollout:
 
     def __post_init__(self) -> None:
         self.embeddings = np.ascontiguousarray(self.embeddings, dtype=np.float32)
-        self.actions = np.ascontiguousarray(self.actions, dtype=np.float32)
         rid = self.rollout_id
         if self.embeddings.ndim != 2:
             raise RolloutError(f"rollout {rid!r}: embeddings must be [T, E], got shape {self.embeddings.shape}")
+        if self.embeddings.shape[0] == 0:
+            raise RolloutError(f"rollout {rid!r}: no steps")
+        if self.embeddings.shape[1] < 1:
+            raise RolloutError(f"rollout {rid!r}: empty dimension in embeddings {self.embeddings.shape}")
+        _check_finite("embeddings", self.embeddings, rid)
+        if self.action_space not in ACTION_SPACES:
+            raise RolloutError(
+                f"rollout {rid!r}: action_space must be one of {ACTION_SPACES}, got {self.action_space!r}"
+            )
+        if self.actions is not None:
+            self._check_actions()
+        elif int(self.exec_steps) < 1:
+            raise RolloutError(f"rollout {rid!r}: exec_steps must be >= 1, got {self.exec_steps}")
+        self.exec_steps = int(self.exec_steps)
+
+    def _check_actions(self) -> None:
+        self.actions = np.ascontiguousarray(self.actions, dtype=np.float32)
+        rid = self.rollout_id
         if self.actions.ndim != 4:
-            raise RolloutError(f"rollout {rid!r}: actions must be [T, B, H, D], got shape {self.actions.shape}")
+            raise RolloutError(f"rollout {rid!r}: actions must be [T, B, H, D], got shape {self.actions.shape} "
+                               "(a rollout without action batches has actions=None)")
         if self.embeddings.shape[0] != self.actions.shape[0]:
             raise RolloutError(
                 f"rollout {rid!r}: embeddings have T={self.embeddings.shape[0]} steps "
                 f"but actions have T={self.actions.shape[0]}"
             )
-        if self.embeddings.shape[0] == 0:
-            raise RolloutError(f"rollout {rid!r}: no steps")
-        if min(self.actions.shape[1:]) < 1 or self.embeddings.shape[1] < 1:
+        if min(self.actions.shape[1:]) < 1:
             raise RolloutError(f"rollout {rid!r}: empty dimension in actions {self.actions.shape}")
-        _check_finite("embeddings", self.embeddings, rid)
         _check_finite("actions", self.actions, rid)
-        if self.action_space not in ACTION_SPACES:
-            raise RolloutError(
-                f"rollout {rid!r}: action_space must be one of {ACTION_SPACES}, got {self.action_space!r}"
-            )
         horizon = self.actions.shape[2]
         if not 1 <= int(self.exec_steps) <= horizon:
             raise RolloutError(f"rollout {rid!r}: exec_steps must be in [1, H={horizon}], got {self.exec_steps}")
-        self.exec_steps = int(self.exec_steps)
+
+    @property
+    def has_actions(self) -> bool:
+        """Whether the rollout holds its sampled action batches (ACE and the action baselines need them)."""
+        return self.actions is not None
 
     @property
     def is_ood(self) -> bool:
@@ -127,8 +143,8 @@ class RolloutSet:
         """Write all rollouts to ``path`` (numpy ``.npz``, no pickles).
 
         Layout: ``__header__`` is a JSON string ``{"format_version", "splits": {name: [header]}}``;
-        arrays are stored as ``{split}/{i}/embeddings``, ``{split}/{i}/actions`` and
-        ``{split}/{i}/meta/{key}`` for array-valued metadata. Non-array metadata must be JSON.
+        arrays are stored as ``{split}/{i}/embeddings``, ``{split}/{i}/actions`` (absent for a rollout without
+        action batches) and ``{split}/{i}/meta/{key}`` for array-valued metadata. Non-array metadata must be JSON.
         """
         arrays: dict[str, np.ndarray] = {}
         splits: dict[str, list[dict[str, Any]]] = {}
@@ -137,7 +153,8 @@ class RolloutSet:
             for i, rollout in enumerate(rollouts):
                 splits[split].append(_header(rollout))
                 arrays[f"{split}/{i}/embeddings"] = rollout.embeddings
-                arrays[f"{split}/{i}/actions"] = rollout.actions
+                if rollout.actions is not None:
+                    arrays[f"{split}/{i}/actions"] = rollout.actions
                 for key, value in rollout.metadata.items():
                     if isinstance(value, np.ndarray):
                         arrays[f"{split}/{i}/meta/{key}"] = value
@@ -185,7 +202,7 @@ class RolloutSet:
                             task=head["task"],
                             scenario=head["scenario"],
                             embeddings=data[f"{split}/{i}/embeddings"],
-                            actions=data[f"{split}/{i}/actions"],
+                            actions=data[actions] if (actions := f"{split}/{i}/actions") in data else None,
                             exec_steps=head["exec_steps"],
                             success=head["success"],
                             action_space=head["action_space"],

@@ -14,6 +14,10 @@ calibration, not covered by Proposition 1). The output directory
 receives ``results.md``, ``results.json`` and PNG figures. Per-step scores are cached in
 ``--cache-dir`` (default ``.cache/fiper-eval``), so a second run with other sweep or protocol options
 only re-runs the sweep.
+
+Observation-only data (rollouts without action batches): by default only the methods that need none are
+evaluated (the elapsed time, PCA-kmeans, logpZO, RND-OE), with a note; ``--methods`` naming one that needs
+action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import logging  # noqa: E402
+import sys  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -38,7 +43,7 @@ from fiper_ros.bags.errors import BagError, fail  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
-from fiper_ros.evaluation.methods import METHODS, MethodSettings  # noqa: E402
+from fiper_ros.evaluation.methods import METHODS, MethodSettings, observation_methods  # noqa: E402
 from fiper_ros.core.calibration import SPLITS  # noqa: E402
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
@@ -99,7 +104,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     data.add_argument("--synthetic-scale", type=float, default=1.0, help="shrink synthetic shapes (tests)")
     live_options.add_strict_argument(data)
     sweep = parser.add_argument_group("sweep")
-    sweep.add_argument("--methods", type=name_list(tuple(METHODS)), default=tuple(METHODS))
+    sweep.add_argument("--methods", type=name_list(tuple(METHODS)), default=None,
+                       help="comma list (default: all; on observation-only data those that need no action batches)")
     sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
     sweep.add_argument("--no-cumulative", action="store_true", help="do not sweep the cumulative sum")
     sweep.add_argument("--deltas", type=delta_list, default=DELTAS, help="comma list or 'paper' (0.01..0.10)")
@@ -146,8 +152,27 @@ def datasets_from(args: argparse.Namespace) -> list[Dataset]:
     return datasets
 
 
+def methods_for(requested: tuple[str, ...] | None, datasets: list[Dataset]) -> tuple[str, ...]:
+    """The methods to evaluate: ``requested`` (``None``: all), and on observation-only data those that need no
+    action batches (a requested one that needs them is a :class:`DatasetError`)."""
+    methods = requested or tuple(METHODS)
+    without = [d.task for d in datasets if not d.has_actions]
+    needing = [METHODS[m].label for m in methods if METHODS[m].needs_actions]
+    if not without or not needing:
+        return methods
+    kept = observation_methods(methods)
+    what = f"task(s) {', '.join(without)} have no action batches (observation-only data)"
+    cannot = f"{', '.join(needing)} cannot run without them"
+    if requested is not None:
+        kept = kept or observation_methods(tuple(METHODS))
+        raise DatasetError(f"{what}; {cannot}: evaluate {', '.join(METHODS[m].label for m in kept)} "
+                           f"(--methods {','.join(kept)})")
+    print(f"fiper evaluate: {what}; {cannot}: evaluating {', '.join(METHODS[m].label for m in kept)}", file=sys.stderr)
+    return kept
+
+
 def settings_from(args: argparse.Namespace) -> EngineSettings:
-    """Engine settings from the parsed options."""
+    """Engine settings from the parsed options (``--methods`` resolved by :func:`methods_for`)."""
     if args.default_window not in args.windows:
         raise ValueError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
@@ -185,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_cache:
             check_directory(args.cache_dir)
         datasets = datasets_from(args)
+        args.methods = methods_for(args.methods, datasets)
         settings = settings_from(args)
         robot_options.fk_of(settings.method_settings.robot)
         check_evaluation(datasets, settings)

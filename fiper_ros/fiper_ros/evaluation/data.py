@@ -43,6 +43,11 @@ class Dataset:
             raise DatasetError(f"task {self.task!r}: no test rollouts")
 
     @property
+    def has_actions(self) -> bool:
+        """Whether every rollout holds its action batches (else the data is observation-only for the methods)."""
+        return all(r.has_actions for r in (*self.calibration, *self.test))
+
+    @property
     def action_space(self) -> str:
         """The policy's action space (every rollout of a task shares it)."""
         return self.calibration[0].action_space
@@ -83,11 +88,13 @@ class Dataset:
         digest = hashlib.sha256(self.task.encode())
         for split, rollouts in (("calibration", self.calibration), ("test", self.test)):
             for rollout in rollouts:
+                actions = rollout.actions
                 head = (split, rollout.rollout_id, rollout.scenario, rollout.success, rollout.exec_steps,
-                        rollout.action_space, rollout.embeddings.shape, rollout.actions.shape)
+                        rollout.action_space, rollout.embeddings.shape, None if actions is None else actions.shape)
                 digest.update(repr(head).encode())
                 digest.update(rollout.embeddings.tobytes())
-                digest.update(rollout.actions.tobytes())
+                if actions is not None:
+                    digest.update(actions.tobytes())
                 for key in sorted(rollout.metadata):
                     value = rollout.metadata[key]
                     if isinstance(value, np.ndarray):

@@ -10,6 +10,9 @@ so its cumulative sum at policy step ``t`` is ``t + 1``, the steps elapsed, and 
 threshold it alarms at step ``k`` of every rollout longer than ``k``, ``k`` the conformal quantile of
 the calibration successes' lengths (calibrated as every other method, on the same conformal part). It
 has this one configuration (:attr:`Method.fixed`): nothing is selected for it.
+
+Observation-only data (rollouts without action batches, issue #19) can be evaluated by the methods that
+read observations alone (:func:`observation_methods`): the elapsed time, PCA-kmeans, logpZO and RND-OE.
 """
 
 from __future__ import annotations
@@ -34,6 +37,8 @@ class Method:
     streams: tuple[str, ...]
     fixed: tuple[str, str] | None = None
     """``(window label, threshold kind)`` of a method with a single configuration; ``None``: swept."""
+    needs_actions: bool = False
+    """Whether its streams read the sampled action batches (not available in observation-only data)."""
 
 
 ELAPSED = "elapsed"
@@ -43,11 +48,11 @@ METHODS: dict[str, Method] = {
     ELAPSED: Method("Elapsed", (ELAPSED,), ("cum", "cp_constant")),
     "pca_kmeans": Method("PCA-kmeans", ("pca_kmeans",)),
     "logpzo": Method("logpZO", ("logpzo",)),
-    "rnd_a": Method("RND-A", ("rnd_a",)),
-    "stac": Method("STAC", ("stac",)),
+    "rnd_a": Method("RND-A", ("rnd_a",), needs_actions=True),
+    "stac": Method("STAC", ("stac",), needs_actions=True),
     "rnd_oe": Method("RND-OE", ("rnd_oe",)),
-    "ace": Method("ACE", ("ace",)),
-    "fiper": Method("FIPER", ("rnd_oe", "ace")),
+    "ace": Method("ACE", ("ace",), needs_actions=True),
+    "fiper": Method("FIPER", ("rnd_oe", "ace"), needs_actions=True),
 }
 
 #: Streams fitted on nothing: their scores depend neither on the calibration split nor on the seed.
@@ -139,6 +144,11 @@ class MethodSettings:
         if stream == "rnd_a":
             return {**common, **self.rnd_a.to_dict()}
         raise ValueError(f"unknown stream {stream!r}")
+
+
+def observation_methods(methods: tuple[str, ...]) -> tuple[str, ...]:
+    """The methods of ``methods`` that need no action batches, in their order."""
+    return tuple(m for m in methods if not METHODS[m].needs_actions)
 
 
 def streams_of(methods: list[str]) -> list[str]:

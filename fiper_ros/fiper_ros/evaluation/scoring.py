@@ -36,6 +36,7 @@ from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC, check_overlap
 from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
 from fiper_ros.core.compat import get_profile
+from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
@@ -126,29 +127,35 @@ def check_split(dataset: Dataset, settings: MethodSettings) -> None:
                            "calibration successes, or --split same)")
 
 
-def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int) -> Fitter:
-    """RND-OE and ACE fitted through the core calibration on the successes given, with the calibration
-    failures where the profile takes ``R_d`` over them too (``core.scores``; epsilon included there).
+def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int, with_ace: bool = True) -> Fitter:
+    """RND-OE and ACE (``with_ace`` False: RND-OE alone, as an observation-only calibration) fitted through the
+    core calibration on the successes given, with the calibration failures where the profile takes ``R_d``
+    over them too (``core.scores``; epsilon included there).
 
     The core calibrates them with ``split="same"``: the split is the caller's (:func:`split_scores`), so
-    RND-OE and ``R_d`` are those :func:`fiper_ros.core.calibration.calibrate` fits on the split's fit part.
+    RND-OE and ``R_d`` are those :func:`fiper_ros.core.calibration.calibrate` fits on the split's fit part
+    (RND-OE is the same network either way: ``R_d`` draws no randomness).
     """
-    robot = robot_for(dataset, settings)
+    robot = robot_for(dataset, settings) if with_ace else None
     calibration_settings = replace(settings.calibration_settings(seed), alpha=settings.alpha, rnd=settings.rnd,
-                                   split="same", control_dt=None if robot is None else robot.control_dt)
+                                   split="same", control_dt=None if robot is None else robot.control_dt,
+                                   detectors=DETECTORS if with_ace else OBSERVATION_ONLY)
     fk = None if robot is None else robot.forward_kinematics()
     failed = [r for r in dataset.calibration if r.success is not True]
 
     def fit(successes: Sequence[Rollout]) -> dict[str, Scorer]:
         calibration = calibrate([*successes, *failed], calibration_settings, fk=fk, refuse_infinite=False)
-        projection = calibration.projection(fk)
         profile = calibration.profile
-
-        def ace(rollout: Rollout) -> np.ndarray:
-            return act_scores(rollout_positions(rollout, projection), calibration.cell, profile)
 
         def rnd(rollout: Rollout) -> np.ndarray:
             return obs_scores(calibration.rnd, rollout.embeddings, profile)
+
+        if not with_ace:
+            return {"rnd_oe": rnd}
+        projection = calibration.projection(fk)
+
+        def ace(rollout: Rollout) -> np.ndarray:
+            return act_scores(rollout_positions(rollout, projection), calibration.cell, profile)
 
         return {"rnd_oe": rnd, "ace": ace}
 
@@ -215,13 +222,13 @@ def compute_streams(
             raw[stream], seconds[stream] = cached, 0.0
     missing = [s for s in streams if s not in raw]
     with torch_threads(threads):
-        if any(s in FIPER_PAIR for s in missing):
+        fitted = [s for s in FIPER_PAIR if s in missing]
+        if fitted:
             start = time.perf_counter()
-            both = split_scores(fiper_fitter(dataset, settings, seed), dataset, split)
+            both = split_scores(fiper_fitter(dataset, settings, seed, with_ace=ACE in fitted), dataset, split)
             elapsed = time.perf_counter() - start
-            for stream in FIPER_PAIR:
-                if stream in missing:
-                    raw[stream], seconds[stream] = both[stream], elapsed / 2.0
+            for stream in fitted:
+                raw[stream], seconds[stream] = both[stream], elapsed / len(fitted)
         for stream in missing:
             if stream not in raw:
                 start = time.perf_counter()

@@ -56,6 +56,11 @@ class AceNode(DetectorNode):
         self.joint_state_waits_out = 0
 
     def make_monitor(self, calibration: Calibration) -> ActionMonitor:
+        if not calibration.has_ace:
+            directory = self.get_parameter("calibration_dir").value
+            raise ValueError(f"calibration {directory} is observation-only (detectors "
+                             f"{','.join(calibration.detectors)}): nothing for ace_node to score; launch the suite "
+                             "without it (fiper_ros/config/suite_obs.yaml)")
         fk = None
         if calibration.action_space in JOINT_SPACES:
             urdf = self.get_parameter("urdf_path").value

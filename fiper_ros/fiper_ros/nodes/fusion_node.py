@@ -1,5 +1,7 @@
 """Fusion node: matches ``scores/rnd_oe`` and ``scores/ace`` per (rollout_id, step), fuses them
 (eq. 7, AND by default) and publishes FailureAlarm on ``alarm`` (/fiper/alarm) every policy step.
+With ``calibration_dir`` it fuses the detectors that calibration declares: for an observation-only one
+(RND-OE alone) it follows ``scores/rnd_oe`` only and its alarm is RND-OE's exceedance.
 
 The contract for supervisors is in docs/alarm-contract.md: RELIABLE + TRANSIENT_LOCAL + KEEP_LAST(1);
 ALARM latches until ``~/reset`` (``fiper_msgs/ResetAlarm``: who and why, logged and counted; refused with
@@ -20,6 +22,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
+from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
@@ -40,6 +43,9 @@ class FusionNode(FiperNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("fusion_node", **kwargs)
         self.declare_parameter("combine", "and", describe("'and' (paper eq. 7) or 'or'", read_only=True))
+        self.declare_parameter("calibration_dir", "",
+                               describe("calibration whose declared detectors are fused (empty: rnd_oe and ace)",
+                                        read_only=True))
         self.declare_parameter("deadline_s", 1.0,
                                describe("a score stream older than this makes the state UNKNOWN, until the rollout's "
                                         "policy period is measured (always, if deadline_periods is 0)",
@@ -92,13 +98,18 @@ class FusionNode(FiperNode):
 
     def configure(self) -> None:
         combine = self.get_parameter("combine").value
+        directory = self.get_parameter("calibration_dir").value
+        detectors = declared_detectors(directory) if directory else DETECTORS
         self.fuser = AlarmFuser(combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
-                                int(self.get_parameter("deadline_floor_s").value * 1e9))
+                                int(self.get_parameter("deadline_floor_s").value * 1e9), detectors)
+        alone = "" if self.fuser.combined else ": alone, combine does not apply"
+        self.get_logger().info(f"fusing {', '.join(detectors)}{alone}"
+                               + (f" (calibration {directory})" if directory else ""))
         self._on_publishers()
 
     def activate(self) -> None:
-        for detector in DETECTORS:
+        for detector in self.fuser.detectors:
             topic = f"scores/{detector}"
             self._inputs.append(self.create_subscription(
                 Score, topic, self._on_score, qos.SCORE_SUB,
@@ -163,7 +174,7 @@ class FusionNode(FiperNode):
 
     def _on_score(self, msg: Score) -> None:
         started = self.timed()
-        if msg.detector not in DETECTORS:  # before any per-detector state: a name must not size memory
+        if msg.detector not in self.fuser.detectors:  # before any per-detector state: a name must not size memory
             self.reject(InputRejected(UNKNOWN_DETECTOR, f"score of unknown detector {msg.detector!r}"))
             return
         self.tick(f"scores/{msg.detector}")
@@ -225,7 +236,7 @@ class FusionNode(FiperNode):
         reason = "no active rollout" if fuser.active_rollout is None else "waiting for the first scores of the rollout"
         return AlarmState(rollout_id=fuser.active_rollout or NO_ROLLOUT, step=0, state=ALARM if fuser.latched else UNKNOWN,
                           latched=fuser.latched, obs_exceeded=False, act_exceeded=False, eta_obs=math.nan,
-                          gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combine,
+                          gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combined,
                           reason=reason, stamp_ns=now)
 
     def _on_reset(self, request: ResetAlarm.Request, response: ResetAlarm.Response) -> ResetAlarm.Response:
@@ -271,6 +282,7 @@ class FusionNode(FiperNode):
             values |= {"matched": str(self.fuser.matched), "evicted": str(self.fuser.evicted),
                        "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
                        "lost_streams": ",".join(sorted(self.lost)) or "none",
+                       "detectors": ",".join(self.fuser.detectors),
                        "waiting_for_start": str(len(self.pending)),
                        "repeated_starts": str(self.repeated_starts),
                        "scores_in_doubt": self.fuser.suspicion or self.fuser.tainted or "no",

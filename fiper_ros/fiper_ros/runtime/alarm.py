@@ -1,7 +1,12 @@
-"""The fusion node's state machine: match the two score streams per step, fuse (eq. 7), latch, and
+"""The fusion node's state machine: match the declared score streams per step, fuse (eq. 7), latch, and
 say UNKNOWN whenever a stream is missing, stale or uncalibrated.
 
-Contract (docs/alarm-contract.md): one :class:`AlarmState` per policy step whose two scores both
+The declared detectors are those of the calibration (:mod:`fiper_ros.core.detectors`): FIPER's pair, or
+RND-OE alone (observation-only). Alone, a step's alarm is RND-OE's exceedance and ``combine`` does not
+apply (the state's ``combine`` is empty and its reason says so); only the declared streams are matched,
+checked for staleness and for liveliness.
+
+Contract (docs/alarm-contract.md): one :class:`AlarmState` per policy step whose declared scores all
 arrived; ALARM latches until :meth:`AlarmFuser.reset` or the next rollout START, and the latch wins over
 everything that arrives after it (missing or infinite thresholds, stale streams, non-finite or
 contradictory scores); UNKNOWN, never OK, while a stream is missing, older than ``deadline_ns``, carries
@@ -19,13 +24,13 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
-from fiper_ros.core.fusion import exceeds, fuse
+from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, check_detectors
+from fiper_ros.core.fusion import exceeds, fuse_declared
 from fiper_ros.runtime.stats import PeriodEstimator
 
 OK = "ok"
 ALARM = "alarm"
 UNKNOWN = "unknown"
-DETECTORS = ("rnd_oe", "ace")
 #: Rollout id of a state about no rollout (the fusion node is idle); the suite's rollout ids are > 0.
 NO_ROLLOUT = 0
 #: Longest requester or reason of a reset, in characters (what is logged stays one line of the log).
@@ -99,20 +104,27 @@ class AlarmState:
     eta_act: float
     gamma_act: float
     combine: str
+    """``"and"`` / ``"or"``; empty when one detector is judged alone (the combine does not apply)."""
     reason: str
     stamp_ns: int
 
 
 class AlarmFuser:
-    """Streaming eq. (7) over matched (rollout_id, step) score pairs, with latch and staleness."""
+    """Streaming eq. (7) over the declared detectors' scores matched per (rollout_id, step), with latch and
+    staleness (``detectors``: FIPER's pair, or ``("rnd_oe",)`` alone)."""
 
     def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
-                 deadline_periods: float = 0.0, deadline_floor_ns: int = 0) -> None:
+                 deadline_periods: float = 0.0, deadline_floor_ns: int = 0,
+                 detectors: tuple[str, ...] = DETECTORS) -> None:
         if combine not in ("and", "or"):
             raise ValueError(f"combine must be 'and' or 'or', got {combine!r}")
         if deadline_periods < 0 or deadline_floor_ns < 0 or deadline_ns <= 0:
             raise ValueError("deadline_ns must be > 0, deadline_periods and deadline_floor_ns >= 0")
+        self.detectors = check_detectors(detectors)
         self.combine = combine
+        self.combined = combine if len(self.detectors) > 1 else ""
+        """What the states say in ``combine``: the AND/OR, or empty for one detector alone."""
+        self._how = f"({combine})" if self.combined else f"({self.detectors[0]} alone: combine does not apply)"
         self.deadline_ns = deadline_ns
         """The staleness deadline until the rollout's policy period is measured (always, if
         ``deadline_periods`` is 0)."""
@@ -153,7 +165,7 @@ class AlarmFuser:
         self.unjudged = None
         self.tainted = self.suspicion
         self.period.reset()
-        self._last_seen = {d: now_ns for d in DETECTORS}  # the deadline runs from the START
+        self._last_seen = {d: now_ns for d in self.detectors}  # the deadline runs from the START
 
     def end(self, rollout_id: int) -> None:
         """The rollout ended: its streams are no longer expected (no staleness), but a step of it still on its
@@ -203,16 +215,16 @@ class AlarmFuser:
 
     # scores -----------------------------------------------------------------------------------------
     def add(self, score: DetectorScore, now_ns: int) -> AlarmState | None:
-        """Take one detector's score; return the fused state once both scores of the step are in."""
-        if score.detector not in DETECTORS:
-            raise ValueError(f"unknown detector {score.detector!r}")
+        """Take one detector's score; return the fused state once every declared score of the step is in."""
+        if score.detector not in self.detectors:
+            raise ValueError(f"detector {score.detector!r} is not fused here (detectors {', '.join(self.detectors)})")
         if score.rollout_id != self.rollout_id:
             return None
         self._last_seen[score.detector] = now_ns
         key = (score.rollout_id, score.step)
         entry = self._pending.setdefault(key, {})
         entry[score.detector] = score
-        if len(entry) < len(DETECTORS):
+        if len(entry) < len(self.detectors):
             while len(self._pending) > self.buffer_size:
                 self._pending.popitem(last=False)
                 self.evicted += 1
@@ -228,68 +240,75 @@ class AlarmFuser:
             first = self._next_step if self.unjudged is None else self.unjudged[0]
             self.unjudged = (first, score.step - 1)
         self._next_step = max(self._next_step, score.step + 1)
-        self.last = self._fuse(entry["rnd_oe"], entry["ace"])
+        self.last = self._fuse([entry[d] for d in self.detectors])
         return self.last
 
-    def _fuse(self, obs: DetectorScore, act: DetectorScore) -> AlarmState:
-        obs_dec, act_dec = decision(obs), decision(act)
-        obs_exc, act_exc = bool(obs_dec), bool(act_dec)
+    def _fuse(self, scores: list[DetectorScore]) -> AlarmState:
+        """The state of one step from the declared detectors' scores (in :attr:`detectors` order)."""
+        decisions = [decision(s) for s in scores]
+        exceeded = [bool(d) for d in decisions]
+        by_name = {s.detector: (s, e) for s, e in zip(scores, exceeded)}
+        obs, obs_exc = by_name[RND_OE]
+        act, act_exc = by_name.get(ACE, (None, False))
         common = dict(
             rollout_id=obs.rollout_id, step=obs.step, obs_exceeded=obs_exc, act_exceeded=act_exc,
-            eta_obs=obs.windowed, gamma_obs=obs.threshold, eta_act=act.windowed, gamma_act=act.threshold,
-            combine=self.combine, stamp_ns=max(obs.stamp_ns, act.stamp_ns),
+            eta_obs=obs.windowed, gamma_obs=obs.threshold, eta_act=math.nan if act is None else act.windowed,
+            gamma_act=math.nan if act is None else act.threshold, combine=self.combined,
+            stamp_ns=max(s.stamp_ns for s in scores),
         )
         if self.latched:  # the latch wins over whatever this step brings
             return AlarmState(state=ALARM, latched=True, reason=f"latched since step {self.alarm_step}", **common)
-        uncalibrated = [s.detector for s in (obs, act) if not math.isfinite(s.threshold)]
+        uncalibrated = [s.detector for s in scores if not math.isfinite(s.threshold)]
         if uncalibrated:
             return AlarmState(state=UNKNOWN, latched=False, reason=f"no threshold: {', '.join(uncalibrated)}",
                               **common)
-        undecided = [s.detector for s, d in ((obs, obs_dec), (act, act_dec)) if d is None]
+        undecided = [s.detector for s, d in zip(scores, decisions) if d is None]
         if undecided:
             return AlarmState(state=UNKNOWN, latched=False,
                               reason=f"score not finite or contradicting its exceeded flag: {', '.join(undecided)}",
                               **common)
         # Scores are >= 0, so an incomplete window's sum is a lower bound: its "exceeded" is certain,
         # its "not exceeded" is not. An alarm therefore stands; an OK needs complete windows.
-        if bool(fuse(obs_exc, act_exc, self.combine)):
+        if bool(fuse_declared(exceeded, self.combine)):
             self.latched, self.alarm_step = True, obs.step
-            names = [n for n, e in (("rnd_oe", obs_exc), ("ace", act_exc)) if e]
-            return AlarmState(state=ALARM, latched=True, reason=f"exceeded: {', '.join(names)} ({self.combine})",
-                              **common)
+            names = [s.detector for s, e in zip(scores, exceeded) if e]
+            return AlarmState(state=ALARM, latched=True, reason=f"exceeded: {', '.join(names)} {self._how}", **common)
         if self.unjudged is not None:  # the latch may have fired at a step never judged here
             first, last = self.unjudged
             return AlarmState(state=UNKNOWN, latched=False, reason=f"not every step of {first}..{last} was judged "
                               "(a gap, or this node started after them): an alarm there cannot be ruled out",
                               **common)
-        rejected = [s.detector for s in (obs, act) if not s.scored]
+        rejected = [s.detector for s in scores if not s.scored]
         if rejected:  # a step whose input was rejected is never OK, whatever the other detector says
             return AlarmState(state=UNKNOWN, latched=False, reason=f"input of this step rejected: {', '.join(rejected)}",
                               **common)
-        certainly_below = [s.complete and not e for s, e in ((obs, obs_exc), (act, act_exc))]
+        # AND: one certainly-below detector rules the alarm out; OR (and one detector alone): all must be.
+        certainly_below = [s.complete and not e for s, e in zip(scores, exceeded)]
         if not (any(certainly_below) if self.combine == "and" else all(certainly_below)):
-            incomplete = [s.detector for s in (obs, act) if not s.complete]
+            incomplete = [s.detector for s in scores if not s.complete]
             return AlarmState(state=UNKNOWN, latched=False,
                               reason=f"window holds a missing step: {', '.join(incomplete)}", **common)
-        return AlarmState(state=OK, latched=False, reason="below thresholds", **common)
+        return AlarmState(state=OK, latched=False,
+                          reason="below thresholds" if self.combined else f"below threshold {self._how}", **common)
 
     # time -------------------------------------------------------------------------------------------
     def stale_streams(self, now_ns: int) -> list[str]:
-        """Detectors of the active rollout whose last score is older than the deadline."""
+        """Declared detectors of the active rollout whose last score is older than the deadline."""
         if self.active_rollout is None:
             return []
         deadline = self.deadline()
-        return [d for d in DETECTORS if now_ns - self._last_seen[d] > deadline]
+        return [d for d in self.detectors if now_ns - self._last_seen[d] > deadline]
 
     def check(self, now_ns: int, lost: frozenset[str] = frozenset()) -> AlarmState | None:
-        """UNKNOWN state if a stream is stale or ``lost`` (liveliness), else ``None``."""
-        bad = sorted(set(self.stale_streams(now_ns)) | (set(lost) if self.active_rollout is not None else set()))
+        """UNKNOWN state if a declared stream is stale or ``lost`` (liveliness), else ``None``."""
+        lost_declared = set(lost) & set(self.detectors) if self.active_rollout is not None else set()
+        bad = sorted(set(self.stale_streams(now_ns)) | lost_declared)
         if not bad:
             return None
         base = self.last or AlarmState(
             rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
             act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
-            combine=self.combine, reason="", stamp_ns=now_ns,
+            combine=self.combined, reason="", stamp_ns=now_ns,
         )
         state = ALARM if self.latched else UNKNOWN
         reason = f"stream(s) {', '.join(bad)} missing or older than {self.deadline() / 1e9:.3g} s"
