@@ -4,6 +4,8 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "fiper_ros"
+#: Node executables (``ros2 run fiper_ros NAME``): each node module's ``main``.
+NODES = ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node")
 
 setup(
     name=PACKAGE,
@@ -20,5 +22,6 @@ setup(
     maintainer_email="fiper-ros@example.com",
     description="FIPER runtime failure prediction for generative robot policies.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["fiper = fiper_ros.cli:main"]},
+    entry_points={"console_scripts": ["fiper = fiper_ros.cli:main",
+                                      *(f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES)]},
 )
