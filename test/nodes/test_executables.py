@@ -16,6 +16,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from fiper_ros.core.calibration import load_calibration
 from fiper_ros.nodes import qos
 from helpers.dds import ros_env, stop
 from helpers.spin import spin_until
@@ -110,3 +111,25 @@ def test_every_node_started_through_its_executable_from_another_directory_become
     for name, proc in procs.items():
         assert states[name], (name, listener.statuses.get(f"fiper: {fqns[name]}"), outputs[name][-3000:])
         assert proc.returncode == 0, (name, outputs[name][-3000:])  # Ctrl-C stops it cleanly
+
+
+def test_scoring_nodes_started_elsewhere_load_the_shipped_calibration_named_relatively(
+        tmp_path: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
+    """``calibration_dir: models/sorting/calibration`` (suite.yaml's) from a directory without ``models/``: the
+    installed copy in the package share (fiper_ros/data_paths.py); the policy node's default model likewise."""
+    relative = "models/sorting/calibration"
+    assert not (tmp_path / relative).exists()
+    shipped = load_calibration(SHIPPED / "sorting" / "calibration").content_hash
+    names = ("rnd_oe_node", "ace_node", "policy_node")
+    procs = {name: start("fiper_ros", name, tmp_path, ros_domain, "/fiper",
+                         {} if name == "policy_node" else {"calibration_dir": relative}) for name in names}
+    try:
+        spin_until(listener.executor, lambda: all(up(listener.statuses, f"/fiper/{n}", n) for n in names)
+                   or any(p.poll() is not None for p in procs.values()), timeout=180, step=0.05)
+        states = {n: dict(listener.statuses.get(f"fiper: /fiper/{n}", {})) for n in names}
+    finally:
+        outputs = {name: stop(proc) for name, proc in procs.items()}
+    for name in names:
+        assert states[name].get("lifecycle_state") == "active", (name, states[name], outputs[name][-3000:])
+    for name in ("rnd_oe_node", "ace_node"):
+        assert states[name]["calibration_hash"] == shipped, (name, states[name])
