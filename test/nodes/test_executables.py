@@ -18,6 +18,7 @@ from rclpy.node import Node
 
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.nodes import qos
+from helpers.aggregator import analyzers_of
 from helpers.dds import ros_env, stop
 from helpers.spin import spin_until
 
@@ -111,6 +112,8 @@ def test_every_node_started_through_its_executable_from_another_directory_become
     for name, proc in procs.items():
         assert states[name], (name, listener.statuses.get(f"fiper: {fqns[name]}"), outputs[name][-3000:])
         assert proc.returncode == 0, (name, outputs[name][-3000:])  # Ctrl-C stops it cleanly
+        # the status it published is grouped by one analyzer of config/diagnostics_aggregator.yaml
+        assert len(analyzers_of(f"fiper: {fqns[name]}")) == 1, name
 
 
 def test_scoring_nodes_started_elsewhere_load_the_shipped_calibration_named_relatively(
