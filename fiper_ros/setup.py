@@ -1,9 +1,25 @@
 """ament_python package of the FIPER failure-prediction suite."""
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "fiper_ros"
+#: The shipped policies and calibrations (``fiper_ros/models`` links to the checkout's ``models/``), installed in the
+#: share directory, where relative model and calibration paths are looked up (fiper_ros/data_paths.py).
+MODELS = "models"
+#: Node executables (``ros2 run fiper_ros NAME``): each node module's ``main``.
+NODES = ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node")
+
+
+def tree(folder: str) -> list[tuple[str, list[str]]]:
+    """``data_files`` entries that install every file under ``folder`` into ``share/<package>/<folder>``."""
+    by_dir: dict[str, list[str]] = {}
+    for path in sorted(Path(folder).rglob("*")):
+        if path.is_file():
+            by_dir.setdefault(str(path.parent), []).append(str(path))
+    return [(f"share/{PACKAGE}/{directory}", files) for directory, files in by_dir.items()]
+
 
 setup(
     name=PACKAGE,
@@ -13,6 +29,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        *tree(MODELS),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
@@ -20,5 +37,6 @@ setup(
     maintainer_email="fiper-ros@example.com",
     description="FIPER runtime failure prediction for generative robot policies.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["fiper = fiper_ros.cli:main"]},
+    entry_points={"console_scripts": ["fiper = fiper_ros.cli:main",
+                                      *(f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES)]},
 )

@@ -22,5 +22,6 @@ setup(
     maintainer_email="fiper-ros@example.com",
     description="MuJoCo Franka stand-in with Sorting, Stacking and PushT tasks.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["sim_bridge = sim_bridge.cli:main"]},
+    # ``ros2 run sim_bridge bridge_node``; ``sim_bridge`` is the simulation core's command line.
+    entry_points={"console_scripts": ["sim_bridge = sim_bridge.cli:main", "bridge_node = sim_bridge.bridge_node:main"]},
 )

@@ -46,6 +46,7 @@ from fiper_ros.bags.offline import calibration_for, policy_layout
 from fiper_ros.bags.reader import METADATA, find_bags
 from fiper_ros.bags.rollouts import write_rollouts
 from fiper_ros.bags.schema import BagInfo
+from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.policy.dataset import files_hash
 from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
 from fiper_ros.policy.rollout import EpisodeResult, run_episode
@@ -401,7 +402,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1000, help="first episode seed (the demos use 0 ..)")
     parser.add_argument("--out", type=Path, required=True,
                         help="output folder: DIR/<scenario>/<task>_<scenario>_<seed>/ bags and DIR/collect.json")
-    parser.add_argument("--model", type=Path, default=None, help="policy model folder (default models/<task>)")
+    parser.add_argument("--model", type=data_path_argument, default=None,
+                        help=f"policy model folder (default models/<task>; {SEARCH_RULE})")
     parser.add_argument("--split", choices=SPLITS, default="test", help="custom_data split of the bags")
     parser.add_argument("--batch", type=int, default=None,
                         help="B, chunks sampled per policy step (default: the model's; smaller for tests/smoke runs)")
@@ -413,7 +415,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ros", action="store_true",
                         help="run the episodes through the live node suite (sim bridge + policy node over DDS, "
                              "each its own process) and record each from DDS, instead of in-process")
-    parser.add_argument("--calibration", type=Path, default=None,
+    parser.add_argument("--calibration", type=data_path_argument, default=None,
                         help="with --ros: also run RND-OE, ACE and fusion on this calibration folder (the bags "
                              "then hold scores and alarms)")
 

@@ -48,6 +48,7 @@ from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SUITE_CONFIGS, SuiteProcess, installed_config, replay_config
 from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
+from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.echo import message_class
 from fiper_ros.nodes import qos
@@ -325,7 +326,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--rate", type=float, default=1.0, help="play at this multiple of real time (default 1)")
     pace.add_argument("--fast", action="store_true", help="as fast as the suite answers (flow-controlled)")
-    parser.add_argument("--calibration", type=Path, help="calibration directory (default: calibration/ next to the bags)")
+    parser.add_argument("--calibration", type=data_path_argument,
+                        help=f"calibration directory (default: calibration/ next to the bags; {SEARCH_RULE})")
     suite = parser.add_mutually_exclusive_group()
     suite.add_argument("--launch", type=Path, help="launch YAML of the suite to start (default: the installed "
                                                    "suite.yaml, suite_obs.yaml for an observation-only calibration)")

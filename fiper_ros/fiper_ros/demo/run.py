@@ -28,6 +28,7 @@ from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain
+from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.demo.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, state_name
 from fiper_ros.demo.figure import plot_trace
 from fiper_ros.demo.trace import ACE, RND_OE, RolloutTrace
@@ -190,8 +191,8 @@ def run_demo(args: argparse.Namespace) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper demo``."""
     parser.add_argument("--task", default="sorting", help="sim task (the model's)")
-    parser.add_argument("--model", type=Path, default=Path("models/sorting"), help="policy folder")
-    parser.add_argument("--calibration", type=Path, help="calibration folder (default MODEL/calibration)")
+    parser.add_argument("--model", type=data_path_argument, default="models/sorting", help=f"policy folder ({SEARCH_RULE})")
+    parser.add_argument("--calibration", type=data_path_argument, help="calibration folder (default MODEL/calibration)")
     parser.add_argument("--config", type=Path, help="launch YAML (default: the installed config/demo.yaml)")
     parser.add_argument("--out", type=Path, help="output folder (default runs/demo/<UTC time>)")
     parser.add_argument("--id-seed", type=int, default=1002, help="seed of the in-distribution rollout")

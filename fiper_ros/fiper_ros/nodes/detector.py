@@ -14,6 +14,7 @@ from fiper_msgs.msg import RolloutEvent, Score
 from fiper_ros.core.calibration import Calibration, load_calibration
 from fiper_ros.core.monitor import StepScore
 from fiper_ros.core.scores import NonFiniteScore
+from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES
@@ -79,6 +80,7 @@ class DetectorNode(FiperNode):
         directory = self.get_parameter("calibration_dir").value
         if not directory:
             raise ValueError("parameter calibration_dir is empty")
+        directory = resolve_data_path(directory)  # relative: the working directory, the share, $FIPER_MODELS
         calibration = load_calibration(directory)
         self.monitor = self.make_monitor(calibration)
         self.calibration = calibration

@@ -15,7 +15,6 @@ from __future__ import annotations
 import sys
 import threading
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -25,6 +24,7 @@ from sensor_msgs.msg import Image, JointState
 
 from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
 from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES, action_batch_msg, action_command_msg, embedding_msg, stamp_ns
@@ -86,7 +86,7 @@ class PolicyNode(FiperNode):
 
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
-        model = Path(self.get_parameter("model").value)
+        model = resolve_data_path(self.get_parameter("model").value)  # the rule of fiper_ros/data_paths.py
         torch.set_num_threads(self.get_parameter("torch_threads").value)
         policy = Policy.load(model)  # a missing file is named in the error (the parameter is `model`)
         self.session = PolicySession(policy, self.get_parameter("batch").value or None, self.reject,
