@@ -95,3 +95,29 @@ def test_a_crashing_node_process_prints_its_python_stack(ros_domain: int) -> Non
     status, out = _run_node_process("faulthandler._sigsegv()", ros_domain)
     assert status == -signal.SIGSEGV
     assert "Fatal Python error: Segmentation fault" in out and "in factory" in out
+
+
+def test_sigterm_shuts_down_once_and_ignores_the_next(ros_domain: int) -> None:
+    """A leaked fusion node's stack (gdb, 2026-12-01): the main thread waited on a lock inside the shutdown and
+    a second SIGTERM (the launcher's stop, then the parent-death signal) ran the handler's ``shut_down`` again
+    inside that wait, for ever. The handler now shuts down once and ignores further SIGTERMs (the old
+    handler, a lambda, stayed installed)."""
+    import os  # noqa: PLC0415
+
+    from fiper_ros.nodes import main  # noqa: PLC0415
+
+    previous = signal.getsignal(signal.SIGTERM)
+    rclpy.init(domain_id=ros_domain)
+    try:
+        signal.signal(signal.SIGTERM, main._on_sigterm)  # noqa: SLF001
+        os.kill(os.getpid(), signal.SIGTERM)
+        deadline = time.monotonic() + 10
+        while rclpy.ok() and time.monotonic() < deadline:  # the handler runs between bytecodes of this thread
+            time.sleep(0.01)
+        assert not rclpy.ok()
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGTERM)  # ignored: this process goes on
+        time.sleep(0.05)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        rclpy.try_shutdown()

@@ -80,13 +80,22 @@ def die_with_parent() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
 
+def _on_sigterm(*_: Any) -> None:
+    """SIGTERM: shut rclpy down, once. Python runs a handler inside whatever the main thread waits on (a lock,
+    a join), so a second SIGTERM (the launcher's stop, then the parent-death signal as the launcher exits)
+    must not enter ``shut_down`` again while the first holds rclpy's context lock: that deadlocked a fusion
+    node, which then outlived its test and the launcher, still in the domain."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    shut_down()
+
+
 def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1) -> int:
     """Create the node from ``factory`` and spin it (in ``threads`` threads: callback groups of its own run
     beside the default group) until interrupted; returns the exit status."""
     faulthandler.enable()
     die_with_parent()
     rclpy.init(args=sys.argv if args is None else args)
-    signal.signal(signal.SIGTERM, lambda *_: shut_down())
+    signal.signal(signal.SIGTERM, _on_sigterm)
     node = None
     try:
         node = factory()
@@ -102,6 +111,7 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads
         if rclpy.ok():
             raise
     finally:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # shutting down already: a SIGTERM now would re-enter it
         if node is not None:
             node.destroy_node()
         shut_down()
