@@ -8,7 +8,7 @@ is tested (resumable: stop it with Ctrl-C, run it again and it goes on; verdicts
 When a file under test/ changed since the last run, every surviving mutant is tested again (a test may
 have been added to kill it). mutmut shows its progress; a summary per file and every survivor's diff follow.
 
-The work dir .mutmut/ (git-ignored) holds links to the package, test/, pytest.ini and tools/mutmut.cfg
+The work dir .mutmut/ (git-ignored) holds links to the package, test/, models/, bags/, pytest.ini and tools/mutmut.cfg
 (as the setup.cfg mutmut reads): mutmut names a mutant after its path from the working directory, and
 the tests import ``fiper_ros.core...``, so the package must sit at ``fiper_ros/`` there. mutmut copies it
 with its mutants into .mutmut/mutants/ and puts that first on sys.path, ahead of the colcon build.
@@ -28,7 +28,10 @@ PACKAGE = ROOT / "fiper_ros" / "fiper_ros"
 WORK = ROOT / ".mutmut"
 MUTATED = ("core", "runtime")
 LINKS = {"fiper_ros": PACKAGE, "test": ROOT / "test", "pytest.ini": ROOT / "pytest.ini",
-         "setup.cfg": ROOT / "tools" / "mutmut.cfg"}
+         "setup.cfg": ROOT / "tools" / "mutmut.cfg",
+         # tests read the shipped calibrations and sample bags by their path from the repository root, which is
+         # mutants/ inside mutmut's copy (tools/mutmut.cfg copies them there)
+         "models": ROOT / "models", "bags": ROOT / "bags"}
 # mutmut forks one process per mutant from the one that ran the tests once. GNU OpenMP (torch's thread
 # pool) does not survive a fork: the child's first parallel region waits forever for the parent's
 # threads (seen: torch.linalg.qr in a forked worker, every mutant a timeout). One thread per worker.

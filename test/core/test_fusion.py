@@ -56,3 +56,17 @@ def test_default_combine_is_and() -> None:
 def test_first_alarm_is_the_first_nonzero_step_not_the_largest() -> None:
     assert first_alarm(np.array([0.0, 0.5, 1.0])) == 1
     assert first_alarm(np.array([0, 0, 0])) is None
+
+
+def test_fuse_declared_by_hand() -> None:
+    """Two declared detectors: AND by default; one alone: its own decision as bools (an int 0/1 array too);
+    any other number: refused by name (mutants of #19's code that no test saw)."""
+    from fiper_ros.core.fusion import fuse_declared  # noqa: PLC0415
+
+    obs, act = np.array([True, True, False]), np.array([True, False, False])
+    assert fuse_declared([obs, act]).tolist() == [True, False, False]
+    assert fuse_declared([obs, act], "or").tolist() == [True, True, False]
+    alone = fuse_declared([np.array([0, 2, 1])])
+    assert alone.dtype == bool and alone.tolist() == [False, True, True]
+    with pytest.raises(ValueError, match=r"^one or two detectors' decisions expected, got 3$"):
+        fuse_declared([obs, act, obs])
