@@ -304,11 +304,16 @@ def band_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings,
     return BandStatistics(mu, scale, band_scores, len(set1), len(set2), floor)
 
 
+def _conformal_factor(stats: BandStatistics, s: ThresholdSettings, floor_key: str
+                      ) -> tuple[np.ndarray, dict[str, Any]]:
+    """``mu + k scale`` with ``k`` the conformal quantile of the band scores (App. A.3), and its parameters."""
+    k = _quantile(stats.band_scores, s.delta, s.conformal)
+    return stats.values(k), {"k": float(k), "m1": stats.m1, "m2": stats.m2, floor_key: stats.floor}
+
+
 def _cp_band(curves: list[np.ndarray], length: int, s: ThresholdSettings,
              shape_curves: list[np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
-    stats = band_statistics(curves, length, s, shape_curves)
-    k = _quantile(stats.band_scores, s.delta, s.conformal)
-    return stats.values(k), {"k": float(k), "m1": stats.m1, "m2": stats.m2, "s_floor": stats.floor}
+    return _conformal_factor(band_statistics(curves, length, s, shape_curves), s, "s_floor")
 
 
 def scaled_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings,
@@ -324,9 +329,7 @@ def scaled_statistics(curves: list[np.ndarray], length: int, s: ThresholdSetting
 
 def _cp_scaled(curves: list[np.ndarray], length: int, s: ThresholdSettings,
                shape_curves: list[np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
-    stats = scaled_statistics(curves, length, s, shape_curves)
-    k = _quantile(stats.band_scores, s.delta, s.conformal)
-    return stats.values(k), {"k": float(k), "m1": stats.m1, "m2": stats.m2, "q_floor": stats.floor}
+    return _conformal_factor(scaled_statistics(curves, length, s, shape_curves), s, "q_floor")
 
 
 def _gaussian(curves: list[np.ndarray], length: int, s: ThresholdSettings,
