@@ -117,14 +117,13 @@ class RolloutEvents:
 
     A rollout's START, its first steps' messages and even its END (a halt right after the start) can
     arrive before the reset's answer that names the rollout and creates its trace. Kept: the START stamps
-    of rollouts not ended yet, the last :data:`EARLY_MESSAGES` messages of rollouts without a trace
-    (:meth:`defer`) and the one last END of a rollout without a trace.
+    of rollouts not ended yet, and the last :data:`EARLY_MESSAGES` messages and ENDs of rollouts without a
+    trace (:meth:`defer`), applied in their order of arrival when the trace comes.
     """
 
     def __init__(self) -> None:
         self.traces: dict[int, RolloutTrace] = {}
         self._starts: dict[int, int] = {}
-        self._early_end: tuple[int, int, str] | None = None
         self._early: deque[tuple[int, Callable[[RolloutTrace], None]]] = deque(maxlen=EARLY_MESSAGES)
 
     def start(self, rollout_id: int, stamp_ns: int) -> None:
@@ -135,7 +134,7 @@ class RolloutEvents:
         """An END event."""
         trace = self.traces.get(rollout_id)
         if trace is None:
-            self._early_end = (rollout_id, stamp_ns, outcome)
+            self.defer(rollout_id, lambda later: self._close(later, stamp_ns, outcome))
         else:
             self._close(trace, stamp_ns, outcome)
 
@@ -150,9 +149,6 @@ class RolloutEvents:
         self._early = deque(((r, a) for r, a in self._early if r != trace.rollout_id), maxlen=EARLY_MESSAGES)
         for apply in early:
             apply(trace)
-        if self._early_end is not None and self._early_end[0] == trace.rollout_id:
-            self._close(trace, *self._early_end[1:])
-            self._early_end = None
         return trace
 
     def _close(self, trace: RolloutTrace, stamp_ns: int, outcome: str) -> None:
