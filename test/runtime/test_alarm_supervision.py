@@ -2,14 +2,11 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-from typing import Any
 
 import numpy as np
 import pytest
 
-from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore
-from fiper_ros.runtime.stats import PeriodEstimator
+from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore
 from fiper_ros.runtime.supervision import SupervisorLogic
 
 S = 1_000_000_000
@@ -241,6 +238,3 @@ def test_supervisor_times_unknown_per_rollout_and_not_while_idle() -> None:
     decision = logic.on_clock(int(12.6 * S))
     assert decision is not None and decision.rollout_id == 8 and "UNKNOWN for 2.10 s" in decision.reason
 
-
-from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore
-from fiper_ros.runtime.stats import PeriodEstimator

@@ -27,7 +27,7 @@ from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
 from fiper_ros.nodes.main import run_node
-from fiper_ros.runtime.alarm import (ALARM, DETECTORS, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState,
+from fiper_ros.runtime.alarm import (ALARM, DETECTORS, OK, UNKNOWN, AlarmFuser, AlarmState,
                                      DetectorScore, reset_refusal)
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.publishers import Expected
@@ -213,13 +213,13 @@ class FusionNode(FiperNode):
         state = self.fuser.check(now, frozenset(self.lost))
         quiet = now - self._last_publish_ns >= self.repeat_ns()
         if state is None and self.fuser.suspicion:
-            state = self.heartbeat_state(now)
+            state = self.fuser.current(now)
         if state is not None:
             state = self.fuser.doubted(state)
             if quiet or self._last_published != (state.rollout_id, state.state, state.reason):
                 self.publish(state, heartbeat=True)  # a stream just went stale, lost or in doubt: said at once
         elif quiet:
-            self.publish(self.heartbeat_state(now), heartbeat=True)
+            self.publish(self.fuser.current(now), heartbeat=True)
 
     def repeat_ns(self) -> int:
         """Silence after which the current state is published again: ``heartbeat_s``, or one measured policy
@@ -227,17 +227,6 @@ class FusionNode(FiperNode):
         heartbeat = int(self.get_parameter("heartbeat_s").value * 1e9)
         period = self.fuser.period.period_ns() if self.fuser.active_rollout is not None else None
         return heartbeat if period is None else max(1, min(heartbeat, period))
-
-    def heartbeat_state(self, now: int) -> AlarmState:
-        """The state to repeat when nothing new happened."""
-        fuser = self.fuser
-        if fuser.last is not None and (fuser.active_rollout is not None or fuser.latched):
-            return fuser.last  # a latched ALARM stays the state, for its own rollout, after its END too
-        reason = "no active rollout" if fuser.active_rollout is None else "waiting for the first scores of the rollout"
-        return AlarmState(rollout_id=fuser.active_rollout or NO_ROLLOUT, step=0, state=ALARM if fuser.latched else UNKNOWN,
-                          latched=fuser.latched, obs_exceeded=False, act_exceeded=False, eta_obs=math.nan,
-                          gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan, combine=fuser.combined,
-                          reason=reason, stamp_ns=now)
 
     def _on_reset(self, request: ResetAlarm.Request, response: ResetAlarm.Response) -> ResetAlarm.Response:
         refusal = reset_refusal(self.get_parameter("allow_reset").value, request.requester, request.reason)

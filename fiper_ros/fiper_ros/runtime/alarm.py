@@ -135,21 +135,15 @@ class AlarmFuser:
         self.rollout_id: int | None = None
         """The rollout of the latest START (also after its END: its late steps are still judged)."""
         self.ended = False
-        self.latched = False
-        self.alarm_step: int | None = None
-        self.last: AlarmState | None = None
         self._next_step = 0
-        self.unjudged: tuple[int, int] | None = None
-        """The first and last policy step of this rollout that never got a verdict here, if any."""
         self.suspicion = ""
         """Why the score streams cannot be attributed to the suite now (``""``: they can)."""
-        self.tainted = ""
-        """Why scores of this rollout could not be attributed (``""``: they could, all along)."""
         self._pending: OrderedDict[tuple[int, int], dict[str, DetectorScore]] = OrderedDict()
         self._last_seen: dict[str, int] = {}
         self.matched = 0
         self.evicted = 0
         self.unmatched_stale = 0
+        self.reset()  # the latch and its companions: latched, alarm_step, last, unjudged, tainted
 
     # rollout lifecycle -------------------------------------------------------------------------------
     def start(self, rollout_id: int, now_ns: int) -> None:
@@ -158,12 +152,8 @@ class AlarmFuser:
         self._pending.clear()
         self.rollout_id = rollout_id
         self.ended = False
-        self.latched = False
-        self.alarm_step = None
-        self.last = None
         self._next_step = 0
-        self.unjudged = None
-        self.tainted = self.suspicion
+        self.reset()
         self.period.reset()
         self._last_seen = {d: now_ns for d in self.detectors}  # the deadline runs from the START
 
@@ -182,10 +172,14 @@ class AlarmFuser:
     def reset(self) -> None:
         """Clear a latched ALARM (the ~/reset service); the next step is judged afresh, as after a START."""
         self.latched = False
-        self.alarm_step = None
-        self.last = None
-        self.unjudged = None
+        self.alarm_step: int | None = None
+        """The step at which the latch fired, while it holds."""
+        self.last: AlarmState | None = None
+        """The latest fused state of this rollout (``None`` before its first step is fused)."""
+        self.unjudged: tuple[int, int] | None = None
+        """The first and last policy step of this rollout that never got a verdict here, if any."""
         self.tainted = self.suspicion
+        """Why scores of this rollout could not be attributed (``""``: they could, all along)."""
 
     def suspect(self, reason: str) -> None:
         """Say why the score streams cannot be attributed to the suite now (``""``: they can again).
@@ -305,11 +299,24 @@ class AlarmFuser:
         bad = sorted(set(self.stale_streams(now_ns)) | lost_declared)
         if not bad:
             return None
-        base = self.last or AlarmState(
-            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=self.latched, obs_exceeded=False,
-            act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
-            combine=self.combined, reason="", stamp_ns=now_ns,
-        )
-        state = ALARM if self.latched else UNKNOWN
         reason = f"stream(s) {', '.join(bad)} missing or older than {self.deadline() / 1e9:.3g} s"
-        return replace(base, state=state, latched=self.latched, reason=reason, stamp_ns=now_ns)
+        if self.last is None:
+            return self._without_step(now_ns, reason)
+        return replace(self.last, state=ALARM if self.latched else UNKNOWN, reason=reason, stamp_ns=now_ns)
+
+    def current(self, now_ns: int) -> AlarmState:
+        """The state to repeat when nothing new happened: the latest fused state while its rollout runs or its
+        ALARM latches (also after the END), else an UNKNOWN about no step."""
+        if self.last is not None and (self.active_rollout is not None or self.latched):
+            return self.last
+        return self._without_step(now_ns, "no active rollout" if self.active_rollout is None
+                                  else "waiting for the first scores of the rollout")
+
+    def _without_step(self, now_ns: int, reason: str) -> AlarmState:
+        """UNKNOWN about no fused step (step 0, no scores). Never latched: the latch fires at a fused step, and
+        :attr:`last` holds that step's state until the latch is cleared."""
+        return AlarmState(
+            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=False, obs_exceeded=False,
+            act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
+            combine=self.combined, reason=reason, stamp_ns=now_ns,
+        )

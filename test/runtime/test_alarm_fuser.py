@@ -1,0 +1,259 @@
+"""AlarmFuser's states field by field, by hand: every field of every kind of state, the counters, the gap
+bookkeeping and the deadline (issue #27: the cases `make mutants` found that no test pinned down)."""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict
+
+import pytest
+
+from fiper_ros.runtime.alarm import (ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore,
+                                     reset_refusal)
+
+S = 1_000_000_000
+MS = 1_000_000
+
+
+def _pair(fuser: AlarmFuser, step: int, obs: float, act: float, now: int = 0, *, stamps: tuple[int, int] = (0, 0),
+          gamma: tuple[float, float] = (1.0, 1.0), complete: tuple[bool, bool] = (True, True),
+          scored: tuple[bool, bool] = (True, True), flags: tuple[bool, bool] | None = None) -> AlarmState:
+    obs_flag, act_flag = flags if flags is not None else (obs > gamma[0], act > gamma[1])
+    assert fuser.add(DetectorScore("rnd_oe", 1, step, obs, gamma[0], stamps[0], complete[0], obs_flag, scored[0]),
+                     now) is None
+    state = fuser.add(DetectorScore("ace", 1, step, act, gamma[1], stamps[1], complete[1], act_flag, scored[1]), now)
+    assert state is not None
+    return state
+
+
+def _started(combine: str = "and", **kwargs: float) -> AlarmFuser:
+    fuser = AlarmFuser(combine, **kwargs)  # type: ignore[arg-type]
+    fuser.start(1, 0)
+    return fuser
+
+
+def _fields(state: AlarmState) -> dict[str, object]:
+    """The state as a dict, NaN replaced by the string "nan" (so that == compares it)."""
+    return {k: ("nan" if isinstance(v, float) and math.isnan(v) else v) for k, v in asdict(state).items()}
+
+
+def _state(**fields: object) -> dict[str, object]:
+    base = dict(rollout_id=1, step=0, state=OK, latched=False, obs_exceeded=False, act_exceeded=False, eta_obs=0.5,
+                gamma_obs=1.0, eta_act=0.25, gamma_act=1.0, combine="and", reason="below thresholds", stamp_ns=0)
+    return base | fields
+
+
+# ---- one fused step, every field -------------------------------------------------------------------------------
+def test_an_ok_carries_both_detectors_numbers_and_the_later_stamp() -> None:
+    state = _pair(_started(), 0, 0.5, 0.25, stamps=(7, 9))
+    assert _fields(state) == _state(stamp_ns=9)
+    assert _pair(_started("or"), 0, 0.5, 0.25, stamps=(9, 7)).stamp_ns == 9
+
+
+@pytest.mark.parametrize(("combine", "obs", "act", "names"), [
+    ("and", 2.0, 3.0, "rnd_oe, ace"), ("or", 0.5, 3.0, "ace"), ("or", 2.0, 0.5, "rnd_oe")])
+def test_an_alarm_names_the_detectors_that_exceeded_and_the_combine(combine: str, obs: float, act: float,
+                                                                     names: str) -> None:
+    fuser = _started(combine)
+    state = _pair(fuser, 4, obs, act)
+    assert _fields(state) == _state(step=4, state=ALARM, latched=True, obs_exceeded=obs > 1, act_exceeded=act > 1,
+                                    eta_obs=obs, eta_act=act, combine=combine,
+                                    reason=f"exceeded: {names} ({combine})")
+    assert (fuser.latched, fuser.alarm_step) == (True, 4)
+    assert _pair(fuser, 5, 0.0, 0.0).reason == "latched since step 4"
+
+
+@pytest.mark.parametrize(("kwargs", "reason"), [
+    (dict(gamma=(math.inf, math.nan)), "no threshold: rnd_oe, ace"),
+    (dict(flags=(True, True)), "score not finite or contradicting its exceeded flag: rnd_oe, ace"),
+    (dict(scored=(False, False)), "input of this step rejected: rnd_oe, ace"),
+])
+def test_every_unknown_of_a_step_is_unlatched_and_names_every_detector_concerned(kwargs: dict[str, object],
+                                                                                   reason: str) -> None:
+    state = _pair(_started(), 0, 0.5, 0.25, **kwargs)  # type: ignore[arg-type]
+    assert (state.state, state.latched, state.reason) == (UNKNOWN, False, reason)
+
+
+def test_an_incomplete_window_names_every_incomplete_detector_and_is_unlatched() -> None:
+    state = _pair(_started("or"), 0, 0.5, 0.25, complete=(False, False))
+    assert (state.state, state.latched, state.reason) == (UNKNOWN, False, "window holds a missing step: rnd_oe, ace")
+
+
+# ---- gaps: steps never fused here ------------------------------------------------------------------------------
+def test_a_rollout_whose_first_fused_step_is_not_0_is_unknown_about_the_steps_before() -> None:
+    fuser = _started()
+    state = _pair(fuser, 1, 0.5, 0.25)
+    assert (state.state, state.latched) == (UNKNOWN, False)
+    assert state.reason == ("not every step of 0..0 was judged (a gap, or this node started after them): an alarm "
+                            "there cannot be ruled out")
+    fuser.start(2, 0)  # the next rollout starts from step 0 again
+    fuser.add(DetectorScore("rnd_oe", 2, 0, 0.5, 1.0, 0, True, False), 0)
+    assert fuser.add(DetectorScore("ace", 2, 0, 0.5, 1.0, 0, True, False), 0).state == OK
+
+
+def test_the_unjudged_range_runs_from_the_first_gap_to_the_latest() -> None:
+    fuser = _started()
+    _pair(fuser, 0, 0.5, 0.25)
+    assert fuser.unjudged is None
+    _pair(fuser, 3, 0.5, 0.25)
+    assert fuser.unjudged == (1, 2)
+    state = _pair(fuser, 6, 0.5, 0.25)
+    assert fuser.unjudged == (1, 5) and "not every step of 1..5 was judged" in state.reason
+    fuser.reset()  # judged afresh: the gaps before the reset no longer count
+    assert fuser.unjudged is None and _pair(fuser, 7, 0.5, 0.25).state == OK
+
+
+def test_steps_left_waiting_for_their_partner_are_counted_one_by_one_and_across_starts() -> None:
+    fuser = _started()
+    for step in (0, 1):
+        fuser.add(DetectorScore("rnd_oe", 1, step, 0.5, 1.0, 0), 0)
+    _pair(fuser, 2, 0.5, 0.25)
+    assert (fuser.unmatched_stale, fuser.matched) == (2, 1)
+    fuser.add(DetectorScore("ace", 1, 3, 0.5, 1.0, 0), 0)
+    fuser.start(2, 0)  # step 3 of rollout 1 never got its partner
+    assert fuser.unmatched_stale == 3
+    fuser.add(DetectorScore("rnd_oe", 2, 0, 0.5, 1.0, 0), 0)
+    fuser.start(3, 0)
+    assert fuser.unmatched_stale == 4
+
+
+# ---- states about no step: staleness, loss, heartbeats ---------------------------------------------------------
+def test_a_stale_stream_before_any_step_is_a_complete_unknown_about_no_step() -> None:
+    fuser = _started(deadline_ns=S)
+    state = fuser.check(2 * S)
+    assert state is not None
+    assert _fields(state) == _state(step=0, state=UNKNOWN, eta_obs="nan", gamma_obs="nan", eta_act="nan",
+                                    gamma_act="nan", reason="stream(s) ace, rnd_oe missing or older than 1 s",
+                                    stamp_ns=2 * S)
+
+
+def test_a_stale_stream_after_a_step_keeps_its_numbers_and_says_the_deadline() -> None:
+    fuser = _started(deadline_ns=1_500_000_000)
+    _pair(fuser, 3, 0.5, 0.25, stamps=(5, 5))
+    state = fuser.check(2 * S)
+    assert state is not None
+    assert _fields(state) == _state(step=3, state=UNKNOWN, reason="stream(s) ace, rnd_oe missing or older than 1.5 s",
+                                    stamp_ns=2 * S)
+
+
+def test_a_latched_alarm_stays_alarm_and_latched_when_a_stream_goes_stale() -> None:
+    fuser = _started(deadline_ns=S)
+    _pair(fuser, 0, 2.0, 2.0)
+    state = fuser.check(2 * S)
+    assert state is not None and (state.state, state.latched, state.step, state.stamp_ns) == (ALARM, True, 0, 2 * S)
+
+
+def test_a_lost_stream_counts_only_while_a_rollout_runs_and_only_if_declared() -> None:
+    fuser = AlarmFuser("and", deadline_ns=S)
+    assert fuser.check(0, frozenset({"ace"})) is None  # no rollout
+    fuser.start(1, 0)
+    lost = fuser.check(1, frozenset({"ace", "stac"}))
+    assert lost is not None and lost.reason == "stream(s) ace missing or older than 1 s"
+    assert lost.rollout_id == 1 and lost.latched is False
+    fuser.end(1)
+    assert fuser.check(2, frozenset({"ace"})) is None
+
+
+def test_the_heartbeat_state_is_the_last_step_while_it_runs_or_latches_else_a_state_about_no_step() -> None:
+    fuser = AlarmFuser("or")
+    idle = fuser.current(5)
+    assert _fields(idle) == _state(rollout_id=NO_ROLLOUT, state=UNKNOWN, eta_obs="nan", gamma_obs="nan",
+                                   eta_act="nan", gamma_act="nan", combine="or", reason="no active rollout",
+                                   stamp_ns=5)
+    fuser.start(1, 0)
+    waiting = fuser.current(6)
+    assert (waiting.rollout_id, waiting.state, waiting.reason, waiting.stamp_ns) == \
+        (1, UNKNOWN, "waiting for the first scores of the rollout", 6)
+    step = _pair(fuser, 0, 0.5, 0.25)
+    assert fuser.current(7) is step
+    fuser.end(1)
+    assert fuser.current(8).reason == "no active rollout"  # an OK of an ended rollout is not repeated
+    fuser.start(2, 0)
+    fuser.add(DetectorScore("rnd_oe", 2, 0, 2.0, 1.0, 0, True, True), 0)
+    alarm = fuser.add(DetectorScore("ace", 2, 0, 0.5, 1.0, 0, True, False), 0)
+    fuser.end(2)
+    assert fuser.current(9) is alarm and alarm.state == ALARM  # a latched ALARM stays the state after its END
+    fuser.reset()
+    after = fuser.current(10)
+    assert (after.rollout_id, after.state, after.latched) == (NO_ROLLOUT, UNKNOWN, False)
+
+
+# ---- construction, lifecycle, doubt ----------------------------------------------------------------------------
+@pytest.mark.parametrize("kwargs", [dict(deadline_ns=0), dict(deadline_ns=-1), dict(deadline_periods=-0.1),
+                                    dict(deadline_floor_ns=-1)])
+def test_each_bad_deadline_setting_is_refused_on_its_own(kwargs: dict[str, float]) -> None:
+    with pytest.raises(ValueError, match="^deadline_ns must be > 0, deadline_periods and deadline_floor_ns >= 0$"):
+        AlarmFuser("and", **kwargs)  # type: ignore[arg-type]
+
+
+def test_the_smallest_settings_are_accepted_and_a_bad_combine_is_named() -> None:
+    fuser = AlarmFuser("and", deadline_ns=1, deadline_periods=0.0, deadline_floor_ns=0)
+    assert fuser.deadline() == 1
+    with pytest.raises(ValueError, match="combine must be 'and' or 'or', got 'xor'"):
+        AlarmFuser("xor")
+    with pytest.raises(ValueError, match=r"detector 'stac' is not fused here \(detectors rnd_oe, ace\)"):
+        _started().add(DetectorScore("stac", 1, 0, 0.0, 1.0, 0), 0)
+
+
+def test_a_fresh_fuser_has_no_rollout_no_latch_and_no_doubt() -> None:
+    fuser = AlarmFuser()
+    assert (fuser.rollout_id, fuser.active_rollout, fuser.latched, fuser.alarm_step, fuser.last, fuser.unjudged,
+            fuser.suspicion, fuser.tainted) == (None, None, False, None, None, None, "", "")
+    assert fuser.add(DetectorScore("rnd_oe", 1, 0, 0.0, 1.0, 0), 0) is None  # no START yet: nothing is matched
+    assert fuser.check(10 * S) is None
+
+
+def test_by_default_the_deadline_is_fixed_whatever_the_measured_period() -> None:
+    fuser = _started()  # deadline_ns 1 s, deadline_periods 0
+    for step in range(5):
+        _pair(fuser, step, 0.5, 0.25, now=step * 100 * MS)
+    assert fuser.period.period_ns() == 100 * MS and fuser.deadline() == S
+    assert fuser.check(400 * MS + S // 2) is None
+
+
+def test_the_adaptive_deadline_is_periods_times_the_period_but_at_least_the_floor() -> None:
+    fuser = _started(deadline_periods=3.0, deadline_floor_ns=250 * MS)
+    assert fuser.deadline() == S  # period unknown yet
+    for step in range(5):
+        _pair(fuser, step, 0.5, 0.25, now=step * 100 * MS)
+    assert fuser.deadline() == 300 * MS
+    fuser.deadline_periods = 2.0
+    assert fuser.deadline() == 250 * MS  # 200 ms measured, the floor wins
+    state = fuser.check(400 * MS + 260 * MS)
+    assert state is not None and state.reason == "stream(s) ace, rnd_oe missing or older than 0.25 s"
+
+
+def test_a_start_and_a_reset_clear_the_last_state_and_the_latch_field_by_field() -> None:
+    fuser = _started()
+    _pair(fuser, 0, 2.0, 2.0)
+    fuser.reset()
+    assert (fuser.latched, fuser.alarm_step, fuser.last, fuser.tainted) == (False, None, None, "")
+    _pair(fuser, 1, 2.0, 2.0)
+    fuser.start(2, 0)
+    assert (fuser.latched, fuser.alarm_step, fuser.last, fuser.ended) == (False, None, None, False)
+    state = fuser.check(10 * S)
+    assert state is not None and state.latched is False and state.state == UNKNOWN
+
+
+def test_doubt_while_no_rollout_runs_taints_nothing_and_its_reasons_are_exact() -> None:
+    fuser = AlarmFuser("and")
+    fuser.suspect("x")  # idle
+    assert fuser.tainted == ""
+    fuser.start(1, 0)  # started in doubt: tainted from its first step
+    assert fuser.tainted == "x"
+    doubted = fuser.doubted(_pair(fuser, 0, 0.5, 0.25))
+    assert doubted.reason == "scores cannot be attributed to the suite: x"
+    fuser.suspect("")
+    later = fuser.doubted(_pair(fuser, 1, 0.5, 0.25))
+    assert later.reason == "scores of this rollout could not be attributed to the suite (x): an alarm cannot be ruled out"
+    fuser.end(1)
+    fuser.reset()
+    fuser.suspect("y")  # after the END: nothing runs, nothing to taint
+    assert fuser.tainted == ""
+
+
+def test_reset_refusals_are_exact() -> None:
+    assert reset_refusal(False, "a", "b") == ("resets are switched off (allow_reset false): only the next rollout's "
+                                              "START clears the latch")
+    assert reset_refusal(True, "\n", "\t") == "a reset names who asks and why: requester and reason empty"
+    assert reset_refusal(True, "a\nb", "c\td") == \
+        "requester and reason not one printable line of at most 200 characters"
