@@ -9,9 +9,10 @@ and harmful OOD (``box_pos``) seeds in turn, until the time is up; the superviso
 alarm; the fusion node keeps every step's alarm for the driver (``EVERY_ALARM``, as ``make bench-nodes``).
 Per block (5 minutes; 1 minute when ``--minutes`` is below 30) it prints: policy steps and their
 rate, alarm latency p50 / p99 (the step's FailureAlarm received minus its action-chunk batch received,
-both in this process on one monotonic clock), steps without an alarm, UNKNOWN decisions, batches of
-rollouts the driver did not start (another run in the domain, or a step before the reset's answer), the
-resident memory (VmRSS) of every node process, the launcher and this driver. Flat memory and latency
+both in this process on one monotonic clock; negative where the alarm overtook its batch on the way to this
+process, counted as "overtaken"), steps without an alarm within :data:`UNANSWERED_S` ("unanswered"), UNKNOWN
+decisions, batches of rollouts the driver never followed ("foreign": another run in the domain), the resident
+memory (VmRSS) of every node process, the launcher and this driver. Flat memory and latency
 are the target. ``soak.json`` in the output folder holds every block.
 """
 from __future__ import annotations
@@ -22,7 +23,8 @@ import json
 import os
 import sys
 import time
-from collections.abc import Container, Iterator
+from collections import deque
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -48,6 +50,8 @@ FUSION_MODULE = "fiper_ros.nodes.fusion_node"
 UNANSWERED_S = 10.0
 #: Seconds a rollout may take per policy step it may have (plus a minute), at real time.
 ROLLOUT_S_PER_STEP = 3.0
+#: Rollout ids the meter remembers as followed (a batch older than UNANSWERED_S is judged by them).
+FOLLOWED_KEPT = 64
 
 
 @dataclass
@@ -68,8 +72,10 @@ class Block:
     unknown: int = 0
     unanswered: int = 0
     """Steps of the driver's rollouts whose alarm did not come within :data:`UNANSWERED_S`."""
+    overtaken: int = 0
+    """Steps whose alarm reached this process before their action-chunk batch (a negative latency)."""
     foreign: int = 0
-    """Action-chunk batches of rollouts the driver did not start (or before its reset was answered)."""
+    """Action-chunk batches older than :data:`UNANSWERED_S` of rollouts the driver never followed."""
     latency_ms: list[float] = field(default_factory=list)
     rss_mb: dict[str, float] = field(default_factory=dict)
 
@@ -82,7 +88,7 @@ class Block:
         return (f"block {self.index:2d} ({span}{', partial' if self.length_s < self.full_s else ''}): "
                 f"{self.steps:4d} steps ({self.steps / self.length_s:.2f}/s), {self.rollouts} rollouts, "
                 f"{self.alarms} alarms | latency p50 {p50:6.1f} ms p99 {p99:6.1f} ms | unanswered {self.unanswered}, "
-                f"UNKNOWN {self.unknown}, foreign {self.foreign} | RSS MB: {rss}")
+                f"overtaken {self.overtaken}, UNKNOWN {self.unknown}, foreign {self.foreign} | RSS MB: {rss}")
 
 
 def rss_mb(pid: int) -> float:
@@ -96,40 +102,87 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
+class StepMatcher:
+    """Matches each policy step's action-chunk batch with its alarm by (rollout id, step), in whichever order
+    they arrive: the alarm (policy -> detector -> fusion -> here) can overtake its batch (policy -> here) when
+    this process is slow to take the batch. Times are of one monotonic clock, in ns."""
+
+    def __init__(self, expire_ns: int) -> None:
+        self.expire_ns = expire_ns
+        self._batches: dict[tuple[int, int], int] = {}
+        self._alarms: dict[tuple[int, int], int] = {}
+
+    def batch(self, key: tuple[int, int], now_ns: int) -> int | None:
+        """A batch arrived: its step's latency (negative) if the alarm came first, else ``None``."""
+        since_alarm = self._arrived(key, now_ns, self._batches, self._alarms)
+        return None if since_alarm is None else -since_alarm
+
+    def alarm(self, key: tuple[int, int], now_ns: int) -> int | None:
+        """An alarm arrived: its step's latency if the batch came first, else ``None`` (the batch may follow)."""
+        return self._arrived(key, now_ns, self._alarms, self._batches)
+
+    @staticmethod
+    def _arrived(key: tuple[int, int], now_ns: int, mine: dict[tuple[int, int], int],
+                 partners: dict[tuple[int, int], int]) -> int | None:
+        """Time since the partner of ``key`` arrived, taking it; ``None`` (``key`` waits in ``mine``) if it has not."""
+        partner = partners.pop(key, None)
+        if partner is None:
+            mine.setdefault(key, now_ns)
+            return None
+        return now_ns - partner
+
+    def expire(self, now_ns: int) -> list[tuple[int, int]]:
+        """Forget what waited longer than ``expire_ns``; the keys of the batches among it (no alarm came)."""
+        stale = [key for key, at in self._batches.items() if now_ns - at > self.expire_ns]
+        for key in stale:
+            del self._batches[key]
+        for key in [key for key, at in self._alarms.items() if now_ns - at > self.expire_ns]:
+            del self._alarms[key]  # an alarm whose batch never came here (a step before the meter started)
+        return stale
+
+
 class Meter:
-    """Times each policy step's alarm against its action-chunk batch and closes a block every ``block_s``."""
+    """Times each policy step's alarm against its action-chunk batch (:class:`StepMatcher`) and closes a block
+    every ``block_s``. A batch older than :data:`UNANSWERED_S` without its alarm is unanswered if its rollout
+    is one the driver followed (the driver keeps the messages that arrive before the reset's answer and shows
+    their alarms once it answered), foreign if not."""
 
     def __init__(self, session: RosSession, block_s: float) -> None:
         assert session.node is not None
         self.block_s = block_s
         self.pids: dict[str, int] = {}
-        self.rollouts: Container[int] = ()
+        self.followed: deque[int] = deque(maxlen=FOLLOWED_KEPT)
         self.started = time.monotonic()
         self.blocks: list[Block] = []
         self.block = Block(0, 0.0, block_s)
-        self._batches: dict[tuple[int, int], int] = {}
+        self.matcher = StepMatcher(int(UNANSWERED_S * 1e9))
         session.node.create_subscription(ActionChunkBatch, ACTIONS, self._on_batch, qos.INPUT)
 
-    def start(self, pids: dict[str, int], rollouts: Container[int]) -> None:
-        """Start the first block now; ``pids``: process name -> id, whose memory each block reads;
-        ``rollouts``: the ids of the rollouts the driver follows."""
+    def start(self, pids: dict[str, int]) -> None:
+        """Start the first block now; ``pids``: process name -> id, whose memory each block reads."""
         self.pids = pids
-        self.rollouts = rollouts
         self.started = time.monotonic()
 
+    def follow(self, rollout_id: int) -> None:
+        """The driver follows this rollout (its reset answered)."""
+        self.followed.append(rollout_id)
+
     def _on_batch(self, msg: ActionChunkBatch) -> None:
-        if msg.rollout_id in self.rollouts:
-            self._batches.setdefault((msg.rollout_id, msg.step), time.monotonic_ns())
-        else:
-            self.block.foreign += 1
+        latency = self.matcher.batch((msg.rollout_id, msg.step), time.monotonic_ns())
+        if latency is not None:
+            self.block.overtaken += 1
+            self._answered(latency)
         self.tick()
+
+    def _answered(self, latency_ns: int) -> None:
+        self.block.steps += 1
+        self.block.latency_ms.append(latency_ns / 1e6)
 
     def on_alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
         """The driver's alarm display: one decision of a followed rollout."""
-        received = self._batches.pop((msg.rollout_id, msg.step), None)
-        if received is not None:
-            self.block.steps += 1
-            self.block.latency_ms.append((time.monotonic_ns() - received) / 1e6)
+        latency = self.matcher.alarm((msg.rollout_id, msg.step), time.monotonic_ns())
+        if latency is not None:
+            self._answered(latency)
         state = state_name(msg)
         self.block.unknown += state == "UNKNOWN"
         self.block.alarms += state == "ALARM" and trace.alarm_step == msg.step
@@ -146,12 +199,11 @@ class Meter:
 
     def close(self, length_s: float) -> None:
         """Close the running block after ``length_s`` seconds: memory, unanswered steps, its line."""
-        block, now = self.block, time.monotonic_ns()
+        block = self.block
         block.length_s = length_s
-        stale = [key for key, at in self._batches.items() if now - at > UNANSWERED_S * 1e9]
-        block.unanswered = len(stale)
-        for key in stale:
-            del self._batches[key]
+        stale = self.matcher.expire(time.monotonic_ns())
+        block.unanswered = sum(rollout in self.followed for rollout, _ in stale)
+        block.foreign = len(stale) - block.unanswered
         block.rss_mb = {name: rss_mb(pid) for name, pid in self.pids.items()}
         self.blocks.append(block)
         print(block.line(), flush=True)
@@ -207,12 +259,13 @@ def run_soak(args: argparse.Namespace) -> int:
                 meter = Meter(session, block_s)
                 driver = Driver(session, suite, "sorting", display=meter.on_alarm)
                 driver.wait_ready(MANAGED_NODES, args.ready_timeout, plain=(SUPERVISOR,))
-                meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()}, driver.traces)
+                meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()})
                 print(f"soak: all nodes active; processes {meter.pids}", flush=True)
                 end = meter.started + 60.0 * args.minutes
                 previous: RolloutTrace | None = None
                 for plan in plans():
                     trace = driver.reset(plan.scenario, plan.seed, plan.label)
+                    meter.follow(trace.rollout_id)
                     driver.follow(trace, 60.0 + ROLLOUT_S_PER_STEP * trace.max_steps)
                     driver.settle(lambda: trace.scored_steps() >= trace.steps_started, SETTLE_S)
                     if previous is not None:  # kept one rollout longer: its last alarm may follow its scores
