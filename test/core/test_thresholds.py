@@ -9,6 +9,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fiper_ros.core.thresholds import (
     Threshold,
@@ -16,6 +18,7 @@ from fiper_ros.core.thresholds import (
     ThresholdSettings,
     conformal_quantile,
     fit_threshold,
+    minimum_conformal_set,
 )
 
 
@@ -277,3 +280,55 @@ def test_calibration_curve_rejections_name_the_curve() -> None:
         fit_threshold([np.ones(3), np.ones((2, 2))])
     with pytest.raises(ThresholdError, match=r"^conformal quantile of no scores$"):
         conformal_quantile([], 0.1)
+
+
+# ---- issue #27, second round: survivors of `make mutants FILES=core/thresholds.py` in the code of #19 ----------------
+@pytest.mark.parametrize(("delta", "m"), [(0.05, 19), (0.1, 9), (0.2, 4), (0.25, 3), (0.4, 2), (0.5, 1), (0.9, 1),
+                                          (0.01, 99), (1 / 3, 2), (0.3, 3)])
+def test_minimum_conformal_set_by_hand(delta: float, m: int) -> None:
+    # the smallest M with ceil((M + 1)(1 - delta)) <= M; M - 1 scores give +inf
+    assert minimum_conformal_set(delta) == m
+    assert math.isfinite(conformal_quantile(np.arange(float(m)), delta))
+    if m > 1:
+        assert conformal_quantile(np.arange(float(m - 1)), delta) == math.inf
+
+
+@given(st.floats(min_value=1e-3, max_value=1.0 - 1e-9, exclude_max=True))
+def test_minimum_conformal_set_is_where_the_conformal_quantile_turns_finite(delta: float) -> None:
+    m = minimum_conformal_set(delta)
+    assert m >= 1 and math.isfinite(conformal_quantile(np.zeros(m), delta))
+    assert m == 1 or conformal_quantile(np.zeros(m - 1), delta) == math.inf
+
+
+@pytest.mark.parametrize("delta", [0.0, 1.0, -0.1, 1.5])
+def test_minimum_conformal_set_refuses_a_delta_outside_0_1(delta: float) -> None:
+    with pytest.raises(ThresholdError, match=rf"^delta must be in \(0, 1\), got {delta}$"):
+        minimum_conformal_set(delta)
+
+
+def test_gaussian_takes_mu_from_the_given_shape_curves_and_sigma_from_the_curves() -> None:
+    shape = [np.array([1.0, 1.0]), np.array([3.0, 3.0])]  # mu = [2, 2]
+    curves = [np.array([3.0, -2.0]), np.array([9.0, 6.0])]  # RMS deviations from mu: 5, 4
+    fitted = fit_threshold(curves, ThresholdSettings(kind="gaussian", delta=0.1), shape_curves=shape)
+    z = 1.2815515655446004
+    np.testing.assert_allclose(fitted.values, [2.0 + 5.0 * z, 2.0 + 4.0 * z])
+    assert (fitted.params["m1"], fitted.params["m2"]) == (2, 2)
+
+
+def test_cp_band_floor_is_the_mean_spread_over_the_supported_steps_only() -> None:
+    # min_support 2: steps 0 and 1 are supported, step 2 (one rollout) carries step 1's std: s = [1, 2, 2].
+    # The floor is 0.1 x mean(1, 2) = 0.15, not 0.1 x mean(1, 2, 2).
+    shape = [np.array([0.0, 0.0, 9.0]), np.array([2.0, 4.0])]
+    fitted = fit_threshold([np.array([1.0, 2.0, 2.0])], ThresholdSettings(kind="cp_band", delta=0.5, min_support=2),
+                           shape_curves=shape)
+    assert fitted.params["s_floor"] == pytest.approx(0.15)
+    np.testing.assert_allclose(fitted.values, [1.0, 2.0, 2.0])  # mu = [1, 2, 2], k = max((c - mu) / s) = 0
+
+
+def test_cp_scaled_floor_falls_back_to_a_tiny_positive_scale_when_every_quantile_is_0() -> None:
+    shape = [np.zeros(2), np.zeros(2)]
+    fitted = fit_threshold([np.array([0.0, 2e-12])], ThresholdSettings(kind="cp_scaled", delta=0.5, min_support=1),
+                           shape_curves=shape)
+    assert fitted.params["q_floor"] == pytest.approx(1e-12, rel=1e-12)
+    assert fitted.params["k"] == pytest.approx(2.0)  # max(0 / 1e-12, 2e-12 / 1e-12)
+    np.testing.assert_allclose(fitted.values, [2e-12, 2e-12])

@@ -257,3 +257,12 @@ def test_reset_refusals_are_exact() -> None:
     assert reset_refusal(True, "\n", "\t") == "a reset names who asks and why: requester and reason empty"
     assert reset_refusal(True, "a\nb", "c\td") == \
         "requester and reason not one printable line of at most 200 characters"
+
+
+def test_by_default_64_steps_wait_for_their_partner_and_the_oldest_is_evicted_first() -> None:
+    fuser = _started()
+    for step in range(65):
+        fuser.add(DetectorScore("rnd_oe", 1, step, 0.5, 1.0, 0), 0)
+    assert fuser.evicted == 1
+    assert fuser.add(DetectorScore("ace", 1, 1, 0.5, 1.0, 0), 0) is not None  # step 1 waited: step 0 went
+    assert (fuser.evicted, fuser.unmatched_stale) == (1, 0)

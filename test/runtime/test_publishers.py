@@ -6,6 +6,7 @@ import pytest
 from fiper_ros.runtime.alarm import ALARM, MAX_RESET_TEXT, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore, \
     reset_refusal
 from fiper_ros.runtime.publishers import (FOREIGN, SEVERAL, UNIDENTIFIED, UNKNOWN_NODE_NAME, UNKNOWN_NODE_NAMESPACE,
+                                          UNNAMED_GRACE_NS,
                                           Expected, Finding, Publisher, PublisherWatch, fully_qualified, judge,
                                           resolve_node)
 from fiper_ros.runtime.supervision import SupervisorLogic
@@ -188,3 +189,37 @@ def test_a_reset_names_who_and_why_and_can_be_switched_off(allowed: bool, reques
     got = reset_refusal(allowed, requester, reason)
     assert (got == "") if not refusal else (refusal in got), got
     assert reset_refusal(True, "a", "x" * MAX_RESET_TEXT) == ""
+
+
+# ---- issue #27: survivors of `make mutants FILES=runtime/publishers.py` ----------------------------------------------
+def test_a_namespace_keeps_every_character_but_its_trailing_slash() -> None:
+    assert fully_qualified("/robotX", "n") == "/robotX/n"
+    assert fully_qualified("/X", "n") == "/X/n"
+
+
+def test_the_watch_counts_speaking_publishers_and_judges_a_topic_absent_from_the_graph() -> None:
+    watch = PublisherWatch(unnamed_grace_ns=S)
+    twins = {SCORES: [_pub(RND, "a"), _pub(RND, "b")]}  # a killed predecessor's endpoint lingers
+    absent = Expected("/fiper/scores/ace", frozenset({"/fiper/ace_node"}))
+    assert watch.update([SCORE_TOPIC, absent], twins, {SCORES: 1}, 0) == ([], [])  # one speaks: no second suite
+    appeared, _ = watch.update([SCORE_TOPIC, absent], twins, {SCORES: 2}, 1)
+    assert appeared == [Finding(SCORES, SEVERAL, (RND, RND), 2)]
+
+
+def test_the_first_look_at_an_unnamed_publisher_starts_its_grace() -> None:
+    watch = PublisherWatch(unnamed_grace_ns=S)
+    graph = {SCORES: [Publisher("", "u")]}
+    assert watch.update([SCORE_TOPIC], graph, {}, 0) == ([], [])
+    appeared, _ = watch.update([SCORE_TOPIC], graph, {}, S + 1)
+    assert appeared == [Finding(SCORES, UNIDENTIFIED, ("",))]
+    assert str(appeared[0]) == f"{SCORES}: 1 publisher(s) of a node the graph does not name yet"
+
+
+def test_the_doubt_lists_every_finding_of_the_topics_asked_for() -> None:
+    watch = PublisherWatch()
+    watch.update([SCORE_TOPIC], {SCORES: [Publisher("", "u"), _pub("/intruder")]}, {SCORES: 2}, 0)
+    watch.update([SCORE_TOPIC], {SCORES: [Publisher("", "u"), _pub("/intruder")]}, {SCORES: 2}, UNNAMED_GRACE_NS + 1)
+    assert watch.doubt([SCORES]) == (
+        f"{SCORES}: 1 publisher(s) of a node the graph does not name yet; "
+        f"{SCORES}: publisher(s) the suite does not expect: /intruder; "
+        f"{SCORES}: 2 publishers where the suite has one: (a node not named yet), /intruder")

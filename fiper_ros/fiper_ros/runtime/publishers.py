@@ -69,10 +69,11 @@ class Expected:
     reports: only a consumer sees the topic's liveliness)."""
 
     def most(self, publishers: Sequence[Publisher]) -> int | None:
-        """How many of ``publishers`` may speak at once (``None``: any number)."""
+        """How many of ``publishers`` may speak at once (``None``: any number): one per allowed node present, and
+        at least one (so one, without an allow list)."""
         if not self.limited:
             return None
-        return max(1, len({p.node for p in publishers if p.node in self.nodes})) if self.nodes else 1
+        return max(1, len({p.node for p in publishers if p.node in self.nodes}))
 
 
 @dataclass(frozen=True)
