@@ -62,10 +62,21 @@ class NumpyMLP:
             array = parameters[name]
             if array.shape != shape or array.dtype != np.float32:
                 raise MLPError(f"parameter {name}: expected float32 {shape}, got {array.dtype} {array.shape}")
-        self.parameters: dict[str, np.ndarray] = {name: np.array(parameters[name]) for name in shapes}
+        self._indices = linear_indices(layers)
+        # The weights transposed (``[in, out]``, C order) for ``x @ W``, each parameter held once.
         self.layers: list[tuple[np.ndarray, np.ndarray, str | None]] = [
-            (self.parameters[f"{index}.weight"].T.copy(), self.parameters[f"{index}.bias"], activation)
-            for index, (_, activation) in zip(linear_indices(layers), layers)]
+            (parameters[f"{index}.weight"].T.copy(), np.array(parameters[f"{index}.bias"]), activation)
+            for index, (_, activation) in zip(self._indices, layers)]
+
+    @property
+    def parameters(self) -> dict[str, np.ndarray]:
+        """The parameters by name (read-only views: the weights ``[out, in]`` as given, not C-contiguous)."""
+        named: dict[str, np.ndarray] = {}
+        for index, (weight, bias, _) in zip(self._indices, self.layers):
+            named[f"{index}.weight"], named[f"{index}.bias"] = weight.T, bias.view()
+        for view in named.values():
+            view.flags.writeable = False
+        return named
 
     def __call__(self, x: np.ndarray, dtype: type[np.floating] = np.float32) -> np.ndarray:
         """Forward ``x [..., in]`` -> ``[..., out]`` in float32, or in ``dtype`` (e.g. float64 for inputs whose

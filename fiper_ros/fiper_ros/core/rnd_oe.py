@@ -147,7 +147,7 @@ class RNDOE:
             raise RNDError(f"RND-OE networks: {error}") from error
 
     def parameters(self) -> dict[str, dict[str, np.ndarray]]:
-        """``{"target": ..., "predictor": ...}``: both networks' parameters (not copies: do not modify)."""
+        """``{"target": ..., "predictor": ...}``: both networks' parameters (read-only views)."""
         return {"target": self._target.parameters, "predictor": self._predictor.parameters}
 
     def score_one(self, x: np.ndarray) -> float:
@@ -181,7 +181,7 @@ class RNDOE:
         ``rnd_oe.json`` (:meth:`describe`)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        arrays = {f"{network}/{name}": array for network, parameters in self.parameters().items()
+        arrays = {f"{network}/{name}": np.ascontiguousarray(array) for network, parameters in self.parameters().items()
                   for name, array in parameters.items()}
         with (directory / WEIGHTS_FILE).open("wb") as stream:
             np.savez(stream, **arrays)
