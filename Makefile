@@ -12,7 +12,7 @@ help:
 	@echo "make setup       venv with pinned wheels, Debian packages, colcon build (idempotent)"
 	@echo "make bench-core  latency of the FIPER core (ACE, RND-OE, fusion)"
 	@echo "make bench-eval  speed of the evaluation engine (scores, full sweep) on synthetic data"
-	@echo "make bench-nodes end-to-end latency and throughput of the node suite over DDS"
+	@echo "make bench-nodes start-up, memory, end-to-end latency and throughput of the node suite over DDS"
 	@echo "make bench-policy cost of a policy step (embedding, B sampled chunks) of each shipped policy"
 	@echo "make bench-soak  an hour of the demo's node set: memory, alarm latency per 5 min (MINUTES=10: per minute)"
 	@echo "make lock        regenerate requirements.lock from requirements.in"

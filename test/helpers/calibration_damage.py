@@ -15,10 +15,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import torch
 import yaml
 
 from fiper_ros.core.calibration import CALIBRATION_FILE, load_calibration
+from fiper_ros.core.calibration_file import FORMAT_VERSION
 from fiper_ros.core.rnd_oe import CONFIG_FILE, WEIGHTS_FILE
 
 #: A damage: modifies the calibration directory at the path, returns the text its refusal holds.
@@ -55,7 +55,7 @@ def description_missing(directory: Path) -> str:
 
 
 def yaml_not_yaml(directory: Path) -> str:
-    (directory / CALIBRATION_FILE).write_text("format_version: 1\nranges: [0.5,\n")
+    (directory / CALIBRATION_FILE).write_text(f"format_version: {FORMAT_VERSION}\nranges: [0.5,\n")
     return f"{directory / CALIBRATION_FILE}: not valid YAML (while parsing "
 
 
@@ -65,8 +65,14 @@ def yaml_empty(directory: Path) -> str:
 
 
 def newer_format_version(directory: Path) -> str:
-    path = _edit_yaml(directory, lambda content: content.update(format_version=2))
-    return f"{path}: format_version 2 not supported (this code reads 1)"
+    path = _edit_yaml(directory, lambda content: content.update(format_version=FORMAT_VERSION + 1))
+    return f"{path}: format_version {FORMAT_VERSION + 1} not supported (this code reads {FORMAT_VERSION})"
+
+
+def older_format_version(directory: Path) -> str:
+    """Format 1 (weights in the torch file rnd_oe.pt): refused with the command that converts it."""
+    path = _edit_yaml(directory, lambda content: content.update(format_version=1))
+    return f"{path}: format_version 1, whose RND-OE weights (rnd_oe.pt) only torch reads: convert it once with: "
 
 
 def entry_missing(directory: Path) -> str:
@@ -86,11 +92,14 @@ def yaml_edited(directory: Path) -> str:
 
 
 def weights_edited(directory: Path) -> str:
-    """One predictor weight changed, saved as a valid torch file."""
-    state = torch.load(directory / WEIGHTS_FILE, weights_only=True)
-    tensor = next(iter(state["predictor"].values()))
-    tensor.view(-1)[0] += 1.0
-    torch.save(state, directory / WEIGHTS_FILE)
+    """One predictor weight changed, saved as a valid weights file."""
+    path = directory / WEIGHTS_FILE
+    arrays = dict(np.load(path))
+    name = next(name for name in arrays if name.startswith("predictor/"))
+    arrays[name] = arrays[name].copy()
+    arrays[name].flat[0] += 1.0
+    with path.open("wb") as stream:
+        np.savez(stream, **arrays)
     return f"{directory / CALIBRATION_FILE}: {HASH_MISMATCH}"
 
 
@@ -121,8 +130,8 @@ def description_not_json(directory: Path) -> str:
 
 CALIBRATION_DAMAGES: dict[str, Damage] = {damage.__name__: damage for damage in (
     directory_missing, yaml_missing, weights_missing, description_missing, yaml_not_yaml, yaml_empty,
-    newer_format_version, entry_missing, entry_malformed, yaml_edited, weights_edited, weights_truncated,
-    weights_random, description_edited, description_not_json)}
+    newer_format_version, older_format_version, entry_missing, entry_malformed, yaml_edited, weights_edited,
+    weights_truncated, weights_random, description_edited, description_not_json)}
 
 
 # -- calibrations that load but do not fit ----------------------------------------------------------

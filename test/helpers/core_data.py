@@ -4,6 +4,7 @@ widely spread action samples."""
 from __future__ import annotations
 
 import numpy as np
+from fiper_ros.core.mlp import parameter_shapes
 from fiper_ros.core.rnd_oe import RNDOE, RNDConfig
 from fiper_ros.core.rollout import Rollout
 
@@ -33,14 +34,17 @@ def make_rollout(
     )
 
 
+def filled_rnd(embedding_dim: int, config: RNDConfig, target: float, predictor: float) -> RNDOE:
+    """A real RND-OE model of ``config`` whose every target weight is ``target``, every predictor weight
+    ``predictor``, every bias 0."""
+    def filled(layers: list, value: float) -> dict[str, np.ndarray]:
+        return {name: np.full(shape, value if name.endswith("weight") else 0.0, np.float32)
+                for name, shape in parameter_shapes(embedding_dim, layers).items()}
+
+    return RNDOE(embedding_dim, config, 0, filled(config.target_layers(), target),
+                 filled(config.predictor_layers(), predictor))
+
+
 def overflowing_rnd(embedding_dim: int = EMBEDDING_DIM, layers: int = 8) -> RNDOE:
     """A real RND-OE model whose every weight is 3e38: its score overflows even in float64 (inf - inf)."""
-    import torch
-
-    model = RNDOE(embedding_dim, RNDConfig(trunk=(1,) * layers, head=(), out_dim=1), seed=0)
-    with torch.no_grad():
-        for network in (model.target, model.predictor):
-            for parameter in network.parameters():
-                parameter.fill_(3e38)
-    model._cache_numpy()
-    return model
+    return filled_rnd(embedding_dim, RNDConfig(trunk=(1,) * layers, head=(), out_dim=1), 3e38, 3e38)

@@ -11,6 +11,10 @@ would be +inf: one line, exit status 2.
 ``--detectors rnd_oe`` writes an observation-only calibration (RND-OE alone: its alarm is RND-OE's
 exceedance), which needs no action batches; bags without them and no ``--detectors rnd_oe`` are refused
 with one line saying so.
+
+``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
+file ``rnd_oe.pt``, which the nodes no longer read) to the current format (``rnd_oe.npz``, numpy): the same
+thresholds, weights and scores, checked against the old content hash. ``-o OLD --force`` converts in place.
 """
 from __future__ import annotations
 
@@ -27,7 +31,9 @@ from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.rollouts import read_rollouts
 from fiper_ros.bags.schema import ACTIONS
-from fiper_ros.core.calibration import SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate
+from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
+                                        upgrade_calibration)
+from fiper_ros.core.calibration_file import FORMAT_VERSION
 from fiper_ros.core.compat import PROFILE_NAMES
 from fiper_ros.core.detectors import DETECTOR_SETS, LABELS, SIDES, parse_detectors
 from fiper_ros.core.fusion import COMBINES
@@ -115,8 +121,11 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper calibrate``."""
     defaults = CalibrationSettings()
-    parser.add_argument("bags", nargs="+", type=Path, help="bags (or directories of bags) with calibration rollouts")
+    parser.add_argument("bags", nargs="*", type=Path, help="bags (or directories of bags) with calibration rollouts")
     parser.add_argument("-o", "--out", type=Path, required=True, help="calibration directory to write")
+    parser.add_argument("--upgrade", type=Path, metavar="OLD", default=None,
+                        help="instead of calibrating: convert the format-1 calibration OLD (weights in rnd_oe.pt, "
+                             "torch) to the current format (rnd_oe.npz, numpy); -o OLD --force converts in place")
     parser.add_argument("--window-obs", type=int, default=defaults.window_obs, help="RND-OE window w_O (eq. 2)")
     parser.add_argument("--window-act", type=int, default=defaults.window_act, help="ACE window w_A (eq. 5)")
     parser.add_argument("--threshold", choices=KINDS, default=defaults.threshold, help="threshold kind")
@@ -149,6 +158,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``fiper calibrate``."""
+    if args.upgrade is not None or not args.bags:
+        return upgrade(args)
     try:
         settings = settings_from(args)
         fk = robot_options.fk_of(robot_options.robot_from(args))
@@ -168,6 +179,25 @@ def run(args: argparse.Namespace) -> int:
     for line in summary(calibration):
         print(line)
     print(f"calibration {args.out} written (hash {calibration.content_hash})")
+    return 0
+
+
+def upgrade(args: argparse.Namespace) -> int:
+    """``fiper calibrate --upgrade OLD -o NEW``: the calibration ``OLD`` of format 1 in the current format."""
+    try:
+        if args.upgrade is None or args.bags:
+            raise BagError("give either the bags to calibrate on or --upgrade OLD (a calibration to convert)")
+        check_new(args.out, args.force)
+        try:
+            calibration = upgrade_calibration(args.upgrade)
+        except CalibrationError as error:
+            raise BagError(str(error)) from error
+        with atomic_output(args.out, args.force) as staging:
+            calibration.save(staging)
+    except BagError as error:
+        return fail("calibrate", error)
+    print(f"calibration {args.upgrade} converted to format {FORMAT_VERSION}: {args.out} written "
+          f"(hash {calibration.content_hash})")
     return 0
 
 

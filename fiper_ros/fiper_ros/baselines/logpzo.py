@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from fiper_ros.baselines.base import BaselineError, read_model, training_rollouts, write_model
-from fiper_ros.core.mlp import build_mlp
+from fiper_ros.core.torch_mlp import build_mlp
 from fiper_ros.core.rollout import Rollout
 
 LOG = logging.getLogger(__name__)

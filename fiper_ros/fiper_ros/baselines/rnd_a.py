@@ -4,10 +4,10 @@ FIPER paper).
 
 Target ``g`` and predictor ``f`` read one action chunk ``[H, D]``: a 1-D convolution over the horizon
 (``D`` input channels, ``channels`` output channels, kernel ``kernel``, LeakyReLU), flattened, then
-the MLPs of RND-OE (:func:`fiper_ros.core.mlp.build_mlp`: target trunk + output, predictor trunk +
+the MLPs of RND-OE (:func:`fiper_ros.core.torch_mlp.build_mlp`: target trunk + output, predictor trunk +
 head + output; orthogonal init, gain ``sqrt(2)``). Chunks are standardised per channel with the
 training mean and standard deviation (a fixed layer of both networks). Training is RND-OE's loop
-(:meth:`fiper_ros.core.rnd_oe.RNDOE.train`: mean ``||f - g||_2``, AdamW, cosine schedule, early
+(:meth:`fiper_ros.core.rnd_train.TorchRND.train`: mean ``||f - g||_2``, AdamW, cosine schedule, early
 stopping), which this class inherits.
 
 Score of a policy step: the mean of ``||f(A) - g(A)||_2`` over the first ``score_samples`` of its
@@ -29,8 +29,10 @@ import torch
 from torch import nn
 
 from fiper_ros.baselines.base import BaselineError, read_model, training_rollouts, write_model
-from fiper_ros.core.mlp import LayerSpec, build_mlp
-from fiper_ros.core.rnd_oe import RNDOE, RNDConfig
+from fiper_ros.core.mlp import LayerSpec
+from fiper_ros.core.rnd_oe import RNDConfig
+from fiper_ros.core.rnd_train import TorchRND
+from fiper_ros.core.torch_mlp import build_mlp
 from fiper_ros.core.rollout import Rollout
 
 WEIGHTS_FILE = "rnd_a.pt"
@@ -85,7 +87,7 @@ class ChunkNetwork(nn.Module):
         return self.mlp(self.activation(self.conv(chunks.transpose(1, 2))).flatten(1))
 
 
-class ChunkRND(RNDOE):
+class ChunkRND(TorchRND):
     """RND over flattened chunks ``[N, H*D]``: RND-OE's training loop and torch scoring, chunk networks."""
 
     def __init__(self, horizon: int, dims: int, config: RNDAConfig, seed: int = 0) -> None:
@@ -96,9 +98,6 @@ class ChunkRND(RNDOE):
         self.target.requires_grad_(False).eval()
         self.predictor = ChunkNetwork(self.horizon, self.dims, config, config.rnd.predictor_layers(), generator)
         self.predictor.eval()
-
-    def _cache_numpy(self) -> None:
-        """Chunk networks score with torch (:meth:`score`); there is no numpy fast path to cache."""
 
     def standardize_with(self, chunks: np.ndarray) -> None:
         """Set both networks' per-channel standardisation from training chunks ``[N, H*D]``."""

@@ -16,7 +16,8 @@ import numpy as np
 from fiper_ros.core.ace import ace_score
 from fiper_ros.core.calibration import Calibration, CalibrationSettings
 from fiper_ros.core.monitor import FiperMonitor
-from fiper_ros.core.rnd_oe import RNDOE, RNDConfig
+from fiper_ros.core.rnd_oe import RNDConfig
+from fiper_ros.core.rnd_train import untrained_rnd
 from fiper_ros.core.thresholds import Threshold
 
 ACE_SHAPES = ((256, 16, 3), (30, 16, 5), (32, 8, 3))
@@ -45,7 +46,7 @@ def _monitor(embedding_dim: int, ace_shape: tuple[int, int, int]) -> FiperMonito
     thresholds = Threshold("cp_constant", 0.05, np.full(100, 1e9))
     calibration = Calibration(
         settings=CalibrationSettings(window_obs=5, window_act=5),
-        rnd=RNDOE(embedding_dim, RNDConfig.small()),
+        rnd=untrained_rnd(embedding_dim, RNDConfig.small()),
         ranges=np.ones(dims),
         threshold_obs=thresholds,
         threshold_act=thresholds,
@@ -70,7 +71,7 @@ def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | N
         rows.append((f"ACE (B,H,D)={shape}", p50, p99, TARGET_ACE_MS))
     for name, config, target in (("small", RNDConfig.small(), TARGET_RND_MS), ("paper", RNDConfig.paper(), None)):
         for dim in EMBEDDING_DIMS:
-            model = RNDOE(dim, config)
+            model = untrained_rnd(dim, config)
             inputs = rng.normal(size=(8, dim)).astype(np.float32)
             n = iterations if name == "small" else max(iterations // 10, 20)
             p50, p99 = measure(lambda i, m=model, x=inputs: m.score_one(x[i % 8]), n, warmup)

@@ -1,22 +1,33 @@
-"""``make bench-nodes``: end-to-end latency and throughput of the node suite over real DDS.
+"""``make bench-nodes``: start-up, memory, end-to-end latency and throughput of the node suite over real DDS.
 
 The three FIPER nodes run as separate processes (``fiper launch``) in a private ROS domain on
 loopback. A driver in this process publishes an embedding and an action-chunk batch per policy step
 and receives the FailureAlarm of that step; latency = alarm received - embedding published (one
 monotonic clock, same process). Measured per task shape: p50 / p99 latency at 10 Hz, and the highest
 sustained rate (steps/s) at which every step's alarm arrives and the backlog stays below 0.5 s.
+
+Start-up (issue #24), per shape before the latency runs: each node started alone (its command line as
+``fiper launch`` builds it), the seconds from its exec to ACTIVE (the driver asks its lifecycle
+``get_state`` service every 20 ms: the figure's resolution) and its peak RSS then (``VmHWM``); then the
+suite: the seconds from the exec of ``fiper launch`` until all three nodes are ACTIVE and discovered one
+another (the driver's inputs matched by the scoring nodes, the events by all three, the scores subscribed
+by the fusion node and the alarm published, as the driver's graph shows them). After the runs: each suite
+node's peak RSS. The load average is printed before and after: the figures depend on what else runs.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -26,9 +37,18 @@ from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
+from fiper_ros.launch import NodeSpec, load_config
 from fiper_ros.shm import clean_stale
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
+#: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
+#: included) within :data:`TARGET_SUITE_S`.
+TARGET_NODE_S = 1.5
+TARGET_SUITE_S = 3.0
+#: Period of the lifecycle ``get_state`` requests while waiting for ACTIVE: the resolution of the start-up figures.
+POLL_S = 0.02
+#: Longest wait for a node or the suite to come up.
+STARTUP_TIMEOUT_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -47,7 +67,9 @@ SHAPES = (Shape("pusht", 64, 256, 16, 3, 8), Shape("pretzel", 512, 30, 16, 5, 8)
 
 
 def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
-    """A calibration of ``shape`` (small default RND-OE, few epochs: latency does not depend on training)."""
+    """A calibration of ``shape`` (small default RND-OE, few epochs; 8 rollouts, so CP constant thresholds at
+    delta 0.25, finite with 4 conformal rollouts and 3 in the leave-one-out estimate: latency and start-up
+    depend neither on the training nor on the thresholds' values)."""
     rng = np.random.default_rng(seed)
     rollouts = []
     for i in range(8):
@@ -60,12 +82,14 @@ def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
             exec_steps=shape.exec_steps, success=True,
         ))
     action_dims = (0, min(3, shape.action_dim))
-    settings = CalibrationSettings(rnd=RNDConfig(max_epochs=3), action_dims=action_dims)
+    settings = CalibrationSettings(rnd=RNDConfig(max_epochs=3), action_dims=action_dims, threshold="cp_constant",
+                                   delta=0.25)
     calibrate(rollouts, settings).save(directory)
     return directory
 
 
-def _launch(calibration: Path, work: Path, domain: int) -> subprocess.Popen[bytes]:
+def _suite_config(calibration: Path, work: Path) -> Path:
+    """The launch YAML of the three FIPER nodes on ``calibration``."""
     config = work / "suite.yaml"
     params = {"calibration_dir": str(calibration)}
     config.write_text(yaml.safe_dump({
@@ -74,9 +98,53 @@ def _launch(calibration: Path, work: Path, domain: int) -> subprocess.Popen[byte
                   "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": params},
                   "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": EVERY_ALARM}},
     }))
-    return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],  # noqa: S603
-                            env=local_env(domain), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
+    return config
+
+
+def _start(command: list[str], domain: int) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(command, env=local_env(domain), stdout=subprocess.DEVNULL,  # noqa: S603
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def _stop(process: subprocess.Popen[bytes]) -> None:
+    """SIGINT to the process group (the launcher passes it on to its nodes), then wait."""
+    os.killpg(process.pid, signal.SIGINT)
+    process.wait(timeout=30)
+
+
+def peak_rss_mb(pid: int) -> float:
+    """The peak resident set size (``VmHWM``) of a live process, in MB."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    return int(re.search(r"^VmHWM:\s+(\d+) kB", status, re.MULTILINE).group(1)) / 1024  # type: ignore[union-attr]
+
+
+def node_peaks(launcher: int) -> dict[str, float]:
+    """Peak RSS (MB) of each node process ``fiper launch`` (pid ``launcher``) started, by module."""
+    peaks = {}
+    for child in Path(f"/proc/{launcher}/task/{launcher}/children").read_text().split():
+        command = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
+        if b"-m" in command:
+            peaks[command[command.index(b"-m") + 1].decode().rsplit(".", 1)[-1]] = peak_rss_mb(int(child))
+    return peaks
+
+
+@dataclass(frozen=True)
+class Startup:
+    """One node started alone: seconds from its exec to ACTIVE, and its peak RSS then."""
+
+    seconds: float
+    peak_mb: float
+
+
+def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
+    """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE."""
+    started = time.monotonic()
+    process = _start([sys.executable, "-m", spec.module, *spec.ros_args(use_sim_time=False)], domain)
+    try:
+        active = driver.wait_active([spec.fqn])
+        return Startup(active - started, peak_rss_mb(process.pid))
+    finally:
+        _stop(process)
 
 
 class Driver:
@@ -101,6 +169,7 @@ class Driver:
         self.act_pub = self.node.create_publisher(ActionChunkBatch, "action_chunks", qos.INPUT)
         self.event_pub = self.node.create_publisher(RolloutEvent, "rollout_events", qos.EVENT)
         self.received: dict[tuple[int, int], int] = {}
+        self.clients: dict[str, Any] = {}
         self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM_EVERY)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
@@ -117,15 +186,48 @@ class Driver:
         while (left := end - time.monotonic()) > 0:
             self.executor.spin_once(timeout_sec=min(left, 0.05))
 
-    def wait_ready(self, timeout: float = 120.0) -> None:
-        end = time.monotonic() + timeout
+    def wait_active(self, nodes: Sequence[str]) -> float:
+        """Ask the lifecycle state of the nodes (fully qualified names) every :data:`POLL_S` until each is ACTIVE;
+        the ``time.monotonic()`` of the answer that made the last one ACTIVE."""
+        from lifecycle_msgs.msg import State  # noqa: PLC0415
+        from lifecycle_msgs.srv import GetState  # noqa: PLC0415
+
+        clients = {node: self.clients.get(node) or self.node.create_client(GetState, f"{node}/get_state")
+                   for node in nodes}
+        self.clients.update(clients)
+        pending: dict[str, Any] = dict.fromkeys(nodes)
+        end = time.monotonic() + STARTUP_TIMEOUT_S
         while time.monotonic() < end:
-            if (self.emb_pub.get_subscription_count() and self.act_pub.get_subscription_count()
-                    and self.event_pub.get_subscription_count() >= 3):
-                self.spin_for(1.0)
-                return
-            self.spin_for(0.1)
-        raise RuntimeError("the suite did not come up")
+            for node, future in list(pending.items()):
+                if future is not None and future.done():
+                    if future.result().current_state.id == State.PRIMARY_STATE_ACTIVE:
+                        del pending[node]
+                        if not pending:
+                            return time.monotonic()
+                        continue
+                    future = None
+                if future is None and clients[node].service_is_ready():
+                    pending[node] = clients[node].call_async(GetState.Request())
+            self.executor.spin_once(timeout_sec=POLL_S)
+        raise RuntimeError(f"not ACTIVE after {STARTUP_TIMEOUT_S:.0f} s: {', '.join(pending)}")
+
+    def wired(self) -> bool:
+        """Whether the suite's topics are matched as far as the driver sees: its inputs by the scoring nodes, its
+        events by all three, the scores subscribed by the fusion node, the alarm published."""
+        count = self.node.count_subscribers
+        return bool(self.emb_pub.get_subscription_count() and self.act_pub.get_subscription_count()
+                    and self.event_pub.get_subscription_count() >= 3 and count("scores/rnd_oe") and count("scores/ace")
+                    and self.node.count_publishers("alarm"))
+
+    def wait_ready(self, nodes: Sequence[str]) -> float:
+        """Wait until the nodes are ACTIVE and :meth:`wired`; the ``time.monotonic()`` of that."""
+        self.wait_active(nodes)
+        end = time.monotonic() + STARTUP_TIMEOUT_S
+        while not self.wired():
+            if time.monotonic() > end:
+                raise RuntimeError("the suite did not come up")
+            self.executor.spin_once(timeout_sec=POLL_S)
+        return time.monotonic()
 
     def run(self, rollout_id: int, steps: int, rate_hz: float) -> tuple[np.ndarray, int, float]:
         """Publish ``steps`` steps at ``rate_hz``; return latencies (ms), missing steps, final backlog (s)."""
@@ -163,19 +265,32 @@ class Driver:
         self._rclpy.try_shutdown(context=self.context)
 
 
-def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, float]:
-    """Latency at 10 Hz and the highest sustained rate for one shape."""
+def bench_startup(shape: Shape, config: Path, domain: int) -> dict[str, Startup]:
+    """Each node of the launch YAML ``config`` started alone, one after the other."""
+    driver = Driver(shape, domain)
+    try:
+        return {spec.name: node_startup(spec, driver, domain) for spec in load_config(config).nodes}
+    finally:
+        driver.close()
+
+
+def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, Any]:
+    """Start-up, latency at 10 Hz, the highest sustained rate and the nodes' peak memory for one shape."""
     with tempfile.TemporaryDirectory() as tmp, allocate_domain() as domain:
         work = Path(tmp)
-        calibration = shaped_calibration(shape, work / "calibration")
-        launch = _launch(calibration, work, domain)
+        config = _suite_config(shaped_calibration(shape, work / "calibration"), work)
+        startup = bench_startup(shape, config, domain)
         driver = Driver(shape, domain)
+        started = time.monotonic()
+        launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain)
         try:
-            driver.wait_ready()
+            suite_s = driver.wait_ready([spec.fqn for spec in load_config(config).nodes]) - started
+            driver.spin_for(1.0)
             driver.run(1, 20, 10.0)  # warm-up
             lat, missing, _ = driver.run(2, steps, 10.0)
-            result = {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)),
-                      "missing_at_10hz": float(missing), "sustained_hz": 0.0}
+            result: dict[str, Any] = {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)),
+                                      "missing_at_10hz": float(missing), "sustained_hz": 0.0, "startup": startup,
+                                      "suite_s": suite_s}
             for i, rate in enumerate(rates):
                 lat_r, missing_r, backlog = driver.run(10 + i, max(100, int(rate * 2)), rate)
                 ok = missing_r == 0 and backlog < 0.5
@@ -185,11 +300,31 @@ def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, float
                 if not ok:
                     break
                 result["sustained_hz"] = rate
+            result["peaks_mb"] = node_peaks(launch.pid)
             return result
         finally:
             driver.close()
-            os.killpg(launch.pid, signal.SIGINT)
-            launch.wait(timeout=30)
+            _stop(launch)
+
+
+def startup_lines(shape: Shape, result: dict[str, Any]) -> list[str]:
+    """The start-up and memory figures of one shape, each with its ratio to the target where there is one."""
+    lines = []
+    for name, startup in result["startup"].items():
+        target = f" (target <= {TARGET_NODE_S:g} s: {startup.seconds / TARGET_NODE_S:.2f}x)" if "fusion" not in name \
+            else ""
+        lines.append(f"{shape.name}: {name} alone: ACTIVE {startup.seconds:.2f} s after exec{target}, peak RSS "
+                     f"{startup.peak_mb:.0f} MB")
+    lines.append(f"{shape.name}: suite: all three ACTIVE and wired {result['suite_s']:.2f} s after exec of "
+                 f"fiper launch (target <= {TARGET_SUITE_S:g} s: {result['suite_s'] / TARGET_SUITE_S:.2f}x)")
+    peaks = ", ".join(f"{name} {mb:.0f} MB" for name, mb in sorted(result["peaks_mb"].items()))
+    lines.append(f"{shape.name}: peak RSS in the suite after the runs: {peaks}")
+    return lines
+
+
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages."""
+    return " ".join(f"{load:.2f}" for load in os.getloadavg())
 
 
 def main() -> int:
@@ -198,14 +333,18 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=300, help="steps of the 10 Hz latency run")
     parser.add_argument("--rates", type=float, nargs="+", default=[50, 100, 200, 300, 400, 600, 800])
     args = parser.parse_args()
-    print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz")
+    print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz; "
+          f"load average {load_average()}")
     print(clean_stale().summary(), flush=True)
     for shape in SHAPES:
         r = bench_shape(shape, args.steps, args.rates)
+        for line in startup_lines(shape, r):
+            print(line, flush=True)
         print(f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "
               f"latency p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms (target p99 <= 15 ms: "
               f"{r['p99_ms'] / 15:.2f}x), missing {int(r['missing_at_10hz'])}; sustained {r['sustained_hz']:.0f} steps/s "
               f"(target >= 200: {r['sustained_hz'] / 200:.2f}x)", flush=True)
+    print(f"load average at the end {load_average()}")
     return 0
 
 

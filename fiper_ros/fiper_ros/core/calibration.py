@@ -24,10 +24,13 @@ A calibration declares its detectors (``settings.detectors``, :mod:`fiper_ros.co
 pair, or RND-OE alone (observation-only: fitted on rollouts with or without action batches; no ``R_d``, no
 ACE threshold, and its alarm is RND-OE's exceedance).
 
-A calibration directory holds ``calibration.yaml`` and the RND-OE files (``rnd_oe.pt`` and
+A calibration directory holds ``calibration.yaml`` and the RND-OE files (``rnd_oe.npz`` and
 ``rnd_oe.json``). The YAML carries the split used (which rollouts fitted what), the number of rollouts
 behind each threshold, a leave-one-out estimate of the false-alarm rate, and a content hash over its own
-content and the network weights, so a modified or mismatched directory is refused on load.
+content and the network weights, so a modified or mismatched directory is refused on load. Loading needs
+numpy, not torch (the scoring nodes load calibrations); fitting imports torch for RND-OE's training. A
+calibration of format 1 (weights in the torch file ``rnd_oe.pt``) is refused on load with the command that
+converts it, ``fiper calibrate --upgrade``, which reads it with :func:`upgrade_calibration`.
 """
 
 from __future__ import annotations
@@ -46,14 +49,15 @@ import numpy as np
 import yaml
 
 from fiper_ros.core.ace import action_ranges, cell_size, check_alpha
-# CALIBRATION_FILE, FORMAT_VERSION and CalibrationError live in calibration_file (torch-free) and are used from here.
-from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, CalibrationError, check_files, one_line,
-                                             read_yaml)
+# CALIBRATION_FILE, FORMAT_VERSION and CalibrationError live in calibration_file (the YAML alone) and are used from here.
+from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, LEGACY_FORMAT_VERSION, CalibrationError,
+                                             check_files, one_line, read_yaml)
 from fiper_ros.core.compat import Profile, get_profile
 from fiper_ros.core.detectors import ACE, DETECTORS, LABELS, RND_OE, SIDES, check_detectors
 from fiper_ros.core.fusion import COMBINES, exceeds, fuse_declared
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
 from fiper_ros.core.rnd_oe import CONFIG_FILE as RND_CONFIG_FILE
+from fiper_ros.core.rnd_oe import LEGACY_WEIGHTS_FILE as RND_LEGACY_WEIGHTS_FILE
 from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig, RNDError
 from fiper_ros.core.rnd_oe import WEIGHTS_FILE as RND_WEIGHTS_FILE
 from fiper_ros.core.rollout import Rollout, successful
@@ -370,12 +374,18 @@ def _check_description(directory: Path, embedding_dim: int, settings: Calibratio
                                "or files of different runs)")
 
 
-def _load_rnd(directory: Path) -> RNDOE:
-    """The RND-OE model, once its description is known to be right: any failure is the weights'."""
-    path = directory / RND_WEIGHTS_FILE
+def _load_rnd(directory: Path, settings: CalibrationSettings, embedding_dim: int, version: int) -> RNDOE:
+    """The RND-OE model, once its description is known to be right: any failure is the weights'. The weights of
+    format 1 are read with torch (imported here, for the conversion alone)."""
+    legacy = version == LEGACY_FORMAT_VERSION
+    path = directory / (RND_LEGACY_WEIGHTS_FILE if legacy else RND_WEIGHTS_FILE)
     try:
-        return RNDOE.load(directory)
-    except Exception as error:  # noqa: BLE001 - torch raises OSError, RuntimeError, pickle errors for a damaged file
+        if not legacy:
+            return RNDOE.load(directory)
+        from fiper_ros.core.rnd_train import read_legacy  # noqa: PLC0415 - torch only to convert format 1
+
+        return read_legacy(directory, embedding_dim, settings.rnd, settings.seed)
+    except Exception as error:  # noqa: BLE001 - numpy, zipfile and torch raise OSError, ValueError, pickle errors...
         cause = error.__cause__ if isinstance(error, RNDError) and error.__cause__ is not None else error
         detail = re.split(r"(?<=\.)\s|\n", str(cause).strip(), maxsplit=1)[0]
         raise CalibrationError(f"{path}: not readable RND-OE weights (damaged, or not written by fiper calibrate: "
@@ -386,13 +396,27 @@ def load_calibration(directory: str | Path) -> Calibration:
     """Read a calibration directory written by :meth:`Calibration.save`.
 
     Raises :class:`CalibrationError` with one line naming the file for a missing directory or file, a
-    file that does not parse, an unknown format version, a missing or malformed entry, a modified file
-    (content hash, RND-OE description) and weights that do not load.
+    file that does not parse, an unknown format version (format 1: with the command that converts it), a
+    missing or malformed entry, a modified file (content hash, RND-OE description) and weights that do not
+    load.
     """
-    directory = Path(directory)
+    return _read(Path(directory), FORMAT_VERSION)
+
+
+def upgrade_calibration(directory: str | Path) -> Calibration:
+    """Read a calibration of format 1 (weights in ``rnd_oe.pt``; imports torch), checked like
+    :func:`load_calibration` checks one of the current format (its content hash included); saved, it is of
+    the current format, with the same thresholds, weights and scores."""
+    return _read(Path(directory), LEGACY_FORMAT_VERSION)
+
+
+def _read(directory: Path, version: int) -> Calibration:
+    """The calibration in ``directory``, of format ``version``."""
     path = directory / CALIBRATION_FILE
-    check_files(directory, (CALIBRATION_FILE, RND_CONFIG_FILE, RND_WEIGHTS_FILE))
-    content = read_yaml(path)
+    check_files(directory, (CALIBRATION_FILE,))
+    content = read_yaml(path, version)
+    weights = RND_LEGACY_WEIGHTS_FILE if version == LEGACY_FORMAT_VERSION else RND_WEIGHTS_FILE
+    check_files(directory, (RND_CONFIG_FILE, weights))
     try:
         settings = CalibrationSettings.from_dict(content["settings"])
         has_ace = settings.has_ace
@@ -415,10 +439,12 @@ def load_calibration(directory: str | Path) -> Calibration:
     except (TypeError, ValueError) as error:  # ThresholdError, RNDConfig and settings values
         raise CalibrationError(f"{path}: malformed entry ({one_line(error)})") from error
     _check_description(directory, fields["embedding_dim"], settings)
-    rnd = _load_rnd(directory)
+    rnd = _load_rnd(directory, settings, fields["embedding_dim"], version)
     calibration = Calibration(settings=settings, rnd=rnd, **fields)
     stored = content.pop("content_hash", None)
-    if stored != _content_hash(content, rnd) or stored != calibration.content_hash:
+    # The fields must give back the file's content (of the file's version) and its hash.
+    rebuilt = {**calibration._content(), "format_version": version}  # noqa: SLF001
+    if stored != _content_hash(content, rnd) or stored != _content_hash(rebuilt, rnd):
         raise CalibrationError(f"{path}: content hash mismatch (file or weights modified, or files of different runs)")
     return calibration
 
@@ -506,7 +532,9 @@ def _fit_models(fit: Sequence[Rollout], extra_ranges: Sequence[Rollout], setting
     # Positions are recomputed when scoring instead of kept: a task with B = 256 holds hundreds of MB of them.
     ranges = (action_ranges(rollout_positions(r, projection) for r in [*fit, *extra_ranges]) if settings.has_ace
               else np.zeros(0))
-    rnd = RNDOE.fit(np.concatenate([r.embeddings for r in fit]), settings.rnd, settings.seed, progress)
+    from fiper_ros.core.rnd_train import fit_rnd  # noqa: PLC0415 - torch only where RND-OE is trained, not to load
+
+    rnd = fit_rnd(np.concatenate([r.embeddings for r in fit]), settings.rnd, settings.seed, progress)
     return _Fitted(rnd, ranges, cell_size(ranges, settings.resolved_alpha))
 
 

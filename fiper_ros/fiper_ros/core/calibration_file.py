@@ -6,6 +6,7 @@ load_calibration` reads the whole calibration (network weights, content hash) th
 """
 from __future__ import annotations
 
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,11 @@ import yaml
 
 from fiper_ros.core.detectors import DETECTORS, check_detectors
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""The format this code writes and reads: RND-OE's weights in ``rnd_oe.npz``, which numpy reads (no torch)."""
+LEGACY_FORMAT_VERSION = 1
+"""The format before: RND-OE's weights in the torch file ``rnd_oe.pt``. Refused on load with the command that
+converts it (:func:`upgrade_command`), which is the only reader of it left."""
 CALIBRATION_FILE = "calibration.yaml"
 
 
@@ -36,8 +41,15 @@ def check_files(directory: Path, names: Sequence[str]) -> None:
             raise CalibrationError(f"calibration file not found: {directory / name}")
 
 
-def read_yaml(path: Path) -> dict[str, Any]:
-    """``calibration.yaml`` as a mapping of the supported format version."""
+def upgrade_command(directory: Path) -> str:
+    """The command that converts the format-1 calibration in ``directory`` to the current format, in place."""
+    quoted = shlex.quote(str(directory))
+    return f"fiper calibrate --upgrade {quoted} -o {quoted} --force"
+
+
+def read_yaml(path: Path, version: int = FORMAT_VERSION) -> dict[str, Any]:
+    """``calibration.yaml`` as a mapping of format ``version`` (the current one unless converting); a
+    calibration of the legacy format is refused with the command that converts it."""
     try:
         with path.open() as stream:
             content = yaml.safe_load(stream)
@@ -48,9 +60,14 @@ def read_yaml(path: Path) -> dict[str, Any]:
     if not isinstance(content, dict):
         got = "an empty file" if content is None else f"a YAML {type(content).__name__}"
         raise CalibrationError(f"{path}: not a calibration (a YAML mapping expected, got {got})")
-    if content.get("format_version") != FORMAT_VERSION:
-        raise CalibrationError(f"{path}: format_version {content.get('format_version')!r} not supported "
-                               f"(this code reads {FORMAT_VERSION})")
+    found = content.get("format_version")
+    if found == LEGACY_FORMAT_VERSION and version == FORMAT_VERSION:
+        raise CalibrationError(f"{path}: format_version {found}, whose RND-OE weights (rnd_oe.pt) only torch reads: "
+                               f"convert it once with: {upgrade_command(path.parent)}")
+    if found == FORMAT_VERSION and version == LEGACY_FORMAT_VERSION:
+        raise CalibrationError(f"{path}: already of format_version {found}, nothing to convert")
+    if found != version:
+        raise CalibrationError(f"{path}: format_version {found!r} not supported (this code reads {version})")
     return content
 
 

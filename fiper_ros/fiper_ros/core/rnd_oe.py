@@ -7,31 +7,35 @@ observation embedding ``O_t^e`` to ``R^m``; the RND-OE score is ``s_RND(O_t) = |
 Architecture (App. A.2): target ``E-1024-2048-4096-m`` with LeakyReLU after every layer but the
 last; predictor the same trunk, then ``2048-1024`` with ReLU, then ``m``. :meth:`RNDConfig.paper`
 is that model (``m = 512`` as in the authors' code); :meth:`RNDConfig.small` is the CPU default.
-Training (App. A.2, training-parameter table): AdamW (lr 1e-4, weight decay 1e-5, eps 1e-8),
-cosine schedule to 1e-6, batch 256, at most 250 epochs, early stopping with patience 7 on a
-0.9/0.1 train/validation split.
+
+This module is the model as it scores, in numpy and without torch (the scoring nodes import it): both
+networks' float32 parameters, the score of eq. (1), and the files ``rnd_oe.npz`` (the parameters, named as
+torch names them) and ``rnd_oe.json`` (dimension, configuration, seed). The training (App. A.2,
+training-parameter table: AdamW, cosine schedule, early stopping) is torch's, in
+:mod:`fiper_ros.core.rnd_train`, which hands the trained parameters over to :class:`RNDOE`.
 """
 
 from __future__ import annotations
 
 import json
-import logging
-import pickle
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+import math
+import zipfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
-from fiper_ros.core.mlp import LayerSpec, NumpyMLP, build_mlp, state_digest
+from fiper_ros.core.mlp import LayerSpec, MLPError, NumpyMLP, Parameters, parameter_shapes, state_digest
 
-LOG = logging.getLogger(__name__)
-
-WEIGHTS_FILE = "rnd_oe.pt"
+WEIGHTS_FILE = "rnd_oe.npz"
 CONFIG_FILE = "rnd_oe.json"
+#: The weights file of calibration format 1 (a torch state dict, read only to convert it: ``fiper calibrate
+#: --upgrade``, :func:`fiper_ros.core.rnd_train.read_legacy`).
+LEGACY_WEIGHTS_FILE = "rnd_oe.pt"
+#: The two networks, in the order of the weights file's names and of :meth:`RNDOE.digest`.
+NETWORKS = ("target", "predictor")
 
 
 class RNDError(ValueError):
@@ -112,126 +116,42 @@ class TrainProgress:
 ProgressCallback = Callable[[TrainProgress], None]
 
 
-@contextmanager
-def _deterministic() -> Iterator[None]:
-    previous = torch.are_deterministic_algorithms_enabled()
-    torch.use_deterministic_algorithms(True, warn_only=True)
-    try:
-        yield
-    finally:
-        torch.use_deterministic_algorithms(previous)
-
-
-def _adamw(params: Any, config: RNDConfig) -> torch.optim.AdamW:
-    kwargs = {"lr": config.lr, "weight_decay": config.weight_decay, "eps": config.eps}
-    try:
-        return torch.optim.AdamW(params, fused=True, **kwargs)
-    except (RuntimeError, TypeError):
-        return torch.optim.AdamW(params, **kwargs)
-
-
-def _mean_distance(predictor: torch.nn.Module, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Training loss (eq. 1): the mean over samples of ``||f(x) - g(x)||_2``, ``y = g(x)``."""
-    return torch.linalg.vector_norm(predictor(x) - y, dim=1).mean()
+def check_embeddings(x: np.ndarray, embedding_dim: int) -> np.ndarray:
+    """``x`` as float32 ``[N, embedding_dim]``; :class:`RNDError` for another shape or a NaN/inf entry."""
+    x = np.asarray(x, dtype=np.float32)
+    if x.ndim != 2 or x.shape[1] != embedding_dim:
+        raise RNDError(f"expected embeddings [N, {embedding_dim}], got shape {x.shape}")
+    if not np.all(np.isfinite(x)):
+        raise RNDError("embeddings contain NaN/inf")
+    return x
 
 
 class RNDOE:
-    """An RND-OE model; construct untrained with ``RNDOE(E, config, seed)`` or use :meth:`fit`."""
+    """A trained (or untrained) RND-OE model: target ``g`` and predictor ``f_theta`` as float32 parameters.
 
-    def __init__(self, embedding_dim: int, config: RNDConfig | None = None, seed: int = 0) -> None:
+    Fitted by :func:`fiper_ros.core.rnd_train.fit_rnd`, read by :meth:`load`; ``target`` and ``predictor`` are
+    the networks' parameters (:data:`fiper_ros.core.mlp.Parameters`), checked against ``config``'s layers.
+    """
+
+    def __init__(self, embedding_dim: int, config: RNDConfig, seed: int, target: Parameters,
+                 predictor: Parameters) -> None:
         if embedding_dim < 1:
             raise RNDError(f"embedding_dim must be >= 1, got {embedding_dim}")
         self.embedding_dim = int(embedding_dim)
-        self.config = config or RNDConfig.small()
+        self.config = config
         self.seed = int(seed)
-        generator = torch.Generator().manual_seed(self.seed)
-        self.target = build_mlp(self.embedding_dim, self.config.target_layers(), generator).requires_grad_(False)
-        self.predictor = build_mlp(self.embedding_dim, self.config.predictor_layers(), generator)
-        self.target.eval()
-        self.predictor.eval()
-        self._cache_numpy()
+        try:
+            self._target = NumpyMLP(self.embedding_dim, config.target_layers(), target)
+            self._predictor = NumpyMLP(self.embedding_dim, config.predictor_layers(), predictor)
+        except MLPError as error:
+            raise RNDError(f"RND-OE networks: {error}") from error
 
-    def _cache_numpy(self) -> None:
-        self._np_target = NumpyMLP(self.target)
-        self._np_predictor = NumpyMLP(self.predictor)
-
-    def _check_batch(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=np.float32)
-        if x.ndim != 2 or x.shape[1] != self.embedding_dim:
-            raise RNDError(f"expected embeddings [N, {self.embedding_dim}], got shape {x.shape}")
-        if not np.all(np.isfinite(x)):
-            raise RNDError("embeddings contain NaN/inf")
-        return x
-
-    @classmethod
-    def fit(
-        cls,
-        embeddings: np.ndarray,
-        config: RNDConfig | None = None,
-        seed: int = 0,
-        progress: ProgressCallback | None = None,
-    ) -> RNDOE:
-        """Train a predictor on ID embeddings ``[N, E]`` (every policy step is one sample)."""
-        model = cls(np.asarray(embeddings).shape[-1], config, seed)
-        model.train(embeddings, progress)
-        return model
-
-    def train(self, embeddings: np.ndarray, progress: ProgressCallback | None = None) -> None:
-        """Train the predictor in place; deterministic for a fixed seed on a fixed machine."""
-        x = torch.from_numpy(self._check_batch(embeddings))
-        if x.shape[0] < 2:
-            raise RNDError(f"RND-OE training needs at least 2 samples, got {x.shape[0]}")
-        config = self.config
-        generator = torch.Generator().manual_seed(self.seed + 1)
-        with _deterministic(), torch.no_grad():
-            y = self.target(x)
-        order = torch.randperm(x.shape[0], generator=generator)
-        n_val = min(max(1, round(config.val_fraction * x.shape[0])), x.shape[0] - 1)
-        val_idx, train_idx = order[:n_val], order[n_val:]
-        optimizer = _adamw(self.predictor.parameters(), config)
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.max_epochs, eta_min=config.lr_min)
-        best_loss, best_state, stale = float("inf"), None, 0
-        with _deterministic():
-            for epoch in range(config.max_epochs):
-                self.predictor.train()
-                shuffled = train_idx[torch.randperm(train_idx.shape[0], generator=generator)]
-                total = 0.0
-                for start in range(0, shuffled.shape[0], config.batch_size):
-                    batch = shuffled[start : start + config.batch_size]
-                    loss = _mean_distance(self.predictor, x[batch], y[batch])
-                    optimizer.zero_grad(set_to_none=True)
-                    loss.backward()
-                    optimizer.step()
-                    total += float(loss.detach()) * batch.shape[0]
-                schedule.step()
-                self.predictor.eval()
-                with torch.no_grad():
-                    val_loss = float(_mean_distance(self.predictor, x[val_idx], y[val_idx]))
-                if val_loss < best_loss:
-                    best_loss, stale = val_loss, 0
-                    best_state = {k: v.detach().clone() for k, v in self.predictor.state_dict().items()}
-                else:
-                    stale += 1
-                report = TrainProgress(epoch + 1, config.max_epochs, total / train_idx.shape[0], val_loss, best_loss)
-                LOG.debug("RND-OE epoch %d train %.5f val %.5f", epoch + 1, report.train_loss, val_loss)
-                if progress is not None:
-                    progress(report)
-                if stale >= config.patience:
-                    LOG.info("RND-OE early stop after %d epochs (best val %.5f)", epoch + 1, best_loss)
-                    break
-        if best_state is not None:
-            self.predictor.load_state_dict(best_state)
-        self.predictor.eval()
-        self._cache_numpy()
-
-    def score(self, batch: np.ndarray) -> np.ndarray:
-        """RND-OE scores ``[N]`` of embeddings ``[N, E]`` with torch (eq. 1)."""
-        x = torch.from_numpy(self._check_batch(batch))
-        with torch.no_grad():
-            return torch.linalg.vector_norm(self.predictor(x) - self.target(x), dim=1).double().numpy()
+    def parameters(self) -> dict[str, dict[str, np.ndarray]]:
+        """``{"target": ..., "predictor": ...}``: both networks' parameters (read-only views)."""
+        return {"target": self._target.parameters, "predictor": self._predictor.parameters}
 
     def score_one(self, x: np.ndarray) -> float:
-        """RND-OE score of one embedding ``[E]`` with the cached numpy float32 weights (eq. 1).
+        """RND-OE score of one embedding ``[E]`` with the float32 weights (eq. 1).
 
         Where float32 overflows (an activation beyond 3.4e38, or ``inf - inf`` in the difference), the
         score is computed again in float64, which holds every finite float32 input; a score that is still
@@ -241,40 +161,79 @@ class RNDOE:
         if x.shape != (self.embedding_dim,):
             raise RNDError(f"expected one embedding of shape ({self.embedding_dim},), got {x.shape}")
         with np.errstate(over="ignore", invalid="ignore"):
-            diff = self._np_predictor(x) - self._np_target(x)
+            diff = self._predictor(x) - self._target(x)
             score = float(np.sqrt(np.dot(diff, diff)))
             if not np.isfinite(score):
-                diff = self._np_predictor(x, np.float64) - self._np_target(x, np.float64)
+                diff = self._predictor(x, np.float64) - self._target(x, np.float64)
                 score = float(np.sqrt(np.dot(diff, diff)))
         return score
 
     def digest(self) -> str:
-        """SHA-256 over both networks' weights."""
-        return state_digest(self.target, self.predictor)
+        """SHA-256 over both networks' weights (the same as over the torch state dicts they came from)."""
+        return state_digest(self._target.parameters, self._predictor.parameters)
+
+    def describe(self) -> dict[str, Any]:
+        """The content of ``rnd_oe.json``: dimension, seed and configuration."""
+        return {"embedding_dim": self.embedding_dim, "seed": self.seed, "config": self.config.to_dict()}
 
     def save(self, directory: str | Path) -> None:
-        """Write ``rnd_oe.pt`` (both state dicts) and ``rnd_oe.json`` (dimension, config, seed)."""
+        """Write ``rnd_oe.npz`` (both networks' parameters, ``target/<name>``, ``predictor/<name>``) and
+        ``rnd_oe.json`` (:meth:`describe`)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        state = {"target": self.target.state_dict(), "predictor": self.predictor.state_dict()}
-        torch.save(state, directory / WEIGHTS_FILE)
-        meta = {"embedding_dim": self.embedding_dim, "seed": self.seed, "config": self.config.to_dict()}
-        (directory / CONFIG_FILE).write_text(json.dumps(meta, indent=2) + "\n")
+        arrays = {f"{network}/{name}": np.ascontiguousarray(array) for network, parameters in self.parameters().items()
+                  for name, array in parameters.items()}
+        with (directory / WEIGHTS_FILE).open("wb") as stream:
+            np.savez(stream, **arrays)
+        (directory / CONFIG_FILE).write_text(json.dumps(self.describe(), indent=2) + "\n")
 
     @classmethod
     def load(cls, directory: str | Path) -> RNDOE:
-        """Read a model written by :meth:`save`."""
+        """Read a model written by :meth:`save` (numpy only)."""
         directory = Path(directory)
         for name in (WEIGHTS_FILE, CONFIG_FILE):
             if not (directory / name).is_file():
                 raise RNDError(f"RND-OE model file missing: {directory / name}")
         meta = json.loads((directory / CONFIG_FILE).read_text())
-        model = cls(meta["embedding_dim"], RNDConfig.from_dict(meta["config"]), meta["seed"])
-        try:
-            state = torch.load(directory / WEIGHTS_FILE, map_location="cpu", weights_only=True)
-            model.target.load_state_dict(state["target"])
-            model.predictor.load_state_dict(state["predictor"])
-        except (KeyError, RuntimeError, EOFError, pickle.UnpicklingError) as error:
-            raise RNDError(f"{directory / WEIGHTS_FILE}: unreadable or not matching {CONFIG_FILE}: {error}") from error
-        model._cache_numpy()
-        return model
+        config = RNDConfig.from_dict(meta["config"])
+        dim = int(meta["embedding_dim"])
+        shapes = {f"{network}/{name}": shape for network, layers in zip(NETWORKS, (config.target_layers(),
+                                                                                   config.predictor_layers()))
+                  for name, shape in parameter_shapes(dim, layers).items()}
+        arrays = read_arrays(directory / WEIGHTS_FILE, shapes)
+        split = {network: {name.split("/", 1)[1]: array for name, array in arrays.items()
+                           if name.startswith(f"{network}/")} for network in NETWORKS}
+        return cls(dim, config, meta["seed"], split["target"], split["predictor"])
+
+
+_NPY_HEADERS = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+
+
+def read_arrays(path: Path, shapes: dict[str, tuple[int, ...]]) -> dict[str, np.ndarray]:
+    """The float32 arrays of the ``.npz`` file ``path``, exactly those ``shapes`` names with those shapes: each
+    array's header is checked before its data is read, so a damaged or foreign file never makes this read
+    more than the described network."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = sorted(archive.namelist())
+            if members != sorted(f"{name}.npy" for name in shapes):
+                raise RNDError(f"{path}: holds {len(members)} arrays, not the {len(shapes)} of the described network")
+            arrays = {}
+            for name, shape in shapes.items():
+                with archive.open(f"{name}.npy") as member:
+                    header = _NPY_HEADERS.get(np.lib.format.read_magic(member))
+                    if header is None:
+                        raise RNDError(f"{path}: {name}: unsupported .npy format version")
+                    got, fortran, dtype = header(member)
+                    if got != shape or fortran or dtype != np.dtype("<f4"):
+                        raise RNDError(f"{path}: {name}: expected float32 {shape}, got {dtype} {got}")
+                    size = 4 * math.prod(shape)
+                    data = member.read(size + 1)
+                    if len(data) != size:
+                        raise RNDError(f"{path}: {name}: {len(data)} bytes of data, expected {size}")
+                    arrays[name] = np.frombuffer(data, dtype="<f4").reshape(shape)
+            return arrays
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile) as error:
+        if isinstance(error, RNDError):
+            raise
+        raise RNDError(f"{path}: unreadable ({type(error).__name__}: {error})") from error
