@@ -332,3 +332,20 @@ def test_cp_scaled_floor_falls_back_to_a_tiny_positive_scale_when_every_quantile
     assert fitted.params["q_floor"] == pytest.approx(1e-12, rel=1e-12)
     assert fitted.params["k"] == pytest.approx(2.0)  # max(0 / 1e-12, 2e-12 / 1e-12)
     np.testing.assert_allclose(fitted.values, [2e-12, 2e-12])
+
+
+@pytest.mark.parametrize(("kind", "floor_key"), [("cp_band", "s_floor"), ("cp_scaled", "q_floor")])
+def test_the_conformal_factor_is_the_conformal_rank_not_the_plain_quantile(kind: str, floor_key: str) -> None:
+    # Shape curves of ones: mu = 1, s = 0 -> floor 1e-12 (cp_band); q = 1, scale 1 (cp_scaled). Four I2 curves.
+    shape = [np.ones(1), np.ones(1)]
+    curves = [np.array([v]) for v in (0.0, 1.0, 2.0, 3.0)]
+    settings = ThresholdSettings(kind=kind, delta=0.4, min_support=1)
+    conformal = fit_threshold(curves, settings, shape_curves=shape)
+    plain = fit_threshold(curves, replace(settings, conformal=False), shape_curves=shape)
+    if kind == "cp_scaled":  # scores c / 1: rank ceil(5 x 0.6) = 3 of [0, 1, 2, 3] -> 2; np.quantile(0.6) -> 1.8
+        assert (conformal.params["k"], plain.params["k"]) == (2.0, pytest.approx(1.8))
+        np.testing.assert_allclose(conformal.values, [2.0])
+    else:  # scores (c - 1) / 1e-12: the same ranks
+        assert conformal.params["k"] == pytest.approx(1e12) and plain.params["k"] == pytest.approx(0.8e12)
+    assert set(conformal.params) == {"m", "k", "m1", "m2", floor_key}
+    assert (conformal.params["m"], conformal.params["m1"], conformal.params["m2"]) == (4, 2, 4)

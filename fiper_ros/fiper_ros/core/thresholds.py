@@ -183,13 +183,14 @@ def conformal_quantile(scores: Sequence[float] | np.ndarray, delta: float) -> fl
 
 def minimum_conformal_set(delta: float) -> int:
     """The fewest scores whose conformal ``1-delta`` quantile is finite: the smallest ``M`` with
-    ``ceil((M+1)(1-delta)) <= M`` (19 for delta = 0.05, 9 for 0.1)."""
+    ``ceil((M+1)(1-delta)) <= M`` (19 for delta = 0.05, 9 for 0.1).
+
+    ``ceil((M+1)(1-delta)) <= M`` holds exactly when ``(M+1)(1-delta) <= M``, that is ``M >= (1-delta)/delta``;
+    with the tolerance :func:`conformal_quantile` allows, so that both agree (a property test checks it).
+    """
     if not 0.0 < delta < 1.0:
         raise ThresholdError(f"delta must be in (0, 1), got {delta}")
-    m = max(1, math.ceil((1.0 - delta) / delta - _CEIL_TOLERANCE))
-    while math.ceil((m + 1) * (1.0 - delta) - _CEIL_TOLERANCE) > m:
-        m += 1
-    return m
+    return max(1, math.ceil((1.0 - delta) / delta - _CEIL_TOLERANCE))
 
 
 def _quantile(scores: np.ndarray, delta: float, conformal: bool) -> float:
