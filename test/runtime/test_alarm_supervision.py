@@ -238,3 +238,25 @@ def test_supervisor_times_unknown_per_rollout_and_not_while_idle() -> None:
     decision = logic.on_clock(int(12.6 * S))
     assert decision is not None and decision.rollout_id == 8 and "UNKNOWN for 2.10 s" in decision.reason
 
+
+
+def test_a_burst_of_decisions_does_not_shrink_the_silence_deadline() -> None:
+    # Seen in the demo under load: a supervisor starved of CPU took the decisions of steps 0-2 in one burst
+    # (one clock reading), measured a policy period of 0 from their arrivals, and halted the rollout for one
+    # ordinary 0.4 s policy period of silence ("no alarm message for 0.40 s"). The period is the decisions'
+    # own stamps' (the policy steps'): 0.4 s, so 2.5 periods = 1 s of silence is tolerated.
+    logic = SupervisorLogic(deadline_ns=2 * S, silence_periods=2.5, silence_floor_ns=S // 10)
+    logic.on_event(7, started=True)
+    burst = 10 * S
+    for step in range(3):
+        assert logic.on_state(7, OK, "below", burst, step, heartbeat=False, steady_ns=burst,
+                              stamp_ns=step * 4 * S // 10) is None
+    assert logic.silence_deadline() == S
+    assert logic.on_clock(burst + 6 * S // 10, burst + 6 * S // 10) is None  # 0.6 s: more than a period, not 2.5
+    decision = logic.on_clock(burst + 11 * S // 10, burst + 11 * S // 10)
+    assert decision is not None and decision.reason == "no alarm message for 1.10 s"
+
+
+def test_a_decision_without_its_stamp_is_refused() -> None:
+    with pytest.raises(ValueError, match="needs its stamp"):
+        SupervisorLogic(deadline_ns=S).on_state(1, OK, "", 0, 0, heartbeat=False)

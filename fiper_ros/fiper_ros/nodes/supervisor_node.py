@@ -18,6 +18,7 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.nodes import qos
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
+from fiper_ros.nodes.conversions import stamp_ns
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
@@ -77,7 +78,8 @@ class SupervisorNode(Node):
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
         decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now(),
-                                       msg.step, msg.heartbeat, self._steady.now().nanoseconds)
+                                       msg.step, msg.heartbeat, self._steady.now().nanoseconds,
+                                       stamp_ns(msg.header.stamp))
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:
             self.get_logger().warning(
                 f"ALARM rollout {msg.rollout_id} step {msg.step}: eta_obs {msg.eta_obs:.3g} > {msg.gamma_obs:.3g}"

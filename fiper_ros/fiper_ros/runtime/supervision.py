@@ -5,7 +5,8 @@ own deadline; halt when nothing at all was heard for longer than the silence dea
 is per rollout: it restarts when the rollout changes, and the monitor's idle state (rollout id 0, "no
 active rollout") never arms it, since no robot is moving then. While a rollout runs (between its START
 and END events) the silence deadline follows the measured period of the monitor's per-step decisions
-(``silence_periods`` of them, at least ``silence_floor_ns``): a fusion node that died or hangs is noticed
+(``silence_periods`` of them, at least ``silence_floor_ns``; the period measured from the decisions' own
+stamps, the policy steps'): a fusion node that died or hangs is noticed
 within a few policy periods; otherwise it is the deadline. Under simulated time silence must also have
 lasted ``silence_floor_ns`` of wall-clock (steady) time: a supervisor starved of CPU can take a burst of
 ``/clock`` before the alarm messages queued beside it, and sim time then jumps past a deadline that no
@@ -71,14 +72,19 @@ class SupervisorLogic:
         return self.period.deadline_ns(self.silence_periods, self.silence_floor_ns, self.deadline_ns)
 
     def on_state(self, rollout_id: int, state: str, reason: str, now_ns: int, step: int = 0,
-                 heartbeat: bool = True, steady_ns: int | None = None) -> HaltDecision | None:
-        """One FailureAlarm arrived (``heartbeat`` False: a new step's decision; ``steady_ns``: the wall-clock
-        time, when ``now_ns`` is simulated)."""
+                 heartbeat: bool = True, steady_ns: int | None = None, stamp_ns: int | None = None
+                 ) -> HaltDecision | None:
+        """One FailureAlarm arrived (``heartbeat`` False: a new step's decision, whose ``stamp_ns`` (its
+        header stamp: the policy step's) measures the policy period; ``steady_ns``: the wall-clock time, when
+        ``now_ns`` is simulated). The period is the stamps', not the arrivals': decisions taken in one burst
+        (a starved supervisor) would measure a period near 0 and turn one ordinary step of silence into a halt."""
+        if not heartbeat and stamp_ns is None:
+            raise ValueError("a step's decision needs its stamp (the FailureAlarm's header stamp)")
         self._last_heard_ns = now_ns
         self._last_heard_steady_ns = steady_ns
         self._silence_reported = False
         if not heartbeat and rollout_id == self._running:
-            self.period.add(step, now_ns)
+            self.period.add(step, stamp_ns)
         if rollout_id != self._rollout_id:
             self._unknown_since_ns = None
         self._rollout_id = rollout_id
