@@ -13,7 +13,7 @@ from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bags.capture import InfoTracker, TopicTap
 from fiper_ros.bags.live_options import LiveChunks
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import ALARM, EMBEDDING, TOPICS
+from fiper_ros.interface.topics import ALARM, EMBEDDING, TOPICS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.snapshot import MAX_OPEN_SNAPSHOTS, TRACKED_ROLLOUTS, BlackBox, Recorder, Rise
 from fiper_ros.bags.storage import Salvage

@@ -30,7 +30,7 @@ from fiper_ros.bags.collect import bag_name, rollout_id_of
 from fiper_ros.bags.offline import predict_bag
 from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
+from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
 from fiper_ros.cli import main
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.kinematics import PinocchioFK

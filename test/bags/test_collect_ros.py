@@ -21,13 +21,13 @@ from fiper_ros.bags.collect import bag_name
 from fiper_ros.bags.collect_ros import SOURCE, WORK_DIR
 from fiper_ros.bags.offline import predict_bag
 from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.replay import STATE_NAMES
+from fiper_ros.interface.messages import STATE_NAMES
 from fiper_ros.bags.results import StepResult
 from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.cli import main
 from fiper_ros.core.calibration import load_calibration
-from fiper_ros.nodes.conversions import stamp_ns
+from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.rollout import run_episode
 

@@ -19,7 +19,7 @@ from fiper_ros.bags.convert import convert
 from fiper_ros.bags.convert_options import ConvertOptions, Keys
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.cli import main
 from fiper_ros.core.rollout import Rollout, RolloutError
 from fiper_msgs.msg import RolloutEvent

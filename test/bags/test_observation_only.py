@@ -12,7 +12,8 @@ import pytest
 
 from fiper_ros.bags.reader import BagReader
 from fiper_ros.bags.rollouts import read_rollouts, write_rollouts
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, BagInfo
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.bags.schema import BagInfo
 from fiper_ros.cli import main
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import OBSERVATION_ONLY

@@ -21,7 +21,7 @@ from rosbags.highlevel import AnyReader
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bags.recover import unfinished
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
 from fiper_ros.bags.storage import Salvage
 from fiper_ros.cli import main
 from helpers.dds import spawn_python, stop

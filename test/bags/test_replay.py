@@ -14,7 +14,8 @@ from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bags.offline import predict_bag
 from fiper_ros.bags.reader import BagReader, find_bags
 from fiper_ros.bags.rollouts import write_rollouts
-from fiper_ros.bags.schema import EVENTS, BagInfo
+from fiper_ros.interface.topics import EVENTS
+from fiper_ros.bags.schema import BagInfo
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.calibration import load_calibration
 from helpers.dds import ros_env

@@ -19,7 +19,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from fiper_ros.bags.reader import BagReader
 from fiper_ros.bags.rollouts import write_rollouts
-from fiper_ros.bags.schema import EMBEDDING, BagInfo, message_definitions, typestore
+from fiper_ros.interface.topics import EMBEDDING
+from fiper_ros.bags.schema import BagInfo, message_definitions, typestore
 from fiper_ros.bags.writer import BagWriter
 from helpers.synthetic import make_rollout
 

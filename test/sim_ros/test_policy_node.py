@@ -19,9 +19,9 @@ from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import RolloutEvent
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.launch import load_config
-from fiper_ros.nodes.conversions import floats_of, stamp_ns
+from fiper_ros.interface.conversions import floats_of, stamp_ns
 from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
 from fiper_ros.policy.encoder import CAMERAS

@@ -26,7 +26,7 @@ from fiper_ros.bags.convert_options import parse_channels
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import find_bags
 from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS
+from fiper_ros.interface.topics import ACTIONS
 from fiper_ros.core.calibration import SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate
 from fiper_ros.core.compat import PROFILE_NAMES
 from fiper_ros.core.detectors import DETECTOR_SETS, LABELS, SIDES, parse_detectors

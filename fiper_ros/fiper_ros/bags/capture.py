@@ -18,10 +18,11 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosbags.interfaces import Qos
 
 from fiper_msgs.msg import RolloutEvent
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, TOPICS, BagInfo, bag_qos, typestore
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.bags.schema import BagInfo, bag_qos, typestore
 from fiper_ros.bags.session import RosSession
-from fiper_ros.echo import message_class
-from fiper_ros.nodes import qos
+from fiper_ros.interface.messages import message_class
+from fiper_ros.interface import qos
 
 #: Messages a capture subscription queues before the oldest is dropped.
 CAPTURE_DEPTH = 200

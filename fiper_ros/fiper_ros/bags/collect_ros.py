@@ -34,7 +34,7 @@ from fiper_ros.bags.atomic import remove
 from fiper_ros.bags.collect import RanEpisode
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.record import Recorder
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain

@@ -15,7 +15,8 @@ import numpy as np
 
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult, as_float32
+from fiper_ros.interface.messages import ALARM, OK, OUTCOME_NAMES, UNKNOWN
+from fiper_ros.bags.results import RolloutResult, StepResult, as_float32
 from fiper_ros.bags.rollouts import layout_of, read_rollouts
 from fiper_ros.bags.schema import BagInfo
 from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationMismatch, load_calibration

@@ -20,7 +20,8 @@ from rosbags.interfaces import Connection, Qos
 
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.recover import read_unfinished, readable_copy, unfinished
-from fiper_ros.bags.schema import TOPICS, BagInfo, typestore
+from fiper_ros.interface.topics import TOPICS
+from fiper_ros.bags.schema import BagInfo, typestore
 from fiper_ros.bags.storage import METADATA, bag_directories, check_mcap, read_metadata, storage_files
 
 

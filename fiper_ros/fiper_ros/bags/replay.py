@@ -40,24 +40,23 @@ from fiper_ros.bags import live_options, robot_options
 from fiper_ros.bags.atomic import atomic_output
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.results import ALARM, OK, OUTCOME_NAMES, UNKNOWN, RolloutResult, StepResult, as_float32
-from fiper_ros.bags.rollouts import ROLLOUT_GAP_NS, SUCCESS_OF
-from fiper_ros.bags.schema import (ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, JOINT_STATES,
-                                   SCORE_ACE, SCORE_RND_OE, TOPICS)
+from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
+from fiper_ros.bags.results import RolloutResult, StepResult, as_float32
+from fiper_ros.bags.rollouts import ROLLOUT_GAP_NS
+from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, JOINT_STATES,
+    SCORE_ACE, SCORE_RND_OE, TOPICS)
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SUITE_CONFIGS, SuiteProcess, installed_config, replay_config
 from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
-from fiper_ros.echo import message_class
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import to_stamp
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import to_stamp
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
 
-STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
 #: Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores.
 DETECTOR_TOPICS = {RND_OE: (EMBEDDING, (), SCORE_RND_OE), ACE: (ACTIONS, (JOINT_STATES,), SCORE_ACE)}
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
@@ -133,7 +132,7 @@ class Player:
         if topic in self.publishers:
             return
         if topic in TOPICS:
-            profile = TOPICS[topic].qos
+            profile = qos.profile(TOPICS[topic].qos)
         else:
             profile = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
@@ -239,7 +238,7 @@ class Player:
 
     def steps_of(self, rollout_id: int) -> dict[int, StepResult]:
         """The per-step states received for ``rollout_id``."""
-        return {step: StepResult(STATE_NAMES.get(m.state, UNKNOWN), bool(m.obs_exceeded), bool(m.act_exceeded),
+        return {step: StepResult(state_name(m.state), bool(m.obs_exceeded), bool(m.act_exceeded),
                                  as_float32(m.eta_obs), as_float32(m.eta_act))
                 for (rid, step), m in sorted(self.alarms.items()) if rid == rollout_id}
 

@@ -12,9 +12,8 @@ from typing import Any
 
 import numpy as np
 
-OK, ALARM, UNKNOWN = "ok", "alarm", "unknown"
-#: Rollout success (``Rollout.success``) -> outcome name.
-OUTCOME_NAMES = {True: "success", False: "failure", None: "unknown"}
+from fiper_ros.interface.messages import ALARM, UNKNOWN
+
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 Writing lays rollouts out one after another on the bag's time line: a RolloutEvent START, then per
 policy step an ObservationEmbedding and an ActionChunkBatch with the same ``(rollout_id, step)`` and
 stamp (no batch for a rollout without action batches, observation-only data: its bag has no
-``/fiper/action_chunks``), then END with the outcome; the messages are built by :mod:`fiper_ros.nodes.conversions`, the
+``/fiper/action_chunks``), then END with the outcome; the messages are built by :mod:`fiper_ros.interface.conversions`, the
 same code a policy node uses. A rollout with ``metadata["joint_positions"]`` (``[T, 7]``, the measured
 arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at each step's stamp, written
 before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
@@ -30,21 +30,13 @@ from rclpy.serialization import serialize_message
 from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import (
-    ACTIONS,
-    ARM_JOINT_NAMES,
-    EMBEDDING,
-    EVENTS,
-    JOINT_STATES,
-    TOPICS,
-    BagInfo,
-    normalize_cdr,
-    typestore,
-)
+from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES, TOPICS
+from fiper_ros.bags.schema import BagInfo, normalize_cdr, typestore
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.rollout import ACTION_SPACES, Rollout, RolloutError
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg, stamp_ns
+from fiper_ros.interface.messages import OUTCOME_OF, SUCCESS_OF
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg, stamp_ns
 from fiper_ros.runtime.joint_history import JointHistory
 
 LOG = logging.getLogger(__name__)
@@ -56,8 +48,6 @@ DEFAULT_START_NS = 1_700_000_000 * 1_000_000_000
 EVENT_LEAD_NS = 1_000_000
 #: Pause between one rollout's END and the next START.
 ROLLOUT_GAP_NS = 1_000_000_000
-OUTCOME_OF = {True: RolloutEvent.OUTCOME_SUCCESS, False: RolloutEvent.OUTCOME_FAILURE, None: RolloutEvent.OUTCOME_UNKNOWN}
-SUCCESS_OF = {v: k for k, v in OUTCOME_OF.items()}
 
 
 def shape_info(rollouts: Sequence[Rollout], base: BagInfo) -> BagInfo:

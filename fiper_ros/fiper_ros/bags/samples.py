@@ -36,7 +36,7 @@ from fiper_ros.bags.calibrate_cmd import calibrate_bags
 from fiper_ros.bags.convert_options import ConvertOptions
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import ACTIONS, JOINT_STATES
+from fiper_ros.interface.topics import ACTIONS, JOINT_STATES
 from fiper_ros.bags.writer import BagWriter
 from fiper_ros.core.calibration import CalibrationSettings
 

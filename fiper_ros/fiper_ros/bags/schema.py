@@ -14,55 +14,16 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from rclpy.qos import QoSProfile
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from fiper_ros import __version__
 from fiper_ros.bags.errors import BagError
-from fiper_ros.nodes import qos
+from fiper_ros.interface.qos_spec import QosSpec
 
 #: Version of this schema, stored as ``custom_data["fiper_schema"]``.
 SCHEMA_VERSION = "1"
-
-EMBEDDING = "/fiper/observation_embedding"
-ACTIONS = "/fiper/action_chunks"
-EVENTS = "/fiper/rollout_events"
-SCORE_RND_OE = "/fiper/scores/rnd_oe"
-SCORE_ACE = "/fiper/scores/ace"
-ALARM = "/fiper/alarm"
-JOINT_STATES = "/joint_states"
-#: The arm joints ACE integrates joint velocities from, picked by name from ``/joint_states``
-#: (the ace_node's default ``joint_names``; the simulated Franka's arm joints).
-ARM_JOINT_NAMES: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
-
-
-@dataclass(frozen=True)
-class TopicSpec:
-    """One topic of the schema.
-
-    Attributes:
-        msgtype: ROS 2 type name ``pkg/msg/Name``.
-        qos: The QoS the suite's publisher offers (recorded as the connection's offered QoS).
-        input: True for what a policy publishes (replayed into the suite); False for the suite's outputs.
-    """
-
-    msgtype: str
-    qos: QoSProfile
-    input: bool
-
-
-TOPICS: dict[str, TopicSpec] = {
-    EMBEDDING: TopicSpec("fiper_msgs/msg/ObservationEmbedding", qos.INPUT, True),
-    ACTIONS: TopicSpec("fiper_msgs/msg/ActionChunkBatch", qos.INPUT, True),
-    EVENTS: TopicSpec("fiper_msgs/msg/RolloutEvent", qos.EVENT, True),
-    SCORE_RND_OE: TopicSpec("fiper_msgs/msg/Score", qos.SCORE_PUB, False),
-    SCORE_ACE: TopicSpec("fiper_msgs/msg/Score", qos.SCORE_PUB, False),
-    ALARM: TopicSpec("fiper_msgs/msg/FailureAlarm", qos.ALARM, False),
-    JOINT_STATES: TopicSpec("sensor_msgs/msg/JointState", qos.INPUT, True),
-}
-INPUT_TOPICS = tuple(name for name, spec in TOPICS.items() if spec.input)
 
 
 def _qos_time(duration: Any) -> QosTime:
@@ -70,8 +31,9 @@ def _qos_time(duration: Any) -> QosTime:
     return QosTime(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
-def bag_qos(profile: QoSProfile) -> Qos:
-    """An rclpy QoS profile as the ``rosbags`` value stored in ``offered_qos_profiles``."""
+def bag_qos(profile: Any) -> Qos:
+    """An rclpy QoS profile (e.g. a publisher's, from the ROS graph) as the ``rosbags`` value stored in
+    ``offered_qos_profiles``; read by attribute, so this module needs no rclpy."""
     return Qos(
         history=QosHistory(int(profile.history)),
         depth=int(profile.depth),
@@ -83,6 +45,17 @@ def bag_qos(profile: QoSProfile) -> Qos:
         liveliness_lease_duration=_qos_time(profile.liveliness_lease_duration),
         avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
     )
+
+
+def offered_qos(spec: QosSpec) -> Qos:
+    """The ``offered_qos_profiles`` value of a suite topic's QoS (:mod:`fiper_ros.interface.qos_spec`): the
+    profile its publishers offer, as :func:`bag_qos` of the rclpy profile built from it."""
+    zero = QosTime(0, 0)
+    return Qos(history=QosHistory.KEEP_LAST, depth=spec.depth, reliability=QosReliability.RELIABLE,
+               durability=QosDurability[spec.durability], deadline=zero, lifespan=zero,
+               liveliness=QosLiveliness[spec.liveliness],
+               liveliness_lease_duration=QosTime(spec.lease_ns // 1_000_000_000, spec.lease_ns % 1_000_000_000),
+               avoid_ros_namespace_conventions=False)
 
 
 @dataclass(frozen=True)

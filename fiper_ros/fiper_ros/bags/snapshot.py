@@ -31,10 +31,11 @@ from fiper_ros.bags import live_options
 from fiper_ros.bags.capture import InfoTracker, TopicTap
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.live_options import LiveChunks
-from fiper_ros.bags.schema import ALARM, typestore
+from fiper_ros.interface.topics import ALARM
+from fiper_ros.bags.schema import typestore
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.writer import BagWriter
-from fiper_ros.runtime.alarm import NO_ROLLOUT
+from fiper_ros.interface.messages import NO_ROLLOUT
 
 GRAPH_POLL_S = 0.5
 #: Rollouts whose alarm state the black box keeps (the most recent ones).

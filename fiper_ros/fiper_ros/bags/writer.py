@@ -38,7 +38,8 @@ from fiper_ros import __version__
 from fiper_ros.bags.atomic import check_new, commit, remove, temporary_sibling
 from fiper_ros.bags.errors import BagError
 from fiper_ros.bags.live_options import DEFAULT_CHUNK_MB, LiveChunks
-from fiper_ros.bags.schema import TOPICS, BagInfo, bag_qos, typestore
+from fiper_ros.interface.topics import TOPICS
+from fiper_ros.bags.schema import BagInfo, offered_qos, typestore
 from fiper_ros.bags.storage import METADATA
 
 #: Name of the MCAP metadata record that holds a live bag's ``custom_data`` so far.
@@ -203,7 +204,7 @@ class BagWriter:
         if topic in self._connections:
             return
         if not offered and topic in TOPICS:
-            offered = [bag_qos(TOPICS[topic].qos)]
+            offered = [offered_qos(TOPICS[topic].qos)]
         store = typestore()
         if msgdef is None and msgtype not in store.fielddefs:
             raise BagError(f"{self.path}: no definition of message type {msgtype} to record topic {topic}")

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
-from fiper_ros.bags.schema import ACTIONS
+from fiper_ros.interface.topics import ACTIONS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.bench import EVERY_ALARM
@@ -39,7 +39,7 @@ from fiper_ros.demo.driver import SETTLE_S, Driver, SuiteFailed, state_name
 from fiper_ros.demo.run import MANAGED_NODES, SUPERVISOR, Plan, demo_config
 from fiper_ros.demo.trace import RolloutTrace
 from fiper_ros.launch import dump_config, load_config
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from fiper_ros.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"

@@ -23,19 +23,17 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetRollout
 from fiper_ros.bags.record import Recorder
-from fiper_ros.bags.schema import ACTIONS, ALARM, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import ACTIONS, ALARM, EVENTS, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess
 from fiper_ros.demo.trace import RolloutEvents, RolloutTrace
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import stamp_ns
+from fiper_ros.interface import messages, qos
+from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
 TRACE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-STATE_NAMES = {FailureAlarm.STATE_OK: "OK", FailureAlarm.STATE_ALARM: "ALARM", FailureAlarm.STATE_UNKNOWN: "UNKNOWN"}
-OUTCOMES = {RolloutEvent.OUTCOME_SUCCESS: "success", RolloutEvent.OUTCOME_FAILURE: "failure"}
 #: Seconds ``/sim/reset`` may take to answer.
 RESET_TIMEOUT_S = 30.0
 #: Seconds a running rollout may go without a new action-chunk batch.
@@ -69,7 +67,7 @@ def node_path(namespace: str, name: str) -> str:
 
 def state_name(msg: FailureAlarm) -> str:
     """``OK``, ``ALARM`` or ``UNKNOWN``."""
-    return STATE_NAMES.get(msg.state, "UNKNOWN")
+    return messages.state_name(msg.state).upper()
 
 
 def alarm_line(msg: FailureAlarm) -> str:
@@ -141,7 +139,7 @@ class Driver:
         if msg.event == RolloutEvent.EVENT_START:
             self.events.start(msg.rollout_id, stamp_ns(msg.header.stamp))
         elif msg.event == RolloutEvent.EVENT_END:
-            self.events.end(msg.rollout_id, stamp_ns(msg.header.stamp), OUTCOMES.get(msg.outcome, "unknown"))
+            self.events.end(msg.rollout_id, stamp_ns(msg.header.stamp), messages.outcome_name(msg.outcome))
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
         if msg.heartbeat:

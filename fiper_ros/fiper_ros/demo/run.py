@@ -24,7 +24,7 @@ from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bags.atomic import remove
 from fiper_ros.bags.errors import BagError, fail
 from fiper_ros.bags.record import Recorder
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
 from fiper_ros.bags.session import RosSession
 from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.dds import allocate_domain

@@ -15,9 +15,9 @@ from fiper_ros.core.calibration import Calibration, load_calibration
 from fiper_ros.core.monitor import StepScore
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.data_paths import resolve_data_path
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.conversions import OUTCOMES
+from fiper_ros.interface.messages import outcome_name
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.rollouts import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
@@ -134,7 +134,7 @@ class DetectorNode(FiperNode):
                 self._score_input(early)
         elif msg.event == RolloutEvent.EVENT_END:
             self.ended.append(msg.rollout_id)
-            record = self.rollouts.end(msg.rollout_id, OUTCOMES.get(msg.outcome, "unknown"))
+            record = self.rollouts.end(msg.rollout_id, outcome_name(msg.outcome))
             if record is not None:
                 self.get_logger().info(f"{self.detector}: {record.summary()}")
 

@@ -23,12 +23,13 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
+from fiper_ros.interface.messages import outcome_name
+from fiper_ros.interface.conversions import stamp_ns, to_stamp
 from fiper_ros.nodes.main import run_node
-from fiper_ros.runtime.alarm import (ALARM, DETECTORS, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState,
-                                     DetectorScore, reset_refusal)
+from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
+from fiper_ros.runtime.alarm import DETECTORS, AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.publishers import Expected
 from fiper_ros.runtime.rollouts import RolloutTracker
@@ -166,7 +167,7 @@ class FusionNode(FiperNode):
                 self._fuse(early)
         elif msg.event == RolloutEvent.EVENT_END:
             self.ended.append(msg.rollout_id)
-            record = self.rollouts.end(msg.rollout_id, OUTCOMES.get(msg.outcome, "unknown"))
+            record = self.rollouts.end(msg.rollout_id, outcome_name(msg.outcome))
             self.fuser.end(msg.rollout_id)
             if record is not None:
                 record.alarm_step = self.fuser.alarm_step

@@ -31,8 +31,6 @@ def to_stamp(ns: int) -> Time:
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
-OUTCOMES = {0: "unknown", 1: "success", 2: "failure"}
-
 
 def embedding_msg(rollout_id: int, step: int, stamp: int, embedding: np.ndarray) -> ObservationEmbedding:
     """An ObservationEmbedding of a flat or shaped embedding array."""
