@@ -23,6 +23,8 @@ import yaml
 from helpers.policy_fixtures import tiny_policy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from sim_bridge.closed_loop import EpisodeResult, run_episode
+from sim_bridge.robot import URDF_PATH
 
 from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import read_rollouts
@@ -35,8 +37,6 @@ from fiper_ros.evaluation.data import load_dataset
 from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
 from fiper_ros.policy.policy import Policy
-from fiper_ros.policy.rollout import EpisodeResult, run_episode
-from sim_bridge.robot import URDF_PATH
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 SMALL = ["--batch", "4", "--max-policy-steps", "2"]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_bridge.closed_loop import run_episode
 
 from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bagio.reader import BagReader, find_bags
@@ -29,7 +30,6 @@ from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.messages import STATE_NAMES
 from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.policy.policy import Policy
-from fiper_ros.policy.rollout import run_episode
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 CALIBRATION = MODELS / "sorting" / "calibration"

@@ -5,13 +5,14 @@ cap, in-process or through ROS: :class:`CollectSetup`, which a resumed run must 
 scenario collected (a resumed scenario must have the same ones), the settings of every run into the
 folder, and one entry per rollout (scenario, seed, outcome, steps, bag path). An entry
 is written before its bag, and the file is replaced atomically, so after a kill the index lists every
-complete bag; entries whose bag never appeared are dropped when the index is read.
+complete bag; entries whose bag never appeared are dropped when the index is read. A runner's episode is a
+:class:`RanEpisode` until its bag is written.
 """
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -138,3 +139,22 @@ class CollectIndex:
             raise BagError(f"{path}: not a readable fiper collect index ({type(error).__name__}: {error})") from error
         index.rollouts = {(e.scenario, e.seed): e for e in entries if (directory / e.bag / METADATA).is_file()}
         return index
+
+
+@dataclass(frozen=True)
+class RanEpisode:
+    """An episode that ran; its bag is not there yet.
+
+    Attributes:
+        success: The episode's outcome.
+        policy_steps: ``T``, policy steps of the rollout.
+        control_steps: Control steps executed.
+        rollout_id: ``rollout_id`` of the bag's messages.
+        write: Makes the episode's bag appear, complete, at its path.
+    """
+
+    success: bool
+    policy_steps: int
+    control_steps: int
+    rollout_id: int
+    write: Callable[[], None]

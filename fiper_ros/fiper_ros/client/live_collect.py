@@ -27,19 +27,20 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from sim_bridge.robot import URDF_PATH
+from sim_bridge.tasks import TASKS
+
 from fiper_ros.bagio.atomic import remove
+from fiper_ros.bagio.collect_index import RanEpisode
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, node_path
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, installed_config
 from fiper_ros.client.trace import RolloutTrace
-from fiper_ros.commands.collect import RanEpisode
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
-from sim_bridge.robot import URDF_PATH
-from sim_bridge.tasks import TASKS
 
 SOURCE = "fiper collect (sim, ROS)"
 #: Nodes of ``demo.yaml`` the collect runs: always, and with a calibration.

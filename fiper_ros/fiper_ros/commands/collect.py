@@ -2,7 +2,7 @@
 
 Runs the policy on seeded episodes of each scenario and writes every rollout as its own bag,
 ``DIR/<scenario>/<task>_<scenario>_<seed>/``. In-process (default, :class:`InProcessRunner`:
-:func:`fiper_ros.policy.rollout.run_episode`, no ROS, no DDS) a bag holds the messages a policy node
+:func:`sim_bridge.closed_loop.run_episode`, no ROS, no DDS) a bag holds the messages a policy node
 publishes (:func:`fiper_ros.bagio.rollout_bags.write_rollouts`) on the task's control clock; with ``--ros``
 (:class:`fiper_ros.client.live_collect.RosRunner`) the episodes run through the live node suite and the bag
 holds what was recorded from DDS. ``--episodes N`` runs the seeds ``S .. S+N-1``; ``--successes M`` runs
@@ -27,7 +27,7 @@ import signal
 import sys
 import time
 import zlib
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, replace
@@ -36,9 +36,12 @@ from typing import Any, Protocol
 
 import torch
 import yaml
+from sim_bridge.closed_loop import EpisodeResult, run_episode
+from sim_bridge.scenarios import TASK_NAMES, get_scenario
+from sim_bridge.tasks import TASKS
 
 from fiper_ros.bagio.atomic import remove
-from fiper_ros.bagio.collect_index import INDEX_FILE, IN_PROCESS, ROS, CollectIndex, CollectSetup, IndexEntry
+from fiper_ros.bagio.collect_index import INDEX_FILE, IN_PROCESS, ROS, CollectIndex, CollectSetup, IndexEntry, RanEpisode
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import METADATA, find_bags
 from fiper_ros.bagio.rollout_bags import write_rollouts
@@ -47,9 +50,6 @@ from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.evaluation.offline import calibration_for, policy_layout
 from fiper_ros.policy.dataset import files_hash
 from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
-from fiper_ros.policy.rollout import EpisodeResult, run_episode
-from sim_bridge.scenarios import TASK_NAMES, get_scenario
-from sim_bridge.tasks import TASKS
 
 SOURCE = "fiper collect (sim, in-process)"
 LOCK_FILE = ".collect.lock"
@@ -173,25 +173,6 @@ def duration(seconds: float) -> str:
     if seconds < 3600:
         return f"{seconds // 60} min {seconds % 60} s"
     return f"{seconds // 3600} h {seconds % 3600 // 60} min"
-
-
-@dataclass(frozen=True)
-class RanEpisode:
-    """An episode that ran; its bag is not there yet.
-
-    Attributes:
-        success: The episode's outcome.
-        policy_steps: ``T``, policy steps of the rollout.
-        control_steps: Control steps executed.
-        rollout_id: ``rollout_id`` of the bag's messages.
-        write: Makes the episode's bag appear, complete, at its path.
-    """
-
-    success: bool
-    policy_steps: int
-    control_steps: int
-    rollout_id: int
-    write: Callable[[], None]
 
 
 class Runner(Protocol):
@@ -465,7 +446,7 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
         return runner
     if args.jobs != 1:
         raise BagError("--jobs runs episodes in worker processes: --ros runs them through the one node suite")
-    from fiper_ros.client.live_collect import LiveSettings, RosRunner  # noqa: PLC0415 - it imports this module
+    from fiper_ros.client.live_collect import LiveSettings, RosRunner  # noqa: PLC0415 - rclpy only with --ros
 
     settings = LiveSettings(args.task, model_dir.resolve(), setup.batch, args.threads, setup.max_policy_steps,
                             args.calibration.resolve() if args.calibration else None)

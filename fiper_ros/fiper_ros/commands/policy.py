@@ -1,10 +1,10 @@
-"""Command line: ``python -m fiper_ros.policy.cli {train,eval,plot,fit}``.
+"""Command line: ``python -m fiper_ros.commands.policy {train,eval,plot,fit}``.
 
 Examples::
 
-    python -m fiper_ros.policy.cli train --task sorting --demos data/demos/sorting --out models/sorting
-    python -m fiper_ros.policy.cli eval --task sorting --scenario id --episodes 50 --seed 1000 --record r.npz
-    python -m fiper_ros.policy.cli fit --task stacking --model runs/models/stacking --demos data/demos/stacking
+    python -m fiper_ros.commands.policy train --task sorting --demos data/demos/sorting --out models/sorting
+    python -m fiper_ros.commands.policy eval --task sorting --scenario id --episodes 50 --seed 1000 --record r.npz
+    python -m fiper_ros.commands.policy fit --task stacking --model runs/models/stacking --demos data/demos/stacking
 """
 from __future__ import annotations
 
@@ -15,11 +15,11 @@ from pathlib import Path
 
 import torch
 
-from .config import PRESETS
+from fiper_ros.policy.config import PRESETS
 
 
 def _train(args: argparse.Namespace) -> int:
-    from .train import train
+    from fiper_ros.policy.train import train
 
     overrides = {"epochs": args.epochs} if args.epochs is not None else {}
     config = PRESETS[args.task].with_overrides(**overrides)
@@ -31,9 +31,9 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from .evaluate import EvaluationResult, evaluate, save_rollouts
-    from .policy import Policy
-    from .rollout import EpisodeResult
+    from sim_bridge.policy_evaluation import EvaluationResult, evaluate, save_rollouts
+    from fiper_ros.policy.policy import Policy
+    from sim_bridge.closed_loop import EpisodeResult
 
     policy = Policy.load(args.model or f"models/{args.task}")
     if policy.config.task != args.task:
@@ -57,8 +57,8 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from .multimodality import plot_multimodality
-    from .policy import Policy
+    from sim_bridge.multimodality import plot_multimodality
+    from fiper_ros.policy.policy import Policy
 
     policy = Policy.load(args.model or f"models/{args.task}")
     out = args.out or f"docs/img/policy_multimodality_{args.task}.png"
@@ -67,9 +67,9 @@ def _plot(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from .dataset import episode_files
-    from .fit import open_loop_fit
-    from .policy import Policy
+    from fiper_ros.policy.dataset import episode_files
+    from fiper_ros.policy.fit import open_loop_fit
+    from fiper_ros.policy.policy import Policy
 
     policy = Policy.load(args.model or f"models/{args.task}")
     files = episode_files(args.demos)
@@ -88,7 +88,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point."""
-    parser = argparse.ArgumentParser(prog="fiper_ros.policy.cli", description=__doc__,
+    parser = argparse.ArgumentParser(prog="fiper_ros.commands.policy", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     parser.add_argument("--threads", type=int, default=1,

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.rollout import RolloutSet
-from .policy import Policy
-from .rollout import EpisodeResult, run_episode
+from fiper_ros.core.rollout import RolloutSet
+from fiper_ros.policy.policy import Policy
+
+from .closed_loop import EpisodeResult, run_episode
 
 LOG = logging.getLogger(__name__)
 

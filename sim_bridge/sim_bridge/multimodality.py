@@ -8,10 +8,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from sim_bridge.env import make_env
 
-from .noise import sampling_generator
-from .policy import Policy
+from fiper_ros.policy.noise import sampling_generator
+from fiper_ros.policy.policy import Policy
+
+from .env import make_env
 
 SORTING_COLORS = {"red": "tab:red", "blue": "tab:blue"}
 

@@ -11,11 +11,12 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from sim_bridge.env import make_env
 
-from ..core.rollout import Rollout
-from .noise import sampling_generator
-from .policy import Policy
+from fiper_ros.core.rollout import Rollout
+from fiper_ros.policy.noise import sampling_generator
+from fiper_ros.policy.policy import Policy
+
+from .env import make_env
 
 LOG = logging.getLogger(__name__)
 
