@@ -41,6 +41,7 @@ from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
+from fiper_ros.launcher.overrides import Overrides, apply
 
 SOURCE = "fiper collect (sim, ROS)"
 #: Nodes of ``demo.yaml`` the collect runs: always, and with a calibration.
@@ -92,8 +93,7 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     scoring = {"calibration_dir": str(settings.calibration)}
     ace = scoring | {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
     parameters = {"bridge_node": bridge, "policy_node": policy, "rnd_oe_node": scoring, "ace_node": ace}
-    nodes = tuple(replace(spec, required=True) for spec in config.nodes if spec.name in keep)
-    return replace(config, nodes=nodes).with_parameters(lambda spec: parameters.get(spec.name, {}))
+    return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
 
 
 class RosRunner:

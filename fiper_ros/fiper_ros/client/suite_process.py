@@ -15,7 +15,6 @@ import signal
 import subprocess
 import sys
 import threading
-from dataclasses import replace
 from pathlib import Path
 
 import yaml
@@ -24,7 +23,8 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import local_env
-from fiper_ros.launcher.config import LaunchError, dump_config, load_config
+from fiper_ros.launcher.config import LaunchError
+from fiper_ros.launcher.overrides import Overrides, rewrite
 
 #: Nodes that take ``calibration_dir``: the scoring nodes, and the fusion node (for the detectors it fuses).
 ACE_MODULE = "fiper_ros.nodes.ace_node"
@@ -47,16 +47,14 @@ def installed_config(name: str = "suite.yaml") -> Path:
 def replay_config(config: Path, calibration: Path, out: Path, robot: RobotModel | None = None) -> Path:
     """Write ``config`` with sim time and ``calibration`` on the scoring nodes to ``out``, and the
     ``robot``'s URDF and EE frame on the ACE node (for joint-space actions)."""
-    try:
-        parsed = load_config(config)
-    except (LaunchError, yaml.YAMLError) as error:
-        raise BagError(f"launch config {config}: {error}") from error
     detector = {"calibration_dir": str(calibration.resolve())}
     parameters = {module: detector for module in CALIBRATED_MODULES}
     if robot is not None:
         parameters[ACE_MODULE] = detector | {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
-    parsed = parsed.with_parameters(lambda spec: parameters.get(spec.module, {}))
-    return dump_config(replace(parsed, use_sim_time=True), out)
+    try:
+        return rewrite(config, Overrides(by_module=parameters, use_sim_time=True), out)
+    except (LaunchError, yaml.YAMLError) as error:
+        raise BagError(f"launch config {config}: {error}") from error
 
 
 class SuiteProcess:

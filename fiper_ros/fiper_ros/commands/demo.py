@@ -32,7 +32,8 @@ from fiper_ros.client.trace import ACE, RND_OE, RolloutTrace
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
-from fiper_ros.launcher.config import LaunchError, dump_config, load_config
+from fiper_ros.launcher.config import LaunchError
+from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.shm import clean_stale
 
 #: Nodes that must report ``lifecycle_state: active`` on /diagnostics before the first reset.
@@ -106,9 +107,7 @@ def problems_of(trace: RolloutTrace) -> list[str]:
 
 def demo_config(source: Path, model: Path, calibration: Path, out: Path) -> Path:
     """``source`` with the model and calibration paths made absolute, written to ``out``."""
-    paths = {"model": str(model), "calibration_dir": str(calibration)}
-    config = load_config(source).with_parameters(lambda spec: {k: v for k, v in paths.items() if k in spec.parameters})
-    return dump_config(config, out)
+    return rewrite(source, Overrides(where_set={"model": str(model), "calibration_dir": str(calibration)}), out)
 
 
 def check_calibration(model: Path, calibration: Path) -> None:
