@@ -45,7 +45,7 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
 from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, JOINT_STATES,
-    SCORE_ACE, SCORE_RND_OE, TOPICS)
+                                        SCORE_ACE, SCORE_RND_OE, TOPICS)
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration

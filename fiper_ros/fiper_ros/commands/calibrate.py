@@ -27,10 +27,10 @@ from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
 from fiper_ros.converters.options import parse_channels
 from fiper_ros.core.calibration import SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate
-from fiper_ros.core.compat import PROFILE_NAMES
 from fiper_ros.core.detectors import DETECTOR_SETS, LABELS, SIDES, parse_detectors
 from fiper_ros.core.fusion import COMBINES
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
+from fiper_ros.core.profiles import PROFILE_NAMES
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.thresholds import KINDS, Threshold

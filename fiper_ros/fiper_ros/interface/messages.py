@@ -10,8 +10,8 @@ from typing import Any
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 
-__all__ = ["ALARM", "NO_ROLLOUT", "OK", "OUTCOMES", "OUTCOME_NAMES", "OUTCOME_OF", "STATE_NAMES", "SUCCESS_OF", "UNKNOWN",
-           "message_class", "outcome_name", "state_name"]
+__all__ = ["ALARM", "NO_ROLLOUT", "OK", "OUTCOMES", "OUTCOME_NAMES", "OUTCOME_OF", "STATE_NAMES", "SUCCESS_OF",
+           "UNKNOWN", "message_class", "outcome_name", "state_name"]
 
 #: Alarm states, as the fusion logic, the results of a replay and the supervisor name them.
 OK = "ok"
@@ -25,7 +25,8 @@ STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, Failu
 OUTCOMES = {RolloutEvent.OUTCOME_UNKNOWN: "unknown", RolloutEvent.OUTCOME_SUCCESS: "success",
             RolloutEvent.OUTCOME_FAILURE: "failure"}
 #: Rollout success (``Rollout.success``) -> ``RolloutEvent.outcome``, and back.
-OUTCOME_OF = {True: RolloutEvent.OUTCOME_SUCCESS, False: RolloutEvent.OUTCOME_FAILURE, None: RolloutEvent.OUTCOME_UNKNOWN}
+OUTCOME_OF = {True: RolloutEvent.OUTCOME_SUCCESS, False: RolloutEvent.OUTCOME_FAILURE,
+              None: RolloutEvent.OUTCOME_UNKNOWN}
 SUCCESS_OF = {v: k for k, v in OUTCOME_OF.items()}
 #: Rollout success (``Rollout.success``) -> outcome name.
 OUTCOME_NAMES = {success: OUTCOMES[code] for success, code in OUTCOME_OF.items()}

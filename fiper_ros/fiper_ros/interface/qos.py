@@ -19,8 +19,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from fiper_ros.interface import qos_spec
 from fiper_ros.interface.qos_spec import ALARM_HEARTBEAT_S, SCORE_HEARTBEAT_S, QosSpec
 
-__all__ = ["ALARM", "ALARM_EVERY", "ALARM_HEARTBEAT_S", "ALARM_LEASE", "ALARM_LIVE", "ALARM_PUB", "DIAGNOSTICS", "EVENT",
-           "INPUT", "SCORE_HEARTBEAT_S", "SCORE_LEASE", "SCORE_PUB", "SCORE_SUB", "profile"]
+__all__ = ["ALARM", "ALARM_EVERY", "ALARM_HEARTBEAT_S", "ALARM_LEASE", "ALARM_LIVE", "ALARM_PUB", "DIAGNOSTICS",
+           "EVENT", "INPUT", "SCORE_HEARTBEAT_S", "SCORE_LEASE", "SCORE_PUB", "SCORE_SUB", "profile"]
 
 #: Lease of the score streams' liveliness: a dead scoring process is noticed within this time.
 SCORE_LEASE = Duration(nanoseconds=qos_spec.SCORE_LEASE_NS)

@@ -27,7 +27,6 @@ from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
 from fiper_ros.runtime.validation import InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
-LEVEL_NAMES = {DiagnosticStatus.OK: "OK", DiagnosticStatus.WARN: "WARN", DiagnosticStatus.ERROR: "ERROR"}
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", "/diagnostics")
 #: How often a node that watches its topics' publishers looks at the graph (a second suite: noticed within 1 s).

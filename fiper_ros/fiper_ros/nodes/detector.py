@@ -19,7 +19,7 @@ from fiper_ros.interface import qos
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.runtime.pending import PendingBuffer
-from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
                                          DEFAULT_MAX_STEP_GAP, INTERNAL, NO_CALIBRATION, NON_FINITE_SCORE,
                                          TASK_MISMATCH, UNKNOWN_ROLLOUT, InputRejected)

@@ -24,15 +24,14 @@ from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.conversions import stamp_ns, to_stamp
+from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
+from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import run_node
-from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
 from fiper_ros.runtime.alarm import DETECTORS, AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.pending import PendingBuffer
 from fiper_ros.runtime.publishers import Expected
-from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
 STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
