@@ -153,3 +153,29 @@ def test_units_import_without_rclpy(unit: str) -> None:
     """)
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_every_package_names_its_public_face() -> None:
+    """Each package's ``__init__.py`` has an ``__all__``; every name in it is a submodule or defined there."""
+    problems = []
+    for name, path in modules():
+        if path.name != "__init__.py":
+            continue
+        tree = ast.parse(path.read_text())
+        declared = [node.value for node in tree.body if isinstance(node, ast.Assign)
+                    and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)]
+        if not declared:
+            problems.append(f"{name}: no __all__")
+            continue
+        defined = {t.id for node in tree.body if isinstance(node, ast.Assign) for t in node.targets
+                   if isinstance(t, ast.Name)}
+        defined |= {node.target.id for node in tree.body if isinstance(node, ast.AnnAssign)
+                    and isinstance(node.target, ast.Name)}
+        defined |= {node.name for node in tree.body if isinstance(node, (ast.FunctionDef, ast.ClassDef))}
+        defined |= {(a.asname or a.name) for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))
+                    for a in node.names}
+        for entry in ast.literal_eval(declared[0]):
+            if entry not in defined and not ((path.parent / f"{entry}.py").is_file()
+                                             or (path.parent / entry / "__init__.py").is_file()):
+                problems.append(f"{name}.__all__: {entry!r} is neither a submodule nor defined there")
+    assert problems == []

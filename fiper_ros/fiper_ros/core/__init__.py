@@ -20,3 +20,7 @@ Modules, one concept each:
 - :mod:`.calibration`: fitting, saving and loading a calibration.
 - :mod:`.monitor`: streaming and vectorised failure prediction.
 """
+from __future__ import annotations
+
+__all__ = ["ace", "calibration", "calibration_file", "detectors", "fusion", "kinematics", "metrics", "mlp", "monitor",
+           "profiles", "rnd_oe", "rollout", "scores", "thresholds", "window"]
