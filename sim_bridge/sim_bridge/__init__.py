@@ -2,6 +2,6 @@
 episodes of a policy in the simulator (:mod:`.closed_loop`, which ``fiper collect`` runs in-process)."""
 from __future__ import annotations
 
-__all__ = ["bridge_node", "bridge_session", "cli", "closed_loop", "demos", "env", "evaluate", "experts", "figures",
-           "ik", "multimodality", "planar", "policy_evaluation", "render", "robot", "scenarios", "scene", "tasks",
-           "transforms"]
+__all__ = ["bridge_node", "bridge_session", "cli", "closed_loop", "collect_runner", "demos", "env", "evaluate",
+           "experts", "figures", "ik", "multimodality", "planar", "policy_evaluation", "render", "robot", "scenarios",
+           "scene", "tasks", "transforms"]
