@@ -21,12 +21,12 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from fiper_ros.bags.errors import BagError
-from fiper_ros.bags.offline import bag_layout, calibration_for, predict_bag
-from fiper_ros.bags.reader import find_bags
-from fiper_ros.bags.robot_options import add_arguments as add_robot_arguments
-from fiper_ros.bags.robot_options import fk_of, robot_from
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.bagio.reader import find_bags
+from fiper_ros.commands.options import add_robot_arguments
+from fiper_ros.commands.options import fk_of, robot_from
 from fiper_ros.core.calibration import guarantee, promised_rate
+from fiper_ros.evaluation.offline import bag_layout, calibration_for, predict_bag
 
 
 def tally(results: list[Any]) -> dict[str, dict[str, int]]:

@@ -26,16 +26,17 @@ import numpy as np
 from rclpy.serialization import serialize_message
 
 from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding
-from fiper_ros.bags.live_options import LiveChunks
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.recover import recover_in_place, unfinished
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, TOPICS, normalize_cdr
-from fiper_ros.bags.session import RosSession
-from fiper_ros.bags.storage import Salvage
-from fiper_ros.bags.writer import BagWriter
+from fiper_ros.bagio.chunks import LiveChunks
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.recover import recover_in_place, unfinished
+from fiper_ros.bagio.schema import normalize_cdr
+from fiper_ros.bagio.storage import Salvage
+from fiper_ros.bagio.writer import BagWriter
+from fiper_ros.client.ros_session import RosSession
 from fiper_ros.dds import allocate_domain, local_env
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
 
 #: The shapes of the shipped Sorting policy's messages: E = 128 (embedding), B = 32, H = 16, D = 3.
 E, B, H, D = 128, 32, 16, 3
@@ -55,7 +56,7 @@ def step_cdr(rollout_id: int, step: int, rng: np.random.Generator) -> list[tuple
 
 
 class Publisher:
-    """The policy side, in this process's :class:`~fiper_ros.bags.session.RosSession`."""
+    """The policy side, in this process's :class:`~fiper_ros.client.ros_session.RosSession`."""
 
     def __init__(self, session: RosSession) -> None:
         self.session = session

@@ -14,19 +14,19 @@ from fiper_ros import __version__
 
 #: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("fiper_ros.demo.run", "run the whole suite live on the shipped Sorting model (make demo)"),
-    "doctor": ("fiper_ros.doctor", "check that the workspace environment is complete"),
-    "launch": ("fiper_ros.launch", "start the suite's nodes from a launch YAML (processes or in-process)"),
-    "echo": ("fiper_ros.echo", "print the messages of a topic"),
-    "record": ("fiper_ros.bags.record", "record the suite's topics into an MCAP bag"),
-    "replay": ("fiper_ros.bags.replay", "play bags into the node suite and report its alarms per rollout"),
-    "calibrate": ("fiper_ros.bags.calibrate_cmd", "fit a FIPER calibration on the successful rollouts of bags"),
-    "collect": ("fiper_ros.bags.collect", "run a policy's closed-loop rollouts in the sim, one bag per rollout"),
-    "convert": ("fiper_ros.bags.convert", "convert Sentinel or FIPER rollout data into bags"),
-    "snapshot": ("fiper_ros.bags.snapshot", "black box: write a bag around every alarm rise"),
-    "bag": ("fiper_ros.bags.recover", "'fiper bag recover BAG': finish a recording that did not stop cleanly"),
-    "evaluate": ("fiper_ros.evaluation.cli", "evaluate FIPER and the baselines on rollout datasets"),
-    "security": ("fiper_ros.security", "write or check the SROS2 access-control policy of the suite's nodes"),
+    "demo": ("fiper_ros.commands.demo", "run the whole suite live on the shipped Sorting model (make demo)"),
+    "doctor": ("fiper_ros.commands.doctor", "check that the workspace environment is complete"),
+    "launch": ("fiper_ros.commands.launch", "start the suite's nodes from a launch YAML (processes or in-process)"),
+    "echo": ("fiper_ros.commands.echo", "print the messages of a topic"),
+    "record": ("fiper_ros.commands.record", "record the suite's topics into an MCAP bag"),
+    "replay": ("fiper_ros.commands.replay", "play bags into the node suite and report its alarms per rollout"),
+    "calibrate": ("fiper_ros.commands.calibrate", "fit a FIPER calibration on the successful rollouts of bags"),
+    "collect": ("fiper_ros.commands.collect", "run a policy's closed-loop rollouts in the sim, one bag per rollout"),
+    "convert": ("fiper_ros.commands.convert", "convert Sentinel or FIPER rollout data into bags"),
+    "snapshot": ("fiper_ros.commands.snapshot", "black box: write a bag around every alarm rise"),
+    "bag": ("fiper_ros.commands.bag", "'fiper bag recover BAG': finish a recording that did not stop cleanly"),
+    "evaluate": ("fiper_ros.commands.evaluate", "evaluate FIPER and the baselines on rollout datasets"),
+    "security": ("fiper_ros.commands.security", "write or check the SROS2 access-control policy of the suite's nodes"),
 }
 
 #: Modules whose absence means the workspace was not set up or not sourced.

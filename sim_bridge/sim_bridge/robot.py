@@ -14,12 +14,14 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from fiper_ros.interface.topics import ARM_JOINT_NAMES
+
 from .transforms import camera_quat
 
 PANDA_DIR = Path(__file__).resolve().parent / "assets" / "panda"
 URDF_PATH = PANDA_DIR / "urdf" / "panda.urdf"
 
-ARM_JOINTS: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))
+ARM_JOINTS: tuple[str, ...] = ARM_JOINT_NAMES
 FINGER_JOINTS: tuple[str, str] = ("panda_finger_joint1", "panda_finger_joint2")
 HAND_BODY = "panda_hand"
 TCP_SITE = "tcp"

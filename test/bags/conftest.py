@@ -7,14 +7,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
-from fiper_ros.bags.rollouts import write_rollouts
-from fiper_ros.bags.samples import observation_only
-from fiper_ros.bags.schema import BagInfo
-from fiper_ros.cli import main
-from fiper_ros.core.rollout import Rollout
 from helpers.stream import Policy
 from helpers.synthetic import OBSERVATION_CALIBRATE, make_calibration, make_rollout
+
+from fiper_ros.bagio.rollout_bags import write_rollouts
+from fiper_ros.bagio.schema import BagInfo
+from fiper_ros.cli import main
+from fiper_ros.commands.samples import observation_only
+from fiper_ros.core.rollout import Rollout
 
 ROLLOUT_IDS = [7, 8, 9, 10]
 

@@ -8,17 +8,17 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-
-from fiper_msgs.msg import FailureAlarm
-from fiper_ros.bags.capture import InfoTracker, TopicTap
-from fiper_ros.bags.live_options import LiveChunks
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import ALARM, EMBEDDING, TOPICS
-from fiper_ros.bags.session import RosSession
-from fiper_ros.bags.snapshot import MAX_OPEN_SNAPSHOTS, TRACKED_ROLLOUTS, BlackBox, Recorder, Rise
-from fiper_ros.bags.storage import Salvage
 from helpers.stream import alarm_cdr, step_cdr
 from helpers.synthetic import make_rollout
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.bagio.chunks import LiveChunks
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.storage import Salvage
+from fiper_ros.client.capture import InfoTracker, TopicTap
+from fiper_ros.client.ros_session import RosSession
+from fiper_ros.client.snapshot import MAX_OPEN_SNAPSHOTS, TRACKED_ROLLOUTS, BlackBox, Recorder, Rise
+from fiper_ros.interface.topics import ALARM, EMBEDDING, TOPICS
 
 ALARM_TYPE, EMBEDDING_TYPE = TOPICS[ALARM].msgtype, TOPICS[EMBEDDING].msgtype
 OK, ALARMED, UNKNOWN = FailureAlarm.STATE_OK, FailureAlarm.STATE_ALARM, FailureAlarm.STATE_UNKNOWN

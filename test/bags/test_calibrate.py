@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from fiper_ros.bags.calibrate_cmd import RND_PRESETS
-from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.cli import main
+from fiper_ros.commands.calibrate import RND_PRESETS
 from fiper_ros.core.calibration import CalibrationSettings, calibrate, load_calibration
 from fiper_ros.core.rnd_oe import RNDConfig
 

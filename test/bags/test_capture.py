@@ -7,15 +7,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from fiper_msgs.msg import FailureAlarm
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS
-from fiper_ros.nodes.conversions import to_stamp
 from helpers.dds import spawn_python, stop
 from helpers.stream import Policy
 from helpers.synthetic import make_rollout
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.interface.conversions import to_stamp
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
 
 
 def test_record_writes_what_was_published(tmp_path: Path, ros_domain: int, policy: Policy) -> None:

@@ -23,20 +23,22 @@ import yaml
 from helpers.policy_fixtures import tiny_policy
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
+from sim_bridge import collect_runner
+from sim_bridge.closed_loop import EpisodeResult, run_episode
+from sim_bridge.collect_runner import rollout_id_of
 from sim_bridge.robot import URDF_PATH
 
-from fiper_ros.bags import collect
-from fiper_ros.bags.collect import bag_name, rollout_id_of
-from fiper_ros.bags.offline import predict_bag
-from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
+from fiper_ros.bagio.reader import BagReader, find_bags
+from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.cli import main
+from fiper_ros.commands import collect
+from fiper_ros.commands.collect import bag_name
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.evaluation.data import load_dataset
+from fiper_ros.evaluation.offline import predict_bag
+from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
 from fiper_ros.policy.policy import Policy
-from fiper_ros.policy.rollout import EpisodeResult, run_episode
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 SMALL = ["--batch", "4", "--max-policy-steps", "2"]
@@ -124,7 +126,7 @@ def _outcome_by_seed(monkeypatch: pytest.MonkeyPatch) -> None:
         assert result.rollout is not None
         return replace(result, success=success, rollout=replace(result.rollout, success=success))
 
-    monkeypatch.setattr(collect, "run_episode", episode)
+    monkeypatch.setattr(collect_runner, "run_episode", episode)
 
 
 def test_successes_stop_at_m_or_at_the_cap_and_the_folders_calibrate_and_evaluate(
@@ -237,7 +239,7 @@ def test_jobs_write_the_folder_one_process_writes(collected: Path, tmp_path: Pat
 def test_workers_run_ahead_and_drop_episodes_no_longer_wanted() -> None:
     policy = Policy.load(MODELS / "sorting")
     setup = collect.CollectSetup("sorting", "hash", "test", 4, 2, collect.IN_PROCESS)
-    runner = collect.InProcessRunner(policy, setup, jobs=2, model_dir=MODELS / "sorting")
+    runner = collect_runner.InProcessRunner(policy, setup, jobs=2, model_dir=MODELS / "sorting")
     try:
         runner.ahead("id", iter([1000, 1001, 1002]))  # the first two start
         assert sorted(runner._started) == [("id", 1000), ("id", 1001)]

@@ -14,22 +14,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_bridge.closed_loop import run_episode
 
 from fiper_msgs.msg import RolloutEvent
-from fiper_ros.bags import collect_ros
-from fiper_ros.bags.collect import bag_name
-from fiper_ros.bags.collect_ros import SOURCE, WORK_DIR
-from fiper_ros.bags.offline import predict_bag
-from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.replay import STATE_NAMES
-from fiper_ros.bags.results import StepResult
-from fiper_ros.bags.rollouts import read_rollouts
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.bagio.reader import BagReader, find_bags
+from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.cli import main
+from fiper_ros.client import live_collect as collect_ros
+from fiper_ros.client.live_collect import SOURCE, WORK_DIR
+from fiper_ros.commands.collect import bag_name
 from fiper_ros.core.calibration import load_calibration
-from fiper_ros.nodes.conversions import stamp_ns
+from fiper_ros.evaluation.offline import predict_bag
+from fiper_ros.evaluation.results import StepResult
+from fiper_ros.interface.conversions import stamp_ns
+from fiper_ros.interface.messages import STATE_NAMES
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.policy.policy import Policy
-from fiper_ros.policy.rollout import run_episode
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 CALIBRATION = MODELS / "sorting" / "calibration"
@@ -160,8 +160,8 @@ def test_a_node_that_dies_ends_the_collect_with_one_line_and_keeps_its_output(
 def test_the_collect_suite_gives_the_ace_node_the_sims_urdf(tmp_path: Path) -> None:
     from sim_bridge.robot import URDF_PATH
 
-    from fiper_ros.bags.collect_ros import LiveSettings, collect_config
-    from fiper_ros.bags.suite_process import installed_config
+    from fiper_ros.client.live_collect import LiveSettings, collect_config
+    from fiper_ros.client.suite_process import installed_config
 
     settings = LiveSettings(task="stacking", model=MODELS / "stacking", batch=4, threads=1, max_policy_steps=2,
                             calibration=tmp_path)

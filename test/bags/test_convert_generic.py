@@ -14,16 +14,16 @@ import numpy as np
 import pyarrow
 import pyarrow.parquet
 import pytest
-
-from fiper_ros.bags.convert import convert
-from fiper_ros.bags.convert_options import ConvertOptions, Keys
-from fiper_ros.bags.errors import BagError
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
-from fiper_ros.cli import main
-from fiper_ros.core.rollout import Rollout, RolloutError
-from fiper_msgs.msg import RolloutEvent
 from helpers.converted import read_converted
+
+from fiper_msgs.msg import RolloutEvent
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.cli import main
+from fiper_ros.commands.convert import convert
+from fiper_ros.converters.options import ConvertOptions, Keys
+from fiper_ros.core.rollout import Rollout, RolloutError
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 
 
 def _observation_only_supported() -> bool:

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pandas
 import pytest
-
-from fiper_ros.bags.convert import convert
-from fiper_ros.bags.convert_options import ConvertOptions
-from fiper_ros.bags.errors import BagError
 from helpers.converted import read_converted
+
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.commands.convert import convert
+from fiper_ros.converters.options import ConvertOptions
 
 E, B, H = 12, 6, 8
 

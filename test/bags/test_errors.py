@@ -15,19 +15,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.rollouts import read_rollouts, write_rollouts
-from fiper_ros.bags.schema import BagInfo
-from fiper_ros.cli import main
-from fiper_ros.core.rollout import RolloutSet
-from fiper_ros.bags.writer import BagWriter
-from fiper_ros.core.calibration import load_calibration
 from helpers.bag_damage import BAG_DAMAGES, CHUNK, UNFINISHED, chunk_messages, mcap_of, records, write_recorded_bag
 from helpers.calibration_damage import CALIBRATION_DAMAGES, FIT_DAMAGES, fit_damages
 from helpers.synthetic import make_rollout
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
+from fiper_ros.bagio.schema import BagInfo
+from fiper_ros.bagio.writer import BagWriter
+from fiper_ros.cli import main
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.rollout import RolloutSet
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLES = ROOT / "bags"
@@ -322,7 +322,7 @@ def test_unknown_types_are_decoded_from_the_bag(tmp_path: Path, small_bag: Path,
 
 def test_every_shipped_bag_passes_the_checks() -> None:
     """The sample bags (written before chunks had checksums) open: their schema is the installed one."""
-    from fiper_ros.bags.reader import find_bags
+    from fiper_ros.bagio.reader import find_bags
 
     bags = find_bags([SAMPLES])
     assert len(bags) >= 5
@@ -345,9 +345,9 @@ def test_missing_calibration_is_refused(small_bag: Path, capsys: pytest.CaptureF
 
 
 def test_a_replayed_suite_gets_the_robot_model_on_its_ace_node_only(tmp_path: Path) -> None:
-    from fiper_ros.bags.suite_process import ACE_MODULE, installed_config, replay_config
+    from fiper_ros.client.suite_process import ACE_MODULE, installed_config, replay_config
     from fiper_ros.core.kinematics import RobotModel
-    from fiper_ros.launch import load_config
+    from fiper_ros.launcher.config import load_config
 
     urdf = tmp_path / "robot.urdf"
     urdf.write_text("<robot name='r'/>")

@@ -9,14 +9,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.synthetic import OBSERVATION_CALIBRATE, make_calibration
 
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.rollouts import read_rollouts, write_rollouts
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS, BagInfo
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
+from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.cli import main
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import OBSERVATION_ONLY
-from helpers.synthetic import OBSERVATION_CALIBRATE, make_calibration
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 
 
 def test_an_observation_only_copy_keeps_every_other_message_byte_for_byte(observation_bags: dict[str, Path]) -> None:

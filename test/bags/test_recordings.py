@@ -16,17 +16,17 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
+from helpers.dds import spawn_python, stop
+from helpers.stream import Policy, Sent, alarm_cdr, start_cdr, step_cdr
+from helpers.synthetic import make_rollout
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.bags.recover import unfinished
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS
-from fiper_ros.bags.storage import Salvage
+from fiper_ros.bagio.recover import unfinished
+from fiper_ros.bagio.storage import Salvage
 from fiper_ros.cli import main
-from helpers.dds import spawn_python, stop
-from helpers.stream import Policy, Sent, alarm_cdr, start_cdr, step_cdr
-from helpers.synthetic import make_rollout
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
 
 #: ``--chunk-s`` of the recorders under test.
 CHUNK_S = 0.5

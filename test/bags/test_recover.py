@@ -11,12 +11,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.recover import recover_bag, unfinished
-from fiper_ros.cli import main
 from helpers.bag_damage import CHUNK, LIVE_INFO, chunk_messages, live_stream, mcap_of, records
 from helpers.dds import allocate_domain, run_python
+
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.recover import recover_bag, unfinished
+from fiper_ros.cli import main
 
 CHUNKS = 4
 

@@ -9,16 +9,17 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from fiper_msgs.msg import RolloutEvent
-from fiper_ros.bags.offline import predict_bag
-from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.rollouts import write_rollouts
-from fiper_ros.bags.schema import EVENTS, BagInfo
-from fiper_ros.bags.writer import BagWriter
-from fiper_ros.core.calibration import load_calibration
 from helpers.dds import ros_env
 from helpers.synthetic import make_rollout
+
+from fiper_msgs.msg import RolloutEvent
+from fiper_ros.bagio.reader import BagReader, find_bags
+from fiper_ros.bagio.rollout_bags import write_rollouts
+from fiper_ros.bagio.schema import BagInfo
+from fiper_ros.bagio.writer import BagWriter
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.evaluation.offline import predict_bag
+from fiper_ros.interface.topics import EVENTS
 
 SAMPLES = Path(__file__).resolve().parents[2] / "bags"
 SETS = sorted(p for p in SAMPLES.iterdir() if (p / "calibration").is_dir()) if SAMPLES.is_dir() else []

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from fiper_ros.bags.offline import predict_bag
-from fiper_ros.bags.reader import find_bags
-from fiper_ros.core.calibration import load_calibration
 from helpers.dds import run_python
+
+from fiper_ros.bagio.reader import find_bags
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.evaluation.offline import predict_bag
 
 PRETZEL = Path(__file__).resolve().parents[2] / "bags" / "pretzel_synthetic"
 

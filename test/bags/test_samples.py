@@ -1,4 +1,4 @@
-"""The sample-set generator (`python -m fiper_ros.bags.samples`, docs/bags.md "Sample data")."""
+"""The sample-set generator (`python -m fiper_ros.commands.samples`, docs/bags.md "Sample data")."""
 from __future__ import annotations
 
 import subprocess
@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bagio.rollout_bags import read_rollouts
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_the_pushchair_set_regenerates_the_shipped_rollouts(tmp_path: Path) -> None:
     """Its 10 calibration successes are calibrated on the same data on purpose: with #19's split default the
     command stopped with a +inf threshold (exit 2) and no set."""
-    run = subprocess.run([sys.executable, "-m", "fiper_ros.bags.samples", "--sets", "pushchair", "--out", str(tmp_path)],
+    run = subprocess.run([sys.executable, "-m", "fiper_ros.commands.samples", "--sets", "pushchair", "--out", str(tmp_path)],
                          cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
     made, shipped = tmp_path / "pushchair_synthetic", ROOT / "bags" / "pushchair_synthetic"

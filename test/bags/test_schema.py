@@ -13,12 +13,13 @@ from rclpy.serialization import serialize_message
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros import __version__
-from fiper_ros.bags.errors import BagError
-from fiper_ros.bags.reader import BagReader, find_bags
-from fiper_ros.bags.rollouts import read_rollouts, write_rollouts
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS, BagInfo, normalize_cdr
-from fiper_ros.bags.writer import BagWriter
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.bagio.reader import BagReader, find_bags
+from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
+from fiper_ros.bagio.schema import BagInfo, normalize_cdr
+from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS
 
 
 def _metadata(bag: Path) -> dict:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fiper_ros.core.ace import ace_score, step_entropies
-from fiper_ros.core.compat import PAPER, REFERENCE, get_profile
+from fiper_ros.core.profiles import PAPER, REFERENCE, get_profile
 from fiper_ros.core.scores import act_score
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fiper_ros.bags.offline import predict_bag
 from fiper_ros.core.calibration import load_calibration
+from fiper_ros.evaluation.offline import predict_bag
 
 ROOT = Path(__file__).resolve().parents[2]
 CP_BAND = ROOT / "models" / "sorting" / "calibration_cp_band"

@@ -9,9 +9,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from fiper_ros.bags.offline import predict_bag
-from fiper_ros.bags.reader import BagReader
+from fiper_ros.bagio.reader import BagReader
 from fiper_ros.core.calibration import load_calibration
+from fiper_ros.evaluation.offline import predict_bag
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fiper_ros.demo.figure import plot_trace
-from fiper_ros.demo.run import demo_config, problems_of
-from fiper_ros.demo.trace import ACE, EARLY_MESSAGES, RND_OE, RolloutEvents, RolloutTrace
-from fiper_ros.launch import load_config
+from fiper_ros.client.figure import plot_trace
+from fiper_ros.client.trace import ACE, EARLY_MESSAGES, RND_OE, RolloutEvents, RolloutTrace
+from fiper_ros.commands.demo import demo_config, problems_of
+from fiper_ros.launcher.config import load_config
 
 
 def scored(steps: int, alarm: int | None = None, outcome: str = "failure") -> RolloutTrace:

@@ -2,9 +2,9 @@
 damages a copy of a good bag in place and returns the text the refusal must hold (naming the file), for
 the command table of test/bags/test_errors.py (calibration directories: helpers.calibration_damage).
 
-Bags are written by the project's own writer (:func:`fiper_ros.bags.rollouts.write_rollouts`), then cut,
+Bags are written by the project's own writer (:func:`fiper_ros.bagio.rollout_bags.write_rollouts`), then cut,
 overwritten or rewritten. The MCAP record walk here is the test's own (opcode byte, uint64 length, body;
-mcap.dev/spec), independent of the one in :mod:`fiper_ros.bags.storage`.
+mcap.dev/spec), independent of the one in :mod:`fiper_ros.bagio.storage`.
 """
 from __future__ import annotations
 
@@ -14,14 +14,15 @@ from pathlib import Path
 
 import numpy as np
 import zstandard
+from helpers.synthetic import make_rollout
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from fiper_ros.bags.reader import BagReader
-from fiper_ros.bags.rollouts import write_rollouts
-from fiper_ros.bags.schema import EMBEDDING, BagInfo, message_definitions, typestore
-from fiper_ros.bags.writer import BagWriter
-from helpers.synthetic import make_rollout
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.rollout_bags import write_rollouts
+from fiper_ros.bagio.schema import BagInfo, message_definitions, typestore
+from fiper_ros.bagio.writer import BagWriter
+from fiper_ros.interface.topics import EMBEDDING
 
 #: A damage: modifies the bag at the path, returns the text its refusal holds.
 Damage = Callable[[Path], str]
@@ -283,7 +284,7 @@ def write_and_die(path: str, chunks: int) -> None:
     import os  # noqa: PLC0415
     import signal  # noqa: PLC0415
 
-    from fiper_ros.bags.live_options import LiveChunks  # noqa: PLC0415
+    from fiper_ros.bagio.chunks import LiveChunks  # noqa: PLC0415
 
     writer = BagWriter(Path(path), live=LiveChunks(seconds=3600.0, megabytes=100.0))
     writer.info = LIVE_INFO

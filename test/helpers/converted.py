@@ -5,7 +5,7 @@ from pathlib import Path
 
 import yaml
 
-from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.core.rollout import Rollout
 
 

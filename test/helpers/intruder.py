@@ -10,7 +10,7 @@ import rclpy
 from rclpy.node import Node
 
 from fiper_msgs.msg import FailureAlarm, Score
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from helpers.spin import spin_until_interrupted
 
 #: The intruder's scores carry this latency, so a test can tell them from the suite's.

@@ -7,16 +7,17 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
+from helpers.suite import STEP_NS, Driver
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import serialize_message
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
-from fiper_ros.bags.schema import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS, normalize_cdr
+from fiper_ros.bagio.schema import normalize_cdr
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg, to_stamp
-from helpers.suite import STEP_NS, Driver
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg, to_stamp
+from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS
 
 
 class Policy:

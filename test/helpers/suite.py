@@ -16,8 +16,8 @@ from rclpy.parameter import Parameter
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
 from fiper_ros.core.monitor import RolloutPrediction
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg
 from helpers.spin import spin_until
 
 STEP_NS = 100_000_000  # 10 Hz policy

@@ -8,7 +8,7 @@ import numpy as np
 from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg
 from helpers.suite import STEP_NS, Suite
 from helpers.synthetic import E, make_rollout
 

@@ -17,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from fiper_ros.core.calibration import load_calibration
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from helpers.aggregator import analyzers_of
 from helpers.dds import ros_env, stop
 from helpers.spin import spin_until

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg
 from helpers.launch import Rig, open_rig, suite_config
 from helpers.suite import STEP_NS
 from helpers.synthetic import FAIL_FROM, LENGTH, make_rollout

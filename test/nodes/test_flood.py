@@ -36,18 +36,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.launch import Rig, open_rig, suite_config
+from helpers.suite import STEP_NS, assert_as_the_oracle
 from rclpy.node import Node
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
-from fiper_ros.bags.rollouts import read_rollouts
+from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.monitor import RolloutPrediction, predict_rollout
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, float_array, rollout_event_msg
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, float_array, rollout_event_msg
 from fiper_ros.runtime.validation import DEFAULT_MAX_STEP_GAP
-from helpers.launch import Rig, open_rig, suite_config
-from helpers.suite import STEP_NS, assert_as_the_oracle
 
 PRETZEL = Path(os.environ["FIPER_ROOT"]) / "bags" / "pretzel_synthetic"
 #: A failing test rollout whose alarm comes mid-way (step 22 of 69): OK and ALARM verdicts both.

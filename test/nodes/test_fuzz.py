@@ -44,13 +44,13 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
 from fiper_ros.nodes import ace_node, detector
 from fiper_ros.nodes.ace_node import AceNode
-from fiper_ros.nodes.conversions import (action_batch_msg, embedding_msg, float_array, rollout_event_msg, stamp_ns,
-                                        to_stamp)
+from fiper_ros.interface.conversions import (action_batch_msg, embedding_msg, float_array, rollout_event_msg, stamp_ns,
+                                             to_stamp)
 from fiper_ros.nodes.fusion_node import FusionNode
 from fiper_ros.nodes.rnd_oe_node import RndOeNode
 from fiper_ros.nodes.supervisor_node import SupervisorNode
 from fiper_ros.runtime.alarm import DETECTORS
-from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.supervision import HALTED_MEMORY
 from fiper_ros.runtime.validation import DEFAULT_MAX_ABS_VALUE, REASONS
 from helpers.fuzz import (FLOAT32, MOSTLY, NODE_KWARGS, STAMP, TEXT, UINT8, UINT32, UINT64, UINT64_MAX, bring_up,

@@ -8,7 +8,8 @@ import rclpy
 import yaml
 from rclpy.context import Context
 
-from fiper_ros.launch import NodeSpec, build_node, dump_config, load_config
+from fiper_ros.launcher.config import NodeSpec, dump_config, load_config
+from fiper_ros.launcher.processes import build_node
 
 
 def test_with_parameters_merges_per_node_and_leaves_the_source_alone(tmp_path: Path) -> None:

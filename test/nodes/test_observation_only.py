@@ -20,8 +20,8 @@ from fiper_msgs.msg import Score
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import OBSERVATION_ONLY
 from fiper_ros.core.monitor import predict_rollout
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import embedding_msg
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import embedding_msg
 from helpers.spin import spin_until
 from helpers.suite import STATE, STEP_NS, Driver
 from helpers.synthetic import FAIL_FROM, make_calibration, make_rollout

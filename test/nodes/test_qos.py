@@ -3,8 +3,8 @@ before its callback runs (the fusion node's heartbeat can follow a step's alarm 
 from __future__ import annotations
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.bags.session import RosSession
-from fiper_ros.nodes import qos
+from fiper_ros.client.ros_session import RosSession
+from fiper_ros.interface import qos
 
 
 def _burst_received(profile: object, domain: int, count: int = 20) -> list[int]:

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from fiper_ros.cli import main
-from fiper_ros.launch import load_config
-from fiper_ros.security import Grants, differences, policy_xml, read_policy, resolve
+from fiper_ros.commands.security import Grants, differences, policy_xml, read_policy, resolve
+from fiper_ros.launcher.config import load_config
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 POLICY = ROOT / "fiper_ros" / "config" / "sros2_policy.xml"

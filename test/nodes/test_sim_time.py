@@ -8,8 +8,8 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import to_stamp
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import to_stamp
 from helpers.suite import Suite
 from helpers.synthetic import make_rollout
 

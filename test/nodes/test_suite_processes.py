@@ -14,7 +14,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from helpers.launch import Launch
 from helpers.spin import spin_until as spin
 from helpers.suite import Driver

@@ -14,7 +14,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from helpers.dds import ros_env
 from helpers.suite import Driver
 

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 import torch
 from helpers.policy_fixtures import tiny_config
-
+from sim_bridge.closed_loop import run_episode
+from sim_bridge.multimodality import block_choice, initial_batch
+from sim_bridge.policy_evaluation import EvaluationResult, save_rollouts
 from sim_bridge.robot import URDF_PATH
 from sim_bridge.tasks import TASKS as SIM_TASKS
 
@@ -15,11 +17,8 @@ from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.core.rollout import RolloutSet
-from fiper_ros.policy.evaluate import EvaluationResult, save_rollouts
-from fiper_ros.policy.multimodality import block_choice, initial_batch
 from fiper_ros.policy.normalizer import RangeNormalizer
 from fiper_ros.policy.policy import Policy
-from fiper_ros.policy.rollout import run_episode
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 

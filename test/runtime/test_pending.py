@@ -1,7 +1,7 @@
 """Messages waiting for their rollout's START."""
 from __future__ import annotations
 
-from fiper_ros.runtime.pending import PendingBuffer
+from fiper_ros.runtime.pending import RECENTLY_ENDED, PendingBuffer, StartGate
 
 
 def test_items_come_back_in_arrival_order_per_rollout() -> None:
@@ -33,3 +33,22 @@ def test_the_total_size_is_bounded_not_only_the_count() -> None:
     assert len(buffer) == 0
     assert buffer.add(4, "e", 0, size=3) == [] and buffer.take(4) == ["e"]
     assert buffer.add(5, "f", 0, size=10) == []        # the budget is free again
+
+
+def test_the_start_gate_releases_a_rollouts_items_in_arrival_order_and_remembers_ended_rollouts() -> None:
+    gate: StartGate[str] = StartGate(max_age_ns=10, max_items=8)
+    gate.add(2, "2a", 0)
+    gate.add(3, "3a", 1)
+    gate.add(2, "2b", 2)
+    assert gate.start(2) == ["2a", "2b"] and gate.start(2) == [] and len(gate) == 1
+    assert not gate.has_ended(2)
+    gate.end(2)
+    assert gate.has_ended(2) and not gate.has_ended(3)
+
+
+def test_the_start_gate_remembers_the_last_ended_rollouts_only() -> None:
+    gate: StartGate[str] = StartGate()
+    for rollout_id in range(1, RECENTLY_ENDED + 2):
+        gate.end(rollout_id)
+    assert not gate.has_ended(1)  # the oldest is forgotten: memory is bounded
+    assert all(gate.has_ended(r) for r in range(2, RECENTLY_ENDED + 2))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fiper_ros.runtime import validation
-from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import InputRejected
 
 

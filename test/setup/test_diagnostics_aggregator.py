@@ -8,13 +8,13 @@ from pathlib import Path
 import pytest
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticStatus
+from helpers.aggregator import CONFIG, analyzers_of
+from helpers.fuzz import private_context
 from rclpy.context import Context
 from rclpy.node import Node
 
-from fiper_ros.launch import load_config
+from fiper_ros.launcher.config import load_config
 from fiper_ros.nodes.base import diagnostic_array
-from helpers.aggregator import CONFIG, analyzers_of
-from helpers.fuzz import private_context
 
 #: The demo's node set: every node of the suite and the sim bridge, in their namespaces.
 DEMO = CONFIG.parent / "demo.yaml"

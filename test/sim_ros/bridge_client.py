@@ -26,8 +26,8 @@ from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import ActionCommand, RolloutEvent
 from fiper_msgs.srv import ResetRollout
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import float_array, stamp_ns, to_stamp
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import float_array, stamp_ns, to_stamp
 from helpers.dds import spawn_python, stop
 from helpers.spin import spin_until
 from sim_bridge.bridge_session import ACTION_SPACES

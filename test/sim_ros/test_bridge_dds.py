@@ -11,8 +11,8 @@ import pytest
 from sensor_msgs.msg import JointState
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
-from fiper_ros.nodes import qos
-from fiper_ros.nodes.conversions import stamp_ns
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.nodes.supervisor_node import SupervisorNode
 from sim_bridge.bridge_node import SIM_EPOCH_NS
 from sim_bridge.bridge_session import JOINT_NAMES, PROPRIO_NAMES

@@ -13,7 +13,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import ActionCommand
-from fiper_ros.launch import load_config
+from fiper_ros.launcher.config import load_config
 from fiper_ros.runtime.validation import InputRejected
 from sim_bridge.bridge_session import ACTION_SPACES, JOINT_NAMES, PROPRIO_NAMES, BridgeSession, rollout_id_of
 from sim_bridge.tasks import TASKS

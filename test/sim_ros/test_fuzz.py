@@ -27,7 +27,7 @@ from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import ActionCommand, RolloutEvent
 from fiper_msgs.srv import ResetRollout
-from fiper_ros.nodes.conversions import float_array, rollout_event_msg, stamp_ns, to_stamp
+from fiper_ros.interface.conversions import float_array, rollout_event_msg, stamp_ns, to_stamp
 from fiper_ros.nodes.policy_node import PolicyNode
 from fiper_ros.policy.encoder import RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy

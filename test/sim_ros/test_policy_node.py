@@ -17,18 +17,18 @@ from helpers.policy_fixtures import tiny_policy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from sim_bridge.closed_loop import run_episode
+from sim_ros.bridge_client import BridgeHarness
+from sim_ros.policy_client import FakeDriver, PolicyHarness
 
 from fiper_msgs.msg import RolloutEvent
-from fiper_ros.bags.schema import ACTIONS, EMBEDDING, EVENTS
-from fiper_ros.launch import load_config
-from fiper_ros.nodes.conversions import floats_of, stamp_ns
+from fiper_ros.interface.conversions import floats_of, stamp_ns
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.launcher.config import load_config
 from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
 from fiper_ros.policy.encoder import CAMERAS
-from fiper_ros.policy.rollout import run_episode
 from fiper_ros.policy.session import PolicyAction, PolicyStep
-from sim_ros.bridge_client import BridgeHarness
-from sim_ros.policy_client import FakeDriver, PolicyHarness
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 SORTING = ROOT / "models" / "sorting"

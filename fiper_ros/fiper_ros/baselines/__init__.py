@@ -12,3 +12,6 @@ Modules, one baseline each:
 - :mod:`.pca_kmeans`: PCA + k-means distance on observation embeddings (Liu et al., 2024).
 - :mod:`.rnd_a`: RND on action chunks (adapted from He et al., 2024).
 """
+from __future__ import annotations
+
+__all__ = ["base", "logpzo", "pca_kmeans", "rnd_a", "stac"]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see fiper_ros.evaluation.cli
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see fiper_ros.commands.evaluate
 
 import argparse  # noqa: E402
 import logging  # noqa: E402

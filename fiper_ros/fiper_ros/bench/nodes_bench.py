@@ -37,7 +37,7 @@ from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
-from fiper_ros.launch import NodeSpec, load_config
+from fiper_ros.launcher.config import NodeSpec, load_config
 from fiper_ros.shm import clean_stale
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
@@ -157,7 +157,7 @@ class Driver:
 
         from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent  # noqa: PLC0415
 
-        from fiper_ros.nodes import qos  # noqa: PLC0415
+        from fiper_ros.interface import qos  # noqa: PLC0415
 
         self.shape = shape
         self.context = Context()
@@ -232,7 +232,7 @@ class Driver:
     def run(self, rollout_id: int, steps: int, rate_hz: float) -> tuple[np.ndarray, int, float]:
         """Publish ``steps`` steps at ``rate_hz``; return latencies (ms), missing steps, final backlog (s)."""
         from fiper_msgs.msg import RolloutEvent  # noqa: PLC0415
-        from fiper_ros.nodes.conversions import action_batch_msg, embedding_msg, rollout_event_msg  # noqa: PLC0415
+        from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg  # noqa: PLC0415
 
         self.event_pub.publish(rollout_event_msg(rollout_id, RolloutEvent.EVENT_START, 0))
         self.spin_for(0.3)

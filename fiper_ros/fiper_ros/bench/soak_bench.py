@@ -4,7 +4,7 @@ The six node processes of ``fiper demo`` (sim bridge, policy, RND-OE, ACE, fusio
 config/demo.yaml with the shipped Sorting model, sim time) run in a private domain with the bridge in real
 time: its controller at the tasks' 10 Hz (``realtime_factor`` 1; the demo runs the sim as fast as it
 can), so a Sorting policy step (h = 4 control steps plus the policy's inference) comes about every half
-second. The demo's driver (:mod:`fiper_ros.demo.driver`) resets rollouts back to back, in-distribution
+second. The demo's driver (:mod:`fiper_ros.client.driver`) resets rollouts back to back, in-distribution
 and harmful OOD (``box_pos``) seeds in turn, until the time is up; the supervisor halts a rollout at its
 alarm; the fusion node keeps every step's alarm for the driver (``EVERY_ALARM``, as ``make bench-nodes``).
 Per block (5 minutes; 1 minute when ``--minutes`` is below 30) it prints: policy steps and their
@@ -32,16 +32,16 @@ from pathlib import Path
 import numpy as np
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
-from fiper_ros.bags.schema import ACTIONS
-from fiper_ros.bags.session import RosSession
-from fiper_ros.bags.suite_process import SuiteProcess, installed_config
 from fiper_ros.bench import EVERY_ALARM
+from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, state_name
+from fiper_ros.client.ros_session import RosSession
+from fiper_ros.client.suite_process import SuiteProcess, installed_config
+from fiper_ros.client.trace import RolloutTrace
+from fiper_ros.commands.demo import MANAGED_NODES, SUPERVISOR, Plan, demo_config
 from fiper_ros.dds import allocate_domain
-from fiper_ros.demo.driver import SETTLE_S, Driver, SuiteFailed, state_name
-from fiper_ros.demo.run import MANAGED_NODES, SUPERVISOR, Plan, demo_config
-from fiper_ros.demo.trace import RolloutTrace
-from fiper_ros.launch import dump_config, load_config
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
+from fiper_ros.interface.topics import ACTIONS
+from fiper_ros.launcher.config import dump_config, load_config
 from fiper_ros.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"

@@ -14,9 +14,13 @@ Modules, one concept each:
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
 - :mod:`.fusion`: the AND/OR combination, eq. (7) and App. A.4.
 - :mod:`.metrics`: TPR, TNR, accuracy, DT and TWA, App. B.4.
-- :mod:`.compat`: the "paper" and "reference" (authors' code) profiles.
+- :mod:`.profiles`: the "paper" and "reference" (authors' code) profiles.
 - :mod:`.detectors`: the detector sets a calibration declares (FIPER's pair, or RND-OE alone).
 - :mod:`.calibration_file`: reading ``calibration.yaml`` without torch (what a calibration declares).
 - :mod:`.calibration`: fitting, saving and loading a calibration.
 - :mod:`.monitor`: streaming and vectorised failure prediction.
 """
+from __future__ import annotations
+
+__all__ = ["ace", "calibration", "calibration_file", "detectors", "fusion", "kinematics", "metrics", "mlp", "monitor",
+           "profiles", "rnd_oe", "rollout", "scores", "thresholds", "window"]

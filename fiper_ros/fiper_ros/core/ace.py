@@ -135,7 +135,7 @@ def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: flo
         cell_size: ``alpha * R_d``, shape ``[D]``; a zero entry makes that dimension one bin.
         range_buffer: Widen each step's sample range by this fraction on both sides before
             binning. ``0`` is the paper's definition; the reference profile uses ``0.01``
-            (see :mod:`fiper_ros.core.compat`).
+            (see :mod:`fiper_ros.core.profiles`).
     """
     x = np.asarray(actions, dtype=np.float64)
     if x.ndim < 3:

@@ -52,7 +52,7 @@ from fiper_ros.core.ace import action_ranges, cell_size, check_alpha
 # CALIBRATION_FILE, FORMAT_VERSION and CalibrationError live in calibration_file (the YAML alone) and are used from here.
 from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, LEGACY_FORMAT_VERSION, CalibrationError,
                                              check_files, one_line, read_yaml)
-from fiper_ros.core.compat import Profile, get_profile
+from fiper_ros.core.profiles import Profile, get_profile
 from fiper_ros.core.detectors import ACE, DETECTORS, LABELS, RND_OE, SIDES, check_detectors
 from fiper_ros.core.fusion import COMBINES, exceeds, fuse_declared
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
@@ -99,7 +99,7 @@ class CalibrationSettings:
         combine: ``"and"`` (eq. 7) or ``"or"``.
         rnd: RND-OE network and training configuration.
         seed: Seed of RND-OE and of the CP band split.
-        profile: ``"paper"`` or ``"reference"`` (see :mod:`fiper_ros.core.compat`).
+        profile: ``"paper"`` or ``"reference"`` (see :mod:`fiper_ros.core.profiles`).
         extension: Threshold extension rule; ``None`` uses the profile's.
         min_support: Support rule of per-step statistics; ``None`` uses the profile's.
         band_split: Fraction of rollouts in ``I1`` of the CP band.

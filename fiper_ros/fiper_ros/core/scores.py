@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from fiper_ros.core.ace import step_entropies
-from fiper_ros.core.compat import Profile
 from fiper_ros.core.kinematics import ActionProjection
+from fiper_ros.core.profiles import Profile
 from fiper_ros.core.rnd_oe import RNDOE
 from fiper_ros.core.rollout import Rollout
 

@@ -14,5 +14,12 @@ Modules, one concept each:
 - :mod:`.report`: ``results.md`` (Tables 1 and 2) and ``results.json``.
 - :mod:`.plots`: the PNG figures.
 - :mod:`.progress`: a stderr progress line.
-- :mod:`.cli`: ``fiper evaluate``.
+- :mod:`.offline`: the offline oracle of ``fiper replay --offline`` (bag -> FIPER per step).
+- :mod:`.results`: per-rollout prediction results, the same record for the live replay and the oracle.
+
+``fiper evaluate`` is :mod:`fiper_ros.commands.evaluate`.
 """
+from __future__ import annotations
+
+__all__ = ["cache", "data", "engine", "methods", "offline", "plots", "progress", "protocol", "report", "results",
+           "scoring", "sweep", "synthetic", "threshold_grid"]

@@ -140,9 +140,9 @@ def _npz_files(path: Path) -> list[Path]:
 def _bag_split(path: Path, strict: bool) -> tuple[list[tuple[Rollout, str]], list[tuple[Rollout, str]]]:
     """The rollouts of the bags at ``path`` with their bag, split by each bag's ``custom_data`` split
     (``strict``: refuse an unfinished bag instead of reading it up to its last complete chunk)."""
-    from fiper_ros.bags.errors import BagError  # noqa: PLC0415 - bags need the ROS message build
-    from fiper_ros.bags.reader import BagReader, find_bags  # noqa: PLC0415
-    from fiper_ros.bags.rollouts import read_rollouts  # noqa: PLC0415
+    from fiper_ros.bagio.errors import BagError  # noqa: PLC0415 - bags need the ROS message build
+    from fiper_ros.bagio.reader import BagReader, find_bags  # noqa: PLC0415
+    from fiper_ros.bagio.rollout_bags import read_rollouts  # noqa: PLC0415
 
     calibration: list[tuple[Rollout, str]] = []
     test: list[tuple[Rollout, str]] = []

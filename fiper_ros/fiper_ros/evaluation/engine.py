@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fiper_ros.core.calibration import CalibrationSettings
-from fiper_ros.core.compat import get_profile
+from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.methods import METHODS, MethodSettings, streams_of

@@ -24,8 +24,8 @@ from fiper_ros.baselines.logpzo import LogpZOConfig
 from fiper_ros.baselines.pca_kmeans import PCAKMeansConfig
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
-from fiper_ros.core.compat import get_profile
 from fiper_ros.core.kinematics import RobotModel
+from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.rnd_oe import RNDConfig
 
 
@@ -70,7 +70,7 @@ class MethodSettings:
     """Hyperparameters of every stream.
 
     Attributes:
-        profile: ``"paper"`` or ``"reference"`` (:mod:`fiper_ros.core.compat`): ACE/RND-OE score
+        profile: ``"paper"`` or ``"reference"`` (:mod:`fiper_ros.core.profiles`): ACE/RND-OE score
             details, threshold details and the DT normalisation.
         alpha: ACE cell size factor; ``None`` uses the profile's.
         rnd: RND-OE network and training.

@@ -35,9 +35,9 @@ from fiper_ros.baselines.pca_kmeans import PCAKMeans
 from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC, check_overlap
 from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
-from fiper_ros.core.compat import get_profile
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY
 from fiper_ros.core.kinematics import RobotModel
+from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
 from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores, cache_key, code_version

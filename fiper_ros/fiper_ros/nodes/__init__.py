@@ -1,1 +1,7 @@
-"""ROS 2 node shells of the suite: messages to arrays, the core and runtime modules, arrays to messages."""
+"""ROS 2 node shells of the suite: messages to arrays (:mod:`fiper_ros.interface`), the core and runtime modules,
+arrays to messages. One console script per node module (``ros2 run fiper_ros NAME``).
+"""
+from __future__ import annotations
+
+__all__ = ["ace_node", "base", "detector", "fusion_node", "graph_watch", "main", "policy_node", "rnd_oe_node",
+           "supervisor_node"]

@@ -18,9 +18,10 @@ from fiper_msgs.msg import ActionChunkBatch, RolloutEvent
 from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import ActionMonitor, StepScore
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from fiper_ros.nodes.base import describe
-from fiper_ros.nodes.conversions import floats_of, stamp_ns
+from fiper_ros.interface.conversions import floats_of, stamp_ns
+from fiper_ros.interface.topics import ARM_JOINT_NAMES
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation
@@ -43,7 +44,7 @@ class AceNode(DetectorNode):
         self.declare_parameter("ee_frame", "panda_hand", describe("end-effector frame of the URDF", read_only=True))
         self.declare_parameter("joint_state_topic", "/joint_states",
                                describe("measured joint positions, for joint-velocity actions", read_only=True))
-        self.declare_parameter("joint_names", [f"panda_joint{i}" for i in range(1, 8)],
+        self.declare_parameter("joint_names", list(ARM_JOINT_NAMES),
                                describe("joints of the URDF chain, picked by name from joint_states", read_only=True))
         self.declare_parameter("joint_state_wait_s", 0.5,
                                describe("longest wait of a joint-velocity batch for the joint state of its stamp",

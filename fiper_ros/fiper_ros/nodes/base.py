@@ -20,14 +20,13 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
 from fiper_ros.runtime.validation import InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
-LEVEL_NAMES = {DiagnosticStatus.OK: "OK", DiagnosticStatus.WARN: "WARN", DiagnosticStatus.ERROR: "ERROR"}
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", "/diagnostics")
 #: How often a node that watches its topics' publishers looks at the graph (a second suite: noticed within 1 s).

@@ -5,7 +5,6 @@ else (rejections, missing steps, START/END, latency, the Score message) is the s
 """
 from __future__ import annotations
 
-from collections import deque
 from typing import Any
 
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -15,11 +14,11 @@ from fiper_ros.core.calibration import Calibration, load_calibration
 from fiper_ros.core.monitor import StepScore
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.data_paths import resolve_data_path
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.conversions import OUTCOMES
-from fiper_ros.runtime.pending import PendingBuffer
-from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.interface.messages import outcome_name
+from fiper_ros.runtime.pending import StartGate
+from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
                                          DEFAULT_MAX_STEP_GAP, INTERNAL, NO_CALIBRATION, NON_FINITE_SCORE,
                                          TASK_MISMATCH, UNKNOWN_ROLLOUT, InputRejected)
@@ -55,13 +54,11 @@ class DetectorNode(FiperNode):
         self.monitor: Any = None
         self.rollouts = RolloutTracker(self.get_parameter("auto_start_rollouts").value,
                                        self.get_parameter("max_step_gap").value)
-        self.pending: PendingBuffer[Any] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9),
-                                                         max_size=self.get_parameter("start_wait_max_elements").value)
+        self.pending: StartGate[Any] = StartGate(int(self.get_parameter("start_wait_s").value * 1e9),
+                                                 max_size=self.get_parameter("start_wait_max_elements").value)
         self.published = 0
         #: STARTs of the rollout already active (ignored: its steps and windows are kept).
         self.repeated_starts = 0
-        #: Recently ended rollouts: their late messages are rejected at once instead of waiting.
-        self.ended: deque[int] = deque(maxlen=16)
         self._inputs: list[Any] = []
         self._score_pub = self.create_lifecycle_publisher(
             Score, f"scores/{self.detector}", qos.SCORE_PUB,
@@ -130,11 +127,11 @@ class DetectorNode(FiperNode):
             self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
             if self.monitor is not None:
                 self.monitor.reset()
-            for early in self.pending.take(msg.rollout_id):
+            for early in self.pending.start(msg.rollout_id):
                 self._score_input(early)
         elif msg.event == RolloutEvent.EVENT_END:
-            self.ended.append(msg.rollout_id)
-            record = self.rollouts.end(msg.rollout_id, OUTCOMES.get(msg.outcome, "unknown"))
+            self.pending.end(msg.rollout_id)
+            record = self.rollouts.end(msg.rollout_id, outcome_name(msg.outcome))
             if record is not None:
                 self.get_logger().info(f"{self.detector}: {record.summary()}")
 
@@ -143,7 +140,7 @@ class DetectorNode(FiperNode):
         self._expire_pending()
         active = self.rollouts.active
         if not self.rollouts.auto_start and (active is None or active.rollout_id != msg.rollout_id) \
-                and msg.rollout_id not in self.ended:
+                and not self.pending.has_ended(msg.rollout_id):
             for dropped in self.pending.add(msg.rollout_id, msg, self.now_ns(), len(msg.data)):
                 self._reject_unknown(dropped, "dropped from the full START wait buffer")
             return

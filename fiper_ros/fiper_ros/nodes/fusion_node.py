@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import replace
 from typing import Any
 
@@ -23,15 +23,15 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import stamp_ns, to_stamp
+from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.conversions import OUTCOMES, stamp_ns, to_stamp
 from fiper_ros.nodes.main import run_node
-from fiper_ros.runtime.alarm import (ALARM, DETECTORS, OK, UNKNOWN, AlarmFuser, AlarmState,
-                                     DetectorScore, reset_refusal)
-from fiper_ros.runtime.pending import PendingBuffer
+from fiper_ros.runtime.alarm import DETECTORS, AlarmFuser, AlarmState, DetectorScore, reset_refusal
+from fiper_ros.runtime.pending import StartGate
 from fiper_ros.runtime.publishers import Expected
-from fiper_ros.runtime.rollouts import RolloutTracker
+from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
 STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
@@ -73,8 +73,7 @@ class FusionNode(FiperNode):
             "nodes that may publish the score topics, one publisher each (relative names: in this node's namespace)",
             read_only=True))
         self.fuser: AlarmFuser | None = None
-        self.pending: PendingBuffer[DetectorScore] = PendingBuffer(int(self.get_parameter("start_wait_s").value * 1e9))
-        self.ended: deque[int] = deque(maxlen=16)
+        self.pending: StartGate[DetectorScore] = StartGate(int(self.get_parameter("start_wait_s").value * 1e9))
         #: STARTs of the rollout already active (ignored: its latch is kept).
         self.repeated_starts = 0
         self.rollouts = RolloutTracker()
@@ -162,11 +161,11 @@ class FusionNode(FiperNode):
                 return  # a repeated START of the running rollout: keep its state (and its latch)
             self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
             self.fuser.start(msg.rollout_id, now)
-            for early in self.pending.take(msg.rollout_id):
+            for early in self.pending.start(msg.rollout_id):
                 self._fuse(early)
         elif msg.event == RolloutEvent.EVENT_END:
-            self.ended.append(msg.rollout_id)
-            record = self.rollouts.end(msg.rollout_id, OUTCOMES.get(msg.outcome, "unknown"))
+            self.pending.end(msg.rollout_id)
+            record = self.rollouts.end(msg.rollout_id, outcome_name(msg.outcome))
             self.fuser.end(msg.rollout_id)
             if record is not None:
                 record.alarm_step = self.fuser.alarm_step
@@ -184,7 +183,7 @@ class FusionNode(FiperNode):
         for expired in self.pending.expire(now):
             self._reject_unknown(expired, "no START within start_wait_s")
         if msg.rollout_id != self.fuser.rollout_id:
-            if msg.rollout_id in self.ended:  # late, after the next rollout started
+            if self.pending.has_ended(msg.rollout_id):  # late, after the next rollout started
                 self._reject_unknown(score, f"its rollout ended, rollout {self.fuser.rollout_id} runs")
                 return
             for dropped in self.pending.add(msg.rollout_id, score, now):  # its START is still on the way

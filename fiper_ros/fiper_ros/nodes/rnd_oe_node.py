@@ -9,7 +9,7 @@ import numpy as np
 from fiper_msgs.msg import ObservationEmbedding
 from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.monitor import ObservationMonitor
-from fiper_ros.nodes.conversions import floats_of
+from fiper_ros.interface.conversions import floats_of
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation

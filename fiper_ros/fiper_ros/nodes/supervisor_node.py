@@ -16,16 +16,15 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
-from fiper_ros.nodes import qos
+from fiper_ros.interface import qos
+from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
-from fiper_ros.nodes.conversions import stamp_ns
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
-from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN
+from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, state_name
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
-STATE_NAMES = {FailureAlarm.STATE_OK: OK, FailureAlarm.STATE_ALARM: ALARM, FailureAlarm.STATE_UNKNOWN: UNKNOWN}
 
 
 class SupervisorNode(Node):
@@ -77,7 +76,7 @@ class SupervisorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
-        decision = self.logic.on_state(msg.rollout_id, STATE_NAMES.get(msg.state, UNKNOWN), msg.reason, self._now(),
+        decision = self.logic.on_state(msg.rollout_id, state_name(msg.state), msg.reason, self._now(),
                                        msg.step, msg.heartbeat, self._steady.now().nanoseconds,
                                        stamp_ns(msg.header.stamp))
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:

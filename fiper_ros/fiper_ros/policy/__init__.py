@@ -4,3 +4,7 @@ Pure torch / numpy (no rclpy). ``Policy.load(dir)`` gives ``embed(obs_history) -
 observation embedding ``O^e`` FIPER monitors) and ``sample(embedding, B, generator) -> [B, H, D]``
 (the batch of action chunks, sampled in one batched pass).
 """
+from __future__ import annotations
+
+__all__ = ["config", "dataset", "diffusion", "encoder", "fit", "flow_matching", "noise", "normalizer", "policy",
+           "session", "time_embedding", "train", "transformer", "unet1d"]

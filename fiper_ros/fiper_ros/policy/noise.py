@@ -1,6 +1,6 @@
 """The sampling noise of a rollout: one generator per episode seed, shared by every way of running a policy.
 
-The in-process loop (``rollout.run_episode``), the multimodality figure and the ROS ``policy_node``
+The in-process loop (``sim_bridge.closed_loop.run_episode``), the multimodality figure and the ROS ``policy_node``
 draw their noise from :func:`sampling_generator`, so the same seed gives the same sampled chunks
 whether the policy runs in process or over ROS (the node uses the seed in a bridge rollout id's low
 32 bits). Kept apart from ``rollout.py`` so the node does not import the simulator.

@@ -4,3 +4,7 @@ matching and the alarm state machine, latency and rate statistics.
 The nodes translate messages to the plain values these classes take, so every rule here is tested
 without DDS and the same rules serve the live nodes and the bag replay.
 """
+from __future__ import annotations
+
+__all__ = ["alarm", "joint_history", "observation_sync", "pending", "publishers", "rollout_tracker", "stats",
+           "supervision", "validation", "wiring"]

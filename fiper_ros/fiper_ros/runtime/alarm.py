@@ -26,13 +26,9 @@ from dataclasses import dataclass, replace
 
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, check_detectors
 from fiper_ros.core.fusion import exceeds, fuse_declared
+from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
 from fiper_ros.runtime.stats import PeriodEstimator
 
-OK = "ok"
-ALARM = "alarm"
-UNKNOWN = "unknown"
-#: Rollout id of a state about no rollout (the fusion node is idle); the suite's rollout ids are > 0.
-NO_ROLLOUT = 0
 #: Longest requester or reason of a reset, in characters (what is logged stays one line of the log).
 MAX_RESET_TEXT = 200
 

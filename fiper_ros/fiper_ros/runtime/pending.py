@@ -1,12 +1,14 @@
-"""Messages that arrive before their rollout's START.
+"""Messages that arrive before their rollout's START: the START gate of the scoring and fusion nodes.
 
 Topics are not ordered against each other: a policy's first embedding can overtake the bridge's
 RolloutEvent START. Such messages wait here (bounded in count, in total size and in age) and are
 processed, in arrival order, when the START arrives; those that expire are rejected as unknown_rollout.
+:class:`StartGate` adds the rollouts that ended recently, so that a late message of one is known as such
+at once instead of waiting for a START that never comes.
 """
 from __future__ import annotations
 
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from typing import Generic, TypeVar
 
 Item = TypeVar("Item")
@@ -66,3 +68,28 @@ class PendingBuffer(Generic[Item]):
 
     def __len__(self) -> int:
         return self._count
+
+
+#: How many ended rollouts a :class:`StartGate` remembers.
+RECENTLY_ENDED = 16
+
+
+class StartGate(PendingBuffer[Item]):
+    """The START gate of a node: a :class:`PendingBuffer` of the messages whose rollout has not started, which
+    :meth:`start` drains in arrival order, and the ids of the last :data:`RECENTLY_ENDED` rollouts that ended."""
+
+    def __init__(self, max_age_ns: int = 1_000_000_000, max_items: int = 64, max_size: int | None = None) -> None:
+        super().__init__(max_age_ns, max_items, max_size)
+        self._ended: deque[int] = deque(maxlen=RECENTLY_ENDED)
+
+    def start(self, rollout_id: int) -> list[Item]:
+        """The rollout's START arrived: remove and return its waiting items in arrival order."""
+        return self.take(rollout_id)
+
+    def end(self, rollout_id: int) -> None:
+        """The rollout ended: remember it."""
+        self._ended.append(rollout_id)
+
+    def has_ended(self, rollout_id: int) -> bool:
+        """Whether ``rollout_id`` is one of the rollouts that ended recently."""
+        return rollout_id in self._ended

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, UNKNOWN
+from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, UNKNOWN
 from fiper_ros.runtime.stats import PeriodEstimator
 
 #: How many recent halts the supervisor remembers (to halt each rollout once): bounded, whatever the rollout ids.

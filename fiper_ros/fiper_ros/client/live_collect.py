@@ -1,0 +1,196 @@
+"""``fiper collect --ros``: the episodes through the live node suite, each recorded from DDS into its own bag.
+
+The suite is ``config/demo.yaml`` cut down (one source of the node parameters): the sim bridge (fast,
+sim time, images on, ``max_policy_steps`` = the collect's cap) and the policy node with the collect's
+model, batch and threads; with a calibration also RND-OE, ACE and fusion on it (the bags then hold
+scores and alarms); never the supervisor, which would halt rollouts. Every node is ``required``, so a
+node that dies stops the launcher and the collect with it. The suite starts on the first episode that
+is not collected yet, in a ROS domain of its own; its launch file and output go to ``DIR/.collect-ros/``
+(removed at the end unless the suite failed).
+
+Per episode: a bag is opened, the :class:`~fiper_ros.client.driver.Driver` resets the bridge into
+``(scenario, seed)`` and follows the rollout to its END, then waits until the rollout's messages landed
+in the bag; the collector indexes the episode and finishes the bag. One
+:class:`~fiper_ros.client.record.Recorder` serves all episodes, so its subscriptions never miss the start of
+a rollout. The bags hold the bag schema's topics as received (log time = receive time); the rollout
+id is the bridge's.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Iterable, Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from sim_bridge.robot import URDF_PATH
+from sim_bridge.tasks import TASKS
+
+from fiper_ros.bagio.atomic import remove
+from fiper_ros.bagio.collect_index import RanEpisode
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, node_path
+from fiper_ros.client.record import Recorder
+from fiper_ros.client.ros_session import RosSession
+from fiper_ros.client.suite_process import SuiteProcess, installed_config
+from fiper_ros.client.trace import RolloutTrace
+from fiper_ros.dds import allocate_domain
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
+from fiper_ros.launcher.overrides import Overrides, apply
+
+SOURCE = "fiper collect (sim, ROS)"
+#: Nodes of ``demo.yaml`` the collect runs: always, and with a calibration.
+POLICY_NODES = ("bridge_node", "policy_node")
+SCORING_NODES = ("rnd_oe_node", "ace_node", "fusion_node")
+#: Hidden folder of the suite's launch file and output, inside the collect folder.
+WORK_DIR = ".collect-ros"
+#: Seconds for every node to become active.
+READY_TIMEOUT_S = 90.0
+#: Seconds one rollout may take in all (a stalled one fails after ``driver.STALL_TIMEOUT_S``).
+ROLLOUT_TIMEOUT_S = 600.0
+#: Seconds spun after that, for the fusion node's last alarm.
+CATCH_UP_S = 0.2
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """What the suite of a ``--ros`` collect runs.
+
+    Attributes:
+        task: Sim task.
+        model: Policy model folder (absolute).
+        batch: ``B``, chunks sampled per policy step.
+        threads: The policy node's torch threads.
+        max_policy_steps: The bridge's policy-step cap (None: the task's time limit).
+        calibration: Calibration folder of RND-OE, ACE and fusion (absolute); None: no scoring nodes.
+    """
+
+    task: str
+    model: Path
+    batch: int
+    threads: int
+    max_policy_steps: int | None
+    calibration: Path | None
+
+
+def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
+    """The nodes of ``source`` (``demo.yaml``) a collect runs, with its settings, all required."""
+    try:
+        config = load_config(source)
+    except LaunchError as error:
+        raise BagError(f"launch config {source}: {error}") from error
+    keep = POLICY_NODES + (SCORING_NODES if settings.calibration is not None else ())
+    missing = set(keep) - {spec.name for spec in config.nodes}
+    if missing:
+        raise BagError(f"launch config {source}: no {', '.join(sorted(missing))} node")
+    bridge = {"task": settings.task, "max_policy_steps": settings.max_policy_steps or 0}
+    policy = {"model": str(settings.model), "batch": settings.batch, "torch_threads": settings.threads}
+    scoring = {"calibration_dir": str(settings.calibration)}
+    ace = scoring | {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
+    parameters = {"bridge_node": bridge, "policy_node": policy, "rnd_oe_node": scoring, "ace_node": ace}
+    return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
+
+
+class RosRunner:
+    """Runs ``fiper collect`` episodes through the live suite (a collect runner; use as a context manager).
+
+    Args:
+        settings: What the suite runs.
+        out: The collect folder (for the suite's work folder).
+        exec_steps: ``h`` of the model: a rollout of ``c`` control steps has ``ceil(c / h)`` policy steps.
+    """
+
+    source = SOURCE
+
+    def __init__(self, settings: LiveSettings, out: Path, exec_steps: int) -> None:
+        self.settings = settings
+        self.work = out / WORK_DIR
+        self.exec_steps = exec_steps
+        self.period_ns = round(1e9 / TASKS[settings.task].control_hz)
+        self.scored = settings.calibration is not None
+        self.failed = False
+        self._stack = ExitStack()
+        self._driver: Driver | None = None
+        self._recorder: Recorder | None = None
+
+    def __enter__(self) -> RosRunner:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        self._stack.close()  # the open bag dropped, the session closed, the suite stopped
+        if not self.failed:
+            remove(self.work)
+
+    def prepare(self) -> None:
+        """Start the suite (once) and wait until every node is active and the recorder subscribed."""
+        if self._driver is not None:
+            return
+        started = time.monotonic()
+        remove(self.work)
+        self.work.mkdir(parents=True)
+        config = collect_config(installed_config("demo.yaml"), self.settings)
+        launch = dump_config(config, self.work / "launch.yaml")
+        domain = self._stack.enter_context(allocate_domain())
+        suite = SuiteProcess(launch, domain, echo=False, log=self.work / "suite.log")
+        self._stack.callback(suite.stop)
+        session = self._stack.enter_context(RosSession("fiper_collect", domain))
+        topics = [topic for topic, spec in TOPICS.items() if spec.input or self.scored]
+        recorder = Recorder(session, topics, source=SOURCE)
+        self._stack.callback(recorder.abort)
+        driver = Driver(session, suite, self.settings.task, recorder=recorder)
+        names = ", ".join(spec.name for spec in config.nodes)
+        print(f"starting {names} in ROS domain {domain} (loopback only) ...", file=sys.stderr, flush=True)
+        with self._reported():
+            driver.wait_ready([node_path(spec.namespace, spec.name) for spec in config.nodes], READY_TIMEOUT_S)
+        print(f"all nodes active after {time.monotonic() - started:.1f} s", file=sys.stderr, flush=True)
+        self._driver, self._recorder = driver, recorder
+
+    def ahead(self, scenario: str, seeds: Iterable[int]) -> None:
+        """Nothing: the episodes run one at a time through the one suite."""
+
+    def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
+        """Record ``(scenario, seed)`` into a bag at ``path``, from the reset to the last message after its END."""
+        driver, recorder = self._driver, self._recorder
+        assert driver is not None and recorder is not None, "prepare() first"
+        recorder.start(path)
+        with self._reported():
+            trace = driver.reset(scenario, seed)
+            driver.follow(trace, ROLLOUT_TIMEOUT_S)
+            control_steps = round((trace.ended_ns - trace.started_ns) / self.period_ns)
+            steps = math.ceil(control_steps / self.exec_steps)  # one command of h actions per policy step
+            complete = driver.settle(lambda: self._landed(trace, steps, recorder, scores=self.scored), SETTLE_S)
+            if not complete and not self._landed(trace, steps, recorder, scores=False):  # scores: best effort
+                raise SuiteFailed(f"rollout {trace.rollout_id} ({scenario} seed {seed}): {steps} policy steps, "
+                                  f"but the bag got only {recorder.counts[EMBEDDING]} embeddings, "
+                                  f"{recorder.counts[ACTIONS]} action batches and {recorder.counts[EVENTS]} "
+                                  f"events within {SETTLE_S:g} s of its END")
+            driver.spin(CATCH_UP_S)
+
+        def write() -> None:
+            recorder.finish(replace(recorder.info, **fields))
+
+        return RanEpisode(trace.outcome == "success", steps, control_steps, trace.rollout_id, write)
+
+    @staticmethod
+    def _landed(trace: RolloutTrace, steps: int, recorder: Recorder, scores: bool) -> bool:
+        """Whether the open bag holds START, END, and an embedding and an action batch (and, if ``scores``,
+        both scores) for each of the rollout's ``steps`` steps. A scoring node drops a step that comes
+        after the END it saw, so the last scores may never come."""
+        counts = recorder.counts
+        stepwise = (EMBEDDING, ACTIONS) + ((SCORE_RND_OE, SCORE_ACE) if scores else ())
+        return trace.ended and counts[EVENTS] >= 2 and all(counts[topic] >= steps for topic in stepwise)
+
+    @contextmanager
+    def _reported(self) -> Iterator[None]:
+        """Turn a :class:`SuiteFailed` into a one-line :class:`BagError` that names the suite's output file."""
+        try:
+            yield
+        except SuiteFailed as error:
+            self.failed = True
+            raise BagError(f"{error}; the nodes' output: {self.work / 'suite.log'}") from error

@@ -1,0 +1,11 @@
+"""The ``fiper`` sub-commands, one module each: argument parsing and orchestration only
+(:data:`fiper_ros.cli.COMMANDS` maps a name to its module, which provides ``add_arguments`` and ``run``).
+
+:mod:`.options` holds the options several commands share; :mod:`.samples` (``python -m
+fiper_ros.commands.samples``) writes the sample bags and :mod:`.policy` (``python -m fiper_ros.commands.policy``)
+trains and evaluates the sim policies, outside ``fiper``.
+"""
+from __future__ import annotations
+
+__all__ = ["bag", "calibrate", "collect", "convert", "demo", "doctor", "echo", "evaluate", "launch", "options",
+           "record", "replay", "samples", "security", "snapshot"]

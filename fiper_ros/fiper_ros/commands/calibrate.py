@@ -1,0 +1,235 @@
+"""``fiper calibrate BAG... -o DIR``: fit a FIPER calibration on the successful rollouts of bags.
+
+Reads every rollout of the bags, keeps those whose RolloutEvent END says SUCCESS, splits them (split
+conformal by default: RND-OE, ``R_d`` and the thresholds' shape on one part, the thresholds' conformal
+quantiles on the other; ``--split cross`` or ``--same-data`` instead), fits everything
+(:func:`fiper_ros.core.calibration.calibrate`), then writes the calibration directory (under a temporary
+name, renamed when complete) and prints what it fitted: the split, the rollouts behind each threshold,
+a leave-one-out estimate of the false-alarm rate and the guarantee. Too few successes, or a threshold that
+would be +inf: one line, exit status 2.
+
+``--detectors rnd_oe`` writes an observation-only calibration (RND-OE alone: its alarm is RND-OE's
+exceedance), which needs no action batches; bags without them and no ``--detectors rnd_oe`` are refused
+with one line saying so.
+
+``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
+file ``rnd_oe.pt``, which the nodes no longer read) to the current format (``rnd_oe.npz``, numpy): the same
+thresholds, weights and scores, checked against the old content hash. ``-o OLD --force`` converts in place.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from fiper_ros.bagio.atomic import atomic_output, check_new
+from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.bagio.reader import find_bags
+from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.commands import options
+from fiper_ros.converters.options import parse_channels
+from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
+                                        upgrade_calibration)
+from fiper_ros.core.calibration_file import FORMAT_VERSION
+from fiper_ros.core.detectors import DETECTOR_SETS, LABELS, SIDES, parse_detectors
+from fiper_ros.core.fusion import COMBINES
+from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
+from fiper_ros.core.profiles import PROFILE_NAMES
+from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
+from fiper_ros.core.rollout import Rollout, successful
+from fiper_ros.core.thresholds import KINDS, Threshold
+from fiper_ros.interface.topics import ACTIONS
+
+RND_PRESETS = {"small": RNDConfig.small, "paper": RNDConfig.paper}
+#: Seconds between two progress lines of the RND-OE training.
+PROGRESS_PERIOD_S = 2.0
+
+
+class EpochPrinter:
+    """Prints RND-OE training progress to stderr, at most every :data:`PROGRESS_PERIOD_S` seconds."""
+
+    def __init__(self) -> None:
+        self._last = time.monotonic()
+
+    def __call__(self, report: TrainProgress) -> None:
+        now = time.monotonic()
+        if now - self._last >= PROGRESS_PERIOD_S or report.epoch == report.max_epochs:
+            self._last = now
+            print(f"  RND-OE epoch {report.epoch}/{report.max_epochs}: train loss {report.train_loss:.4g}, "
+                  f"validation loss {report.val_loss:.4g} (best {report.best_val_loss:.4g})", file=sys.stderr, flush=True)
+
+
+def load_rollouts(bags: Sequence[Path]) -> list[Rollout]:
+    """Every rollout of the bags, in order."""
+    rollouts: list[Rollout] = []
+    for bag in bags:
+        rollouts.extend(read_rollouts(bag))
+    return rollouts
+
+
+def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSettings, *, overwrite: bool = False,
+                   quiet: bool = False, fk: ForwardKinematics | None = None) -> Calibration:
+    """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``
+    (``fk``: the robot's forward kinematics, for joint-space actions)."""
+    check_new(out, overwrite)
+    rollouts = load_rollouts(bags)
+    good = successful(rollouts)
+    names = ", ".join(str(b) for b in bags)
+    if len(good) < settings.min_rollouts:
+        raise BagError(f"too few successful rollouts to calibrate: {len(good)} of {len(rollouts)} in {names} "
+                       f"(need at least {settings.min_rollouts}, see --min-rollouts)")
+    without = sorted({str(r.metadata.get("bag", "")) for r in rollouts if not r.has_actions})
+    if settings.has_ace and without:
+        raise BagError(f"no action batches ({ACTIONS}) in {', '.join(without)}: ACE cannot be calibrated; for an "
+                       "observation-only calibration (RND-OE alone) give --detectors rnd_oe")
+    if not quiet:
+        print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
+              f"{len(rollouts)} in {names}", flush=True)
+    try:
+        calibration = calibrate(rollouts, settings, fk=fk, progress=None if quiet else EpochPrinter())
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
+    except KinematicsError as error:
+        raise BagError(f"{error}: give the robot model with --urdf, --ee-frame and --control-dt") from error
+    with atomic_output(out, overwrite) as staging:
+        calibration.save(staging)
+    return calibration
+
+
+def settings_from(args: argparse.Namespace) -> CalibrationSettings:
+    """The calibration settings of the command line."""
+    dims = None if args.action_dims is None else parse_channels(args.action_dims)
+    if isinstance(dims, str):
+        raise BagError("--action-dims must be START:STOP")
+    try:
+        rnd = RND_PRESETS[args.rnd_preset]()
+        if args.max_epochs:
+            rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
+        return CalibrationSettings(alpha=args.alpha, window_obs=args.window_obs, window_act=args.window_act,
+                                   threshold=args.threshold, delta=args.delta, combine=args.combine, rnd=rnd,
+                                   seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,
+                                   action_dims=dims, control_dt=args.control_dt,
+                                   split="same" if args.same_data else args.split,
+                                   conformal_fraction=args.conformal_fraction, folds=args.folds,
+                                   detectors=args.detectors)
+    except (CalibrationError, ValueError) as error:
+        raise BagError(str(error)) from error
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper calibrate``."""
+    defaults = CalibrationSettings()
+    parser.add_argument("bags", nargs="*", type=Path, help="bags (or directories of bags) with calibration rollouts")
+    parser.add_argument("-o", "--out", type=Path, required=True, help="calibration directory to write")
+    parser.add_argument("--upgrade", type=Path, metavar="OLD", default=None,
+                        help="instead of calibrating: convert the format-1 calibration OLD (weights in rnd_oe.pt, "
+                             "torch) to the current format (rnd_oe.npz, numpy); -o OLD --force converts in place")
+    parser.add_argument("--window-obs", type=int, default=defaults.window_obs, help="RND-OE window w_O (eq. 2)")
+    parser.add_argument("--window-act", type=int, default=defaults.window_act, help="ACE window w_A (eq. 5)")
+    parser.add_argument("--threshold", choices=KINDS, default=defaults.threshold, help="threshold kind")
+    parser.add_argument("--delta", type=float, default=defaults.delta, help="target false-alarm rate")
+    parser.add_argument("--alpha", type=float, default=None, help="ACE cell size factor (default: the profile's)")
+    parser.add_argument("--combine", choices=COMBINES, default=defaults.combine, help="fusion of the two predictors")
+    parser.add_argument("--detectors", type=_detectors, default=defaults.detectors,
+                        help=f"detectors calibrated and fused: {' or '.join(','.join(s) for s in DETECTOR_SETS)} "
+                             "(observation-only: RND-OE alone, no action batches needed)")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of RND-OE and of the splits")
+    parser.add_argument("--split", choices=SPLITS, default=defaults.split,
+                        help="which successes fit what: 'split' conformal (default; Proposition 1 holds), 'cross' "
+                             "(K-fold, approximate), 'same' (the paper's same-data calibration, no guarantee)")
+    parser.add_argument("--same-data", action="store_true",
+                        help="models and thresholds on the same successes (= --split same; not covered by Prop. 1)")
+    parser.add_argument("--conformal-fraction", type=float, default=defaults.conformal_fraction,
+                        help="with --split split: the share of the successes the thresholds' quantiles use")
+    parser.add_argument("--folds", type=int, default=defaults.folds, help="with --split cross: the folds K")
+    parser.add_argument("--min-rollouts", type=int, default=defaults.min_rollouts, help="fewest successes accepted")
+    parser.add_argument("--profile", choices=PROFILE_NAMES, default=defaults.profile,
+                        help="'paper' definitions or the authors' 'reference' code")
+    parser.add_argument("--rnd-preset", choices=sorted(RND_PRESETS), default="small",
+                        help="RND-OE size: 'small' (CPU default) or 'paper' (App. A.2, slow on CPU)")
+    parser.add_argument("--max-epochs", type=int, default=0, help="cap RND-OE training epochs (0: the preset's)")
+    parser.add_argument("--action-dims", default=None, help="action channels ACE uses, START:STOP (default: 0:3)")
+    parser.add_argument("--force", action="store_true", help="replace DIR if it exists")
+    options.add_strict_argument(parser)
+    options.add_robot_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper calibrate``."""
+    if args.upgrade is not None or not args.bags:
+        return upgrade(args)
+    try:
+        settings = settings_from(args)
+        fk = options.fk_of(options.robot_from(args))
+        bags = find_bags(args.bags, strict=args.strict, command="calibrate")
+        calibration = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
+    except BagError as error:
+        return fail("calibrate", error)
+    shown = {k: v for k, v in settings.to_dict().items() if k != "rnd"}
+    print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
+    if calibration.has_ace:
+        print(f"layout: E={calibration.embedding_dim} H={calibration.horizon} D={calibration.action_dim} "
+              f"h={calibration.exec_steps} {calibration.action_space}; "
+              f"R_d={[round(float(r), 4) for r in calibration.ranges]}")
+    else:
+        print(f"layout: E={calibration.embedding_dim}; observation-only: RND-OE alone (its alarm is its exceedance, no "
+              "action batches used)")
+    for line in summary(calibration):
+        print(line)
+    print(f"calibration {args.out} written (hash {calibration.content_hash})")
+    return 0
+
+
+def upgrade(args: argparse.Namespace) -> int:
+    """``fiper calibrate --upgrade OLD -o NEW``: the calibration ``OLD`` of format 1 in the current format."""
+    try:
+        if args.upgrade is None or args.bags:
+            raise BagError("give either the bags to calibrate on or --upgrade OLD (a calibration to convert)")
+        check_new(args.out, args.force)
+        try:
+            calibration = upgrade_calibration(args.upgrade)
+        except CalibrationError as error:
+            raise BagError(str(error)) from error
+        with atomic_output(args.out, args.force) as staging:
+            calibration.save(staging)
+    except BagError as error:
+        return fail("calibrate", error)
+    print(f"calibration {args.upgrade} converted to format {FORMAT_VERSION}: {args.out} written "
+          f"(hash {calibration.content_hash})")
+    return 0
+
+
+def summary(calibration: Calibration) -> list[str]:
+    """What the calibration fitted on which rollouts, and what it promises (lines to print)."""
+    split, estimate, settings = calibration.split, calibration.false_alarms, calibration.settings
+    fitted = "RND-OE and R_d" if calibration.has_ace else "RND-OE"
+    lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted {fitted}, "
+             f"{len(split['conformal'])} the thresholds" + (f" ({len(split['folds'])} folds)" if "folds" in split else "")]
+    for detector in calibration.detectors:
+        threshold = calibration.threshold(detector)
+        parts = ", ".join(f"{k} {v}" for k, v in split["behind_thresholds"][SIDES[detector]].items())
+        lines.append(f"threshold {LABELS[detector]}: {threshold.kind}, delta {threshold.delta:g}, "
+                     f"gamma {value_range(threshold)} ({parts} rollouts)")
+    lines.append(f"false alarms on held-out successes, {estimate['method']}: {estimate['false_alarms']} of "
+                 f"{estimate['rollouts']} ({estimate['rate']:.3f} +- {estimate['standard_error']:.3f})"
+                 + ("" if estimate["held_out_from_models"] else "; optimistic: the models saw these rollouts"))
+    lines.append(f"guarantee: {split['guarantee']}")
+    if settings.split == "same":
+        lines.append("warning: same-data calibration (--same-data): not covered by Proposition 1")
+    return lines
+
+
+def _detectors(text: str) -> tuple[str, ...]:
+    """``--detectors``: a supported detector set."""
+    try:
+        return parse_detectors(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from error
+
+
+def value_range(threshold: Threshold) -> str:
+    """``gamma_t`` of a threshold: its one value, or its first and last, rounded."""
+    values = threshold.values
+    return f"{values[0]:.4g}" if values.min() == values.max() else f"{values[0]:.4g} .. {values[-1]:.4g}"

@@ -1,0 +1,211 @@
+"""``fiper demo`` (``make demo``): the whole suite live on the shipped Sorting model, as separate processes.
+
+The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.shm`), starts
+``fiper launch`` on ``config/demo.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
+the example supervisor, each its own OS process) in a ROS domain of its own, then drives it like an
+operator would from this process: it waits until every node is active, resets the bridge into one
+in-distribution and one harmful out-of-distribution rollout, prints a progress line per policy step and
+each alarm (both windowed scores against their thresholds), and records everything it sees (suite
+topics and both cameras) into one MCAP bag. Afterwards it writes a PNG per rollout and ``summary.json``.
+The exit status is 1 if any part failed: a node died or never became active, a rollout did not end,
+a score stream stayed silent, or the monitor reported UNKNOWN.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.bagio.atomic import remove
+from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, state_name
+from fiper_ros.client.figure import plot_trace
+from fiper_ros.client.record import Recorder
+from fiper_ros.client.ros_session import RosSession
+from fiper_ros.client.suite_process import SuiteProcess, installed_config
+from fiper_ros.client.trace import ACE, RND_OE, RolloutTrace
+from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
+from fiper_ros.dds import allocate_domain
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
+from fiper_ros.launcher.config import LaunchError
+from fiper_ros.launcher.overrides import Overrides, rewrite
+from fiper_ros.shm import clean_stale
+
+#: Nodes that must report ``lifecycle_state: active`` on /diagnostics before the first reset.
+MANAGED_NODES = ("/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
+                 "/fiper/fusion_node")
+#: The supervisor is a plain node: it must be visible in the graph.
+SUPERVISOR = "/fiper/supervisor_node"
+#: Recorded besides the bag schema's topics.
+EXTRA_TOPICS = ("/camera/wrist/image_raw", "/camera/third/image_raw", "/sim/proprio", "/sim/action", "/clock")
+#: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
+PROGRESS_EVERY = 5
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One rollout the demo runs."""
+
+    label: str
+    scenario: str
+    seed: int
+
+
+class Display:
+    """The demo's live output: a progress line per policy step (on a terminal, rewritten in place) and
+    every alarm and UNKNOWN on a line of its own."""
+
+    def __init__(self, tty: bool) -> None:
+        self.tty = tty
+
+    def say(self, line: str) -> None:
+        """Print ``line`` on a line of its own."""
+        print(("\r" if self.tty else "") + line + " " * 8, flush=True)
+
+    def alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
+        """Show one alarm decision of ``trace``'s rollout."""
+        state, line = state_name(msg), alarm_line(msg)
+        if state == "UNKNOWN":
+            self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
+        elif state == "ALARM" and trace.alarm_step == msg.step:
+            self.say(f"  ALARM  {line}")
+        elif self.tty:
+            print(f"\r  {line}", end="", flush=True)
+        elif msg.step % PROGRESS_EVERY == 0:
+            print(f"  {line}", flush=True)
+
+
+def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
+    """Reset the bridge into ``plan``, follow the rollout to its end and wait for its last scores."""
+    trace = driver.reset(plan.scenario, plan.seed, plan.label)
+    display.say(f"rollout {trace.rollout_id}: {driver.task}/{plan.scenario} seed {plan.seed} ({plan.label}), "
+                f"at most {trace.max_steps} policy steps")
+    driver.follow(trace, timeout_s)
+    driver.settle(lambda: trace.scored_steps() >= trace.steps_started, SETTLE_S)
+    display.say(f"  ended: {trace.outcome} after {trace.steps_started} policy steps; {trace.verdict()}")
+    return trace
+
+
+def problems_of(trace: RolloutTrace) -> list[str]:
+    """What went wrong in the suite during ``trace`` (empty: every part did its job)."""
+    problems = []
+    for name in (RND_OE, ACE):
+        if not trace.scores[name].windowed:
+            problems.append(f"no {name} score for rollout {trace.rollout_id}")
+    if trace.scored_steps() < trace.steps_started:
+        problems.append(f"rollout {trace.rollout_id}: {trace.steps_started} policy steps, only "
+                        f"{trace.scored_steps()} scored by both detectors")
+    if trace.unknown_steps:
+        problems.append(f"rollout {trace.rollout_id}: the monitor said UNKNOWN at steps {sorted(trace.unknown_steps)}")
+    return problems
+
+
+def demo_config(source: Path, model: Path, calibration: Path, out: Path) -> Path:
+    """``source`` with the model and calibration paths made absolute, written to ``out``."""
+    return rewrite(source, Overrides(where_set={"model": str(model), "calibration_dir": str(calibration)}), out)
+
+
+def check_calibration(model: Path, calibration: Path) -> None:
+    """Refuse (:class:`BagError`, one line naming the file) a calibration that does not load or does not fit
+    the model's policy, instead of scoring nodes that never configure. Imported here: it needs torch."""
+    from fiper_ros.evaluation.offline import calibration_for, policy_layout  # noqa: PLC0415
+    from fiper_ros.policy.config import PolicyConfig  # noqa: PLC0415
+
+    try:
+        config = PolicyConfig.read(model / "policy.yaml")
+    except ValueError as error:
+        raise BagError(str(error)) from error
+    calibration_for(calibration, [policy_layout(config, model)])
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """Run the demo; returns the exit status."""
+    model, calibration = args.model.resolve(), (args.calibration or args.model / "calibration").resolve()
+    if not (model / "policy.yaml").is_file():
+        print(f"fiper demo: no policy at {model} (see docs/policies.md and docs/results.md)", file=sys.stderr)
+        return 2
+    out = (args.out or Path("runs/demo") / datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")).resolve()
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    plans = [Plan("in-distribution", "id", args.id_seed), Plan("harmful OOD", args.ood_scenario, args.ood_seed)]
+    started = time.monotonic()
+    config = demo_config(args.config or installed_config("demo.yaml"), model, calibration, out / "launch.yaml")
+    traces: list[RolloutTrace] = []
+    problems: list[str] = []
+    print(f"fiper demo: {clean_stale().summary()}", flush=True)
+    with allocate_domain() as domain:
+        print(f"fiper demo: ROS domain {domain} (loopback only), output {out}", flush=True)
+        suite = SuiteProcess(config, domain, echo=args.verbose, log=out / "suite.log")
+        try:
+            check_calibration(model, calibration)  # while the nodes boot
+        except BagError:
+            suite.stop()
+            if created:
+                remove(out)  # a refused demo leaves no run folder
+            raise
+        try:
+            with RosSession("fiper_demo", domain) as session:
+                display = Display(sys.stdout.isatty())
+                recorder = Recorder(session, (*TOPICS, *EXTRA_TOPICS), source="fiper demo")
+                recorder.start(out / "bag")
+                driver = Driver(session, suite, args.task, recorder=recorder, display=display.alarm)
+                try:
+                    print("starting bridge, policy, RND-OE, ACE, fusion and supervisor nodes ...", flush=True)
+                    driver.wait_ready(MANAGED_NODES, args.ready_timeout, plain=(SUPERVISOR,))
+                    print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
+                    for plan in plans:
+                        traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
+                    # a step published just before the END it crossed: both of its messages into the bag
+                    driver.settle(lambda: recorder.counts[EMBEDDING] == recorder.counts[ACTIONS], SETTLE_S)
+                except SuiteFailed as error:
+                    problems.append(f"{error}; its last output:\n{error.output}" if error.output else str(error))
+                finally:
+                    count = recorder.finish()
+                    print(f"bag {out / 'bag'}: {count} messages", flush=True)
+        finally:
+            status = suite.stop()
+    if status != 0:
+        problems.append(f"a node exited on its own (launcher status {status}); see {out / 'suite.log'}")
+    for trace in traces:
+        problems += problems_of(trace)
+        png = plot_trace(trace, out / f"rollout_{trace.scenario}_{trace.seed}.png", args.task)
+        print(f"  {png}", flush=True)
+    summary = {"task": args.task, "model": str(model), "calibration": str(calibration), "seconds":
+               round(time.monotonic() - started, 1), "rollouts": [t.to_dict() for t in traces], "problems": problems}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    for trace in traces:
+        print(f"{trace.label:>16}: {trace.scenario} seed {trace.seed}: {trace.outcome or 'no end'}, "
+              f"{trace.steps_started} policy steps; {trace.verdict()}")
+    print(f"demo took {summary['seconds']} s; results in {out}")
+    for problem in problems:
+        print(f"fiper demo: FAILED: {problem}", file=sys.stderr)
+    return 1 if problems else 0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper demo``."""
+    parser.add_argument("--task", default="sorting", help="sim task (the model's)")
+    parser.add_argument("--model", type=data_path_argument, default="models/sorting", help=f"policy folder ({SEARCH_RULE})")
+    parser.add_argument("--calibration", type=data_path_argument, help="calibration folder (default MODEL/calibration)")
+    parser.add_argument("--config", type=Path, help="launch YAML (default: the installed config/demo.yaml)")
+    parser.add_argument("--out", type=Path, help="output folder (default runs/demo/<UTC time>)")
+    parser.add_argument("--id-seed", type=int, default=1002, help="seed of the in-distribution rollout")
+    parser.add_argument("--ood-scenario", default="box_pos", help="harmful OOD scenario of the second rollout")
+    parser.add_argument("--ood-seed", type=int, default=1000, help="seed of the OOD rollout")
+    parser.add_argument("--ready-timeout", type=float, default=90.0, help="seconds for every node to become active")
+    parser.add_argument("--rollout-timeout", type=float, default=120.0, help="seconds one rollout may take")
+    parser.add_argument("-v", "--verbose", action="store_true", help="show the nodes' output")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``fiper demo``."""
+    try:
+        return run_demo(args)
+    except (LaunchError, BagError) as error:
+        return fail("demo", error)
+

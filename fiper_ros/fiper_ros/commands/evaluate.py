@@ -1,0 +1,237 @@
+"""``fiper evaluate``: FIPER and the baselines over rollout datasets, with the paper's protocol.
+
+Examples::
+
+    fiper evaluate --data sorting=rollouts/sorting.npz --data push_t=rollouts/push_t/ --out results/
+    fiper evaluate --synthetic sorting,stacking,push_t --seeds 0,1,2 --protocol paper,clean --out results/
+    fiper evaluate --data sorting=data/study/sorting --split same --out results-same/   # the paper's Remark 1
+
+Each ``--data TASK=PATH[,PATH...]`` names a task and its rollout files (``RolloutSet.save_npz``) or
+directories of them; ``--synthetic`` generates the SYNTHETIC benchmark instead. ``--split`` chooses
+which calibration successes fit the score models and which the thresholds (default ``split``: split
+conformal, as ``fiper calibrate``; ``cross``: K-fold cross-fitting; ``same``: the paper's same-data
+calibration, not covered by Proposition 1). The output directory
+receives ``results.md``, ``results.json`` and PNG figures. Per-step scores are cached in
+``--cache-dir`` (default ``.cache/fiper-eval``), so a second run with other sweep or protocol options
+only re-runs the sweep.
+
+Observation-only data (rollouts without action batches): by default only the methods that need none are
+evaluated (the elapsed time, PCA-kmeans, logpZO, RND-OE), with a note; ``--methods`` naming one that needs
+action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
+"""
+
+from __future__ import annotations
+
+import os
+
+# One BLAS thread: on a shared 2-core machine multi-threaded OpenBLAS is several times slower (STAC's
+# matrix products). Only effective when numpy is not imported yet, as under ``fiper evaluate``.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import sys  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from fiper_ros.commands import options  # noqa: E402
+from fiper_ros.bagio.atomic import atomic_files, check_directory  # noqa: E402
+from fiper_ros.bagio.errors import BagError, fail  # noqa: E402
+from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
+from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
+from fiper_ros.evaluation.methods import METHODS, MethodSettings, observation_methods  # noqa: E402
+from fiper_ros.core.calibration import SPLITS  # noqa: E402
+from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
+from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
+from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
+from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
+from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
+from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
+from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
+
+LOG = logging.getLogger(__name__)
+
+
+def int_list(text: str) -> tuple[int, ...]:
+    """``"1-50"``, ``"1,5,10"`` or a mix -> sorted distinct integers."""
+    values: set[int] = set()
+    for part in text.split(","):
+        if "-" in part.strip()[1:]:
+            low, high = part.split("-", 1)
+            values.update(range(int(low), int(high) + 1))
+        elif part.strip():
+            values.add(int(part))
+    if not values:
+        raise argparse.ArgumentTypeError(f"no integers in {text!r}")
+    return tuple(sorted(values))
+
+
+def delta_list(text: str) -> tuple[float, ...]:
+    """``"0.01,0.05"`` -> deltas; ``"paper"`` -> 0.01..0.10."""
+    if text == "paper":
+        return DELTAS
+    deltas = tuple(float(part) for part in text.split(",") if part.strip())
+    if not deltas:
+        raise argparse.ArgumentTypeError(f"no deltas in {text!r}")
+    return deltas
+
+
+def name_list(choices: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
+    """A parser of comma-separated names from ``choices``."""
+
+    def parse(text: str) -> tuple[str, ...]:
+        names = tuple(part.strip() for part in text.split(",") if part.strip())
+        unknown = [n for n in names if n not in choices]
+        if unknown or not names:
+            raise argparse.ArgumentTypeError(f"unknown {unknown or text!r}; choose from {', '.join(choices)}")
+        return names
+
+    return parse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``fiper evaluate``."""
+    data = parser.add_argument_group("data")
+    data.add_argument("--data", action="append", default=[], metavar="TASK=PATH[,PATH]",
+                      help="a task and its rollout .npz files or directories (repeatable)")
+    data.add_argument("--synthetic", type=name_list(tuple(TASKS)), metavar="TASKS",
+                      help=f"generate the SYNTHETIC benchmark for these tasks ({', '.join(TASKS)})")
+    data.add_argument("--synthetic-test", type=int, default=240, help="synthetic test rollouts per task")
+    data.add_argument("--synthetic-scale", type=float, default=1.0, help="shrink synthetic shapes (tests)")
+    options.add_strict_argument(data)
+    sweep = parser.add_argument_group("sweep")
+    sweep.add_argument("--methods", type=name_list(tuple(METHODS)), default=None,
+                       help="comma list (default: all; on observation-only data those that need no action batches)")
+    sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
+    sweep.add_argument("--no-cumulative", action="store_true", help="do not sweep the cumulative sum")
+    sweep.add_argument("--deltas", type=delta_list, default=DELTAS, help="comma list or 'paper' (0.01..0.10)")
+    sweep.add_argument("--thresholds", type=name_list(GRID_KINDS), default=SweepSettings().kinds,
+                       help=f"comma list of {', '.join(GRID_KINDS)} (default: all)")
+    sweep.add_argument("--combines", type=name_list(("and", "or")), default=("and", "or"))
+    sweep.add_argument("--pairs", choices=PAIR_GRIDS, default="coarse", help="FIPER (w_O, w_A) grid")
+    protocol = parser.add_argument_group("protocol")
+    protocol.add_argument("--protocol", type=name_list(PROTOCOLS), default=("paper",))
+    protocol.add_argument("--seeds", type=int_list, default=(0,), help="e.g. 0-4")
+    protocol.add_argument("--split-seed", type=int, default=0, help="clean protocol's validation split")
+    protocol.add_argument("--select-cumulative", action="store_true",
+                          help="let the selection also pick the cumulative sum (paper: windows only)")
+    protocol.add_argument("--default-window", type=int, default=5)
+    protocol.add_argument("--default-threshold", choices=GRID_KINDS, default="cp_band")
+    methods = parser.add_argument_group("methods")
+    methods.add_argument("--split", choices=SPLITS, default="split",
+                         help="calibration successes for the score models and for the thresholds: split conformal "
+                              "(default), cross-fitted, or the paper's same data (not covered by Prop. 1)")
+    methods.add_argument("--profile", choices=("paper", "reference"), default="paper")
+    methods.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke tests only)")
+    options.add_robot_arguments(methods)
+    output = parser.add_argument_group("output")
+    output.add_argument("--out", type=Path, required=True, help="output directory")
+    output.add_argument("--cache-dir", type=Path, default=DEFAULT_DIRECTORY)
+    output.add_argument("--no-cache", action="store_true")
+    output.add_argument("--no-plots", action="store_true")
+    output.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def datasets_from(args: argparse.Namespace) -> list[Dataset]:
+    """The datasets named by ``--data`` and ``--synthetic``."""
+    datasets: list[Dataset] = []
+    for spec in args.data:
+        task, sep, paths = spec.partition("=")
+        if not sep or not task or not paths:
+            raise DatasetError(f"--data expects TASK=PATH[,PATH...], got {spec!r}")
+        datasets.append(load_dataset(task, paths.split(","), strict=args.strict))
+    for task in args.synthetic or ():
+        rollouts = make_task(task, test=args.synthetic_test, scale=args.synthetic_scale)
+        datasets.append(Dataset(task, rollouts.calibration, rollouts.test))
+    if not datasets:
+        raise DatasetError("no data: give --data TASK=PATH and/or --synthetic TASKS")
+    return datasets
+
+
+def methods_for(requested: tuple[str, ...] | None, datasets: list[Dataset]) -> tuple[str, ...]:
+    """The methods to evaluate: ``requested`` (``None``: all), and on observation-only data those that need no
+    action batches (a requested one that needs them is a :class:`DatasetError`)."""
+    methods = requested or tuple(METHODS)
+    without = [d.task for d in datasets if not d.has_actions]
+    needing = [METHODS[m].label for m in methods if METHODS[m].needs_actions]
+    if not without or not needing:
+        return methods
+    kept = observation_methods(methods)
+    what = f"task(s) {', '.join(without)} have no action batches (observation-only data)"
+    cannot = f"{', '.join(needing)} cannot run without them"
+    if requested is not None:
+        kept = kept or observation_methods(tuple(METHODS))
+        raise DatasetError(f"{what}; {cannot}: evaluate {', '.join(METHODS[m].label for m in kept)} "
+                           f"(--methods {','.join(kept)})")
+    print(f"fiper evaluate: {what}; {cannot}: evaluating {', '.join(METHODS[m].label for m in kept)}", file=sys.stderr)
+    return kept
+
+
+def settings_from(args: argparse.Namespace) -> EngineSettings:
+    """Engine settings from the parsed options (``--methods`` resolved by :func:`methods_for`)."""
+    if args.default_window not in args.windows:
+        raise ValueError(f"the default window {args.default_window} is not among the swept windows")
+    method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
+    method_settings = replace(method_settings, robot=options.robot_from(args), split=args.split)
+    sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
+                          kinds=args.thresholds, combines=args.combines, pairs=args.pairs)
+    return EngineSettings(methods=args.methods, seeds=args.seeds, sweep=sweep, method_settings=method_settings,
+                          protocols=args.protocol, split_seed=args.split_seed, default_window=args.default_window,
+                          default_kind=args.default_threshold,
+                          select_aggregations=("window", "cumulative") if args.select_cumulative else ("window",),
+                          progress=not args.quiet)
+
+
+def summary(result: EvaluationResult, markdown: Path) -> str:
+    """The closing line: size, time, cache and the best method by average TWA (and its gain over the
+    elapsed-time baseline)."""
+    protocol = next(iter(result.protocols.values()))
+    ranked = sorted(protocol.selected.values(), key=lambda r: -np.nan_to_num(r.average()[0][0], nan=-np.inf))
+    best = f"best TWA {METHODS[ranked[0].method].label} {ranked[0].average()[0][0]:.3f} ({config_text(ranked[0].group)}"
+    floor = protocol.selected.get(ELAPSED)
+    best += f", {gain(ranked[0], floor, None)[0]:+.3f} over the elapsed time)" if floor is not None else ")"
+    t = result.timings
+    return (f"fiper evaluate: {len(result.tasks)} task(s), {len(result.settings.methods)} method(s), "
+            f"{len(result.settings.seeds)} seed(s), {len(result.groups) * len(result.settings.sweep.deltas)} "
+            f"configurations per task and seed; scores {t['scores']:.1f} s (cache {result.cache_hits} hit(s), "
+            f"{result.cache_misses} miss(es)), sweep {t['sweep']:.1f} s; {best} [{protocol.protocol} protocol] "
+            f"-> {markdown}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the evaluation; 0 on success, 2 on bad input."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        check_directory(args.out)
+        if not args.no_cache:
+            check_directory(args.cache_dir)
+        datasets = datasets_from(args)
+        args.methods = methods_for(args.methods, datasets)
+        settings = settings_from(args)
+        options.fk_of(settings.method_settings.robot)
+        check_evaluation(datasets, settings)
+    except (DatasetError, BagError, ValueError) as error:
+        return fail("evaluate", error)
+    cache = None if args.no_cache else ScoreCache(args.cache_dir)
+    # +inf CP thresholds (ceil((M+1)(1-delta)) > M for the smallest deltas) are expected in a sweep.
+    threshold_log = logging.getLogger("fiper_ros.core.thresholds")
+    previous = threshold_log.level
+    threshold_log.setLevel(logging.ERROR)
+    try:
+        result = run_evaluation(datasets, settings, cache)
+        # Written beside --out and moved in when complete: a failed run leaves no partial results.
+        with atomic_files(args.out) as staging:
+            figures: list[str] = []
+            if not args.no_plots:
+                from fiper_ros.evaluation.plots import write_figures  # matplotlib only when plotting
+
+                figures = write_figures(result, staging)
+            markdown, _ = write_reports(result, staging, figures)
+    finally:
+        threshold_log.setLevel(previous)
+    print(summary(result, args.out / markdown.name))
+    return 0

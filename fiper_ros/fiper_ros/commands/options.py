@@ -1,0 +1,73 @@
+"""Options shared by several ``fiper`` commands.
+
+Live bags (``fiper record``, ``fiper snapshot``): how a live bag goes to disk (``--chunk-s``, ``--chunk-mb``:
+:class:`~fiper_ros.bagio.chunks.LiveChunks`), i.e. how much a crash can lose. Reading commands (``fiper
+replay``, ``calibrate`` and ``evaluate``): whether an unfinished bag is taken (``--strict``). No heavy imports:
+``fiper evaluate`` reads its options without the ROS message build.
+
+The robot model of the offline commands (``fiper calibrate``, ``evaluate``, ``replay``):
+
+ACE bins end-effector positions (App. A.1); a joint-space policy's actions reach them through the
+robot's forward kinematics (``--urdf``, ``--ee-frame``), joint velocities through the control period
+first (``--control-dt``). The ACE node takes the same as parameters (``urdf_path``, ``ee_frame``).
+"""
+from __future__ import annotations
+
+import argparse
+
+from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, DEFAULT_CHUNK_S, LiveChunks
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.core.kinematics import KinematicsError, PinocchioFK, RobotModel
+
+
+def add_robot_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, control_dt: bool = True) -> None:
+    """``--urdf``, ``--ee-frame`` and (unless the calibration holds it already) ``--control-dt``."""
+    parser.add_argument("--urdf", help="robot URDF, for joint-space actions (e.g. "
+                        "sim_bridge/sim_bridge/assets/panda/urdf/panda.urdf)")
+    parser.add_argument("--ee-frame", default="panda_hand", help="URDF frame ACE tracks (default panda_hand)")
+    if control_dt:
+        parser.add_argument("--control-dt", type=float, help="seconds per action, for joint-velocity actions "
+                            "(the Stacking sim: 0.1)")
+
+
+def robot_from(args: argparse.Namespace) -> RobotModel | None:
+    """The robot model of the command line, ``None`` without ``--urdf``."""
+    control_dt = getattr(args, "control_dt", None)
+    if args.urdf is None:
+        if control_dt is not None:
+            raise BagError("--control-dt needs --urdf (joint velocities are mapped through the robot's FK)")
+        return None
+    if control_dt is not None and control_dt <= 0:
+        raise BagError(f"--control-dt must be > 0, got {control_dt}")
+    return RobotModel(args.urdf, args.ee_frame, control_dt)
+
+
+def fk_of(robot: RobotModel | None) -> PinocchioFK | None:
+    """The robot's FK, checked now (a missing URDF or frame is a :class:`BagError`)."""
+    if robot is None:
+        return None
+    try:
+        return robot.forward_kinematics()
+    except KinematicsError as error:
+        raise BagError(str(error)) from error
+
+
+def add_chunk_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--chunk-s`` and ``--chunk-mb``."""
+    parser.add_argument("--chunk-s", type=float, default=DEFAULT_CHUNK_S,
+                        help=f"write the open chunk to disk at least this often, seconds (default {DEFAULT_CHUNK_S:g}; "
+                             "a crash loses at most this much)")
+    parser.add_argument("--chunk-mb", type=float, default=DEFAULT_CHUNK_MB,
+                        help=f"... or once it holds this many MB of messages (default {DEFAULT_CHUNK_MB:g})")
+
+
+def chunks_from(args: argparse.Namespace) -> LiveChunks:
+    """The chunking of the command line (:class:`~fiper_ros.bagio.errors.BagError` unless both are > 0)."""
+    return LiveChunks(args.chunk_s, args.chunk_mb)
+
+
+def add_strict_argument(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--strict``: refuse an unfinished bag instead of reading it up to its last complete chunk."""
+    parser.add_argument("--strict", action="store_true",
+                        help="refuse an unfinished bag (a recording that did not stop cleanly) instead of reading "
+                             "it up to its last complete chunk with a warning")

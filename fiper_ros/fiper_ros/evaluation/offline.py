@@ -1,0 +1,96 @@
+"""The offline oracle: bag -> Rollouts -> :func:`fiper_ros.core.monitor.predict_rollout`, no DDS.
+
+``fiper replay --offline`` prints what the live suite would say; the replay test checks that the live
+path (real node processes over DDS) says exactly this, step for step. :func:`calibration_for` is how
+every command loads a calibration: refused with one line naming the file, and checked against the
+bags or the policy it is used with (task, shapes, action space; a calibration with ACE needs bags with
+action batches, an observation-only one takes any).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.bagio.reader import BagReader
+from fiper_ros.bagio.rollout_bags import layout_of, read_rollouts
+from fiper_ros.bagio.schema import BagInfo
+from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationMismatch, load_calibration
+from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
+from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.evaluation.results import RolloutResult, StepResult, as_float32
+from fiper_ros.interface.messages import ALARM, OK, OUTCOME_NAMES, UNKNOWN
+from fiper_ros.policy.config import PolicyConfig
+
+
+def bag_layout(bag: Path) -> tuple[BagInfo, str]:
+    """The task, shapes and action space of ``bag`` and how to name it."""
+    with BagReader(bag) as reader:
+        return layout_of(reader), f"bag {bag}"
+
+
+def policy_layout(config: PolicyConfig, model: Path) -> tuple[BagInfo, str]:
+    """What a policy of ``config`` publishes, and how to name it."""
+    info = BagInfo(task=config.task, batch_size=config.sample_batch, horizon=config.horizon,
+                   action_dim=config.action_dim, exec_steps=config.exec_steps, embedding_dim=config.embed_dim,
+                   action_space=config.action_space)
+    return info, f"the {config.task} policy {model}"
+
+
+def check_fits(calibration: Calibration, calibration_dir: Path, layout: BagInfo, what: str) -> None:
+    """Raise :class:`BagError` if ``layout``'s task, embedding size, action shape or action space differ
+    (fields the layout leaves empty are not checked), or if the calibration declares ACE and the layout has
+    no action batches."""
+    if calibration.has_ace and not layout.action_dim:
+        raise BagError(f"calibration {calibration_dir} declares {', '.join(calibration.detectors)}, but {what} has "
+                       "no action batches for ACE: use an observation-only calibration (fiper calibrate --detectors "
+                       "rnd_oe)")
+    try:
+        calibration.check_compatible(
+            embedding_dim=layout.embedding_dim or None, action_dim=layout.action_dim or None,
+            horizon=layout.horizon or None, exec_steps=layout.exec_steps or None,
+            action_space=layout.action_space or None, task=layout.task or None)
+    except CalibrationMismatch as error:
+        raise BagError(f"calibration {calibration_dir} does not fit {what}: {error}") from error
+
+
+def calibration_for(directory: Path, layouts: Sequence[tuple[BagInfo, str]]) -> Calibration:
+    """The calibration in ``directory`` (refusal: one line naming the file), checked against ``layouts``."""
+    try:
+        calibration = load_calibration(directory)
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
+    for layout, what in layouts:
+        check_fits(calibration, directory, layout, what)
+    return calibration
+
+
+def predict_bag(bag: Path, calibration: Calibration, fk: ForwardKinematics | None = None) -> list[RolloutResult]:
+    """FIPER over every rollout of ``bag`` (``fk``: the robot's FK, for joint-space actions)."""
+    results = []
+    for rollout in read_rollouts(bag):
+        try:
+            calibration.check_compatible(task=rollout.task)
+            prediction = predict_rollout(rollout, calibration, fk)
+        except CalibrationMismatch as error:
+            raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}") from error
+        except KinematicsError as error:
+            raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}; give the robot model with --urdf "
+                           "and --ee-frame") from error
+        latched = np.logical_or.accumulate(prediction.alarms)
+        # As the fusion node (runtime.alarm): the latch first, then a missing (infinite) threshold of a declared
+        # detector is UNKNOWN.
+        calibrated = np.isfinite(prediction.obs_thresholds)
+        if calibration.has_ace:
+            calibrated &= np.isfinite(prediction.act_thresholds)
+        steps = {
+            t: StepResult(ALARM if latched[t] else OK if calibrated[t] else UNKNOWN, bool(prediction.obs_exceeded[t]),
+                          bool(prediction.act_exceeded[t]), as_float32(prediction.obs_windowed[t]),
+                          as_float32(prediction.act_windowed[t]))
+            for t in range(rollout.length)
+        }
+        results.append(RolloutResult(int(rollout.rollout_id), rollout.task, rollout.scenario,
+                                     OUTCOME_NAMES[rollout.success], steps))
+    return results

@@ -1,0 +1,70 @@
+"""Message <-> array conversions, kept cheap: no per-element Python work on large arrays."""
+from __future__ import annotations
+
+import array
+
+import numpy as np
+from builtin_interfaces.msg import Time
+
+from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
+
+
+def float_array(values: np.ndarray) -> array.array:
+    """A float32 numpy array as the ``array.array`` rclpy stores in ``float32[]`` fields (fast path)."""
+    return array.array("f", np.ascontiguousarray(values, dtype=np.float32).tobytes())
+
+
+def floats_of(field: array.array | list[float]) -> np.ndarray:
+    """A ``float32[]`` field as a numpy array without copying when possible."""
+    if isinstance(field, array.array):
+        return np.frombuffer(field, dtype=np.float32) if len(field) else np.zeros(0, np.float32)
+    return np.asarray(field, dtype=np.float32)
+
+
+def stamp_ns(stamp: Time) -> int:
+    """A message stamp in nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def to_stamp(ns: int) -> Time:
+    """Nanoseconds as a message stamp."""
+    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+
+def embedding_msg(rollout_id: int, step: int, stamp: int, embedding: np.ndarray) -> ObservationEmbedding:
+    """An ObservationEmbedding of a flat or shaped embedding array."""
+    msg = ObservationEmbedding(rollout_id=rollout_id, step=step, data=float_array(embedding.ravel()),
+                               shape=list(np.shape(embedding)))
+    msg.header.stamp = to_stamp(stamp)
+    return msg
+
+
+def action_batch_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray, exec_steps: int,
+                     action_space: str) -> ActionChunkBatch:
+    """An ActionChunkBatch of a ``[B, H, D]`` array."""
+    b, h, d = actions.shape
+    msg = ActionChunkBatch(rollout_id=rollout_id, step=step, batch_size=b, horizon=h, action_dim=d,
+                           exec_steps=exec_steps, data=float_array(actions), action_space=action_space)
+    msg.header.stamp = to_stamp(stamp)
+    return msg
+
+
+def action_command_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray, action_space: str,
+                       observation_history: int) -> ActionCommand:
+    """An ActionCommand of the ``[n, D]`` actions to execute (``observation_history``: the control-step
+    observations wanted before the next tick)."""
+    n, d = actions.shape
+    msg = ActionCommand(rollout_id=rollout_id, step=step, num_actions=n, action_dim=d, data=float_array(actions),
+                        action_space=action_space, observation_history=observation_history)
+    msg.header.stamp = to_stamp(stamp)
+    return msg
+
+
+def rollout_event_msg(rollout_id: int, event: int, stamp: int, *, outcome: int = 0, task: str = "",
+                      scenario: str = "", max_steps: int = 0) -> RolloutEvent:
+    """A RolloutEvent (START = 0, END = 1; outcome UNKNOWN = 0, SUCCESS = 1, FAILURE = 2)."""
+    msg = RolloutEvent(rollout_id=rollout_id, event=event, outcome=outcome, task=task, scenario=scenario,
+                       max_steps=max_steps)
+    msg.header.stamp = to_stamp(stamp)
+    return msg
