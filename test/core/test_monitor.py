@@ -10,25 +10,38 @@ import pytest
 from helpers.core_data import make_rollout, overflowing_rnd
 
 from fiper_ros.core.calibration import Calibration
-from fiper_ros.core.monitor import ActionMonitor, FiperMonitor, MonitorError, ObservationMonitor, predict_rollout
+from fiper_ros.core.monitor import ActionMonitor, MonitorError, ObservationMonitor, predict_rollout
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.core.thresholds import Threshold
 from fiper_ros.core.window import WindowAccumulator
+from fiper_ros.runtime.alarm import ALARM, OK, AlarmFuser, DetectorScore
 
 
 @pytest.mark.parametrize(("ood", "length"), [(False, None), (True, None), (False, 40)])
 def test_streaming_equals_vectorised(calibration: Calibration, ood: bool, length: int | None) -> None:
+    """The nodes' path (the two streaming monitors, the fusion node's fuser over their scores) equals the
+    offline one (``predict_rollout`` and the latch as a running OR) at every step."""
     rollout = make_rollout(np.random.default_rng(int(ood) + (length or 0)), 0, ood=ood, success=not ood, length=length)
     prediction = predict_rollout(rollout, calibration)
-    monitor = FiperMonitor(calibration)
-    steps = [monitor.update(t, rollout.embeddings[t], rollout.actions[t]) for t in range(rollout.length)]
-    for name, stream in (("obs", [s.obs for s in steps]), ("act", [s.act for s in steps])):
+    observation, action = ObservationMonitor(calibration), ActionMonitor(calibration)
+    fuser = AlarmFuser(calibration.settings.combine)
+    fuser.start(1, 0)
+    obs_steps, act_steps, states = [], [], []
+    for t in range(rollout.length):
+        obs_steps.append(observation.update(t, rollout.embeddings[t]))
+        act_steps.append(action.update(t, rollout.actions[t]))
+        for name, s in (("rnd_oe", obs_steps[-1]), ("ace", act_steps[-1])):
+            state = fuser.add(DetectorScore(name, 1, t, s.windowed, s.threshold, t, s.complete, bool(s.exceeded)), t)
+        states.append(state)
+    for name, stream in (("obs", obs_steps), ("act", act_steps)):
         assert np.array_equal([s.score for s in stream], getattr(prediction, f"{name}_scores"))
         assert np.array_equal([s.windowed for s in stream], getattr(prediction, f"{name}_windowed"))
         assert np.array_equal([s.threshold for s in stream], getattr(prediction, f"{name}_thresholds"))
         assert np.array_equal([s.exceeded for s in stream], getattr(prediction, f"{name}_exceeded"))
-    assert [s.fusion.alarm for s in steps] == prediction.alarms.tolist()
-    assert steps[-1].fusion.first_alarm_step == prediction.first_alarm_step
+    latched = np.logical_or.accumulate(prediction.alarms)
+    assert [s.state for s in states] == [ALARM if a else OK for a in latched]
+    first = next((s.step for s in states if s.state == ALARM), None)
+    assert first == prediction.first_alarm_step and (first is not None) == ood
 
 
 def test_ood_failure_is_flagged_and_id_success_is_not(calibration: Calibration) -> None:

@@ -24,8 +24,8 @@ from fiper_ros.core.calibration import (
 )
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY, check_detectors, parse_detectors
-from fiper_ros.core.fusion import FusionLatch, fuse, fuse_declared
-from fiper_ros.core.monitor import ActionMonitor, FiperMonitor, MonitorError, predict_rollout
+from fiper_ros.core.fusion import fuse, fuse_declared
+from fiper_ros.core.monitor import ActionMonitor, MonitorError, ObservationMonitor, predict_rollout
 from fiper_ros.core.rollout import Rollout, RolloutSet
 
 
@@ -59,9 +59,6 @@ def test_one_detector_alone_is_its_own_decision(combine: str) -> None:
     assert fuse_declared([decisions], combine).tolist() == decisions.tolist()
     other = np.array([True, True, False, False])
     assert fuse_declared([decisions, other], combine).tolist() == fuse(decisions, other, combine).tolist()
-    latch = FusionLatch(combine)
-    states = [latch.update(bool(d)) for d in decisions]
-    assert [s.alarm for s in states] == decisions.tolist() and states[-1].first_alarm_step == 1
     with pytest.raises(ValueError):
         fuse_declared([], combine)
 
@@ -151,11 +148,10 @@ def test_prediction_is_rnd_oes_exceedance_alone(observation_only: Calibration, c
 def test_the_streaming_monitor_equals_the_prediction(observation_only: Calibration) -> None:
     rollout = _without_actions(make_rollout(np.random.default_rng(4), 1, ood=True, success=False, length=30))
     prediction = predict_rollout(rollout, observation_only)
-    monitor = FiperMonitor(observation_only)
+    monitor = ObservationMonitor(observation_only)
     steps = [monitor.update(t, rollout.embeddings[t]) for t in range(rollout.length)]
-    assert all(s.act is None for s in steps)
-    assert [s.fusion.alarm for s in steps] == prediction.alarms.tolist()
-    assert [s.obs.windowed for s in steps] == prediction.obs_windowed.tolist()
+    assert [s.exceeded for s in steps] == prediction.alarms.tolist()  # RND-OE alone: its exceedance is the alarm
+    assert [s.windowed for s in steps] == prediction.obs_windowed.tolist()
     with pytest.raises(CalibrationError, match="observation-only .* no ACE threshold"):
         ActionMonitor(observation_only)
 

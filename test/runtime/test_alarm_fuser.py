@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 from dataclasses import asdict
 
+import numpy as np
 import pytest
 
+from fiper_ros.core.fusion import alarms_over_rollout
 from fiper_ros.runtime.alarm import (ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore,
                                      reset_refusal)
 
@@ -266,3 +268,27 @@ def test_by_default_64_steps_wait_for_their_partner_and_the_oldest_is_evicted_fi
     assert fuser.evicted == 1
     assert fuser.add(DetectorScore("ace", 1, 1, 0.5, 1.0, 0), 0) is not None  # step 1 waited: step 0 went
     assert (fuser.evicted, fuser.unmatched_stale) == (1, 0)
+
+
+@pytest.mark.parametrize("combine", ["and", "or"])
+def test_the_fusers_latch_equals_the_offline_running_or_of_eq_7(combine: str) -> None:
+    # the live latch (this fuser) against the offline oracle's (core.fusion.alarms_over_rollout, then a running OR)
+    rng = np.random.default_rng(0)
+    seen_alarm = seen_quiet = 0
+    for rollout in range(1, 201):
+        length = int(rng.integers(1, 30))
+        eta_o, eta_a = rng.random(length), rng.random(length)
+        gamma_o, gamma_a = np.full(length, 0.8), rng.uniform(0.7, 0.95, length)
+        alarms, first = alarms_over_rollout(eta_o, gamma_o, eta_a, gamma_a, combine)
+        fuser = AlarmFuser(combine)
+        fuser.start(rollout, 0)
+        states = []
+        for t in range(length):
+            fuser.add(DetectorScore("rnd_oe", rollout, t, eta_o[t], gamma_o[t], 0, True, bool(eta_o[t] > gamma_o[t])), 0)
+            states.append(fuser.add(DetectorScore("ace", rollout, t, eta_a[t], gamma_a[t], 0, True,
+                                                  bool(eta_a[t] > gamma_a[t])), 0))
+        assert [s.state for s in states] == [ALARM if a else OK for a in np.logical_or.accumulate(alarms)]
+        assert fuser.alarm_step == first
+        seen_alarm += first is not None
+        seen_quiet += first is None
+    assert seen_alarm and seen_quiet  # both outcomes exercised

@@ -1,4 +1,5 @@
-"""Latency of the FIPER core per policy step: ACE, RND-OE (batch 1), fusion, and all together.
+"""Latency of the FIPER core per policy step: ACE, RND-OE (batch 1), fusion, and all together (the two
+streaming monitors and the fusion node's fuser, as the nodes run them, without DDS).
 
 Run: ``python -m fiper_ros.bench.core_bench`` (or ``make bench-core``). Prints p50/p99 in ms and the
 ratio of each p50 to its target (ACE <= 1 ms, RND-OE small <= 2 ms, all together <= 3 ms).
@@ -15,10 +16,11 @@ import numpy as np
 
 from fiper_ros.core.ace import ace_score
 from fiper_ros.core.calibration import Calibration, CalibrationSettings
-from fiper_ros.core.monitor import FiperMonitor
+from fiper_ros.core.monitor import ActionMonitor, ObservationMonitor
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rnd_train import untrained_rnd
 from fiper_ros.core.thresholds import Threshold
+from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore
 
 ACE_SHAPES = ((256, 16, 3), (30, 16, 5), (32, 8, 3))
 EMBEDDING_DIMS = (64, 128, 512)
@@ -40,8 +42,8 @@ def measure(function: Callable[[int], object], iterations: int, warmup: int) -> 
     return float(p50), float(p99)
 
 
-def _monitor(embedding_dim: int, ace_shape: tuple[int, int, int]) -> FiperMonitor:
-    """A monitor with an untrained small RND-OE: the per-step cost does not depend on training."""
+def _calibration(embedding_dim: int, ace_shape: tuple[int, int, int]) -> Calibration:
+    """A calibration with an untrained small RND-OE: the per-step cost does not depend on training."""
     _, horizon, dims = ace_shape
     thresholds = Threshold("cp_constant", 0.05, np.full(100, 1e9))
     calibration = Calibration(
@@ -57,7 +59,7 @@ def _monitor(embedding_dim: int, ace_shape: tuple[int, int, int]) -> FiperMonito
         action_space="ee_position",
         num_rollouts=0,
     )
-    return FiperMonitor(calibration)
+    return calibration
 
 
 def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | None]]:
@@ -76,15 +78,30 @@ def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | N
             n = iterations if name == "small" else max(iterations // 10, 20)
             p50, p99 = measure(lambda i, m=model, x=inputs: m.score_one(x[i % 8]), n, warmup)
             rows.append((f"RND-OE {name} score_one E={dim}", p50, p99, target))
-    monitor = _monitor(512, ACE_SHAPES[0])
-    latch = monitor.latch
-    p50, p99 = measure(lambda i: latch.update(i % 3 == 0, i % 2 == 0), iterations, warmup)
-    rows.append(("fusion step (FusionLatch.update)", p50, p99, None))
+    calibration = _calibration(512, ACE_SHAPES[0])
+    fuser = AlarmFuser(calibration.settings.combine)
+    fuser.start(1, 0)
+
+    def fuse(i: int, obs_exceeded: bool, act_exceeded: bool) -> object:
+        fuser.add(DetectorScore("rnd_oe", 1, i, 2.0 if obs_exceeded else 0.0, 1.0, i, True, obs_exceeded), i)
+        return fuser.add(DetectorScore("ace", 1, i, 2.0 if act_exceeded else 0.0, 1.0, i, True, act_exceeded), i)
+
+    p50, p99 = measure(lambda i: fuse(i, i % 3 == 0, i % 2 == 0), iterations, warmup)
+    rows.append(("fusion step (AlarmFuser.add of both scores)", p50, p99, None))
+    observation, action = ObservationMonitor(calibration), ActionMonitor(calibration)
+    fuser.start(2, 0)
     embeddings = rng.normal(size=(8, 512)).astype(np.float32)
     actions = [rng.normal(size=ACE_SHAPES[0]).astype(np.float32) for _ in range(8)]
     step = iter(range(10**9))
-    p50, p99 = measure(lambda i: monitor.update(next(step), embeddings[i % 8], actions[i % 8]), iterations, warmup)
-    name = "together: FiperMonitor.update (ACE 256x16x3, RND-OE small E=512, windows, fusion)"
+
+    def together(i: int) -> object:
+        t = next(step)
+        obs, act = observation.update(t, embeddings[i % 8]), action.update(t, actions[i % 8])
+        fuser.add(DetectorScore("rnd_oe", 2, t, obs.windowed, obs.threshold, t, obs.complete, bool(obs.exceeded)), t)
+        return fuser.add(DetectorScore("ace", 2, t, act.windowed, act.threshold, t, act.complete, bool(act.exceeded)), t)
+
+    p50, p99 = measure(together, iterations, warmup)
+    name = "together: both monitors' update and AlarmFuser.add (ACE 256x16x3, RND-OE small E=512, windows, fusion)"
     rows.append((name, p50, p99, TARGET_TOTAL_MS))
     return rows
 

@@ -82,11 +82,6 @@ class RolloutTrace:
         """Whether the rollout's END event was seen."""
         return bool(self.outcome)
 
-    @property
-    def halted_by_alarm(self) -> bool:
-        """The alarm came before the end: the supervisor stopped the robot."""
-        return self.alarm_step is not None and self.outcome == "failure"
-
     def scored_steps(self) -> int:
         """Steps with both scores."""
         return len(self.scores[RND_OE].windowed.keys() & self.scores[ACE].windowed.keys())

@@ -1,6 +1,6 @@
 """FIPER core: failure prediction scores, thresholds and metrics (Römer et al., NeurIPS 2025).
 
-Pure Python (numpy, torch, optional pinocchio); never imports rclpy. The ROS nodes, the bag replay
+Pure Python (numpy, optional pinocchio; torch only to train: :mod:`.rnd_train`, :mod:`.torch_mlp`); never imports rclpy. The ROS nodes, the bag replay
 and the offline evaluation all call :mod:`fiper_ros.core.monitor`, so their results are identical.
 
 Modules, one concept each:

@@ -156,11 +156,3 @@ def ace_score(actions: np.ndarray, cell_size: np.ndarray) -> float:
     if actions.ndim != 3:
         raise ValueError(f"actions must be [B, H, D], got shape {actions.shape}")
     return float(step_entropies(actions, cell_size).sum())
-
-
-def ace_scores(actions_t: np.ndarray, cell_size: np.ndarray) -> np.ndarray:
-    """ACE scores of a whole rollout ``[T, B, H, D]`` -> ``[T]`` (eq. 4 at every policy step)."""
-    actions_t = np.asarray(actions_t)
-    if actions_t.ndim != 4:
-        raise ValueError(f"actions must be [T, B, H, D], got shape {actions_t.shape}")
-    return step_entropies(actions_t, cell_size).sum(axis=-1)

@@ -3,14 +3,14 @@
 ``F = 1(eta_O > gamma_O,t AND eta_A > gamma_A,t)`` (default) or the OR variant; the comparisons are
 strict. A calibration that declares one detector alone (observation-only, :mod:`fiper_ros.core.detectors`)
 has no second decision to combine: its alarm is that detector's exceedance and the AND/OR does not
-apply (:func:`fuse_declared`). A rollout is flagged as failing at its first alarm; :class:`FusionLatch`
-keeps that state for the rest of the rollout.
+apply (:func:`fuse_declared`). A rollout is flagged as failing at its first alarm (:func:`first_alarm`); the
+latch that keeps that state for the rest of the rollout is the fusion node's (:class:`fiper_ros.runtime.alarm.AlarmFuser`)
+and, over a recorded rollout, the offline oracle's running OR of the alarms.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -58,37 +58,3 @@ def alarms_over_rollout(
     """Vectorised eq. (7) over a rollout: per-step alarms ``[T]`` and the first alarm step."""
     alarms = np.asarray(fuse(exceeds(eta_obs, gamma_obs), exceeds(eta_act, gamma_act), combine), dtype=bool)
     return alarms, first_alarm(alarms)
-
-
-@dataclass(frozen=True)
-class FusionState:
-    """Output of one :meth:`FusionLatch.update`."""
-
-    alarm: bool
-    """Eq. (7) at this step."""
-    latched: bool
-    """Whether any step so far raised an alarm."""
-    first_alarm_step: int | None
-    """Policy step of the first alarm, if any."""
-
-
-class FusionLatch:
-    """Streaming eq. (7): one call per policy step, latches the first alarm until :meth:`reset`."""
-
-    def __init__(self, combine: str = "and") -> None:
-        self.combine = _check_combine(combine)
-        self.reset()
-
-    def reset(self) -> None:
-        """Start a new rollout."""
-        self._step = 0
-        self._first: int | None = None
-
-    def update(self, exceeded_obs: bool, exceeded_act: bool | None = None) -> FusionState:
-        """Fuse this step's two decisions ``F_O``, ``F_A`` (``F_A`` ``None``: RND-OE alone, observation-only)."""
-        decisions = [exceeded_obs] if exceeded_act is None else [exceeded_obs, exceeded_act]
-        alarm = bool(fuse_declared(decisions, self.combine))
-        if alarm and self._first is None:
-            self._first = self._step
-        self._step += 1
-        return FusionState(alarm, self._first is not None, self._first)

@@ -13,8 +13,9 @@ missing step is inside the window). A step whose input was rejected, or whose sc
 0 and its result carries only the lower bound. Every decision is :func:`fiper_ros.core.fusion.exceeds`.
 
 With an observation-only calibration (RND-OE alone, :mod:`fiper_ros.core.detectors`) there is no ACE
-part: :class:`ActionMonitor` refuses it, :class:`FiperMonitor` and :func:`predict_rollout` judge with
-RND-OE's exceedance alone (the ACE results are NaN / False), and no action batches are needed.
+part: :class:`ActionMonitor` refuses it, :func:`predict_rollout` judges with RND-OE's exceedance alone (the
+ACE results are NaN / False), and no action batches are needed. The streaming fusion with its latch is the
+fusion node's (:class:`fiper_ros.runtime.alarm.AlarmFuser`, over the monitors' published scores).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fiper_ros.core.calibration import Calibration, CalibrationError
-from fiper_ros.core.fusion import FusionLatch, FusionState, exceeds, first_alarm, fuse_declared
+from fiper_ros.core.fusion import exceeds, first_alarm, fuse_declared
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_score, act_scores, obs_score, obs_scores, rollout_positions
@@ -157,44 +158,6 @@ class ActionMonitor(_StreamingPredictor):
         self._calibration.check_compatible(action_dim=actions.shape[2], horizon=actions.shape[1])
         positions = self._projection(actions, q_current)
         return self._step(step, act_score(positions, self._cell, self._calibration.profile))
-
-
-@dataclass(frozen=True)
-class FiperStep:
-    """The declared predictors and their fusion (eq. 7) at one policy step (``act`` ``None``: RND-OE alone)."""
-
-    obs: StepScore
-    act: StepScore | None
-    fusion: FusionState
-
-
-class FiperMonitor:
-    """Streaming FIPER: the declared predictors plus the latched AND/OR fusion (RND-OE alone for an
-    observation-only calibration)."""
-
-    def __init__(self, calibration: Calibration, fk: ForwardKinematics | None = None) -> None:
-        self.observation = ObservationMonitor(calibration)
-        self.action = ActionMonitor(calibration, fk) if calibration.has_ace else None
-        self.latch = FusionLatch(calibration.settings.combine)
-
-    def reset(self) -> None:
-        """Start a new rollout."""
-        self.observation.reset()
-        if self.action is not None:
-            self.action.reset()
-        self.latch.reset()
-
-    def update(
-        self, step: int, embedding: np.ndarray, actions: np.ndarray | None = None, q_current: np.ndarray | None = None
-    ) -> FiperStep:
-        """Process policy step ``step`` (``actions`` are needed unless the calibration is observation-only)."""
-        if self.action is not None and actions is None:
-            raise MonitorError("the calibration declares ACE: the step's action batch is needed")
-        obs = self.observation.update(step, embedding)
-        if self.action is None:
-            return FiperStep(obs, None, self.latch.update(obs.exceeded))
-        act = self.action.update(step, actions, q_current)
-        return FiperStep(obs, act, self.latch.update(obs.exceeded, act.exceeded))
 
 
 @dataclass(frozen=True)
