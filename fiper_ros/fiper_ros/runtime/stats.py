@@ -25,8 +25,9 @@ class LatencyStats:
 
 
 class PeriodEstimator:
-    """The policy period as seen by a node: the median time per step between the arrivals of consecutive
-    policy steps of one rollout (node-clock times), over the last ``window`` intervals.
+    """The policy period as seen by a node: the median time per step between consecutive policy steps of one
+    rollout, over the last ``window`` intervals; the times are the steps' arrivals (the fusion node) or their
+    own stamps (the supervisor, whose arrivals can bunch up when it is short of CPU).
 
     The median keeps one slow step (a GC pause, a busy core) from moving it; a step gap counts as that
     many periods (the time is divided by the step difference).
@@ -44,7 +45,7 @@ class PeriodEstimator:
         self._last = None
 
     def add(self, step: int, now_ns: int) -> None:
-        """Policy step ``step`` arrived at ``now_ns``."""
+        """Policy step ``step`` at ``now_ns`` (its arrival or its stamp)."""
         if self._last is not None and step > self._last[0] and now_ns >= self._last[1]:
             self._intervals.append((now_ns - self._last[1]) / (step - self._last[0]))
         if self._last is None or step > self._last[0]:
