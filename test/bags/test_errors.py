@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from helpers.bag_damage import BAG_DAMAGES, CHUNK, UNFINISHED, chunk_messages, mcap_of, records, write_recorded_bag
 from helpers.calibration_damage import CALIBRATION_DAMAGES, FIT_DAMAGES, fit_damages
 from helpers.synthetic import make_rollout
@@ -361,3 +362,22 @@ def test_a_replayed_suite_gets_the_robot_model_on_its_ace_node_only(tmp_path: Pa
         else:
             assert spec.parameters == before.parameters
     assert [s.module for s in config.nodes].count(ACE_MODULE) == 1
+
+
+@pytest.mark.parametrize("command", ["demo", "collect"])
+def test_an_observation_only_calibration_is_refused_before_any_node_starts(
+        command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # Before: `fiper demo --calibration OBS_ONLY` waited the whole ready timeout (90 s) for an ACE node that
+    # cannot configure from it, then failed with "not ready after 90 s, waiting for /fiper/ace_node".
+    calibration = tmp_path / "observation_only"
+    shutil.copytree(small_calibration, calibration)
+    content = yaml.safe_load((calibration / "calibration.yaml").read_text())
+    content["settings"]["detectors"] = ["rnd_oe"]
+    (calibration / "calibration.yaml").write_text(yaml.safe_dump(content))
+    out = tmp_path / "out"
+    out.mkdir()
+    err = refused(CALIBRATION_COMMANDS[command](recorded_bag, calibration, out), out, capsys)
+    shown = "fiper demo" if command == "demo" else "fiper collect --ros"
+    assert err == (f"fiper {command}: {calibration} declares rnd_oe alone (observation-only): {shown} runs FIPER's "
+                   "pair, RND-OE and ACE; launch config/suite_obs.yaml with it instead\n")

@@ -38,6 +38,7 @@ from fiper_ros.bagio.collect_index import (INDEX_FILE, IN_PROCESS, ROS, CollectI
                                            RanEpisode)
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import METADATA, find_bags
+from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.evaluation.offline import calibration_for, policy_layout
 from fiper_ros.policy.dataset import files_hash
@@ -352,6 +353,7 @@ def run(args: argparse.Namespace) -> int:
         model_dir = args.model or default_model(args.task)
         model = load_model(model_dir, args.task)
         if args.calibration is not None:  # refused here with one line, not by scoring nodes that never configure
+            options.require_pair(args.calibration, "fiper collect --ros")
             calibration_for(args.calibration, [policy_layout(model.policy.config, model_dir)])
         setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
                              args.max_policy_steps, ROS if args.ros else IN_PROCESS)

@@ -29,6 +29,7 @@ from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, installed_config
 from fiper_ros.client.trace import ACE, RND_OE, RolloutTrace
+from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
@@ -129,6 +130,7 @@ def run_demo(args: argparse.Namespace) -> int:
     if not (model / "policy.yaml").is_file():
         print(f"fiper demo: no policy at {model} (see docs/policies.md and docs/results.md)", file=sys.stderr)
         return 2
+    options.require_pair(calibration, "fiper demo")
     out = (args.out or Path("runs/demo") / datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")).resolve()
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
