@@ -90,7 +90,8 @@ def test_a_hung_or_dead_node_is_noticed_within_3_periods_and_respawn_restores_ju
     assert any(f"respawning {name}" in line for line in rig.launch.lines)
     rig.start(3)
     ok = rig.run_paced(3, healthy, range(LENGTH))
-    assert [ok[t].state for t in range(LENGTH)] == [FailureAlarm.STATE_OK] * LENGTH
+    assert [ok[t].state for t in range(LENGTH)] == [FailureAlarm.STATE_OK] * LENGTH, \
+        [(t, ok[t].state, ok[t].reason) for t in range(LENGTH) if ok[t].state != FailureAlarm.STATE_OK]
     failing = make_rollout(701, fail=True)
     rig.start(4)
     states = rig.run_paced(4, failing, range(LENGTH))
