@@ -7,6 +7,7 @@ from dataclasses import asdict
 
 import numpy as np
 import pytest
+from helpers.alarm_pairs import fuse_pair as _pair
 
 from fiper_ros.core.fusion import alarms_over_rollout
 from fiper_ros.runtime.alarm import (ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore,
@@ -14,17 +15,6 @@ from fiper_ros.runtime.alarm import (ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser,
 
 S = 1_000_000_000
 MS = 1_000_000
-
-
-def _pair(fuser: AlarmFuser, step: int, obs: float, act: float, now: int = 0, *, stamps: tuple[int, int] = (0, 0),
-          gamma: tuple[float, float] = (1.0, 1.0), complete: tuple[bool, bool] = (True, True),
-          scored: tuple[bool, bool] = (True, True), flags: tuple[bool, bool] | None = None) -> AlarmState:
-    obs_flag, act_flag = flags if flags is not None else (obs > gamma[0], act > gamma[1])
-    assert fuser.add(DetectorScore("rnd_oe", 1, step, obs, gamma[0], stamps[0], complete[0], obs_flag, scored[0]),
-                     now) is None
-    state = fuser.add(DetectorScore("ace", 1, step, act, gamma[1], stamps[1], complete[1], act_flag, scored[1]), now)
-    assert state is not None
-    return state
 
 
 def _started(combine: str = "and", **kwargs: float) -> AlarmFuser:

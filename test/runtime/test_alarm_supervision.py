@@ -5,21 +5,12 @@ import math
 
 import numpy as np
 import pytest
+from helpers.alarm_pairs import fuse_pair as _pair
 
 from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore
 from fiper_ros.runtime.supervision import SupervisorLogic
 
 S = 1_000_000_000
-
-
-def _pair(fuser: AlarmFuser, step: int, obs: float, act: float, now: int, *, gamma: float = 1.0,
-          complete: tuple[bool, bool] = (True, True), rollout: int = 1,
-          flags: tuple[bool, bool] | None = None):  # noqa: ANN202
-    """Both detectors' scores of one step; ``flags``: their exceeded flags (default: the true comparison)."""
-    obs_flag, act_flag = flags if flags is not None else (obs > gamma, act > gamma)
-    first = fuser.add(DetectorScore("rnd_oe", rollout, step, obs, gamma, now, complete[0], obs_flag), now)
-    assert first is None
-    return fuser.add(DetectorScore("ace", rollout, step, act, gamma, now, complete[1], act_flag), now)
 
 
 def test_and_alarms_only_when_both_exceed_and_latches() -> None:

@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import pytest
+from helpers.alarm_pairs import fuse_pair
 
-from fiper_ros.runtime.alarm import ALARM, MAX_RESET_TEXT, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore, \
+from fiper_ros.runtime.alarm import ALARM, MAX_RESET_TEXT, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, \
     reset_refusal
 from fiper_ros.runtime.publishers import (FOREIGN, SEVERAL, UNIDENTIFIED, UNKNOWN_NODE_NAME, UNKNOWN_NODE_NAMESPACE,
                                           UNNAMED_GRACE_NS,
@@ -113,9 +114,8 @@ def test_the_watch_reports_appearances_once_and_times_the_unnamed_grace() -> Non
     assert appeared == [Finding("/fiper/scores/ace", UNIDENTIFIED, ("",))]
 
 
-def _pair(fuser: AlarmFuser, step: int, eta: float, now: int = 0, rollout: int = 1):  # noqa: ANN202
-    fuser.add(DetectorScore("rnd_oe", rollout, step, eta, 1.0, now, True, eta > 1.0), now)
-    return fuser.add(DetectorScore("ace", rollout, step, eta, 1.0, now, True, eta > 1.0), now)
+def _pair(fuser: AlarmFuser, step: int, eta: float, now: int = 0, rollout: int = 1) -> AlarmState:
+    return fuse_pair(fuser, step, eta, eta, now, rollout=rollout)
 
 
 def test_the_fusion_never_says_ok_while_the_scores_cannot_be_attributed_and_not_for_the_rest_of_the_rollout() -> None:
