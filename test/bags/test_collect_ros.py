@@ -10,10 +10,12 @@ from __future__ import annotations
 import json
 import shutil
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.recorded_alarms import alarm_steps
 from sim_bridge.closed_loop import run_episode
 
 from fiper_msgs.msg import RolloutEvent
@@ -24,11 +26,10 @@ from fiper_ros.client import live_collect as collect_ros
 from fiper_ros.client.live_collect import SOURCE, WORK_DIR
 from fiper_ros.commands.collect import bag_name
 from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
 from fiper_ros.evaluation.offline import predict_bag
-from fiper_ros.evaluation.results import StepResult
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.messages import STATE_NAMES
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.policy.policy import Policy
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -51,13 +52,6 @@ def collected(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _alarm_steps(reader: BagReader, rollout_id: int) -> dict[int, StepResult]:
-    """The recorded FailureAlarm decisions (not heartbeats) of ``rollout_id``, per step."""
-    alarms = (reader.decode(m) for m in reader.messages([ALARM]))
-    return {int(m.step): StepResult(STATE_NAMES[m.state], bool(m.obs_exceeded), bool(m.act_exceeded), float(m.eta_obs),
-                                    float(m.eta_act)) for m in alarms if m.rollout_id == rollout_id and not m.heartbeat}
-
-
 def test_each_rollout_is_a_bag_of_the_live_run_equal_to_the_in_process_episode(collected: Path) -> None:
     assert sorted(p.name for p in collected.iterdir()) == ["collect.json", "id"]  # no lock, no work folder left
     bags = find_bags([collected])
@@ -75,7 +69,7 @@ def test_each_rollout_is_a_bag_of_the_live_run_equal_to_the_in_process_episode(c
             counts = Counter(m.topic for m in reader.messages())
             events = [reader.decode(m) for m in reader.messages([EVENTS])]
             info = reader.info
-            recorded = _alarm_steps(reader, rollout_id)
+            recorded = alarm_steps(reader, rollout_id)
         assert counts[EMBEDDING] == counts[ACTIONS] == STEPS
         assert [(e.rollout_id, e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in events] == [
             (rollout_id, RolloutEvent.EVENT_START, RolloutEvent.OUTCOME_UNKNOWN, "sorting", "id", STEPS),
@@ -157,17 +151,24 @@ def test_a_node_that_dies_ends_the_collect_with_one_line_and_keeps_its_output(
     assert json.loads((out / "collect.json").read_text())["rollouts"] == []
 
 
-def test_the_collect_suite_gives_the_ace_node_the_sims_urdf(tmp_path: Path) -> None:
+def test_the_collect_suite_runs_the_declared_detectors_and_gives_the_ace_node_the_sims_urdf(tmp_path: Path) -> None:
     from sim_bridge.robot import URDF_PATH
 
     from fiper_ros.client.live_collect import LiveSettings, collect_config
     from fiper_ros.client.suite_process import installed_config
 
     settings = LiveSettings(task="stacking", model=MODELS / "stacking", batch=4, threads=1, max_policy_steps=2,
-                            calibration=tmp_path)
+                            calibration=tmp_path, detectors=DETECTORS)
     nodes = {spec.name: spec.parameters for spec in collect_config(installed_config("demo.yaml"), settings).nodes}
+    assert list(nodes) == ["bridge_node", "policy_node", "rnd_oe_node", "ace_node", "fusion_node"]
     assert nodes["ace_node"]["urdf_path"] == str(URDF_PATH) and nodes["ace_node"]["calibration_dir"] == str(tmp_path)
     assert "urdf_path" not in nodes["rnd_oe_node"]
+    # the fusion node fuses the detectors the calibration declares; observation-only: RND-OE alone, no ACE node
+    assert nodes["fusion_node"]["calibration_dir"] == nodes["rnd_oe_node"]["calibration_dir"] == str(tmp_path)
+    alone = collect_config(installed_config("demo.yaml"), replace(settings, detectors=OBSERVATION_ONLY))
+    assert [spec.name for spec in alone.nodes] == ["bridge_node", "policy_node", "rnd_oe_node", "fusion_node"]
+    unscored = collect_config(installed_config("demo.yaml"), replace(settings, calibration=None, detectors=()))
+    assert [spec.name for spec in unscored.nodes] == ["bridge_node", "policy_node"]
 
 
 def test_a_live_stacking_rollout_is_the_in_process_episode_and_scored_as_the_bag_says(tmp_path: Path) -> None:
@@ -188,7 +189,7 @@ def test_a_live_stacking_rollout_is_the_in_process_episode_and_scored_as_the_bag
     (bag,) = find_bags([out])
     with BagReader(bag) as reader:
         (event, *_) = [reader.decode(m) for m in reader.messages([EVENTS])]
-        recorded = _alarm_steps(reader, event.rollout_id)
+        recorded = alarm_steps(reader, event.rollout_id)
         states = {stamp_ns(m.header.stamp): m for m in (reader.decode(r) for r in reader.messages([JOINT_STATES]))}
         batch_stamps = [stamp_ns(reader.decode(m).header.stamp) for m in reader.messages([ACTIONS])]
     assert len(states) > steps and set(range(steps - 1)) <= set(recorded)  # the control steps' states as well

@@ -365,19 +365,17 @@ def test_a_replayed_suite_gets_the_robot_model_on_its_ace_node_only(tmp_path: Pa
 
 
 @pytest.mark.parametrize("command", ["demo", "collect"])
-def test_an_observation_only_calibration_is_refused_before_any_node_starts(
-        command: str, recorded_bag: Path, small_calibration: Path, tmp_path: Path,
-        capsys: pytest.CaptureFixture[str]) -> None:
-    # Before: `fiper demo --calibration OBS_ONLY` waited the whole ready timeout (90 s) for an ACE node that
-    # cannot configure from it, then failed with "not ready after 90 s, waiting for /fiper/ace_node".
-    calibration = tmp_path / "observation_only"
-    shutil.copytree(small_calibration, calibration)
+def test_a_calibration_that_declares_no_detector_is_refused_before_any_node_starts(
+        command: str, recorded_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # The suite runs the scoring nodes of the declared detectors (an observation-only calibration runs RND-OE
+    # alone: test/demo/test_demo_observation_only.py); a calibration that declares none has no suite to run.
+    calibration = tmp_path / "no_detector"
+    shutil.copytree(SORTING_CALIBRATION, calibration)
     content = yaml.safe_load((calibration / "calibration.yaml").read_text())
-    content["settings"]["detectors"] = ["rnd_oe"]
+    content["settings"]["detectors"] = []
     (calibration / "calibration.yaml").write_text(yaml.safe_dump(content))
     out = tmp_path / "out"
     out.mkdir()
     err = refused(CALIBRATION_COMMANDS[command](recorded_bag, calibration, out), out, capsys)
-    shown = "fiper demo" if command == "demo" else "fiper collect --ros"
-    assert err == (f"fiper {command}: {calibration} declares rnd_oe alone (observation-only): {shown} runs FIPER's "
-                   "pair, RND-OE and ACE; launch config/suite_obs.yaml with it instead\n")
+    assert err == (f"fiper {command}: {calibration / 'calibration.yaml'}: malformed entry (unsupported detectors "
+                   "(none): declare rnd_oe,ace or rnd_oe)\n")

@@ -3,18 +3,14 @@
 and the live alarms equal to the offline oracle's on the data the run recorded."""
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
+from helpers.demo_run import ROOT, run_demo
 
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.evaluation.offline import predict_bag
 
-ROOT = Path(__file__).resolve().parents[2]
 CP_BAND = ROOT / "models" / "sorting" / "calibration_cp_band"
 
 
@@ -22,12 +18,8 @@ def test_demo_with_the_cp_band_calibration_alarms_as_the_offline_oracle(tmp_path
     calibration = load_calibration(CP_BAND)
     assert calibration.threshold_obs.kind == calibration.threshold_act.kind == "cp_band"
     out = tmp_path / "demo"
-    run = subprocess.run([sys.executable, "-m", "fiper_ros.cli", "demo", "--calibration", str(CP_BAND),
-                          "--out", str(out)], cwd=ROOT, env=os.environ | {"PYTHONUNBUFFERED": "1"},
-                         capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["problems"] == [] and Path(summary["calibration"]) == CP_BAND
+    run, summary = run_demo(out, "--calibration", str(CP_BAND))
+    assert Path(summary["calibration"]) == CP_BAND
     log = (out / "suite.log").read_text()
     why = "\n".join(line for line in log.splitlines() if "halting" in line or "ended:" in line) + run.stdout[-2000:]
     offline = {r.rollout_id: r for r in predict_bag(out / "bag", calibration)}

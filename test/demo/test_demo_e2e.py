@@ -3,26 +3,18 @@ over loopback DDS, on the shipped Sorting model and calibration; the live alarms
 on the very data the run recorded."""
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 from pathlib import Path
+
+from helpers.demo_run import ROOT, run_demo
 
 from fiper_ros.bagio.reader import BagReader
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.evaluation.offline import predict_bag
 
-ROOT = Path(__file__).resolve().parents[2]
-
 
 def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    run = subprocess.run([sys.executable, "-m", "fiper_ros.cli", "demo", "--out", str(out)], cwd=ROOT,
-                         env=os.environ | {"PYTHONUNBUFFERED": "1"}, capture_output=True, text=True, timeout=600)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["problems"] == []
+    run, summary = run_demo(out)
     in_dist, ood = summary["rollouts"]
     assert (in_dist["scenario"], ood["scenario"]) == ("id", "box_pos")
     log = (out / "suite.log").read_text()

@@ -1,22 +1,33 @@
-"""The demo's per-rollout record, its verdicts, its problems and its figure."""
+"""The demo's per-rollout record, its verdicts, its problems and its figure, for FIPER's pair and for an
+observation-only calibration (RND-OE alone); the demo's launch config and progress line."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from fiper_ros.client.figure import plot_trace
-from fiper_ros.client.trace import ACE, EARLY_MESSAGES, RND_OE, RolloutEvents, RolloutTrace
-from fiper_ros.commands.demo import demo_config, problems_of
-from fiper_ros.launcher.config import load_config
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.client.driver import alarm_line
+from fiper_ros.client.figure import plot_trace, trace_figure
+from fiper_ros.client.suite_process import suite_topics
+from fiper_ros.client.trace import EARLY_MESSAGES, RolloutEvents, RolloutTrace
+from fiper_ros.commands.demo import SUPERVISOR, demo_config, managed_nodes, problems_of
+from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
+from fiper_ros.interface.topics import SCORE_ACE, SCORE_RND_OE, TOPICS
+
+DEMO_YAML = Path(__file__).resolve().parents[2] / "fiper_ros" / "config" / "demo.yaml"
 
 
-def scored(steps: int, alarm: int | None = None, outcome: str = "failure") -> RolloutTrace:
-    trace = RolloutTrace("harmful OOD", "box_pos", 7, rollout_id=(1 << 32) | 7)
+def scored(steps: int, alarm: int | None = None, outcome: str = "failure",
+           detectors: tuple[str, ...] = DETECTORS) -> RolloutTrace:
+    trace = RolloutTrace("harmful OOD", "box_pos", 7, rollout_id=(1 << 32) | 7, detectors=detectors)
     for step in range(steps):
         trace.scores[RND_OE].add(step, 0.5 * step, 2.0, 0.5 * step > 2.0)
-        trace.scores[ACE].add(step, 10.0 - step, 6.0 + step, False)
+        if ACE in detectors:
+            trace.scores[ACE].add(step, 10.0 - step, 6.0 + step, False)
     trace.steps_started = steps
     trace.alarm_step = alarm
     trace.outcome = outcome
@@ -65,6 +76,20 @@ def test_summary_dict_carries_both_series() -> None:
     assert data["rnd_oe"]["windowed"] == [0.0, 0.5, 1.0]
     assert data["ace"]["threshold"] == [6.0, 7.0, 8.0]
     assert data["alarm_step"] == 2 and data["scored_steps"] == 3
+    assert data["detectors"] == ["rnd_oe", "ace"] and data["judged_by"] == "RND-OE and ACE"
+
+
+def test_an_observation_only_trace_keeps_and_waits_for_rnd_oe_alone() -> None:
+    trace = scored(4, alarm=3, detectors=OBSERVATION_ONLY)
+    assert set(trace.scores) == {RND_OE}
+    assert trace.scored_steps() == 4 and problems_of(trace) == []  # no ACE score is missing: none is expected
+    data = trace.to_dict()
+    assert "ace" not in data and data["rnd_oe"]["windowed"] == [0.0, 0.5, 1.0, 1.5]
+    assert data["detectors"] == ["rnd_oe"] and data["judged_by"] == "RND-OE alone (observation-only: no ACE)"
+    del trace.scores[RND_OE].windowed[1]
+    assert trace.scored_steps() == 3
+    assert problems_of(trace) == [f"rollout {trace.rollout_id}: 4 policy steps, only 3 scored by rnd_oe"]
+    assert RolloutTrace("x", "id", 1, detectors=()).scored_steps() == 0  # collect --ros without a calibration
 
 
 def test_figure_is_written(tmp_path: Path) -> None:
@@ -73,16 +98,60 @@ def test_figure_is_written(tmp_path: Path) -> None:
     assert png.stat().st_size > 10_000
 
 
+@pytest.mark.parametrize(("detectors", "titles", "judged"), [
+    (DETECTORS, ["RND-OE: windowed observation score (eq. 2)", "ACE: windowed action-chunk entropy (eq. 5)"],
+     "judged by RND-OE and ACE"),
+    (OBSERVATION_ONLY, ["RND-OE: windowed observation score (eq. 2)"],
+     "judged by RND-OE alone (observation-only: no ACE)"),
+])
+def test_the_figure_draws_the_declared_detectors_and_says_which_are_absent(
+        detectors: tuple[str, ...], titles: list[str], judged: str, tmp_path: Path) -> None:
+    trace = scored(8, alarm=5, detectors=detectors)
+    figure = trace_figure(trace, "sorting")
+    try:
+        assert [axis.get_title() for axis in figure.axes] == titles
+        for axis, name in zip(figure.axes, detectors, strict=True):
+            (line, *_) = axis.get_lines()
+            assert line.get_ydata().tolist() == list(trace.scores[name].windowed.values())
+        assert figure.texts[0].get_text().endswith("\n" + judged)
+    finally:
+        plt.close(figure)
+    png = plot_trace(trace, tmp_path / "rollout.png", "sorting")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_demo_config_makes_model_and_calibration_absolute(tmp_path: Path) -> None:
-    source = Path(__file__).resolve().parents[2] / "fiper_ros" / "config" / "demo.yaml"
-    out = demo_config(source, tmp_path / "model", tmp_path / "calibration", tmp_path / "launch.yaml")
-    nodes = {spec.name: spec for spec in load_config(out).nodes}
+    config = demo_config(DEMO_YAML, tmp_path / "model", tmp_path / "calibration", DETECTORS)
+    nodes = {spec.name: spec for spec in config.nodes}
     assert set(nodes) == {"bridge_node", "policy_node", "rnd_oe_node", "ace_node", "fusion_node", "supervisor_node"}
     assert nodes["policy_node"].parameters["model"] == str(tmp_path / "model")
-    assert nodes["ace_node"].parameters["calibration_dir"] == str(tmp_path / "calibration")
+    for name in ("rnd_oe_node", "ace_node", "fusion_node"):  # the fusion node fuses the detectors it declares
+        assert nodes[name].parameters["calibration_dir"] == str(tmp_path / "calibration")
     assert nodes["bridge_node"].namespace == "/sim" and nodes["bridge_node"].required
-    assert "calibration_dir" not in nodes["fusion_node"].parameters
     assert np.all([spec.parameter_files for spec in nodes.values()])
+    assert managed_nodes(config) == ["/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
+                                     "/fiper/fusion_node"]
+
+
+def test_the_demo_of_an_observation_only_calibration_runs_no_ace_node(tmp_path: Path) -> None:
+    config = demo_config(DEMO_YAML, tmp_path / "model", tmp_path / "calibration", OBSERVATION_ONLY)
+    nodes = {spec.name: spec for spec in config.nodes}
+    assert set(nodes) == {"bridge_node", "policy_node", "rnd_oe_node", "fusion_node", "supervisor_node"}
+    assert nodes["fusion_node"].parameters["calibration_dir"] == str(tmp_path / "calibration")
+    assert SUPERVISOR not in managed_nodes(config) and "/fiper/ace_node" not in managed_nodes(config)
+    # the recorder waits for every topic it records: never for the scores of a detector that is not there
+    assert suite_topics(OBSERVATION_ONLY) == tuple(t for t in TOPICS if t != SCORE_ACE)
+    assert suite_topics(DETECTORS) == tuple(TOPICS) and SCORE_RND_OE in suite_topics(OBSERVATION_ONLY)
+
+
+def test_the_progress_line_shows_the_declared_scores() -> None:
+    msg = FailureAlarm(rollout_id=5, step=12, state=FailureAlarm.STATE_ALARM, obs_exceeded=True, eta_obs=3.25,
+                       gamma_obs=2.5, eta_act=1.5, gamma_act=4.0)
+    assert alarm_line(msg, DETECTORS) == ("step  12 | RND-OE    3.250 /    2.500 > | ACE    1.500 /    4.000   "
+                                          "| ALARM")
+    alone = FailureAlarm(rollout_id=5, step=3, state=FailureAlarm.STATE_OK, eta_obs=1.0, gamma_obs=2.5,
+                         eta_act=math.nan, gamma_act=math.nan)
+    assert alarm_line(alone, OBSERVATION_ONLY) == "step   3 | RND-OE    1.000 /    2.500   | OK"
 
 
 def test_events_pair_with_a_trace_whichever_comes_first() -> None:

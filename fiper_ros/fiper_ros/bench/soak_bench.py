@@ -35,17 +35,16 @@ from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
 from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, state_name
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SuiteProcess, installed_config
+from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_config
 from fiper_ros.client.trace import RolloutTrace
-from fiper_ros.commands.demo import MANAGED_NODES, SUPERVISOR, Plan, demo_config
+from fiper_ros.commands.demo import SUPERVISOR, Plan, demo_config, managed_nodes
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface import qos
 from fiper_ros.interface.topics import ACTIONS
-from fiper_ros.launcher.config import dump_config, load_config
+from fiper_ros.launcher.config import LaunchConfig, dump_config
 from fiper_ros.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"
-FUSION_MODULE = "fiper_ros.nodes.fusion_node"
 #: Seconds after which a step's action-chunk batch without an alarm counts as unanswered.
 UNANSWERED_S = 10.0
 #: Seconds a rollout may take per policy step it may have (plus a minute), at real time.
@@ -217,11 +216,11 @@ def plans() -> Iterator[Plan]:
         yield Plan("harmful OOD", "box_pos", seed)
 
 
-def soak_config(model: Path, calibration: Path, realtime_factor: float, out: Path) -> Path:
+def soak_config(model: Path, calibration: Path, detectors: tuple[str, ...], realtime_factor: float) -> LaunchConfig:
     """The demo's launch config with the bridge paced at ``realtime_factor`` and every alarm kept."""
-    demo = load_config(demo_config(installed_config("demo.yaml"), model, calibration, out / "demo.yaml"))
+    demo = demo_config(installed_config("demo.yaml"), model, calibration, detectors)
     extra = {BRIDGE_MODULE: {"realtime_factor": realtime_factor}, FUSION_MODULE: EVERY_ALARM}
-    return dump_config(demo.with_parameters(lambda spec: extra.get(spec.module, {})), out / "launch.yaml")
+    return demo.with_parameters(lambda spec: extra.get(spec.module, {}))
 
 
 def summary(blocks: list[Block]) -> list[str]:
@@ -248,17 +247,18 @@ def run_soak(args: argparse.Namespace) -> int:
     print(f"soak: {args.minutes:g} min, blocks of {block_s / 60:g} min, bridge realtime x{args.realtime_factor:g}; "
           f"{os.cpu_count()} cores; output {out}", flush=True)
     print(f"soak: {clean_stale().summary()}", flush=True)
-    config = soak_config(model, calibration, args.realtime_factor, out)
+    detectors = detectors_of(calibration)
+    config = soak_config(model, calibration, detectors, args.realtime_factor)
     meter: Meter | None = None
     problem = ""
     with allocate_domain() as domain:
         print(f"soak: ROS domain {domain} (loopback only)", flush=True)
-        suite = SuiteProcess(config, domain, echo=False, log=out / "suite.log")
+        suite = SuiteProcess(dump_config(config, out / "launch.yaml"), domain, echo=False, log=out / "suite.log")
         try:
             with RosSession("fiper_soak", domain) as session:
                 meter = Meter(session, block_s)
-                driver = Driver(session, suite, "sorting", display=meter.on_alarm)
-                driver.wait_ready(MANAGED_NODES, args.ready_timeout, plain=(SUPERVISOR,))
+                driver = Driver(session, suite, "sorting", detectors, display=meter.on_alarm)
+                driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=(SUPERVISOR,))
                 meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()})
                 print(f"soak: all nodes active; processes {meter.pids}", flush=True)
                 end = meter.started + 60.0 * args.minutes

@@ -3,9 +3,10 @@
 Shared by ``fiper demo`` and ``fiper collect --ros``. It runs in one rclpy session beside a suite that
 :class:`~fiper_ros.client.suite_process.SuiteProcess` started: it reads the nodes' lifecycle states from
 ``/diagnostics``, calls ``/sim/reset`` and keeps a :class:`~fiper_ros.client.trace.RolloutTrace` per
-rollout it started (action batches, both scores, the alarm, START / END stamps, the outcome) from its own
-subscriptions. A :class:`~fiper_ros.client.record.Recorder` given to it is polled whenever it spins; an
-alarm display given to it sees every alarm decision. Before the first reset it waits until the nodes
+rollout it started (action batches, the scores of the detectors the calibration declares, the alarm, START /
+END stamps, the outcome) from its own subscriptions, which take the declared detectors' scores only (with an
+observation-only calibration, RND-OE's alone). A :class:`~fiper_ros.client.record.Recorder` given to it is
+polled whenever it spins; an alarm display given to it sees every alarm decision. Before the first reset it waits until the nodes
 are active and wired (:mod:`fiper_ros.runtime.wiring`). Nothing waits forever: a node process that
 died (the launcher exited), a node that never became active, a reset that was not answered and a rollout
 that stopped making progress end in :class:`SuiteFailed`; Ctrl-C / SIGTERM (the session's stop) in
@@ -24,11 +25,12 @@ from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetRollout
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SuiteProcess
+from fiper_ros.client.suite_process import DETECTOR_TOPICS, SuiteProcess
 from fiper_ros.client.trace import RolloutEvents, RolloutTrace
+from fiper_ros.core.detectors import LABELS, SIDES
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import ACTIONS, ALARM, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import ACTIONS, ALARM, EVENTS
 from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
@@ -70,11 +72,11 @@ def state_name(msg: FailureAlarm) -> str:
     return messages.state_name(msg.state).upper()
 
 
-def alarm_line(msg: FailureAlarm) -> str:
-    """One alarm decision on one line: both windowed scores against their thresholds, the state."""
-    return (f"step {msg.step:3d} | RND-OE {msg.eta_obs:8.3f} / {msg.gamma_obs:8.3f} "
-            f"{'>' if msg.obs_exceeded else ' '} | ACE {msg.eta_act:8.3f} / {msg.gamma_act:8.3f} "
-            f"{'>' if msg.act_exceeded else ' '} | {state_name(msg)}")
+def alarm_line(msg: FailureAlarm, detectors: Sequence[str]) -> str:
+    """One alarm decision on one line: the windowed scores of ``detectors`` against their thresholds, the state."""
+    scores = [f"{LABELS[d]} {getattr(msg, f'eta_{SIDES[d]}'):8.3f} / {getattr(msg, f'gamma_{SIDES[d]}'):8.3f} "
+              f"{'>' if getattr(msg, f'{SIDES[d]}_exceeded') else ' '}" for d in detectors]
+    return " | ".join([f"step {msg.step:3d}", *scores, state_name(msg)])
 
 
 class Driver:
@@ -84,15 +86,17 @@ class Driver:
         session: The rclpy session (its node subscribes and calls the bridge).
         suite: The suite's launcher process (checked whenever the driver spins).
         task: Sim task of the resets.
+        detectors: The detectors the suite's calibration declares (none: a suite without scoring nodes).
         recorder: Polled for new topics whenever the driver spins (it records what the session receives).
         display: Sees every alarm decision.
     """
 
-    def __init__(self, session: RosSession, suite: SuiteProcess, task: str, *, recorder: Recorder | None = None,
-                 display: AlarmDisplay | None = None) -> None:
+    def __init__(self, session: RosSession, suite: SuiteProcess, task: str, detectors: tuple[str, ...], *,
+                 recorder: Recorder | None = None, display: AlarmDisplay | None = None) -> None:
         self.session = session
         self.suite = suite
         self.task = task
+        self.detectors = detectors
         self.recorder = recorder
         self.display = display
         node = session.node
@@ -105,8 +109,8 @@ class Driver:
         self.traces = self.events.traces
         self._reset = node.create_client(ResetRollout, "/sim/reset")
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
-        node.create_subscription(Score, SCORE_RND_OE, self._on_score, TRACE_QOS)
-        node.create_subscription(Score, SCORE_ACE, self._on_score, TRACE_QOS)
+        for detector in detectors:
+            node.create_subscription(Score, DETECTOR_TOPICS[detector][2], self._on_score, TRACE_QOS)
         node.create_subscription(FailureAlarm, ALARM, self._on_alarm, TRACE_QOS)
         node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
         node.create_subscription(ActionChunkBatch, ACTIONS, self._on_actions, qos.INPUT)
@@ -151,7 +155,7 @@ class Driver:
                 trace.unknown_steps.add(msg.step)
             elif state == "ALARM" and trace.alarm_step is None:
                 trace.alarm_step = msg.step
-                trace.alarm_text = alarm_line(msg)
+                trace.alarm_text = alarm_line(msg, trace.detectors)
             if self.display is not None:
                 self.display(trace, msg)
         self._route(msg.rollout_id, apply)
@@ -213,7 +217,7 @@ class Driver:
             raise SuiteFailed(f"/sim/reset refused {self.task}/{scenario} seed {seed}: "
                               f"{response.message if response else 'no response'}")
         return self.events.follow(RolloutTrace(label, scenario, seed, rollout_id=response.rollout_id,
-                                               max_steps=response.max_steps))
+                                               detectors=self.detectors, max_steps=response.max_steps))
 
     def follow(self, trace: RolloutTrace, timeout_s: float) -> None:
         """Spin until ``trace``'s rollout ended; fail after ``timeout_s`` or :data:`STALL_TIMEOUT_S` without

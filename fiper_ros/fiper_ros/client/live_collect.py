@@ -2,8 +2,9 @@
 
 The suite is ``config/demo.yaml`` cut down (one source of the node parameters): the sim bridge (fast,
 sim time, images on, ``max_policy_steps`` = the collect's cap) and the policy node with the collect's
-model, batch and threads; with a calibration also RND-OE, ACE and fusion on it (the bags then hold
-scores and alarms); never the supervisor, which would halt rollouts. Every node is ``required``, so a
+model, batch and threads; with a calibration also the scoring node of each detector it declares (RND-OE and
+ACE, or RND-OE alone for an observation-only one) and fusion on it (the bags then hold those scores and
+the alarms); never the supervisor, which would halt rollouts. Every node is ``required``, so a
 node that dies stops the launcher and the collect with it. The suite starts on the first episode that
 is not collected yet, in a ROS domain of its own; its launch file and output go to ``DIR/.collect-ros/``
 (removed at the end unless the suite failed).
@@ -36,17 +37,18 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, node_path
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SuiteProcess, installed_config
+from fiper_ros.client.suite_process import (DETECTOR_TOPICS, SuiteProcess, installed_config, scoring_modules,
+                                            scoring_parameters, suite_topics)
 from fiper_ros.client.trace import RolloutTrace
+from fiper_ros.core.detectors import judged_by
 from fiper_ros.dds import allocate_domain
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, INPUT_TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
 from fiper_ros.launcher.overrides import Overrides, apply
 
 SOURCE = "fiper collect (sim, ROS)"
-#: Nodes of ``demo.yaml`` the collect runs: always, and with a calibration.
+#: Nodes of ``demo.yaml`` the collect always runs (with a calibration also those of :func:`scoring_modules`).
 POLICY_NODES = ("bridge_node", "policy_node")
-SCORING_NODES = ("rnd_oe_node", "ace_node", "fusion_node")
 #: Hidden folder of the suite's launch file and output, inside the collect folder.
 WORK_DIR = ".collect-ros"
 #: Seconds for every node to become active.
@@ -67,7 +69,8 @@ class LiveSettings:
         batch: ``B``, chunks sampled per policy step.
         threads: The policy node's torch threads.
         max_policy_steps: The bridge's policy-step cap (None: the task's time limit).
-        calibration: Calibration folder of RND-OE, ACE and fusion (absolute); None: no scoring nodes.
+        calibration: Calibration folder of the scoring nodes and fusion (absolute); None: no scoring nodes.
+        detectors: The detectors ``calibration`` declares (empty without one): their scoring nodes run.
     """
 
     task: str
@@ -76,24 +79,28 @@ class LiveSettings:
     threads: int
     max_policy_steps: int | None
     calibration: Path | None
+    detectors: tuple[str, ...]
 
 
 def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
-    """The nodes of ``source`` (``demo.yaml``) a collect runs, with its settings, all required."""
+    """The nodes of ``source`` (``demo.yaml``) a collect runs, with its settings, all required: the policy nodes,
+    and with a calibration the scoring nodes of its detectors and the fusion node."""
     try:
         config = load_config(source)
     except LaunchError as error:
         raise BagError(f"launch config {source}: {error}") from error
-    keep = POLICY_NODES + (SCORING_NODES if settings.calibration is not None else ())
-    missing = set(keep) - {spec.name for spec in config.nodes}
+    modules = scoring_modules(settings.detectors) if settings.calibration is not None else ()
+    keep = POLICY_NODES + tuple(spec.name for spec in config.nodes if spec.module in modules)
+    names, present = {spec.name for spec in config.nodes}, {spec.module for spec in config.nodes}
+    missing = (set(POLICY_NODES) - names) | (set(modules) - present)
     if missing:
         raise BagError(f"launch config {source}: no {', '.join(sorted(missing))} node")
     bridge = {"task": settings.task, "max_policy_steps": settings.max_policy_steps or 0}
     policy = {"model": str(settings.model), "batch": settings.batch, "torch_threads": settings.threads}
-    scoring = {"calibration_dir": str(settings.calibration)}
-    ace = scoring | {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
-    parameters = {"bridge_node": bridge, "policy_node": policy, "rnd_oe_node": scoring, "ace_node": ace}
-    return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
+    ace = {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
+    scoring = scoring_parameters(settings.calibration) if settings.calibration is not None else {}
+    return apply(config, Overrides(by_module=scoring, by_name={"bridge_node": bridge, "policy_node": policy,
+                                                               "ace_node": ace}, keep=keep, required=True))
 
 
 class RosRunner:
@@ -140,12 +147,13 @@ class RosRunner:
         suite = SuiteProcess(launch, domain, echo=False, log=self.work / "suite.log")
         self._stack.callback(suite.stop)
         session = self._stack.enter_context(RosSession("fiper_collect", domain))
-        topics = [topic for topic, spec in TOPICS.items() if spec.input or self.scored]
+        topics = suite_topics(self.settings.detectors) if self.scored else INPUT_TOPICS
         recorder = Recorder(session, topics, source=SOURCE)
         self._stack.callback(recorder.abort)
-        driver = Driver(session, suite, self.settings.task, recorder=recorder)
+        driver = Driver(session, suite, self.settings.task, self.settings.detectors, recorder=recorder)
         names = ", ".join(spec.name for spec in config.nodes)
-        print(f"starting {names} in ROS domain {domain} (loopback only) ...", file=sys.stderr, flush=True)
+        judged = f"; judged by {judged_by(self.settings.detectors)}" if self.scored else ""
+        print(f"starting {names} in ROS domain {domain} (loopback only){judged} ...", file=sys.stderr, flush=True)
         with self._reported():
             driver.wait_ready([node_path(spec.namespace, spec.name) for spec in config.nodes], READY_TIMEOUT_S)
         print(f"all nodes active after {time.monotonic() - started:.1f} s", file=sys.stderr, flush=True)
@@ -164,8 +172,8 @@ class RosRunner:
             driver.follow(trace, ROLLOUT_TIMEOUT_S)
             control_steps = round((trace.ended_ns - trace.started_ns) / self.period_ns)
             steps = math.ceil(control_steps / self.exec_steps)  # one command of h actions per policy step
-            complete = driver.settle(lambda: self._landed(trace, steps, recorder, scores=self.scored), SETTLE_S)
-            if not complete and not self._landed(trace, steps, recorder, scores=False):  # scores: best effort
+            complete = driver.settle(lambda: self._landed(trace, steps, recorder, scored=True), SETTLE_S)
+            if not complete and not self._landed(trace, steps, recorder, scored=False):  # scores: best effort
                 raise SuiteFailed(f"rollout {trace.rollout_id} ({scenario} seed {seed}): {steps} policy steps, "
                                   f"but the bag got only {recorder.counts[EMBEDDING]} embeddings, "
                                   f"{recorder.counts[ACTIONS]} action batches and {recorder.counts[EVENTS]} "
@@ -178,12 +186,13 @@ class RosRunner:
         return RanEpisode(trace.outcome == "success", steps, control_steps, trace.rollout_id, write)
 
     @staticmethod
-    def _landed(trace: RolloutTrace, steps: int, recorder: Recorder, scores: bool) -> bool:
-        """Whether the open bag holds START, END, and an embedding and an action batch (and, if ``scores``,
-        both scores) for each of the rollout's ``steps`` steps. A scoring node drops a step that comes
-        after the END it saw, so the last scores may never come."""
+    def _landed(trace: RolloutTrace, steps: int, recorder: Recorder, scored: bool) -> bool:
+        """Whether the open bag holds START, END, and an embedding and an action batch (and, if ``scored``,
+        the scores of the trace's detectors) for each of the rollout's ``steps`` steps. A scoring node drops a
+        step that comes after the END it saw, so the last scores may never come."""
         counts = recorder.counts
-        stepwise = (EMBEDDING, ACTIONS) + ((SCORE_RND_OE, SCORE_ACE) if scores else ())
+        scores = tuple(DETECTOR_TOPICS[d][2] for d in trace.detectors) if scored else ()
+        stepwise = (EMBEDDING, ACTIONS, *scores)
         return trace.ended and counts[EVENTS] >= 2 and all(counts[topic] >= steps for topic in stepwise)
 
     @contextmanager

@@ -37,21 +37,16 @@ from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import BagReader
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SuiteProcess
-from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
-from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
+from fiper_ros.client.suite_process import DETECTOR_TOPICS, SuiteProcess
 from fiper_ros.evaluation.results import RolloutResult, StepResult, as_float32
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
-from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, JOINT_STATES,
-                                        SCORE_ACE, SCORE_RND_OE, TOPICS)
+from fiper_ros.interface.topics import ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, TOPICS
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
 
-#: Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores.
-DETECTOR_TOPICS = {RND_OE: (EMBEDDING, (), SCORE_RND_OE), ACE: (ACTIONS, (JOINT_STATES,), SCORE_ACE)}
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
 WARM_UP_S = 1.0
 
@@ -71,15 +66,6 @@ def played_topics(detectors: tuple[str, ...]) -> tuple[str, ...]:
     others = {t for d, (step_input, extra, _) in DETECTOR_TOPICS.items() if d not in detectors
               for t in (step_input, *extra)}
     return tuple(t for t in INPUT_TOPICS if t not in others)
-
-
-def detectors_of(directory: Path | None) -> tuple[str, ...]:
-    """The detectors the calibration in ``directory`` declares (FIPER's pair without one), read without loading
-    its score models."""
-    try:
-        return DETECTORS if directory is None else declared_detectors(directory)
-    except CalibrationError as error:
-        raise BagError(str(error)) from error
 
 
 def find_calibration(bags: Sequence[Path]) -> Path | None:

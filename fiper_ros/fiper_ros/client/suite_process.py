@@ -1,10 +1,12 @@
 """The node suite started for a replay (and for ``fiper demo`` and ``fiper collect --ros``): ``fiper launch``
-in a child process.
+in a child process, and which of its nodes and topics a calibration's detectors need.
 
 For a replay the launch YAML (default: the installed suite of the calibration's detectors,
 ``config/suite.yaml`` or, observation-only, ``config/suite_obs.yaml``) is read with the launcher's own parser
 and written again with ``use_sim_time: true`` and the replay's calibration directory set on the scoring
-nodes and the fusion node, so the nodes are exactly those of a normal launch.
+nodes and the fusion node, so the nodes are exactly those of a normal launch. ``fiper demo`` and ``fiper
+collect --ros`` cut ``config/demo.yaml`` down the same way to the scoring nodes of the declared detectors
+(:func:`scoring_modules`): an observation-only calibration runs no ACE node.
 """
 from __future__ import annotations
 
@@ -20,21 +22,59 @@ from pathlib import Path
 import yaml
 
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
+from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
+from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import local_env
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, JOINT_STATES, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.launcher.config import LaunchError
 from fiper_ros.launcher.overrides import Overrides, rewrite
 
+#: The scoring node of each detector, by module; the fusion node.
+DETECTOR_MODULES = {RND_OE: "fiper_ros.nodes.rnd_oe_node", ACE: "fiper_ros.nodes.ace_node"}
+ACE_MODULE = DETECTOR_MODULES[ACE]
+FUSION_MODULE = "fiper_ros.nodes.fusion_node"
 #: Nodes that take ``calibration_dir``: the scoring nodes, and the fusion node (for the detectors it fuses).
-ACE_MODULE = "fiper_ros.nodes.ace_node"
-CALIBRATED_MODULES = ("fiper_ros.nodes.rnd_oe_node", ACE_MODULE, "fiper_ros.nodes.fusion_node")
+CALIBRATED_MODULES = (*DETECTOR_MODULES.values(), FUSION_MODULE)
+#: Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores.
+DETECTOR_TOPICS = {RND_OE: (EMBEDDING, (), SCORE_RND_OE), ACE: (ACTIONS, (JOINT_STATES,), SCORE_ACE)}
 #: The installed launch YAML of the scoring suite of each detector set a calibration may declare.
 SUITE_CONFIGS = {DETECTORS: "suite.yaml", OBSERVATION_ONLY: "suite_obs.yaml"}
 #: Lines of the suite's output kept for an error report.
 KEPT_LINES = 200
 #: The launcher's report of a node process it started.
 STARTED = re.compile(r"\[launch\] started (\S+) \(pid (\d+)\)")
+
+
+def detectors_of(directory: Path | None) -> tuple[str, ...]:
+    """The detectors the calibration in ``directory`` declares (FIPER's pair without one), read without loading
+    its score models; :class:`BagError` (one line naming the file) for a missing or unreadable calibration and one
+    that declares no (or no supported) detector set."""
+    try:
+        return DETECTORS if directory is None else declared_detectors(directory)
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
+
+
+def scoring_modules(detectors: tuple[str, ...]) -> tuple[str, ...]:
+    """The modules of the nodes that score and fuse ``detectors``: the scoring node of each, the fusion node."""
+    return (*(DETECTOR_MODULES[d] for d in detectors), FUSION_MODULE)
+
+
+def suite_topics(detectors: tuple[str, ...]) -> tuple[str, ...]:
+    """The bag schema's topics of a suite that scores ``detectors``: all but the other detectors' scores."""
+    others = {DETECTOR_TOPICS[d][2] for d in DETECTORS if d not in detectors}
+    return tuple(topic for topic in TOPICS if topic not in others)
+
+
+def scoring_parameters(calibration: Path, robot: RobotModel | None = None) -> dict[str, dict[str, str]]:
+    """Per calibrated node module: ``calibration_dir`` (absolute); on the ACE node also the ``robot``'s URDF and EE
+    frame (for joint-space actions)."""
+    detector = {"calibration_dir": str(calibration.resolve())}
+    parameters = {module: detector for module in CALIBRATED_MODULES}
+    if robot is not None:
+        parameters[ACE_MODULE] = detector | {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
+    return parameters
 
 
 def installed_config(name: str = "suite.yaml") -> Path:
@@ -47,12 +87,8 @@ def installed_config(name: str = "suite.yaml") -> Path:
 def replay_config(config: Path, calibration: Path, out: Path, robot: RobotModel | None = None) -> Path:
     """Write ``config`` with sim time and ``calibration`` on the scoring nodes to ``out``, and the
     ``robot``'s URDF and EE frame on the ACE node (for joint-space actions)."""
-    detector = {"calibration_dir": str(calibration.resolve())}
-    parameters = {module: detector for module in CALIBRATED_MODULES}
-    if robot is not None:
-        parameters[ACE_MODULE] = detector | {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
     try:
-        return rewrite(config, Overrides(by_module=parameters, use_sim_time=True), out)
+        return rewrite(config, Overrides(by_module=scoring_parameters(calibration, robot), use_sim_time=True), out)
     except (LaunchError, yaml.YAMLError) as error:
         raise BagError(f"launch config {config}: {error}") from error
 

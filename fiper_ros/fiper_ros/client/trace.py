@@ -1,8 +1,10 @@
-"""What the driver saw of one rollout: both windowed scores against their thresholds, the alarm, the outcome.
+"""What the driver saw of one rollout: the declared detectors' windowed scores against their thresholds, the alarm,
+the outcome.
 
 Pure bookkeeping (no rclpy): the driver (:mod:`fiper_ros.client.driver`) feeds it the values of the Score,
 FailureAlarm, ActionChunkBatch and RolloutEvent messages of one rollout; the demo's figure and summary
-and ``fiper collect --ros`` read it back.
+and ``fiper collect --ros`` read it back. A trace keeps the scores of the detectors its calibration declares
+(FIPER's pair, or RND-OE alone for an observation-only one: :mod:`fiper_ros.core.detectors`) and no others.
 """
 from __future__ import annotations
 
@@ -13,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-#: Detector names as in ``fiper_msgs/Score.DETECTOR_*``.
-RND_OE, ACE = "rnd_oe", "ace"
+from fiper_ros.core.detectors import DETECTORS, judged_by
+
 #: Messages of rollouts without a trace kept for it (the oldest go first): a rollout's first scores,
 #: batches and alarms can arrive before the reset's answer that names it.
 EARLY_MESSAGES = 256
@@ -52,9 +54,10 @@ class RolloutTrace:
         scenario: Sim scenario name.
         seed: Episode seed.
         rollout_id: The bridge's id, once the reset answered.
-        scores: Per detector (:data:`RND_OE`, :data:`ACE`).
+        detectors: The detectors the calibration declares, which judge the rollout.
+        scores: Per declared detector.
         alarm_step: First policy step whose FailureAlarm state was ALARM.
-        alarm_text: That alarm as printed (both scores against their thresholds).
+        alarm_text: That alarm as printed (the declared scores against their thresholds).
         unknown_steps: Steps reported UNKNOWN.
         outcome: ``"success"``, ``"failure"`` or ``""`` while running.
         steps_started: Policy steps for which an action-chunk batch was seen.
@@ -67,7 +70,8 @@ class RolloutTrace:
     scenario: str
     seed: int
     rollout_id: int = 0
-    scores: dict[str, ScoreSeries] = field(default_factory=lambda: {RND_OE: ScoreSeries(), ACE: ScoreSeries()})
+    detectors: tuple[str, ...] = DETECTORS
+    scores: dict[str, ScoreSeries] = field(init=False)
     alarm_step: int | None = None
     alarm_text: str = ""
     unknown_steps: set[int] = field(default_factory=set)
@@ -77,14 +81,18 @@ class RolloutTrace:
     started_ns: int = 0
     ended_ns: int = 0
 
+    def __post_init__(self) -> None:
+        self.scores = {name: ScoreSeries() for name in self.detectors}
+
     @property
     def ended(self) -> bool:
         """Whether the rollout's END event was seen."""
         return bool(self.outcome)
 
     def scored_steps(self) -> int:
-        """Steps with both scores."""
-        return len(self.scores[RND_OE].windowed.keys() & self.scores[ACE].windowed.keys())
+        """Steps with the scores of every declared detector (none declared: 0)."""
+        steps = [set(series.windowed) for series in self.scores.values()]
+        return len(set.intersection(*steps)) if steps else 0
 
     def verdict(self) -> str:
         """One phrase: what FIPER did on this rollout given its outcome."""
@@ -95,7 +103,7 @@ class RolloutTrace:
         return f"alarm at step {self.alarm_step}: the supervisor halted the robot"
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON form for the run's summary file."""
+        """JSON form for the run's summary file: a series per declared detector, under its name."""
         def series(name: str) -> dict[str, list[float]]:
             steps, windowed, threshold = self.scores[name].arrays()
             return {"steps": steps.tolist(), "windowed": windowed.tolist(), "threshold": threshold.tolist()}
@@ -104,7 +112,8 @@ class RolloutTrace:
                 "outcome": self.outcome, "alarm_step": self.alarm_step, "alarm": self.alarm_text,
                 "policy_steps": self.steps_started, "scored_steps": self.scored_steps(),
                 "unknown_steps": sorted(self.unknown_steps), "verdict": self.verdict(),
-                "rnd_oe": series(RND_OE), "ace": series(ACE)}
+                "detectors": list(self.detectors), "judged_by": judged_by(self.detectors),
+                **{name: series(name) for name in self.detectors}}
 
 
 class RolloutEvents:

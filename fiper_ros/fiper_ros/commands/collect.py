@@ -38,7 +38,6 @@ from fiper_ros.bagio.collect_index import (INDEX_FILE, IN_PROCESS, ROS, CollectI
                                            RanEpisode)
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import METADATA, find_bags
-from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.evaluation.offline import calibration_for, policy_layout
 from fiper_ros.policy.dataset import files_hash
@@ -280,8 +279,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run the episodes through the live node suite (sim bridge + policy node over DDS, "
                              "each its own process) and record each from DDS, instead of in-process")
     parser.add_argument("--calibration", type=data_path_argument, default=None,
-                        help="with --ros: also run RND-OE, ACE and fusion on this calibration folder (the bags "
-                             "then hold scores and alarms)")
+                        help="with --ros: also run the scoring nodes of the detectors this calibration folder "
+                             "declares (RND-OE and ACE, or RND-OE alone) and fusion on it (the bags then hold "
+                             "their scores and the alarms)")
 
 
 def _target(args: argparse.Namespace) -> Target:
@@ -321,8 +321,10 @@ def _check_sizes(args: argparse.Namespace, episodes: int) -> None:
             raise BagError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
 
 
-def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: CollectSetup, stack: ExitStack) -> Runner:
-    """The runner of ``--ros`` (entered into ``stack``: it stops its suite) or the in-process one."""
+def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: CollectSetup, detectors: tuple[str, ...],
+            stack: ExitStack) -> Runner:
+    """The runner of ``--ros`` (entered into ``stack``: it stops its suite; ``detectors``: those of the calibration,
+    whose scoring nodes run) or the in-process one."""
     if setup.runner == IN_PROCESS:
         runner = InProcessRunner(model.policy, setup, args.jobs, model_dir, args.threads)
         stack.callback(runner.close)
@@ -332,7 +334,7 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
     from fiper_ros.client.live_collect import LiveSettings, RosRunner  # noqa: PLC0415 - rclpy only with --ros
 
     settings = LiveSettings(args.task, model_dir.resolve(), setup.batch, args.threads, setup.max_policy_steps,
-                            args.calibration.resolve() if args.calibration else None)
+                            args.calibration.resolve() if args.calibration else None, detectors)
     return stack.enter_context(RosRunner(settings, args.out, model.policy.config.exec_steps))
 
 
@@ -352,9 +354,9 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
         model_dir = args.model or default_model(args.task)
         model = load_model(model_dir, args.task)
+        detectors: tuple[str, ...] = ()
         if args.calibration is not None:  # refused here with one line, not by scoring nodes that never configure
-            options.require_pair(args.calibration, "fiper collect --ros")
-            calibration_for(args.calibration, [policy_layout(model.policy.config, model_dir)])
+            detectors = calibration_for(args.calibration, [policy_layout(model.policy.config, model_dir)]).detectors
         setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
                              args.max_policy_steps, ROS if args.ros else IN_PROCESS)
         with locked(args.out), ExitStack() as stack:
@@ -364,10 +366,10 @@ def run(args: argparse.Namespace) -> int:
             settings = {"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
                         "successes": args.successes, "max_episodes": target.max_episodes}
             if args.calibration is not None:
-                settings["calibration"] = shown_path(args.calibration)
+                settings |= {"calibration": shown_path(args.calibration), "detectors": list(detectors)}
             index.add_run(settings)
             index.save(args.out)
-            runner = _runner(args, model_dir, model, setup, stack)
+            runner = _runner(args, model_dir, model, setup, detectors, stack)
             collector = Collector(runner, args.out, index, seed=args.seed, target=target)
             print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}, "
                   f"{setup.runner}) into {args.out}", file=sys.stderr, flush=True)

@@ -5,10 +5,14 @@ The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper
 the example supervisor, each its own OS process) in a ROS domain of its own, then drives it like an
 operator would from this process: it waits until every node is active, resets the bridge into one
 in-distribution and one harmful out-of-distribution rollout, prints a progress line per policy step and
-each alarm (both windowed scores against their thresholds), and records everything it sees (suite
+each alarm (the windowed scores against their thresholds), and records everything it sees (suite
 topics and both cameras) into one MCAP bag. Afterwards it writes a PNG per rollout and ``summary.json``.
 The exit status is 1 if any part failed: a node died or never became active, a rollout did not end,
 a score stream stayed silent, or the monitor reported UNKNOWN.
+
+The suite runs the detectors the calibration declares (:mod:`fiper_ros.core.detectors`): with an
+observation-only calibration (``fiper calibrate --detectors rnd_oe``) there is no ACE node, the fusion node
+judges with RND-OE alone, and the progress lines, figures and summary show RND-OE alone and say so.
 """
 from __future__ import annotations
 
@@ -23,24 +27,23 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError, fail
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, state_name
+from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, node_path, state_name
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SuiteProcess, installed_config
-from fiper_ros.client.trace import ACE, RND_OE, RolloutTrace
-from fiper_ros.commands import options
+from fiper_ros.client.suite_process import (CALIBRATED_MODULES, SuiteProcess, detectors_of, installed_config,
+                                            scoring_modules, scoring_parameters, suite_topics)
+from fiper_ros.client.trace import RolloutTrace
+from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
-from fiper_ros.launcher.config import LaunchError
-from fiper_ros.launcher.overrides import Overrides, rewrite
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
+from fiper_ros.launcher.overrides import Overrides, apply
 from fiper_ros.shm import clean_stale
 
-#: Nodes that must report ``lifecycle_state: active`` on /diagnostics before the first reset.
-MANAGED_NODES = ("/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
-                 "/fiper/fusion_node")
-#: The supervisor is a plain node: it must be visible in the graph.
+#: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
+#: node that must report ``lifecycle_state: active`` on /diagnostics before the first reset).
 SUPERVISOR = "/fiper/supervisor_node"
 #: Recorded besides the bag schema's topics.
 EXTRA_TOPICS = ("/camera/wrist/image_raw", "/camera/third/image_raw", "/sim/proprio", "/sim/action", "/clock")
@@ -70,7 +73,7 @@ class Display:
 
     def alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
         """Show one alarm decision of ``trace``'s rollout."""
-        state, line = state_name(msg), alarm_line(msg)
+        state, line = state_name(msg), alarm_line(msg, trace.detectors)
         if state == "UNKNOWN":
             self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
         elif state == "ALARM" and trace.alarm_step == msg.step:
@@ -95,20 +98,30 @@ def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) 
 def problems_of(trace: RolloutTrace) -> list[str]:
     """What went wrong in the suite during ``trace`` (empty: every part did its job)."""
     problems = []
-    for name in (RND_OE, ACE):
+    for name in trace.detectors:
         if not trace.scores[name].windowed:
             problems.append(f"no {name} score for rollout {trace.rollout_id}")
     if trace.scored_steps() < trace.steps_started:
         problems.append(f"rollout {trace.rollout_id}: {trace.steps_started} policy steps, only "
-                        f"{trace.scored_steps()} scored by both detectors")
+                        f"{trace.scored_steps()} scored by {' and '.join(trace.detectors)}")
     if trace.unknown_steps:
         problems.append(f"rollout {trace.rollout_id}: the monitor said UNKNOWN at steps {sorted(trace.unknown_steps)}")
     return problems
 
 
-def demo_config(source: Path, model: Path, calibration: Path, out: Path) -> Path:
-    """``source`` with the model and calibration paths made absolute, written to ``out``."""
-    return rewrite(source, Overrides(where_set={"model": str(model), "calibration_dir": str(calibration)}), out)
+def demo_config(source: Path, model: Path, calibration: Path, detectors: tuple[str, ...]) -> LaunchConfig:
+    """``source`` with the model path made absolute and the calibration's on the scoring and fusion nodes, without
+    the scoring nodes of the detectors ``calibration`` does not declare (``detectors``: those it does)."""
+    config = load_config(source)
+    unused = set(CALIBRATED_MODULES) - set(scoring_modules(detectors))
+    keep = tuple(spec.name for spec in config.nodes if spec.module not in unused)
+    return apply(config, Overrides(by_module=scoring_parameters(calibration), where_set={"model": str(model)},
+                                   keep=keep))
+
+
+def managed_nodes(config: LaunchConfig) -> list[str]:
+    """The nodes of ``config`` (``/ns/name``) that must report ``active``: all but the :data:`SUPERVISOR`."""
+    return [path for spec in config.nodes if (path := node_path(spec.namespace, spec.name)) != SUPERVISOR]
 
 
 def check_calibration(model: Path, calibration: Path) -> None:
@@ -130,19 +143,20 @@ def run_demo(args: argparse.Namespace) -> int:
     if not (model / "policy.yaml").is_file():
         print(f"fiper demo: no policy at {model} (see docs/policies.md and docs/results.md)", file=sys.stderr)
         return 2
-    options.require_pair(calibration, "fiper demo")
+    detectors = detectors_of(calibration)  # one line for a calibration that declares none (or is not there)
     out = (args.out or Path("runs/demo") / datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")).resolve()
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     plans = [Plan("in-distribution", "id", args.id_seed), Plan("harmful OOD", args.ood_scenario, args.ood_seed)]
     started = time.monotonic()
-    config = demo_config(args.config or installed_config("demo.yaml"), model, calibration, out / "launch.yaml")
+    config = demo_config(args.config or installed_config("demo.yaml"), model, calibration, detectors)
+    launch = dump_config(config, out / "launch.yaml")
     traces: list[RolloutTrace] = []
     problems: list[str] = []
     print(f"fiper demo: {clean_stale().summary()}", flush=True)
     with allocate_domain() as domain:
         print(f"fiper demo: ROS domain {domain} (loopback only), output {out}", flush=True)
-        suite = SuiteProcess(config, domain, echo=args.verbose, log=out / "suite.log")
+        suite = SuiteProcess(launch, domain, echo=args.verbose, log=out / "suite.log")
         try:
             check_calibration(model, calibration)  # while the nodes boot
         except BagError:
@@ -153,12 +167,13 @@ def run_demo(args: argparse.Namespace) -> int:
         try:
             with RosSession("fiper_demo", domain) as session:
                 display = Display(sys.stdout.isatty())
-                recorder = Recorder(session, (*TOPICS, *EXTRA_TOPICS), source="fiper demo")
+                recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
                 recorder.start(out / "bag")
-                driver = Driver(session, suite, args.task, recorder=recorder, display=display.alarm)
+                driver = Driver(session, suite, args.task, detectors, recorder=recorder, display=display.alarm)
                 try:
-                    print("starting bridge, policy, RND-OE, ACE, fusion and supervisor nodes ...", flush=True)
-                    driver.wait_ready(MANAGED_NODES, args.ready_timeout, plain=(SUPERVISOR,))
+                    print(f"starting {', '.join(spec.name for spec in config.nodes)}; judged by "
+                          f"{judged_by(detectors)} ...", flush=True)
+                    driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=(SUPERVISOR,))
                     print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
                     for plan in plans:
                         traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
@@ -177,13 +192,14 @@ def run_demo(args: argparse.Namespace) -> int:
         problems += problems_of(trace)
         png = plot_trace(trace, out / f"rollout_{trace.scenario}_{trace.seed}.png", args.task)
         print(f"  {png}", flush=True)
-    summary = {"task": args.task, "model": str(model), "calibration": str(calibration), "seconds":
-               round(time.monotonic() - started, 1), "rollouts": [t.to_dict() for t in traces], "problems": problems}
+    summary = {"task": args.task, "model": str(model), "calibration": str(calibration), "detectors": list(detectors),
+               "judged_by": judged_by(detectors), "seconds": round(time.monotonic() - started, 1),
+               "rollouts": [t.to_dict() for t in traces], "problems": problems}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     for trace in traces:
         print(f"{trace.label:>16}: {trace.scenario} seed {trace.seed}: {trace.outcome or 'no end'}, "
               f"{trace.steps_started} policy steps; {trace.verdict()}")
-    print(f"demo took {summary['seconds']} s; results in {out}")
+    print(f"judged by {judged_by(detectors)}; demo took {summary['seconds']} s; results in {out}")
     for problem in problems:
         print(f"fiper demo: FAILED: {problem}", file=sys.stderr)
     return 1 if problems else 0

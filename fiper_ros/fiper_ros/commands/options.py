@@ -14,12 +14,9 @@ first (``--control-dt``). The ACE node takes the same as parameters (``urdf_path
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, DEFAULT_CHUNK_S, LiveChunks
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.core.calibration_file import CalibrationError, declared_detectors, one_line
-from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.core.kinematics import KinematicsError, PinocchioFK, RobotModel
 
 
@@ -75,15 +72,3 @@ def add_strict_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
                         help="refuse an unfinished bag (a recording that did not stop cleanly) instead of reading "
                              "it up to its last complete chunk with a warning")
 
-
-def require_pair(calibration: Path, command: str) -> None:
-    """Refuse, before any node starts, a calibration that does not declare FIPER's pair where ``command`` (``fiper
-    demo``, ``fiper collect --ros``) launches both scoring nodes: an ACE node cannot configure from an
-    observation-only calibration, and the command would wait for it until its ready timeout."""
-    try:
-        detectors = declared_detectors(calibration)
-    except CalibrationError as error:
-        raise BagError(one_line(error)) from error
-    if detectors != DETECTORS:
-        raise BagError(f"{calibration} declares {' and '.join(detectors)} alone (observation-only): {command} runs "
-                       f"FIPER's pair, RND-OE and ACE; launch config/suite_obs.yaml with it instead")

@@ -15,9 +15,9 @@ from fiper_ros.bagio.atomic import atomic_output
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import ROLLOUT_GAP_NS
-from fiper_ros.client.replay import Player, detectors_of, find_calibration, played_topics, suite_subscribers
+from fiper_ros.client.replay import Player, find_calibration, played_topics, suite_subscribers
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SUITE_CONFIGS, SuiteProcess, installed_config, replay_config
+from fiper_ros.client.suite_process import SUITE_CONFIGS, SuiteProcess, detectors_of, installed_config, replay_config
 from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain

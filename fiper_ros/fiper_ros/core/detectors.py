@@ -35,6 +35,14 @@ def check_detectors(names: Iterable[str]) -> tuple[str, ...]:
     return ordered
 
 
+def judged_by(detectors: Iterable[str]) -> str:
+    """Which detectors judge, for people: ``"RND-OE and ACE"``, or ``"RND-OE alone (observation-only: no ACE)"``."""
+    given = tuple(detectors)
+    absent = [LABELS[d] for d in DETECTORS if d not in given]
+    named = " and ".join(LABELS[d] for d in given)
+    return f"{named} alone (observation-only: no {', '.join(absent)})" if absent else named
+
+
 def parse_detectors(text: str) -> tuple[str, ...]:
     """A comma-separated detector list (``"rnd_oe"``, ``"rnd_oe,ace"``) as a supported set."""
     return check_detectors(part.strip() for part in text.split(",") if part.strip())
