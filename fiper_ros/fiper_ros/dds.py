@@ -7,9 +7,12 @@ no DDS packet leaves loopback and parallel runs never see each other.
 """
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import os
 import random
+import signal
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -18,7 +21,8 @@ from typing import IO
 LOCK_DIR = Path(os.environ.get("FIPER_DOMAIN_LOCK_DIR", "/tmp/fiper-ros-domains"))
 #: Domain ids that are safe on Linux with the default RTPS port mapping.
 DOMAIN_RANGE = range(1, 102)
-#: Set by ``fiper launch`` in each node's environment to its own pid: the node then ends when it does.
+#: A process started with this set to its parent's pid ends when that parent does (:func:`die_with_parent`):
+#: ``fiper launch`` sets it for each node, the test fixtures for each launcher they start.
 PARENT_PID_ENV = "FIPER_PARENT_PID"
 
 
@@ -74,3 +78,20 @@ def local_env(domain: int, base: dict[str, str] | None = None) -> dict[str, str]
     env.pop("ROS_STATIC_PEERS", None)
     env["PYTHONUNBUFFERED"] = "1"
     return env
+
+
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def die_with_parent() -> None:
+    """If ``FIPER_PARENT_PID`` names this process's parent, ask Linux to send SIGTERM when it dies, so that a
+    killed parent never leaves this process speaking in its domain. (Linux sends it when the parent's thread
+    that started this process ends: start such processes from a thread that lives as long as they should.)"""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
+    if os.getppid() != int(parent):  # the launcher died before the request was in place
+        os.kill(os.getpid(), signal.SIGTERM)

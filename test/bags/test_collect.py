@@ -29,6 +29,7 @@ from sim_bridge.collect_runner import rollout_id_of
 from sim_bridge.robot import URDF_PATH
 
 from fiper_ros.bagio.reader import BagReader, find_bags
+from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.cli import main
 from fiper_ros.commands import collect
@@ -201,12 +202,18 @@ def test_a_scenario_whose_knobs_changed_is_refused(collected: Path, tmp_path: Pa
     assert recorded["camera_moved"] == {"camera_shift": [0.25, 0.3]}
 
 
-def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_path: Path) -> None:
+def _stacking_bag(tmp_path: Path, steps: int) -> tuple[Path, Path]:
+    """A tiny Stacking (joint-velocity) policy and the bag of its seed-5 episode of ``steps`` policy steps."""
     model = _tiny_model(tmp_path / "tiny_stacking", "stacking")
     out = tmp_path / "stacking"
     assert main(["collect", "--task", "stacking", "--episodes", "1", "--seed", "5", "--model", str(model),
-                 "--out", str(out), "--max-policy-steps", "2"]) == 0
+                 "--out", str(out), "--max-policy-steps", str(steps)]) == 0
     (bag,) = find_bags([out])
+    return model, bag
+
+
+def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_path: Path) -> None:
+    model, bag = _stacking_bag(tmp_path, 2)
     with BagReader(bag) as reader:
         joint_states = [(m.log_time_ns, reader.decode(m)) for m in reader.messages([JOINT_STATES])]
         raw = next(reader.messages([JOINT_STATES])).raw
@@ -221,6 +228,25 @@ def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_pat
     assert episode.rollout is not None and rollout.action_space == "joint_velocity"
     np.testing.assert_array_equal(rollout.metadata["joint_positions"], episode.rollout.metadata["joint_positions"])
     assert rollout.metadata["joint_positions"].shape == (2, 7)
+
+
+def test_a_batch_logged_before_the_joint_state_of_its_stamp_gets_that_state(tmp_path: Path) -> None:
+    # Seen in the live Stacking test under load: the recorder took step 1's batch before the joint states
+    # stamped up to it, and the bag reader, taking the latest state logged before the batch, gave step 1 the
+    # state of an earlier control step. The rule is the ACE node's over the stamps of all the bag's states.
+    _, bag = _stacking_bag(tmp_path, 3)
+    late = tmp_path / "late_states"
+    with BagReader(bag) as reader, BagWriter(late) as writer:
+        writer.info = reader.info
+        for message in reader.messages():  # each state 1 ns after its step's batch in the log
+            log_time = message.log_time_ns + (1 if message.topic == JOINT_STATES else 0)
+            writer.write(message.topic, log_time, message.raw, message.msgtype)
+    with BagReader(late) as reader:
+        order = [m.topic for m in reader.messages([JOINT_STATES, ACTIONS])]
+    assert order[:2] == [ACTIONS, JOINT_STATES]
+    (original,) = read_rollouts(bag)
+    (rollout,) = read_rollouts(late)
+    np.testing.assert_array_equal(rollout.metadata["joint_positions"], original.metadata["joint_positions"])
 
 
 def test_jobs_write_the_folder_one_process_writes(collected: Path, tmp_path: Path,

@@ -21,6 +21,7 @@ from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.dds import PARENT_PID_ENV
 from helpers.dds import ros_env
 from helpers.spin import spin_until
 from helpers.suite import STEP_NS, Driver
@@ -34,7 +35,8 @@ class Launch:
     def __init__(self, config: Path, domain: int) -> None:
         self.proc = subprocess.Popen(  # noqa: S603
             [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
-            env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+            env=ros_env(domain) | {PARENT_PID_ENV: str(os.getpid())}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, start_new_session=True)
         self.lines: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -115,11 +117,16 @@ class Rig:
                              + "\n".join(self.launch.lines[-40:]))
 
     def wait_healthy(self, name: str) -> None:
-        """Wait until ``name`` reports ACTIVE again and the driver's topics are wired to the whole suite."""
-        key = f"fiper: /fiper/{name}"
+        """Wait until ``name`` reports ACTIVE again, the fusion node attributes every score stream to the suite
+        (a respawned node's publishers are named in its graph: a rollout started before is doubted, rightly) and
+        the driver's topics are wired to the whole suite."""
+        key, fusion = f"fiper: /fiper/{name}", "fiper: /fiper/fusion_node"
         self.driver.diagnostics.pop(key, None)
+        self.driver.diagnostics.pop(fusion, None)
         assert self.spin_until(lambda: self.driver.diagnostics.get(key, {}).get("lifecycle_state") == "active",
                                timeout=60), "\n".join(self.launch.lines[-40:])
+        assert self.spin_until(lambda: self.driver.diagnostics.get(fusion, {}).get("scores_in_doubt") == "no",
+                               timeout=60), (self.driver.diagnostics.get(fusion), "\n".join(self.launch.lines[-40:]))
         assert self.spin_until(lambda: self.driver.embeddings.get_subscription_count() >= 1
                                and self.driver.batches.get_subscription_count() >= 1
                                and self.driver.events.get_subscription_count() >= 4)

@@ -67,7 +67,9 @@ class Driver(Node):
         self.events.publish(rollout_event_msg(rollout_id, RolloutEvent.EVENT_END, 0, outcome=outcome))
 
     def step(self, rollout_id: int, step: int, embedding: np.ndarray, actions: np.ndarray, exec_steps: int) -> None:
-        stamp = (step + 1) * STEP_NS
+        """One policy step, stamped as a policy does: the clock's now (the fusion node and the supervisor take
+        the policy period from the stamps, so a paced test slowed by load must not stamp ahead of itself)."""
+        stamp = self.get_clock().now().nanoseconds
         self.embeddings.publish(embedding_msg(rollout_id, step, stamp, embedding))
         self.batches.publish(action_batch_msg(rollout_id, step, stamp, actions, exec_steps, "ee_position"))
 

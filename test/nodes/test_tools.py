@@ -14,8 +14,10 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
 from fiper_msgs.msg import FailureAlarm
+from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.interface import qos
-from helpers.dds import ros_env
+from helpers.dds import ros_env, spawn_python
+from helpers.launch import suite_config
 from helpers.suite import Driver
 
 
@@ -84,3 +86,36 @@ def test_launch_in_process_runs_the_suite_and_stops_on_ctrl_c(tmp_path: Path, ca
         out = launch.communicate(timeout=30)[0]
     assert launch.returncode == 0, out
     assert out.count("running in-process") == 3
+
+
+def _gone(pid: int) -> bool:
+    """``pid`` has exited (a zombie nobody reaped counts: it holds no DDS participant)."""
+    try:
+        return Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0] in ("Z", "X")
+    except (FileNotFoundError, IndexError):
+        return True
+
+
+def test_a_launcher_and_its_nodes_end_with_the_process_that_started_it(tmp_path: Path, calibration_dir: Path,
+                                                                     ros_domain: int) -> None:
+    # A test run or a `fiper demo` killed with SIGKILL left its `fiper launch` running (its parent gone), and
+    # the suite kept speaking in the run's domain: FIPER_PARENT_PID now ends the launcher with its parent.
+    config = suite_config(tmp_path / "suite.yaml", calibration_dir)
+    starter = spawn_python(["-c", "import os, subprocess, sys, time\n"
+                            f"subprocess.Popen([sys.executable, '-m', 'fiper_ros.cli', 'launch', {str(config)!r}],"
+                            f" env=os.environ | {{{PARENT_PID_ENV!r}: str(os.getpid())}})\n"
+                            "time.sleep(600)\n"], ros_domain)
+    assert starter.stdout is not None
+    pids: list[int] = []
+    for line in starter.stdout:
+        if line.startswith("[launch] started "):
+            pids.append(int(line.split("(pid ")[1].split(")")[0]))
+        if len(pids) == 4:
+            break
+    launcher = next(int(p) for p in Path(f"/proc/{starter.pid}/task/{starter.pid}/children").read_text().split())
+    starter.kill()
+    starter.wait()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not all(_gone(pid) for pid in (launcher, *pids)):
+        time.sleep(0.1)
+    assert [pid for pid in (launcher, *pids) if not _gone(pid)] == []

@@ -214,6 +214,29 @@ def test_the_adaptive_deadline_is_periods_times_the_period_but_at_least_the_floo
     assert state is not None and state.reason == "stream(s) ace, rnd_oe missing or older than 0.25 s"
 
 
+def test_a_burst_of_scores_does_not_shrink_the_stale_deadline() -> None:
+    # The supervisor's burst (test_alarm_supervision) in the fusion node: a node short of CPU takes the scores of
+    # steps 0-3 in one burst (one clock reading). Measured from arrivals, the period was 0 and the deadline its
+    # 0.1 s floor: an ordinary 10 Hz step then read as a stale stream. The period is the scores' stamps' (the
+    # policy steps'): 100 ms, so 2.5 periods = 250 ms of quiet are tolerated.
+    fuser = _started(deadline_periods=2.5, deadline_floor_ns=100 * MS)
+    burst = 5 * S
+    for step in range(4):
+        _pair(fuser, step, 0.5, 0.25, now=burst, stamps=(step * 100 * MS, step * 100 * MS))
+    assert fuser.period.period_ns() == 100 * MS and fuser.deadline() == 250 * MS
+    assert fuser.check(burst + 200 * MS) is None
+    state = fuser.check(burst + 260 * MS)
+    assert state is not None and state.reason == "stream(s) ace, rnd_oe missing or older than 0.25 s"
+
+
+def test_stamps_that_do_not_advance_say_nothing_about_the_period() -> None:
+    # A policy that leaves its stamps 0: no period is measured, the fixed deadline_ns holds (not the floor).
+    fuser = _started(deadline_periods=2.5, deadline_floor_ns=100 * MS)
+    for step in range(4):
+        _pair(fuser, step, 0.5, 0.25, now=step * 100 * MS, stamps=(0, 0))
+    assert fuser.period.period_ns() is None and fuser.deadline() == S
+
+
 def test_a_start_and_a_reset_clear_the_last_state_and_the_latch_field_by_field() -> None:
     fuser = _started()
     _pair(fuser, 0, 2.0, 2.0)
@@ -230,10 +253,10 @@ def test_doubt_while_no_rollout_runs_taints_nothing_and_its_reasons_are_exact() 
     fuser = AlarmFuser("and")
     fuser.suspect("x")  # idle
     assert fuser.tainted == ""
-    fuser.start(1, 0)  # started in doubt: tainted from its first step
-    assert fuser.tainted == "x"
+    fuser.start(1, 0)  # started in doubt: tainted from the first score it takes in doubt
+    assert fuser.tainted == ""
     doubted = fuser.doubted(_pair(fuser, 0, 0.5, 0.25))
-    assert doubted.reason == "scores cannot be attributed to the suite: x"
+    assert doubted.reason == "scores cannot be attributed to the suite: x" and fuser.tainted == "x"
     fuser.suspect("")
     later = fuser.doubted(_pair(fuser, 1, 0.5, 0.25))
     assert later.reason == "scores of this rollout could not be attributed to the suite (x): an alarm cannot be ruled out"

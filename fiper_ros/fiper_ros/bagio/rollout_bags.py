@@ -9,8 +9,9 @@ arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at 
 before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
 takes task, scenario and outcome from the rollout's events, and restores ``joint_positions`` as the
 ace_node sees them: per step, the arm joints of the ``/joint_states`` with the latest stamp not after
-the batch's (:mod:`fiper_ros.runtime.joint_history`; a live recording also holds the states of the
-control steps that ran while the batch travelled).
+the batch's among all of the bag's (:mod:`fiper_ros.runtime.joint_history`; a live recording also holds
+the states of the control steps that ran while the batch travelled, and may have logged a batch before
+the states stamped up to it).
 
 Observation-only data (issue #19): a rollout without action batches (``actions`` ``None``) is written
 without ActionChunkBatch messages, and a bag without the action topic is read as such rollouts (their
@@ -177,12 +178,13 @@ def _arm_joints(msg: Any) -> np.ndarray:
 
 def _collect(bag: BagReader) -> list[_Collected]:
     rollouts: dict[int, _Collected] = {}
-    joints = JointHistory()  # the ACE node's rule: the latest stamp not after the batch's
+    states: list[tuple[int, np.ndarray]] = []
+    batch_stamps: list[tuple[_Collected, int, int]] = []  # (rollout, step, the batch's stamp)
     for message in bag.messages([EMBEDDING, ACTIONS, EVENTS, JOINT_STATES]):
         msg = bag.decode(message)
         if message.topic == JOINT_STATES:
             if all(name in msg.name for name in ARM_JOINT_NAMES):
-                joints.add(stamp_ns(msg.header.stamp), _arm_joints(msg))
+                states.append((stamp_ns(msg.header.stamp), _arm_joints(msg)))
             continue
         record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task,
                                                                      exec_steps=bag.info.exec_steps))
@@ -201,9 +203,16 @@ def _collect(bag: BagReader) -> list[_Collected]:
                                f"{data.size} values, not B x H x D = {shape}")
             record.batches[int(msg.step)] = data.reshape(shape)
             record.exec_steps, record.action_space = int(msg.exec_steps), str(msg.action_space)
-            position = joints.at(stamp_ns(msg.header.stamp))
-            if position is not None:
-                record.joints[int(msg.step)] = position
+            batch_stamps.append((record, int(msg.step), stamp_ns(msg.header.stamp)))
+    # The ACE node's rule over every state of the bag, not only those logged before the batch: a recorder
+    # can take a batch before the states stamped up to it (other topics, another publisher; seen under load).
+    joints = JointHistory(capacity=max(1, len(states)))
+    for stamp, position in sorted(states, key=lambda state: state[0]):
+        joints.add(stamp, position)
+    for record, step, stamp in batch_stamps:
+        position = joints.at(stamp)
+        if position is not None:
+            record.joints[step] = position
     return list(rollouts.values())
 
 

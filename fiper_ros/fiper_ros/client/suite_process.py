@@ -25,7 +25,7 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
 from fiper_ros.core.kinematics import RobotModel
-from fiper_ros.dds import local_env
+from fiper_ros.dds import PARENT_PID_ENV, local_env
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, JOINT_STATES, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.launcher.config import LaunchError
 from fiper_ros.launcher.overrides import Overrides, rewrite
@@ -103,7 +103,8 @@ class SuiteProcess:
         self._log = log.open("w") if log is not None else None
         self.proc = subprocess.Popen(  # noqa: S603 - our own launcher
             [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
-            env=local_env(domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+            env=local_env(domain) | {PARENT_PID_ENV: str(os.getpid())},  # a killed client takes its suite along
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import yaml
 
+from fiper_ros.dds import die_with_parent
 from fiper_ros.launcher.config import LaunchError, load_config
 from fiper_ros.launcher.processes import run_in_process, run_processes
 from fiper_ros.shm import clean_stale
@@ -21,6 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``fiper launch``."""
+    die_with_parent()  # started by a demo or a test fixture: the suite goes with it
     try:
         config = load_config(args.config)
     except (LaunchError, yaml.YAMLError) as error:

@@ -9,7 +9,6 @@ killed launcher never leaves a stale suite speaking on the suite's topics.
 """
 from __future__ import annotations
 
-import ctypes
 import faulthandler
 import gc
 import os
@@ -23,7 +22,7 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.exceptions import NotInitializedException
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
-from fiper_ros.dds import PARENT_PID_ENV
+from fiper_ros.dds import die_with_parent
 
 CALLBACK_DRAIN_S = 30.0
 """Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
@@ -63,21 +62,6 @@ def shut_down() -> None:
     except RCLError:
         if rclpy.ok():
             raise
-
-
-_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
-
-
-def die_with_parent() -> None:
-    """If ``FIPER_PARENT_PID`` names this process's parent, ask Linux to send SIGTERM when it dies."""
-    parent = os.environ.get(PARENT_PID_ENV)
-    if not parent or not sys.platform.startswith("linux"):
-        return
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
-        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
-    if os.getppid() != int(parent):  # the launcher died before the request was in place
-        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def _on_sigterm(*_: Any) -> None:

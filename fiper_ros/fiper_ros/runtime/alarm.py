@@ -174,14 +174,17 @@ class AlarmFuser:
         """The latest fused state of this rollout (``None`` before its first step is fused)."""
         self.unjudged: tuple[int, int] | None = None
         """The first and last policy step of this rollout that never got a verdict here, if any."""
-        self.tainted = self.suspicion
-        """Why scores of this rollout could not be attributed (``""``: they could, all along)."""
+        self.tainted = ""
+        """Why scores of this rollout could not be attributed (``""``: they could, all along): set when a score
+        of it is taken in doubt, or doubt arises while it runs (:meth:`suspect`)."""
 
     def suspect(self, reason: str) -> None:
         """Say why the score streams cannot be attributed to the suite now (``""``: they can again).
 
         While a reason is set no state is OK (:meth:`doubted`), and a rollout running meanwhile stays
-        doubted until its end: a step fused from a foreign score may have hidden an alarm (the latch)."""
+        doubted until its end: a step fused from a foreign score may have hidden an alarm (the latch). A rollout
+        started (or reset) in doubt is doubted from the first score it takes in doubt: one whose doubt cleared
+        before any score (a respawned fusion node whose graph did not name a scorer yet) is judged as usual."""
         self.suspicion = reason
         if reason and self.active_rollout is not None and not self.tainted:
             self.tainted = reason
@@ -210,6 +213,8 @@ class AlarmFuser:
             raise ValueError(f"detector {score.detector!r} is not fused here (detectors {', '.join(self.detectors)})")
         if score.rollout_id != self.rollout_id:
             return None
+        if self.suspicion and not self.tainted:  # a score taken in doubt may be foreign: it may hide an alarm
+            self.tainted = self.suspicion
         self._last_seen[score.detector] = now_ns
         key = (score.rollout_id, score.step)
         entry = self._pending.setdefault(key, {})
@@ -225,7 +230,7 @@ class AlarmFuser:
             del self._pending[old]
             self.unmatched_stale += 1
         self.matched += 1
-        self.period.add(score.step, now_ns)
+        self.period.add(score.step, score.stamp_ns)  # the policy's own rhythm: arrivals bunch up when starved
         if score.step > self._next_step:  # steps that will never be fused: an alarm there cannot be ruled out
             first = self._next_step if self.unjudged is None else self.unjudged[0]
             self.unjudged = (first, score.step - 1)

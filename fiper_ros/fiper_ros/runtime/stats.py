@@ -26,8 +26,10 @@ class LatencyStats:
 
 class PeriodEstimator:
     """The policy period as seen by a node: the median time per step between consecutive policy steps of one
-    rollout, over the last ``window`` intervals; the times are the steps' arrivals (the fusion node) or their
-    own stamps (the supervisor, whose arrivals can bunch up when it is short of CPU).
+    rollout, over the last ``window`` intervals. The times are the steps' own stamps (the policy's, which the
+    scores and the decisions carry): the fusion node's and the supervisor's arrivals bunch up when they are
+    short of CPU, and a burst measured from arrivals gives a period near 0. Stamps that do not advance (a
+    policy that leaves them 0) say nothing about the period and are not counted.
 
     The median keeps one slow step (a GC pause, a busy core) from moving it; a step gap counts as that
     many periods (the time is divided by the step difference).
@@ -45,8 +47,8 @@ class PeriodEstimator:
         self._last = None
 
     def add(self, step: int, now_ns: int) -> None:
-        """Policy step ``step`` at ``now_ns`` (its arrival or its stamp)."""
-        if self._last is not None and step > self._last[0] and now_ns >= self._last[1]:
+        """Policy step ``step`` stamped ``now_ns``."""
+        if self._last is not None and step > self._last[0] and now_ns > self._last[1]:
             self._intervals.append((now_ns - self._last[1]) / (step - self._last[0]))
         if self._last is None or step > self._last[0]:
             self._last = (step, now_ns)
