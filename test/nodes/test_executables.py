@@ -73,7 +73,7 @@ def test_every_node_started_through_its_executable_from_another_directory_become
 
 def test_scoring_nodes_started_elsewhere_load_the_shipped_calibration_named_relatively(
         tmp_path: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
-    """``calibration_dir: models/sorting/calibration`` (suite.yaml's) from a directory without ``models/``: the
+    """``calibration_dir: models/sorting/calibration`` from a directory without ``models/``: the
     installed copy in the package share (fiper_ros/data_paths.py); the policy node's default model likewise."""
     relative = "models/sorting/calibration"
     assert not (tmp_path / relative).exists()
