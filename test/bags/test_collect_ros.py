@@ -167,8 +167,9 @@ def test_the_collect_suite_runs_the_declared_detectors_and_gives_the_ace_node_th
     assert list(nodes) == ["bridge_node", "policy_node", "rnd_oe_node", "ace_node", "fusion_node"]
     assert nodes["ace_node"]["urdf_path"] == str(URDF_PATH) and nodes["ace_node"]["calibration_dir"] == str(tmp_path)
     assert "urdf_path" not in nodes["rnd_oe_node"]
-    assert (nodes["policy_node"] | nodes["bridge_node"]).items() >= {
-        "model": str(MODELS / "stacking"), "batch": 4, "torch_threads": 1, "task": "stacking", "max_policy_steps": 2}.items()
+    chosen = {"model": str(MODELS / "stacking"), "batch": 4, "torch_threads": 1, "task": "stacking",
+              "max_policy_steps": 2}
+    assert (nodes["policy_node"] | nodes["bridge_node"]).items() >= chosen.items()
     assert all(spec.required for spec in config.nodes)
     # the fusion node fuses the detectors the calibration declares; observation-only: RND-OE alone, no ACE node
     assert nodes["fusion_node"]["calibration_dir"] == nodes["rnd_oe_node"]["calibration_dir"] == str(tmp_path)

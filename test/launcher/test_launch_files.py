@@ -138,7 +138,8 @@ def test_an_include_shares_the_scope_and_its_arguments_are_declared(tmp_path: Pa
      "$(find-pkg-share no_such_pkg): no package 'no_such_pkg' on the ament index"),
     ([{"arg": {"name": "combine", "default": "xor", "choice": [{"value": "and"}, {"value": "or"}]}}],
      "launch argument combine:='xor' is not one of and, or"),
-    ([{"arg": {"name": "calibration_dir"}}], "launch argument 'calibration_dir' has no default: give calibration_dir:="),
+    ([{"arg": {"name": "calibration_dir"}}],
+     "launch argument 'calibration_dir' has no default: give calibration_dir:="),
     ([{"include": {"file": "$(dirname)/self.launch.yaml"}}], "includes nested deeper than 8"),
 ])
 def test_what_fiper_launch_cannot_run_is_refused_in_one_line(tmp_path: Path, entries: list[dict[str, Any]],

@@ -1,10 +1,10 @@
 """``fiper security``: the SROS2 access-control policy of the suite, from the endpoints its nodes really create
 (docs/security.md).
 
-The nodes of a launch file, with its default launch arguments (default: the demo's, the whole suite with the sim bridge, the policy and the
-example supervisor) are built in this process, in a ROS domain of their own on loopback, and brought to ACTIVE;
-the ROS graph then says, per node, which topics it publishes and subscribes, which services it offers and which
-it calls. That is the policy (SROS2's format 0.2.0): one enclave per node, named as the node (its fully
+The nodes of a launch file, with its default launch arguments (default: the demo's, the whole suite with the sim
+bridge, the policy and the example supervisor) are built in this process, in a ROS domain of their own on
+loopback, and brought to ACTIVE; the ROS graph then says, per node, which topics it publishes and subscribes,
+which services it offers and which it calls. That is the policy (SROS2's format 0.2.0): one enclave per node, named as the node (its fully
 qualified name), every topic and service by its absolute name, no wildcard, nothing else allowed. ``--check``
 compares the policy with a file and fails on any difference: a topic or service the code uses now and the
 shipped policy does not name (or the other way round) is a policy to regenerate.
