@@ -29,6 +29,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.*")),  # ros2 launch fiper_ros fiper.launch.yaml
         *tree(MODELS),
     ],
     install_requires=["setuptools"],

@@ -71,8 +71,8 @@ fi
 build_inputs=("$ROOT/colcon.meta" "$LOCK" "$ROOT/tools/setup.sh")
 while IFS= read -r f; do build_inputs+=("$f"); done < <(
   cd "$ROOT" && find fiper_msgs fiper_ros sim_bridge -maxdepth 2 \
-    \( -name package.xml -o -name CMakeLists.txt -o -name setup.py -o -name setup.cfg \
-       -o -name '*.msg' -o -name '*.srv' -o -path '*/config/*.yaml' \) -type f | sort | sed "s|^|$ROOT/|")
+    \( -name package.xml -o -name CMakeLists.txt -o -name setup.py -o -name setup.cfg -o -name '*.msg' \
+       -o -name '*.srv' -o -path '*/config/*.yaml' -o -path '*/launch/*.launch.*' \) -type f | sort | sed "s|^|$ROOT/|")
 # The shipped models are installed with fiper_ros (fiper_ros/models links to models/): a new file needs a build.
 while IFS= read -r f; do build_inputs+=("$f"); done < <(cd "$ROOT" && find models -type f | sort | sed "s|^|$ROOT/|")
 build_hash="$(hash_of "${build_inputs[@]}")"
@@ -82,6 +82,9 @@ build_stamp="$ROOT/install/.fiper-build-stamp"
 if [ ! -f "$build_stamp" ] || [ "$(cat "$build_stamp")" != "$build_hash" ] || [ ! -f "$ROOT/install/local_setup.sh" ]; then
   say "colcon build"
   mkdir -p "$ROOT/log"
+  # A symlink build keeps links to sources that were removed since (a deleted config file): drop them, or
+  # setup.py's data_files step fails on them.
+  find "$ROOT/build" "$ROOT/install" -xtype l -delete 2>/dev/null || true
   (
     cd "$ROOT"
     export VIRTUAL_ENV="$VENV" PATH="$VENV/bin:$PATH"

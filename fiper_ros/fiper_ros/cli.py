@@ -12,11 +12,12 @@ from collections.abc import Callable, Sequence
 
 from fiper_ros import __version__
 
-#: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``.
+#: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``; one whose
+#: ``INTERMIXED`` is true has its options parsed anywhere among its positional arguments.
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("fiper_ros.commands.demo", "run the whole suite live on the shipped Sorting model (make demo)"),
     "doctor": ("fiper_ros.commands.doctor", "check that the workspace environment is complete"),
-    "launch": ("fiper_ros.commands.launch", "start the suite's nodes from a launch YAML (processes or in-process)"),
+    "launch": ("fiper_ros.commands.launch", "start the nodes of a ROS 2 launch YAML (name:=value arguments)"),
     "echo": ("fiper_ros.commands.echo", "print the messages of a topic"),
     "record": ("fiper_ros.commands.record", "record the suite's topics into an MCAP bag"),
     "replay": ("fiper_ros.commands.replay", "play bags into the node suite and report its alarms per rollout"),
@@ -38,9 +39,9 @@ NOT_SET_UP = (
 )
 
 
-def _load(name: str) -> tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int]]:
+def _load(name: str) -> tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int], bool]:
     module = importlib.import_module(COMMANDS[name][0])
-    return module.add_arguments, module.run
+    return module.add_arguments, module.run, getattr(module, "INTERMIXED", False)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,10 +62,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     name = argv[0]
     try:
-        add_arguments, run = _load(name)
+        add_arguments, run, intermixed = _load(name)
         sub_parser = argparse.ArgumentParser(prog=f"fiper {name}", description=COMMANDS[name][1])
         add_arguments(sub_parser)
-        return run(sub_parser.parse_args(argv[1:]))
+        return run((sub_parser.parse_intermixed_args if intermixed else sub_parser.parse_args)(argv[1:]))
     except ModuleNotFoundError as exc:
         top = (exc.name or "").split(".")[0]
         if top not in _ENVIRONMENT_MODULES:

@@ -31,6 +31,7 @@ from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
 from fiper_ros.policy.policy import Policy
+from helpers.launch import node_entry, write_launch
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
 CALIBRATION = MODELS / "sorting" / "calibration"
@@ -138,16 +139,17 @@ def test_a_folder_of_the_other_runner_is_refused(collected: Path, tmp_path: Path
 
 def test_a_node_that_dies_ends_the_collect_with_one_line_and_keeps_its_output(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    broken = tmp_path / "broken.yaml"
-    broken.write_text("namespace: /fiper\nnodes:\n  bridge_node: {module: fiper_ros.nodes.no_such_node, namespace: /sim}\n"
-                      "  policy_node: {module: fiper_ros.nodes.no_such_node}\n")
-    monkeypatch.setattr(collect_ros, "installed_config", lambda name: broken)
+    # both nodes die at start: a text where their parameter is an integer
+    broken = write_launch(tmp_path / "broken.launch.yaml", {"arg": {"name": "model"}},
+                          node_entry("bridge_node", {"seed": "'not a number'"}, package="sim_bridge", namespace="/sim"),
+                          node_entry("policy_node", {"model": "$(var model)", "batch": "'not a number'"}))
+    monkeypatch.setattr(collect_ros, "installed_launch", lambda name: broken)
     out = tmp_path / "sorting"
     assert main([*collect_args(), "--ros", "--out", str(out)]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err[-1].startswith("fiper collect: the suite's launcher exited (") and "exited with code 1" in err[-1]
     assert err[-1].endswith(f"the nodes' output: {out / WORK_DIR / 'suite.log'}")
-    assert "No module named fiper_ros.nodes.no_such_node" in (out / WORK_DIR / "suite.log").read_text()
+    assert "InvalidParameterTypeException" in (out / WORK_DIR / "suite.log").read_text()
     assert json.loads((out / "collect.json").read_text())["rollouts"] == []
 
 
@@ -155,19 +157,25 @@ def test_the_collect_suite_runs_the_declared_detectors_and_gives_the_ace_node_th
     from sim_bridge.robot import URDF_PATH
 
     from fiper_ros.client.live_collect import LiveSettings, collect_config
-    from fiper_ros.client.suite_process import installed_config
+    from fiper_ros.client.suite_process import installed_launch
 
+    demo = installed_launch("demo.launch.yaml")
     settings = LiveSettings(task="stacking", model=MODELS / "stacking", batch=4, threads=1, max_policy_steps=2,
                             calibration=tmp_path, detectors=DETECTORS)
-    nodes = {spec.name: spec.parameters for spec in collect_config(installed_config("demo.yaml"), settings).nodes}
+    config = collect_config(demo, settings)
+    nodes = {spec.name: spec.parameters for spec in config.nodes}
     assert list(nodes) == ["bridge_node", "policy_node", "rnd_oe_node", "ace_node", "fusion_node"]
     assert nodes["ace_node"]["urdf_path"] == str(URDF_PATH) and nodes["ace_node"]["calibration_dir"] == str(tmp_path)
     assert "urdf_path" not in nodes["rnd_oe_node"]
+    chosen = {"model": str(MODELS / "stacking"), "batch": 4, "torch_threads": 1, "task": "stacking",
+              "max_policy_steps": 2}
+    assert (nodes["policy_node"] | nodes["bridge_node"]).items() >= chosen.items()
+    assert all(spec.required for spec in config.nodes)
     # the fusion node fuses the detectors the calibration declares; observation-only: RND-OE alone, no ACE node
     assert nodes["fusion_node"]["calibration_dir"] == nodes["rnd_oe_node"]["calibration_dir"] == str(tmp_path)
-    alone = collect_config(installed_config("demo.yaml"), replace(settings, detectors=OBSERVATION_ONLY))
+    alone = collect_config(demo, replace(settings, detectors=OBSERVATION_ONLY))
     assert [spec.name for spec in alone.nodes] == ["bridge_node", "policy_node", "rnd_oe_node", "fusion_node"]
-    unscored = collect_config(installed_config("demo.yaml"), replace(settings, calibration=None, detectors=()))
+    unscored = collect_config(demo, replace(settings, calibration=None, detectors=()))
     assert [spec.name for spec in unscored.nodes] == ["bridge_node", "policy_node"]
 
 

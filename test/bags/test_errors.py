@@ -346,22 +346,25 @@ def test_missing_calibration_is_refused(small_bag: Path, capsys: pytest.CaptureF
 
 
 def test_a_replayed_suite_gets_the_robot_model_on_its_ace_node_only(tmp_path: Path) -> None:
-    from fiper_ros.client.suite_process import ACE_MODULE, installed_config, replay_config
+    from fiper_ros.client.suite_process import ACE_MODULE, installed_launch, replay_config
+    from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
     from fiper_ros.core.kinematics import RobotModel
-    from fiper_ros.launcher.config import load_config
+    from fiper_ros.launcher.config import load_launch
 
     urdf = tmp_path / "robot.urdf"
     urdf.write_text("<robot name='r'/>")
-    plain = load_config(replay_config(installed_config(), tmp_path, tmp_path / "plain.yaml"))
-    config = load_config(replay_config(installed_config(), tmp_path, tmp_path / "suite.yaml",
+    plain = load_launch(replay_config(installed_launch(), tmp_path, DETECTORS, tmp_path / "plain.yaml"))
+    config = load_launch(replay_config(installed_launch(), tmp_path, DETECTORS, tmp_path / "suite.yaml",
                                        RobotModel(str(urdf), "tool0", 0.1)))
-    assert config.use_sim_time
-    for spec, before in zip(config.nodes, plain.nodes):
+    for spec, before in zip(config.nodes, plain.nodes, strict=True):
+        assert before.parameters["use_sim_time"] is True and before.parameters["calibration_dir"] == str(tmp_path)
         if spec.module == ACE_MODULE:
             assert spec.parameters == before.parameters | {"urdf_path": str(urdf.resolve()), "ee_frame": "tool0"}
         else:
             assert spec.parameters == before.parameters
     assert [s.module for s in config.nodes].count(ACE_MODULE) == 1
+    alone = load_launch(replay_config(installed_launch(), tmp_path, OBSERVATION_ONLY, tmp_path / "alone.yaml"))
+    assert [spec.name for spec in alone.nodes] == ["rnd_oe_node", "fusion_node"]
 
 
 @pytest.mark.parametrize("command", ["demo", "collect"])

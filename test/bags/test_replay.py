@@ -83,7 +83,7 @@ def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_do
 def test_the_observation_only_suite_replays_as_the_offline_oracle(
         observation_bags: dict[str, Path], observation_calibration: Path, ros_domain: int, tmp_path: Path) -> None:
     """Issue #19 end to end: an observation-only calibration (``fiper calibrate --detectors rnd_oe``, the
-    fixture) -> replay launches its suite (suite_obs.yaml: no ace_node, the fusion node on RND-OE alone) ->
+    fixture) -> replay launches its suite (observation_only:=true: no ace_node, the fusion node on RND-OE alone) ->
     every step's alarm is the offline oracle's, for a bag without action batches and for one with them (they
     are not played: nothing in this suite reads them)."""
     bags = [observation_bags["test"], observation_bags["calibration_full"]]

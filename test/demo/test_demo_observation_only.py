@@ -118,7 +118,7 @@ def test_collect_ros_records_rnd_oe_alone_and_the_bag_replays(
     assert calibration_hash == load_calibration(observation_calibration).content_hash
     oracle = _oracle_agrees(bag, observation_calibration, entry["rollout_id"], steps)
     assert any(s.state == "alarm" for s in oracle.values())  # the OOD rollout is alarmed within its 20 steps
-    # the bag replays: through the observation-only suite (suite_obs.yaml) as the offline oracle says
+    # the bag replays through the observation-only suite (observation_only:=true) as the offline oracle says
     report = tmp_path / "report.json"
     replay = subprocess.run([sys.executable, "-m", "fiper_ros.cli", "replay", str(bag), "--calibration",
                              str(observation_calibration), "--fast", "--step-timeout", "30", "--domain",

@@ -6,7 +6,6 @@ import math
 from pathlib import Path
 
 import matplotlib.pyplot as plt
-import numpy as np
 import pytest
 
 from fiper_msgs.msg import FailureAlarm
@@ -18,7 +17,7 @@ from fiper_ros.commands.demo import SUPERVISOR, demo_config, managed_nodes, prob
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
 from fiper_ros.interface.topics import SCORE_ACE, SCORE_RND_OE, TOPICS
 
-DEMO_YAML = Path(__file__).resolve().parents[2] / "fiper_ros" / "config" / "demo.yaml"
+DEMO_YAML = Path(__file__).resolve().parents[2] / "fiper_ros" / "launch" / "demo.launch.yaml"
 
 
 def scored(steps: int, alarm: int | None = None, outcome: str = "failure",
@@ -128,7 +127,7 @@ def test_demo_config_makes_model_and_calibration_absolute(tmp_path: Path) -> Non
     for name in ("rnd_oe_node", "ace_node", "fusion_node"):  # the fusion node fuses the detectors it declares
         assert nodes[name].parameters["calibration_dir"] == str(tmp_path / "calibration")
     assert nodes["bridge_node"].namespace == "/sim" and nodes["bridge_node"].required
-    assert np.all([spec.parameter_files for spec in nodes.values()])
+    assert all(spec.parameters.get("use_sim_time", False) == (name != "bridge_node") for name, spec in nodes.items())
     assert managed_nodes(config) == ["/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
                                      "/fiper/fusion_node"]
 

@@ -30,13 +30,15 @@ POLICY_PERIOD_S = STEP_NS / 1e9
 
 
 class Launch:
-    """``fiper launch CONFIG`` in its own process group and ROS domain."""
+    """``fiper launch CONFIG name:=value ...`` in its own process group and ROS domain (in ``cwd``)."""
 
-    def __init__(self, config: Path, domain: int) -> None:
+    def __init__(self, config: Path, domain: int, arguments: dict[str, str] | None = None,
+                 cwd: Path | None = None) -> None:
+        named = [f"{name}:={value}" for name, value in (arguments or {}).items()]
         self.proc = subprocess.Popen(  # noqa: S603
-            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
-            env=ros_env(domain) | {PARENT_PID_ENV: str(os.getpid())}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True, start_new_session=True)
+            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), *named, "--grace", "5"],
+            cwd=cwd, env=ros_env(domain) | {PARENT_PID_ENV: str(os.getpid())}, stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self.lines: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -139,26 +141,34 @@ class Rig:
         self.launch.kill()
 
 
+def node_entry(name: str, parameters: dict[str, object] | None = None, *, package: str = "fiper_ros",
+               namespace: str = "/fiper", **attributes: object) -> dict[str, object]:
+    """One ``node`` tag of a launch YAML: ``package``'s executable ``name``, named so, with ``parameters`` (by name)
+    and other attributes (``respawn``, ``respawn_delay``, ``on_exit``, ...)."""
+    params = [{"name": key, "value": value} for key, value in (parameters or {}).items()]
+    return {"node": {"pkg": package, "exec": name, "name": name, "namespace": namespace, "output": "screen",
+                     **({"param": params} if params else {}), **attributes}}
+
+
+def write_launch(path: Path, *entries: dict[str, object]) -> Path:
+    """Write the launch YAML of ``entries`` (tags) to ``path``."""
+    path.write_text(yaml.safe_dump({"launch": list(entries)}, sort_keys=False))
+    return path
+
+
 def suite_config(path: Path, calibration_dir: Path, *, respawn: bool = False,
                  scoring: dict[str, object] | None = None, fusion: dict[str, object] | None = None) -> Path:
     """Write a launch YAML to ``path``: the scoring nodes on ``calibration_dir`` (and ``scoring`` parameters), the
     fusion node (and ``fusion`` parameters; ``respawn`` with a delay of 0.5 s for all three) and the example
     supervisor calling ``/test/halt``."""
-    share = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "config"
     parameters = {"calibration_dir": str(calibration_dir), **(scoring or {})}
-    respawning = {"respawn": respawn, "respawn_delay": 0.5}
-    path.write_text(yaml.safe_dump({
-        "namespace": "/fiper",
-        "parameter_files": [str(share / "nodes.yaml")],
-        "nodes": {
-            "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": parameters, **respawning},
-            "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": parameters, **respawning},
-            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": fusion or {}, **respawning},
-            "supervisor_node": {"module": "fiper_ros.nodes.supervisor_node",
-                                "parameters": {"halt_service": "/test/halt", "deadline_s": 2.0}},
-        },
-    }))
-    return path
+    respawning = {"respawn": str(respawn).lower(), "respawn_delay": 0.5}
+    return write_launch(
+        path,
+        node_entry("rnd_oe_node", parameters, **respawning),
+        node_entry("ace_node", parameters, **respawning),
+        node_entry("fusion_node", fusion, **respawning),
+        node_entry("supervisor_node", {"halt_service": "/test/halt", "deadline_s": 2.0}))
 
 
 def open_rig(config: Path, domain: int) -> Rig:

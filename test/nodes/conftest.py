@@ -1,4 +1,5 @@
-"""Fixtures of the node tests: one small calibration per session, a fresh in-process suite per test."""
+"""Fixtures of the node tests: one small calibration per session, a fresh in-process suite per test, a
+/diagnostics listener."""
 from __future__ import annotations
 
 from collections.abc import Iterator
@@ -6,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from helpers.diagnostics import DiagnosticsListener
 from helpers.suite import Suite
 from helpers.synthetic import make_calibration
 
@@ -23,3 +25,12 @@ def suite(ros_domain: int, calibration_dir: Path) -> Iterator[Suite]:
         yield s
     finally:
         s.close()
+
+
+@pytest.fixture
+def listener(ros_domain: int) -> Iterator[DiagnosticsListener]:
+    listening = DiagnosticsListener(ros_domain)
+    try:
+        yield listening
+    finally:
+        listening.close()

@@ -5,21 +5,15 @@ from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 
-import pytest
-import rclpy
 from ament_index_python.packages import get_package_prefix
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 
 from fiper_ros.core.calibration import load_calibration
-from fiper_ros.interface import qos
 from helpers.aggregator import analyzers_of
 from helpers.dds import ros_env, stop
+from helpers.diagnostics import DiagnosticsListener, up
 from helpers.spin import spin_until
 
 #: package -> its node executables.
@@ -27,45 +21,12 @@ EXECUTABLES = {
     "fiper_ros": ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node"),
     "sim_bridge": ("bridge_node",),
 }
-#: The supervisor is a plain node (no lifecycle): it is up once it reports on /diagnostics.
-PLAIN_NODES = ("supervisor_node",)
 SHIPPED = Path(os.environ["FIPER_ROOT"]) / "models"
 
 
 def executable(package: str, name: str) -> Path:
     """Where ``ros2 run`` finds ``name`` of ``package``."""
     return Path(get_package_prefix(package)) / "lib" / package / name
-
-
-class DiagnosticsListener:
-    """The latest /diagnostics values per status name, in the test's own context."""
-
-    def __init__(self, domain: int) -> None:
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = Node("test_diagnostics", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.statuses: dict[str, dict[str, str]] = {}
-        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on, qos.DIAGNOSTICS)
-
-    def _on(self, msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.context)
-
-
-@pytest.fixture
-def listener(ros_domain: int) -> Iterator[DiagnosticsListener]:
-    listening = DiagnosticsListener(ros_domain)
-    try:
-        yield listening
-    finally:
-        listening.close()
 
 
 def start(package: str, name: str, cwd: Path, domain: int, namespace: str, parameters: Mapping[str, str]
@@ -76,12 +37,6 @@ def start(package: str, name: str, cwd: Path, domain: int, namespace: str, param
         args += ["-p", f"{key}:={value}"]
     return subprocess.Popen(args, cwd=cwd, env=ros_env(domain), stdout=subprocess.PIPE,  # noqa: S603
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
-
-
-def up(statuses: Mapping[str, Mapping[str, str]], fqn: str, name: str) -> bool:
-    """Whether the node ``fqn`` reported ACTIVE (a plain node: reported at all)."""
-    values = statuses.get(f"fiper: {fqn}")
-    return values is not None and (name in PLAIN_NODES or values.get("lifecycle_state") == "active")
 
 
 def test_every_node_has_an_executable_where_ros2_run_looks() -> None:
@@ -118,7 +73,7 @@ def test_every_node_started_through_its_executable_from_another_directory_become
 
 def test_scoring_nodes_started_elsewhere_load_the_shipped_calibration_named_relatively(
         tmp_path: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
-    """``calibration_dir: models/sorting/calibration`` (suite.yaml's) from a directory without ``models/``: the
+    """``calibration_dir: models/sorting/calibration`` from a directory without ``models/``: the
     installed copy in the package share (fiper_ros/data_paths.py); the policy node's default model likewise."""
     relative = "models/sorting/calibration"
     assert not (tmp_path / relative).exists()

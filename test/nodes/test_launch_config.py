@@ -1,60 +1,49 @@
-"""`LaunchConfig.with_parameters`: the one way the demo, collect and replay rewrite a launch file; a node's command
-line and its in-process parameters."""
+"""A node of a launch file built in-process (``fiper launch --in-process``, ``fiper security``) gets what its
+process would: the parameter files' entries for it (by its name or ``/**``), a file without one is no error, the
+inline parameters after the files win, remaps, and the ``--log-level`` of ``ros_args``."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import rclpy
+import rclpy.logging
 import yaml
+from helpers.launch import node_entry, write_launch
 from rclpy.context import Context
 
-from fiper_ros.launcher.config import NodeSpec, dump_config, load_config
+from fiper_ros.launcher.config import load_launch
 from fiper_ros.launcher.processes import build_node
 
 
-def test_with_parameters_merges_per_node_and_leaves_the_source_alone(tmp_path: Path) -> None:
-    source = tmp_path / "suite.yaml"
-    source.write_text(yaml.safe_dump({"nodes": {
-        "a": {"module": "m.a", "parameters": {"x": 1, "y": 2}},
-        "b": {"module": "m.b", "parameters": {"y": 3}},
-        "c": {"module": "m.c"}}}))
-    config = load_config(source)
-
-    def extra(spec: NodeSpec) -> dict[str, int]:
-        return {"y": 9, "z": 4} if spec.module != "m.c" else {}
-
-    changed = config.with_parameters(extra)
-
-    assert [spec.parameters for spec in changed.nodes] == [{"x": 1, "y": 9, "z": 4}, {"y": 9, "z": 4}, {}]
-    assert [spec.parameters for spec in config.nodes] == [{"x": 1, "y": 2}, {"y": 3}, {}]
-    reread = load_config(dump_config(changed, tmp_path / "out.yaml"))
-    assert [spec.parameters for spec in reread.nodes] == [spec.parameters for spec in changed.nodes]
-
-
-def test_a_node_runs_in_its_own_security_enclave_when_asked() -> None:
-    spec = NodeSpec("fusion_node", "fiper_ros.nodes.fusion_node", "/fiper", ())
-    assert "--enclave" not in spec.ros_args(False)
-    args = spec.ros_args(False, enclave=True)
-    assert args[args.index("--enclave") + 1] == spec.fqn == "/fiper/fusion_node"
-
-
-def test_an_in_process_node_gets_its_parameter_file_entry_and_a_file_without_one_is_no_error(
+def test_an_in_process_node_gets_its_parameter_file_entries_parameters_remaps_and_log_level(
         tmp_path: Path, ros_domain: int) -> None:
-    params = tmp_path / "nodes.yaml"
-    params.write_text(yaml.safe_dump({"/fiper/fusion_node": {"ros__parameters": {"heartbeat_s": 0.25,
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"deadline_floor_s": 0.2}},
+                                      "/fiper/fusion_node": {"ros__parameters": {"heartbeat_s": 0.25,
                                                                                  "combine": "and"}}}))
+    other = tmp_path / "other.yaml"
+    other.write_text(yaml.safe_dump({"/elsewhere/node": {"ros__parameters": {"x": 1}}}))
+    files = [{"from": str(params)}, {"from": str(other)}]
+    config = load_launch(write_launch(
+        tmp_path / "suite.launch.yaml",
+        node_entry("fusion_node", ros_args="--log-level debug", remap=[{"from": "alarm", "to": "alarm_b"}],
+                   param=[*files, {"name": "combine", "value": "or"}]),
+        node_entry("supervisor_node", param=[*files, {"name": "use_sim_time", "value": True}])))
+    fusion_spec, supervisor_spec = config.nodes
     context = Context()
     rclpy.init(context=context, domain_id=ros_domain)
     nodes = []
     try:
-        nodes.append(build_node(NodeSpec("fusion_node", "fiper_ros.nodes.fusion_node", "/fiper", (params,),
-                                         {"combine": "or"}), False, context))
-        nodes.append(build_node(NodeSpec("supervisor_node", "fiper_ros.nodes.supervisor_node", "/fiper", (params,)),
-                                True, context))
+        nodes.append(build_node(fusion_spec, context))
+        nodes.append(build_node(supervisor_spec, context))
         fusion, supervisor = nodes
-        assert fusion.get_parameter("heartbeat_s").value == 0.25  # the file's
-        assert fusion.get_parameter("combine").value == "or"  # inline wins
+        assert fusion.get_parameter("heartbeat_s").value == 0.25  # the file's entry for this node
+        assert fusion.get_parameter("deadline_floor_s").value == 0.2  # the file's /** entry
+        assert fusion.get_parameter("combine").value == "or"  # inline, after the file, wins
+        assert "/fiper/alarm_b" in [p.topic_name for p in fusion.publishers]
+        assert fusion.get_logger().get_effective_level() == rclpy.logging.LoggingSeverity.DEBUG
         assert supervisor.get_parameter("use_sim_time").value is True
+        assert supervisor.get_fully_qualified_name() == "/fiper/supervisor_node"
     finally:
         for node in nodes:
             node.destroy_node()

@@ -58,7 +58,7 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
                           and status("ace_node").get("message", "").startswith("configure failed"), 20.0)
         assert status("ace_node")["message"] == (
             f"configure failed: calibration {directory} is observation-only (detectors rnd_oe): nothing for ace_node "
-            "to score; launch the suite without it (fiper_ros/config/suite_obs.yaml)")
+            "to score; launch the suite without it (fiper.launch.yaml observation_only:=true)")
         assert ace.lifecycle_state() == "unconfigured" and fusion.fuser.detectors == OBSERVATION_ONLY
         assert spin_until(executor, lambda: "intruder" in [i.node_name for i in
                                                           driver.get_publishers_info_by_topic("/fiper/scores/ace")])

@@ -10,21 +10,21 @@ import pytest
 
 from fiper_ros.cli import main
 from fiper_ros.commands.security import Grants, differences, policy_xml, read_policy, resolve
-from fiper_ros.launcher.config import load_config
+from fiper_ros.launcher.config import load_launch
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 POLICY = ROOT / "fiper_ros" / "config" / "sros2_policy.xml"
-DEMO = ROOT / "fiper_ros" / "config" / "demo.yaml"
+DEMO = ROOT / "fiper_ros" / "launch" / "demo.launch.yaml"
 
 
 def test_the_shipped_policy_covers_exactly_the_topics_and_services_the_nodes_use(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.chdir(ROOT)  # the demo config's model and calibration paths are relative to the repository
+    monkeypatch.chdir(tmp_path)  # the demo's model and calibration: the installed ones, from any directory
     generated = tmp_path / "policy.xml"
     assert main(["security", str(DEMO), "-o", str(generated)]) == 0  # in a ROS domain of its own
     assert "6 enclaves written" in capsys.readouterr().out
     used = read_policy(generated.read_text())
-    assert sorted(used) == sorted(spec.fqn for spec in load_config(DEMO).nodes)  # every node, by its own name
+    assert sorted(used) == sorted(spec.fqn for spec in load_launch(DEMO).nodes)  # every node, by its own name
     shipped = read_policy(POLICY.read_text())
     assert differences(shipped, used, ("the shipped policy", "the code")) == [], \
         "regenerate: fiper security -o fiper_ros/config/sros2_policy.xml"

@@ -8,14 +8,13 @@ import signal
 from pathlib import Path
 
 import rclpy
-import yaml
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.interface import qos
-from helpers.launch import Launch
+from helpers.launch import Launch, node_entry, write_launch
 from helpers.spin import spin_until as spin
 from helpers.suite import Driver
 from helpers.synthetic import FAIL_FROM, make_rollout
@@ -28,18 +27,10 @@ POLICY_PERIOD_S = 0.1
 def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
     tmp_path: Path, calibration_dir: Path, ros_domain: int
 ) -> None:
-    config = tmp_path / "suite.yaml"
-    share = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "config"
-    config.write_text(yaml.safe_dump({
-        "namespace": "/fiper",
-        "parameter_files": [str(share / "nodes.yaml")],
-        "nodes": {
-            "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": {"calibration_dir": str(calibration_dir)}},
-            "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": {"calibration_dir": str(calibration_dir)}},
-            "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": {"deadline_s": DEADLINE_S,
-                                                                            "heartbeat_s": HEARTBEAT_S}},
-        },
-    }))
+    scoring = {"calibration_dir": str(calibration_dir)}
+    config = write_launch(tmp_path / "suite.launch.yaml", node_entry("rnd_oe_node", scoring),
+                          node_entry("ace_node", scoring),
+                          node_entry("fusion_node", {"deadline_s": DEADLINE_S, "heartbeat_s": HEARTBEAT_S}))
     launch = Launch(config, ros_domain)
     context = Context()
     rclpy.init(context=context, domain_id=ros_domain)

@@ -9,7 +9,6 @@ import time
 from pathlib import Path
 
 import rclpy
-import yaml
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
@@ -17,7 +16,7 @@ from fiper_msgs.msg import FailureAlarm
 from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.interface import qos
 from helpers.dds import ros_env, spawn_python
-from helpers.launch import suite_config
+from helpers.launch import node_entry, suite_config, write_launch
 from helpers.suite import Driver
 
 
@@ -58,12 +57,9 @@ def test_echo_of_a_missing_topic_says_so(ros_domain: int) -> None:
 
 def test_launch_in_process_runs_the_suite_and_stops_on_ctrl_c(tmp_path: Path, calibration_dir: Path,
                                                              ros_domain: int) -> None:
-    config = tmp_path / "suite.yaml"
-    config.write_text(yaml.safe_dump({"namespace": "/fiper", "nodes": {
-        "rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": {"calibration_dir": str(calibration_dir)}},
-        "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": {"calibration_dir": str(calibration_dir)}},
-        "fusion_node": {"module": "fiper_ros.nodes.fusion_node"},
-    }}))
+    scoring = {"calibration_dir": str(calibration_dir)}
+    config = write_launch(tmp_path / "suite.launch.yaml", node_entry("rnd_oe_node", scoring),
+                          node_entry("ace_node", scoring), node_entry("fusion_node"))
     launch = _fiper(["launch", str(config), "--in-process"], ros_domain)
     context = Context()
     rclpy.init(context=context, domain_id=ros_domain)

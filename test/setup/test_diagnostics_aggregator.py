@@ -13,11 +13,11 @@ from helpers.fuzz import private_context
 from rclpy.context import Context
 from rclpy.node import Node
 
-from fiper_ros.launcher.config import load_config
+from fiper_ros.launcher.config import load_launch
 from fiper_ros.nodes.base import diagnostic_array
 
 #: The demo's node set: every node of the suite and the sim bridge, in their namespaces.
-DEMO = CONFIG.parent / "demo.yaml"
+DEMO = CONFIG.parents[1] / "launch" / "demo.launch.yaml"
 GROUPS = {"rnd_oe_node": "/FIPER/Detectors", "ace_node": "/FIPER/Detectors", "fusion_node": "/FIPER/Fusion",
           "supervisor_node": "/FIPER/Supervisor", "policy_node": "/FIPER/Policy", "bridge_node": "/FIPER/Simulation"}
 
@@ -38,7 +38,7 @@ def status_name(context: Context, name: str, namespace: str) -> str:
 
 
 def test_each_node_of_the_suite_is_matched_by_exactly_one_analyzer(context: Context) -> None:
-    specs = load_config(DEMO).nodes
+    specs = load_launch(DEMO).nodes
     assert {spec.name for spec in specs} == set(GROUPS)
     for spec in specs:
         name = status_name(context, spec.name, spec.namespace)

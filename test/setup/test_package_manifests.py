@@ -84,3 +84,12 @@ def test_fiper_msgs_depends_on_the_packages_its_interfaces_use() -> None:
             if m := re.match(r"\s*([a-z][a-z0-9_]*)/[A-Z]\w*", line):
                 used.add(m.group(1))
     assert used and used <= declared("fiper_msgs"), sorted(used - declared("fiper_msgs"))
+
+
+def test_a_package_with_launch_files_declares_what_ros2_launch_runs_them_with() -> None:
+    for package in PYTHON_PACKAGES:
+        files = sorted((ROOT / package / "launch").glob("*.launch.*"))
+        assert files, package  # both ship launch files (#21)
+        needed = {"launch_ros"} | ({"launch_yaml"} if any(f.suffix == ".yaml" for f in files) else set()) | (
+            {"launch"} if any(f.suffix == ".py" for f in files) else set())
+        assert needed <= declared(package), (package, sorted(needed - declared(package)))

@@ -1,9 +1,7 @@
-"""The bridge's rollout logic without DDS: rollout ids, command checks, outcomes, the launch file."""
+"""The bridge's rollout logic without DDS: rollout ids, command checks, outcomes."""
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +11,6 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import ActionCommand
-from fiper_ros.launcher.config import load_config
 from fiper_ros.runtime.validation import InputRejected
 from sim_bridge.bridge_session import ACTION_SPACES, JOINT_NAMES, PROPRIO_NAMES, BridgeSession, rollout_id_of
 from sim_bridge.tasks import TASKS
@@ -134,25 +131,6 @@ def test_a_policy_step_cap_ends_rollouts_as_a_timeout_after_the_last_command() -
         assert loose.start("pusht", "id", 0)[0].max_steps == 38  # a cap above the task's limit changes nothing
     finally:
         loose.close()
-
-
-def test_launch_file_names_declared_parameters(ros_domain: int) -> None:
-    from sim_bridge.bridge_node import NODE_CLASS  # noqa: PLC0415
-
-    config = load_config(Path(os.environ["FIPER_ROOT"]) / "sim_bridge" / "config" / "bridge.yaml")
-    (spec,) = config.nodes
-    assert spec.module == "sim_bridge.bridge_node" and spec.required
-    context = Context()
-    rclpy.init(context=context, domain_id=ros_domain)
-    try:
-        node = NODE_CLASS(context=context, namespace=spec.namespace,
-                          parameter_overrides=[Parameter("autostart", value=False)])
-        for name, value in spec.parameters.items():
-            assert node.has_parameter(name), name
-            assert type(node.get_parameter(name).value) is type(value), name
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)
 
 
 def test_start_on_activate_and_deactivate(ros_domain: int) -> None:

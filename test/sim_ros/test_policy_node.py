@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
-import yaml
+from ament_index_python.packages import get_package_share_directory
 from helpers.policy_fixtures import tiny_policy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
@@ -24,7 +24,7 @@ from sim_ros.policy_client import FakeDriver, PolicyHarness
 from fiper_msgs.msg import RolloutEvent
 from fiper_ros.interface.conversions import floats_of, stamp_ns
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
-from fiper_ros.launcher.config import load_config
+from fiper_ros.launcher.config import load_launch
 from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
 from fiper_ros.policy.encoder import CAMERAS
@@ -242,14 +242,11 @@ def test_launch_file_and_parameter_defaults(ros_domain: int) -> None:
         assert defaults == {"events_topic": EVENTS, "embedding_topic": EMBEDDING, "action_chunks_topic": ACTIONS,
                             "model": "models/sorting", "batch": 0}
         assert tuple(IMAGE_TOPIC_PARAMS) == CAMERAS
-        (spec,) = load_config(ROOT / "fiper_ros" / "config" / "policy.yaml").nodes
-        assert (spec.module, spec.namespace, spec.required) == ("fiper_ros.nodes.policy_node", "/fiper", True)
-        files = {path.name for path in spec.parameter_files}
-        assert files == {"nodes.yaml"}
-        from_file = yaml.safe_load(spec.parameter_files[0].read_text())["/fiper/policy_node"]["ros__parameters"]
-        for name, value in (from_file | spec.parameters).items():
-            assert node.has_parameter(name), name
-            assert node.get_parameter(name).value == value, name
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+    # its launch file: the shipped model, required; the other values are the node's (test_parameter_defaults.py)
+    (spec,) = load_launch(ROOT / "fiper_ros" / "launch" / "policy.launch.yaml", {"batch": "8"}).nodes
+    assert (spec.module, spec.fqn, spec.required) == ("fiper_ros.nodes.policy_node", "/fiper/policy_node", True)
+    assert Path(spec.parameters["model"]) == Path(get_package_share_directory("fiper_ros")) / "models" / "sorting"
+    assert spec.parameters["batch"] == 8

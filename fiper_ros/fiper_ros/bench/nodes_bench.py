@@ -30,17 +30,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
-from fiper_ros.launcher.config import NodeSpec, load_config
+from fiper_ros.client.suite_process import installed_launch
+from fiper_ros.launcher.config import NodeSpec, load_launch
+from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.shm import clean_stale
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
 #: included) within :data:`TARGET_SUITE_S`.
 TARGET_NODE_S = 1.5
@@ -89,16 +89,9 @@ def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
 
 
 def _suite_config(calibration: Path, work: Path) -> Path:
-    """The launch YAML of the three FIPER nodes on ``calibration``."""
-    config = work / "suite.yaml"
-    params = {"calibration_dir": str(calibration)}
-    config.write_text(yaml.safe_dump({
-        "namespace": "/fiper", "parameter_files": [str(CONFIG_DIR / "nodes.yaml")],
-        "nodes": {"rnd_oe_node": {"module": "fiper_ros.nodes.rnd_oe_node", "parameters": params},
-                  "ace_node": {"module": "fiper_ros.nodes.ace_node", "parameters": params},
-                  "fusion_node": {"module": "fiper_ros.nodes.fusion_node", "parameters": EVERY_ALARM}},
-    }))
-    return config
+    """The installed suite (``fiper.launch.yaml``) on ``calibration``, its fusion node keeping every alarm."""
+    return rewrite(installed_launch(), Overrides(by_name={"fusion_node": EVERY_ALARM}), work / "suite.launch.yaml",
+                   {"calibration_dir": str(calibration)})
 
 
 def _start(command: list[str], domain: int) -> subprocess.Popen[bytes]:
@@ -138,13 +131,15 @@ class Startup:
 
 def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
     """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE."""
-    started = time.monotonic()
-    process = _start([sys.executable, "-m", spec.module, *spec.ros_args(use_sim_time=False)], domain)
-    try:
-        active = driver.wait_active([spec.fqn])
-        return Startup(active - started, peak_rss_mb(process.pid))
-    finally:
-        _stop(process)
+    with tempfile.TemporaryDirectory() as params_dir:  # its parameter files, read at its start
+        command = spec.command(Path(params_dir))
+        started = time.monotonic()
+        process = _start(command, domain)
+        try:
+            active = driver.wait_active([spec.fqn])
+            return Startup(active - started, peak_rss_mb(process.pid))
+        finally:
+            _stop(process)
 
 
 class Driver:
@@ -269,7 +264,7 @@ def bench_startup(shape: Shape, config: Path, domain: int) -> dict[str, Startup]
     """Each node of the launch YAML ``config`` started alone, one after the other."""
     driver = Driver(shape, domain)
     try:
-        return {spec.name: node_startup(spec, driver, domain) for spec in load_config(config).nodes}
+        return {spec.name: node_startup(spec, driver, domain) for spec in load_launch(config).nodes}
     finally:
         driver.close()
 
@@ -284,7 +279,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, Any]:
         started = time.monotonic()
         launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain)
         try:
-            suite_s = driver.wait_ready([spec.fqn for spec in load_config(config).nodes]) - started
+            suite_s = driver.wait_ready([spec.fqn for spec in load_launch(config).nodes]) - started
             driver.spin_for(1.0)
             driver.run(1, 20, 10.0)  # warm-up
             lat, missing, _ = driver.run(2, steps, 10.0)

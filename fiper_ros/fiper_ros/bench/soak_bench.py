@@ -1,7 +1,7 @@
 """``make bench-soak``: the demo's node set for an hour; memory and alarm latency per block.
 
 The six node processes of ``fiper demo`` (sim bridge, policy, RND-OE, ACE, fusion, supervisor:
-config/demo.yaml with the shipped Sorting model, sim time) run in a private domain with the bridge in real
+launch/demo.launch.yaml with the shipped Sorting model, sim time) run in a private domain with the bridge in real
 time: its controller at the tasks' 10 Hz (``realtime_factor`` 1; the demo runs the sim as fast as it
 can), so a Sorting policy step (h = 4 control steps plus the policy's inference) comes about every half
 second. The demo's driver (:mod:`fiper_ros.client.driver`) resets rollouts back to back, in-distribution
@@ -35,13 +35,13 @@ from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
 from fiper_ros.bench import EVERY_ALARM
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, state_name
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_config
+from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_launch
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.commands.demo import SUPERVISOR, Plan, demo_config, managed_nodes
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface import qos
 from fiper_ros.interface.topics import ACTIONS
-from fiper_ros.launcher.config import LaunchConfig, dump_config
+from fiper_ros.launcher.config import LaunchConfig, dump_launch
 from fiper_ros.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"
@@ -218,7 +218,7 @@ def plans() -> Iterator[Plan]:
 
 def soak_config(model: Path, calibration: Path, detectors: tuple[str, ...], realtime_factor: float) -> LaunchConfig:
     """The demo's launch config with the bridge paced at ``realtime_factor`` and every alarm kept."""
-    demo = demo_config(installed_config("demo.yaml"), model, calibration, detectors)
+    demo = demo_config(installed_launch("demo.launch.yaml"), model, calibration, detectors)
     extra = {BRIDGE_MODULE: {"realtime_factor": realtime_factor}, FUSION_MODULE: EVERY_ALARM}
     return demo.with_parameters(lambda spec: extra.get(spec.module, {}))
 
@@ -253,7 +253,7 @@ def run_soak(args: argparse.Namespace) -> int:
     problem = ""
     with allocate_domain() as domain:
         print(f"soak: ROS domain {domain} (loopback only)", flush=True)
-        suite = SuiteProcess(dump_config(config, out / "launch.yaml"), domain, echo=False, log=out / "suite.log")
+        suite = SuiteProcess(dump_launch(config, out / "launch.yaml"), domain, echo=False, log=out / "suite.log")
         try:
             with RosSession("fiper_soak", domain) as session:
                 meter = Meter(session, block_s)

@@ -1,11 +1,12 @@
 """``fiper collect --ros``: the episodes through the live node suite, each recorded from DDS into its own bag.
 
-The suite is ``config/demo.yaml`` cut down (one source of the node parameters): the sim bridge (fast,
-sim time, images on, ``max_policy_steps`` = the collect's cap) and the policy node with the collect's
-model, batch and threads; with a calibration also the scoring node of each detector it declares (RND-OE and
-ACE, or RND-OE alone for an observation-only one) and fusion on it (the bags then hold those scores and
-the alarms); never the supervisor, which would halt rollouts. Every node is ``required``, so a
-node that dies stops the launcher and the collect with it. The suite starts on the first episode that
+The suite is ``launch/demo.launch.yaml`` cut down (one source of the node parameters), read with the launch
+arguments ``model:=`` and the calibration's (``calibration_dir:=``, ``observation_only:=true`` for an
+observation-only one): the sim bridge (fast, sim time, images on, ``max_policy_steps`` = the collect's cap) and
+the policy node with the collect's model, batch and threads; with a calibration also the scoring node of each
+detector it declares (RND-OE and ACE, or RND-OE alone) and fusion on it (the bags then hold those scores and the
+alarms); never the supervisor, which would halt rollouts. Every node is ``required``, so a node that dies stops
+the launcher and the collect with it. The suite starts on the first episode that
 is not collected yet, in a ROS domain of its own; its launch file and output go to ``DIR/.collect-ros/``
 (removed at the end unless the suite failed).
 
@@ -37,17 +38,17 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, node_path
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import (DETECTOR_TOPICS, SuiteProcess, installed_config, scoring_modules,
-                                            scoring_parameters, suite_topics)
+from fiper_ros.client.suite_process import (DETECTOR_TOPICS, SuiteProcess, installed_launch, scoring_modules,
+                                            suite_arguments, suite_topics)
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, INPUT_TOPICS
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
 SOURCE = "fiper collect (sim, ROS)"
-#: Nodes of ``demo.yaml`` the collect always runs (with a calibration also those of :func:`scoring_modules`).
+#: Nodes of ``demo.launch.yaml`` the collect always runs (with a calibration also those of :func:`scoring_modules`).
 POLICY_NODES = ("bridge_node", "policy_node")
 #: Hidden folder of the suite's launch file and output, inside the collect folder.
 WORK_DIR = ".collect-ros"
@@ -83,24 +84,26 @@ class LiveSettings:
 
 
 def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
-    """The nodes of ``source`` (``demo.yaml``) a collect runs, with its settings, all required: the policy nodes,
-    and with a calibration the scoring nodes of its detectors and the fusion node."""
+    """The nodes of ``source`` (``demo.launch.yaml``) a collect runs, with its settings, all required: the policy
+    nodes, and with a calibration the scoring nodes of its detectors and the fusion node."""
+    scored = settings.calibration is not None
+    arguments = {"model": str(settings.model),
+                 **(suite_arguments(settings.calibration, settings.detectors) if scored else {})}
     try:
-        config = load_config(source)
+        config = load_launch(source, arguments)
     except LaunchError as error:
-        raise BagError(f"launch config {source}: {error}") from error
-    modules = scoring_modules(settings.detectors) if settings.calibration is not None else ()
+        raise BagError(f"launch file {source}: {error}") from error
+    modules = scoring_modules(settings.detectors) if scored else ()
     keep = POLICY_NODES + tuple(spec.name for spec in config.nodes if spec.module in modules)
     names, present = {spec.name for spec in config.nodes}, {spec.module for spec in config.nodes}
     missing = (set(POLICY_NODES) - names) | (set(modules) - present)
     if missing:
-        raise BagError(f"launch config {source}: no {', '.join(sorted(missing))} node")
+        raise BagError(f"launch file {source}: no {', '.join(sorted(missing))} node")
     bridge = {"task": settings.task, "max_policy_steps": settings.max_policy_steps or 0}
-    policy = {"model": str(settings.model), "batch": settings.batch, "torch_threads": settings.threads}
+    policy = {"batch": settings.batch, "torch_threads": settings.threads}
     ace = {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
-    scoring = scoring_parameters(settings.calibration) if settings.calibration is not None else {}
-    return apply(config, Overrides(by_module=scoring, by_name={"bridge_node": bridge, "policy_node": policy,
-                                                               "ace_node": ace}, keep=keep, required=True))
+    parameters = {"bridge_node": bridge, "policy_node": policy, "ace_node": ace}
+    return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
 
 
 class RosRunner:
@@ -141,8 +144,8 @@ class RosRunner:
         started = time.monotonic()
         remove(self.work)
         self.work.mkdir(parents=True)
-        config = collect_config(installed_config("demo.yaml"), self.settings)
-        launch = dump_config(config, self.work / "launch.yaml")
+        config = collect_config(installed_launch("demo.launch.yaml"), self.settings)
+        launch = dump_launch(config, self.work / "launch.yaml")
         domain = self._stack.enter_context(allocate_domain())
         suite = SuiteProcess(launch, domain, echo=False, log=self.work / "suite.log")
         self._stack.callback(suite.stop)

@@ -13,9 +13,9 @@ is dropped however fast the bag plays. A RolloutEvent START is waited on until e
 acknowledged it, then ``--settle`` seconds more, so that the nodes have started the rollout before
 its first step arrives.
 
-By default the suite is started here (``fiper launch`` of ``--launch CONFIG``, default the installed
-suite of the calibration's detectors: suite.yaml, or suite_obs.yaml for an observation-only calibration,
-with use_sim_time and ``--calibration DIR``, or the ``calibration/`` directory next to the bags) in a
+By default the suite is started here (``fiper launch`` of ``--launch FILE``, default the installed
+``fiper.launch.yaml``, with ``use_sim_time:=true``, ``calibration_dir:=`` ``--calibration DIR`` or the
+``calibration/`` directory next to the bags, and ``observation_only:=true`` for an observation-only one) in a
 private ROS domain; ``--no-launch`` plays into a suite already running in this shell's domain. With an
 observation-only calibration no action batches or joint states are played (no node of that suite reads
 them). ``--offline`` prints what the suite would say, computed without DDS by the core.

@@ -1,12 +1,13 @@
-"""The node suite started for a replay (and for ``fiper demo`` and ``fiper collect --ros``): ``fiper launch``
-in a child process, and which of its nodes and topics a calibration's detectors need.
+"""The node suite started for a replay (and for ``fiper demo`` and ``fiper collect --ros``): ``fiper launch`` of a
+launch file, with its launch arguments, in a child process; and which of its nodes and topics a calibration's
+detectors need.
 
-For a replay the launch YAML (default: the installed suite of the calibration's detectors,
-``config/suite.yaml`` or, observation-only, ``config/suite_obs.yaml``) is read with the launcher's own parser
-and written again with ``use_sim_time: true`` and the replay's calibration directory set on the scoring
-nodes and the fusion node, so the nodes are exactly those of a normal launch. ``fiper demo`` and ``fiper
-collect --ros`` cut ``config/demo.yaml`` down the same way to the scoring nodes of the declared detectors
-(:func:`scoring_modules`): an observation-only calibration runs no ACE node.
+A replay launches the installed ``launch/fiper.launch.yaml`` (or ``--launch FILE``, which declares the same
+arguments) with ``use_sim_time:=true`` and the calibration's :func:`suite_arguments`: ``calibration_dir:=DIR`` and,
+for a calibration that declares RND-OE alone, ``observation_only:=true`` (no ACE node). ``fiper demo`` and ``fiper
+collect --ros`` give ``launch/demo.launch.yaml`` (which includes the suite) the same. A robot model for joint-space
+actions goes to the ACE node through :class:`~fiper_ros.launcher.overrides.Overrides` (the file has no argument
+for it), so the nodes are exactly those of a normal launch.
 """
 from __future__ import annotations
 
@@ -17,9 +18,8 @@ import signal
 import subprocess
 import sys
 import threading
+from collections.abc import Mapping
 from pathlib import Path
-
-import yaml
 
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
@@ -34,12 +34,10 @@ from fiper_ros.launcher.overrides import Overrides, rewrite
 DETECTOR_MODULES = {RND_OE: "fiper_ros.nodes.rnd_oe_node", ACE: "fiper_ros.nodes.ace_node"}
 ACE_MODULE = DETECTOR_MODULES[ACE]
 FUSION_MODULE = "fiper_ros.nodes.fusion_node"
-#: Nodes that take ``calibration_dir``: the scoring nodes, and the fusion node (for the detectors it fuses).
-CALIBRATED_MODULES = (*DETECTOR_MODULES.values(), FUSION_MODULE)
 #: Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores.
 DETECTOR_TOPICS = {RND_OE: (EMBEDDING, (), SCORE_RND_OE), ACE: (ACTIONS, (JOINT_STATES,), SCORE_ACE)}
-#: The installed launch YAML of the scoring suite of each detector set a calibration may declare.
-SUITE_CONFIGS = {DETECTORS: "suite.yaml", OBSERVATION_ONLY: "suite_obs.yaml"}
+#: The installed launch file of the scoring suite (RND-OE, ACE unless observation-only, fusion).
+SUITE_LAUNCH = "fiper.launch.yaml"
 #: Lines of the suite's output kept for an error report.
 KEPT_LINES = 200
 #: The launcher's report of a node process it started.
@@ -67,42 +65,49 @@ def suite_topics(detectors: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(topic for topic in TOPICS if topic not in others)
 
 
-def scoring_parameters(calibration: Path, robot: RobotModel | None = None) -> dict[str, dict[str, str]]:
-    """Per calibrated node module: ``calibration_dir`` (absolute); on the ACE node also the ``robot``'s URDF and EE
-    frame (for joint-space actions)."""
-    detector = {"calibration_dir": str(calibration.resolve())}
-    parameters = {module: detector for module in CALIBRATED_MODULES}
-    if robot is not None:
-        parameters[ACE_MODULE] = detector | {"urdf_path": str(Path(robot.urdf).resolve()), "ee_frame": robot.ee_frame}
-    return parameters
+def suite_arguments(calibration: Path, detectors: tuple[str, ...]) -> dict[str, str]:
+    """The launch arguments that give the suite ``calibration`` (absolute): ``calibration_dir``, and
+    ``observation_only:=true`` when it declares RND-OE alone (``detectors``: those it declares)."""
+    alone = {"observation_only": "true"} if detectors == OBSERVATION_ONLY else {}
+    return {"calibration_dir": str(calibration.resolve()), **alone}
 
 
-def installed_config(name: str = "suite.yaml") -> Path:
-    """The installed ``fiper_ros/config/<name>`` (default: the scoring suite)."""
+def robot_parameters(robot: RobotModel | None) -> dict[str, dict[str, str]]:
+    """The ``robot``'s URDF and EE frame on the ACE node's module (for joint-space actions); none without one."""
+    return {} if robot is None else {ACE_MODULE: {"urdf_path": str(Path(robot.urdf).resolve()),
+                                                  "ee_frame": robot.ee_frame}}
+
+
+def installed_launch(name: str = SUITE_LAUNCH) -> Path:
+    """The installed ``fiper_ros/launch/<name>`` (default: the scoring suite)."""
     from ament_index_python.packages import get_package_share_directory  # noqa: PLC0415
 
-    return Path(get_package_share_directory("fiper_ros")) / "config" / name
+    return Path(get_package_share_directory("fiper_ros")) / "launch" / name
 
 
-def replay_config(config: Path, calibration: Path, out: Path, robot: RobotModel | None = None) -> Path:
-    """Write ``config`` with sim time and ``calibration`` on the scoring nodes to ``out``, and the
-    ``robot``'s URDF and EE frame on the ACE node (for joint-space actions)."""
+def replay_config(launch: Path, calibration: Path, detectors: tuple[str, ...], out: Path,
+                  robot: RobotModel | None = None) -> Path:
+    """Write the suite of ``launch`` for a replay on ``calibration`` (declaring ``detectors``) to ``out``: sim time,
+    and the ``robot``'s URDF and EE frame on the ACE node."""
     try:
-        return rewrite(config, Overrides(by_module=scoring_parameters(calibration, robot), use_sim_time=True), out)
-    except (LaunchError, yaml.YAMLError) as error:
-        raise BagError(f"launch config {config}: {error}") from error
+        return rewrite(launch, Overrides(by_module=robot_parameters(robot)), out,
+                       {"use_sim_time": "true", **suite_arguments(calibration, detectors)})
+    except LaunchError as error:
+        raise BagError(f"launch file {launch}: {error}") from error
 
 
 class SuiteProcess:
-    """``fiper launch`` of a replay config in its own process group, in ``domain``."""
+    """``fiper launch`` of a launch file (with launch ``arguments``) in its own process group, in ``domain``."""
 
-    def __init__(self, config: Path, domain: int, echo: bool, log: Path | None = None) -> None:
+    def __init__(self, config: Path, domain: int, echo: bool, log: Path | None = None,
+                 arguments: Mapping[str, str] | None = None) -> None:
         """``echo``: copy the suite's output to stderr; ``log``: and write all of it to this file."""
         self.lines: collections.deque[str] = collections.deque(maxlen=KEPT_LINES)
         self._echo = echo
         self._log = log.open("w") if log is not None else None
+        named = [f"{name}:={value}" for name, value in (arguments or {}).items()]
         self.proc = subprocess.Popen(  # noqa: S603 - our own launcher
-            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), "--grace", "5"],
+            [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), *named, "--grace", "5"],
             env=local_env(domain) | {PARENT_PID_ENV: str(os.getpid())},  # a killed client takes its suite along
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self._reader = threading.Thread(target=self._read, daemon=True)

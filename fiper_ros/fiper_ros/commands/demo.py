@@ -1,7 +1,7 @@
 """``fiper demo`` (``make demo``): the whole suite live on the shipped Sorting model, as separate processes.
 
 The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.shm`), starts
-``fiper launch`` on ``config/demo.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
+``fiper launch`` on ``launch/demo.launch.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
 the example supervisor, each its own OS process) in a ROS domain of its own, then drives it like an
 operator would from this process: it waits until every node is active, resets the bridge into one
 in-distribution and one harmful out-of-distribution rollout, prints a progress line per policy step and
@@ -31,15 +31,13 @@ from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, n
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import (CALIBRATED_MODULES, SuiteProcess, detectors_of, installed_config,
-                                            scoring_modules, scoring_parameters, suite_topics)
+from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, suite_arguments, suite_topics
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_config, load_config
-from fiper_ros.launcher.overrides import Overrides, apply
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.shm import clean_stale
 
 #: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
@@ -110,13 +108,9 @@ def problems_of(trace: RolloutTrace) -> list[str]:
 
 
 def demo_config(source: Path, model: Path, calibration: Path, detectors: tuple[str, ...]) -> LaunchConfig:
-    """``source`` with the model path made absolute and the calibration's on the scoring and fusion nodes, without
-    the scoring nodes of the detectors ``calibration`` does not declare (``detectors``: those it does)."""
-    config = load_config(source)
-    unused = set(CALIBRATED_MODULES) - set(scoring_modules(detectors))
-    keep = tuple(spec.name for spec in config.nodes if spec.module not in unused)
-    return apply(config, Overrides(by_module=scoring_parameters(calibration), where_set={"model": str(model)},
-                                   keep=keep))
+    """The launch file ``source`` read with ``model:=`` and the calibration's arguments (``calibration_dir:=``, and
+    ``observation_only:=true`` for one that declares RND-OE alone: no ACE node; ``detectors``: those it declares)."""
+    return load_launch(source, {"model": str(model), **suite_arguments(calibration, detectors)})
 
 
 def managed_nodes(config: LaunchConfig) -> list[str]:
@@ -149,8 +143,8 @@ def run_demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     plans = [Plan("in-distribution", "id", args.id_seed), Plan("harmful OOD", args.ood_scenario, args.ood_seed)]
     started = time.monotonic()
-    config = demo_config(args.config or installed_config("demo.yaml"), model, calibration, detectors)
-    launch = dump_config(config, out / "launch.yaml")
+    config = demo_config(args.config or installed_launch("demo.launch.yaml"), model, calibration, detectors)
+    launch = dump_launch(config, out / "launch.yaml")  # as it runs: every value literal
     traces: list[RolloutTrace] = []
     problems: list[str] = []
     print(f"fiper demo: {clean_stale().summary()}", flush=True)
@@ -210,7 +204,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default="sorting", help="sim task (the model's)")
     parser.add_argument("--model", type=data_path_argument, default="models/sorting", help=f"policy folder ({SEARCH_RULE})")
     parser.add_argument("--calibration", type=data_path_argument, help="calibration folder (default MODEL/calibration)")
-    parser.add_argument("--config", type=Path, help="launch YAML (default: the installed config/demo.yaml)")
+    parser.add_argument("--config", type=Path, help="launch YAML declaring model and calibration_dir (default: the "
+                                                    "installed launch/demo.launch.yaml)")
     parser.add_argument("--out", type=Path, help="output folder (default runs/demo/<UTC time>)")
     parser.add_argument("--id-seed", type=int, default=1002, help="seed of the in-distribution rollout")
     parser.add_argument("--ood-scenario", default="box_pos", help="harmful OOD scenario of the second rollout")

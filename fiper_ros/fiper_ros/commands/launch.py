@@ -1,32 +1,50 @@
-"""``fiper launch CONFIG.yaml``: start the suite's nodes from a launch YAML (:mod:`fiper_ros.launcher`)."""
+"""``fiper launch FILE [name:=value ...]``: start the nodes of a ROS 2 launch YAML (:mod:`fiper_ros.launcher`),
+the same file ``ros2 launch`` runs, with its launch arguments set on the command line."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
-import yaml
-
 from fiper_ros.dds import die_with_parent
-from fiper_ros.launcher.config import LaunchError, load_config
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_launch, parse_arguments
 from fiper_ros.launcher.processes import run_in_process, run_processes
 from fiper_ros.shm import clean_stale
+
+#: Options may come after the launch arguments (``fiper launch FILE a:=1 --in-process``), as with ``ros2 launch``.
+INTERMIXED = True
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper launch``."""
-    parser.add_argument("config", type=Path, help="launch YAML, e.g. fiper_ros/config/suite.yaml")
+    parser.add_argument("file", type=Path, help="launch YAML, e.g. fiper_ros/launch/fiper.launch.yaml")
+    parser.add_argument("arguments", nargs="*", metavar="name:=value", help="launch arguments (see --show-args)")
+    parser.add_argument("--show-args", "-s", action="store_true", help="list the file's launch arguments and exit")
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this one process")
     parser.add_argument("--grace", type=float, default=10.0, help="seconds a node gets to stop before SIGKILL")
+
+
+def show_arguments(config: LaunchConfig) -> str:
+    """The declared launch arguments with their descriptions, defaults and values (``--show-args``)."""
+    lines = ["Arguments (pass arguments as '<name>:=<value>'):"]
+    for argument in config.arguments:
+        default = "(required)" if argument.default is None else f"(default: {argument.default!r})"
+        choices = f" One of: {', '.join(argument.choices)}." if argument.choices else ""
+        lines += [f"    '{argument.name}': {argument.description or 'no description given'}{choices}",
+                  f"        {default}, here {config.values[argument.name]!r}"]
+    return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
     """``fiper launch``."""
     die_with_parent()  # started by a demo or a test fixture: the suite goes with it
     try:
-        config = load_config(args.config)
-    except (LaunchError, yaml.YAMLError) as error:
+        config = load_launch(args.file, parse_arguments(args.arguments))
+    except LaunchError as error:
         print(f"fiper launch: {error}", file=sys.stderr)
         return 2
+    if args.show_args:
+        print(show_arguments(config))
+        return 0
     print(f"[launch] {clean_stale().summary()}", flush=True)
     return run_in_process(config) if args.in_process else run_processes(config, args.grace)

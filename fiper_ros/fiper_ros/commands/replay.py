@@ -17,7 +17,7 @@ from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import ROLLOUT_GAP_NS
 from fiper_ros.client.replay import Player, find_calibration, played_topics, suite_subscribers
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SUITE_CONFIGS, SuiteProcess, detectors_of, installed_config, replay_config
+from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, replay_config
 from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
@@ -37,8 +37,8 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
         if launch:
             assert directory is not None
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
-            config = replay_config(args.launch or installed_config(SUITE_CONFIGS[detectors]), directory,
-                                   workdir / "suite.yaml", options.robot_from(args))
+            config = replay_config(args.launch or installed_launch(), directory, detectors,
+                                   workdir / "suite.launch.yaml", options.robot_from(args))
             suite = SuiteProcess(config, domain, echo=args.verbose)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)
@@ -103,7 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"calibration directory (default: calibration/ next to the bags; {SEARCH_RULE})")
     suite = parser.add_mutually_exclusive_group()
     suite.add_argument("--launch", type=Path, help="launch YAML of the suite to start (default: the installed "
-                                                   "suite.yaml, suite_obs.yaml for an observation-only calibration)")
+                                                   "fiper.launch.yaml); it declares calibration_dir, use_sim_time and, "
+                                                   "for an observation-only calibration, observation_only")
     suite.add_argument("--no-launch", action="store_true", help="play into a suite already running in this domain")
     suite.add_argument("--offline", action="store_true", help="compute the alarms with the core, without DDS")
     parser.add_argument("--all-topics", action="store_true", help="with --no-launch: also play recorded outputs")

@@ -1,10 +1,10 @@
 """``fiper security``: the SROS2 access-control policy of the suite, from the endpoints its nodes really create
 (docs/security.md).
 
-The nodes of a launch configuration (default: the demo's, the whole suite with the sim bridge, the policy and the
-example supervisor) are built in this process, in a ROS domain of their own on loopback, and brought to ACTIVE;
-the ROS graph then says, per node, which topics it publishes and subscribes, which services it offers and which
-it calls. That is the policy (SROS2's format 0.2.0): one enclave per node, named as the node (its fully
+The nodes of a launch file, with its default launch arguments (default: the demo's, the whole suite with the sim
+bridge, the policy and the example supervisor) are built in this process, in a ROS domain of their own on
+loopback, and brought to ACTIVE; the ROS graph then says, per node, which topics it publishes and subscribes,
+which services it offers and which it calls. That is the policy (SROS2's format 0.2.0): one enclave per node, named as the node (its fully
 qualified name), every topic and service by its absolute name, no wildcard, nothing else allowed. ``--check``
 compares the policy with a file and fails on any difference: a topic or service the code uses now and the
 shipped policy does not name (or the other way round) is a policy to regenerate.
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_config
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_launch
 from fiper_ros.launcher.processes import build_node
 
 #: SROS2's policy format.
@@ -137,7 +137,7 @@ def collect(config: LaunchConfig, domain: int, timeout_s: float = ACTIVE_TIMEOUT
     nodes: list[Any] = []
     try:
         for spec in config.nodes:
-            nodes.append(build_node(spec, config.use_sim_time, context))
+            nodes.append(build_node(spec, context))
             executor.add_node(nodes[-1])
         deadline = time.monotonic() + timeout_s
 
@@ -176,17 +176,17 @@ def _state(node: Any) -> str:
 
 
 def default_config() -> Path:
-    """The demo's launch configuration: every node of the suite."""
-    from fiper_ros.client.suite_process import installed_config  # noqa: PLC0415
+    """The demo's launch file: every node of the suite."""
+    from fiper_ros.client.suite_process import installed_launch  # noqa: PLC0415
 
-    return installed_config("demo.yaml")
+    return installed_launch("demo.launch.yaml")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper security``."""
     parser.add_argument("config", type=Path, nargs="?",
-                        help="launch YAML whose nodes the policy is for (default: the demo's, the whole suite); "
-                             "relative model and calibration paths are relative to the working directory")
+                        help="launch YAML whose nodes the policy is for, read with its default arguments (default: "
+                             "the installed demo.launch.yaml, the whole suite)")
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("-o", "--output", type=Path, help="write the policy here")
     mode.add_argument("--check", type=Path, metavar="POLICY", help="compare with this policy file; exit 1 if it "
@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
 
     path = args.config or default_config()
     try:
-        config = load_config(path)
+        config = load_launch(path)
     except LaunchError as error:
         print(f"fiper security: {error}", file=sys.stderr)
         return 2

@@ -1,11 +1,13 @@
-"""The one way a tool adapts a launch configuration before it starts the suite: which nodes run, their
-parameters, sim time (``fiper replay``, ``fiper demo``, ``fiper collect --ros``).
+"""The one way a tool adapts a launch file beyond its launch arguments before it starts the suite: which nodes
+run, which are required, and parameters the file has no argument for (``fiper collect --ros``, ``fiper replay``
+with a robot model, the benchmarks).
 
-A tool never edits a launch YAML by hand: it reads it with the launcher's own parser
-(:func:`~fiper_ros.launcher.config.load_config`), applies :class:`Overrides` and writes it again, so the
-nodes are exactly those of a normal launch. Parameters are chosen per node by its module (every node that
-runs it), by its name, or only where the file already sets them (paths made absolute); they are merged over
-the node's inline parameters.
+A tool never edits a launch YAML by hand: it reads it with the launcher's own reader
+(:func:`~fiper_ros.launcher.config.load_launch`, with the launch arguments it sets, such as ``calibration_dir``),
+applies :class:`Overrides` and writes the result as a launch file of literal values
+(:func:`~fiper_ros.launcher.config.dump_launch`), so the nodes are exactly those of a normal launch. Parameters
+are chosen per node by its module (every node that runs it) or by its name; they are set after the node's own,
+so they win.
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from fiper_ros.launcher.config import LaunchConfig, NodeSpec, dump_config, load_config
+from fiper_ros.launcher.config import LaunchConfig, NodeSpec, dump_launch, load_launch
 
 
 @dataclass(frozen=True)
@@ -24,23 +26,18 @@ class Overrides:
     Attributes:
         by_module: Node module -> parameters for every node that runs it.
         by_name: Node name -> parameters.
-        where_set: Parameters set only on the nodes whose inline parameters already hold them.
         keep: Names of the nodes to run (None: all); the others are dropped.
         required: Mark every node that runs as ``required`` (the launch stops when one exits).
-        use_sim_time: Sim time for the whole launch (None: as in the file).
     """
 
     by_module: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     by_name: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    where_set: Mapping[str, Any] = field(default_factory=dict)
     keep: tuple[str, ...] | None = None
     required: bool = False
-    use_sim_time: bool | None = None
 
     def parameters(self, spec: NodeSpec) -> dict[str, Any]:
         """The parameters these overrides set on the node ``spec``."""
-        return (dict(self.by_module.get(spec.module, {})) | dict(self.by_name.get(spec.name, {}))
-                | {key: value for key, value in self.where_set.items() if key in spec.parameters})
+        return dict(self.by_module.get(spec.module, {})) | dict(self.by_name.get(spec.name, {}))
 
 
 def apply(config: LaunchConfig, overrides: Overrides) -> LaunchConfig:
@@ -48,11 +45,10 @@ def apply(config: LaunchConfig, overrides: Overrides) -> LaunchConfig:
     nodes = config.nodes if overrides.keep is None else tuple(s for s in config.nodes if s.name in overrides.keep)
     if overrides.required:
         nodes = tuple(replace(spec, required=True) for spec in nodes)
-    config = replace(config, nodes=nodes).with_parameters(overrides.parameters)
-    return config if overrides.use_sim_time is None else replace(config, use_sim_time=overrides.use_sim_time)
+    return replace(config, nodes=nodes).with_parameters(overrides.parameters)
 
 
-def rewrite(source: Path, overrides: Overrides, out: Path) -> Path:
-    """Read the launch YAML ``source``, apply ``overrides``, write the result to ``out`` (returned).
-    :class:`~fiper_ros.launcher.config.LaunchError` or ``yaml.YAMLError`` for an unusable ``source``."""
-    return dump_config(apply(load_config(source), overrides), out)
+def rewrite(source: Path, overrides: Overrides, out: Path, arguments: Mapping[str, str] | None = None) -> Path:
+    """Read the launch file ``source`` with the launch ``arguments``, apply ``overrides``, write the result to
+    ``out`` (returned). :class:`~fiper_ros.launcher.config.LaunchError` for an unusable ``source``."""
+    return dump_launch(apply(load_launch(source, arguments), overrides), out)

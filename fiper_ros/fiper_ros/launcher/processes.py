@@ -5,23 +5,23 @@ import importlib
 import os
 import signal
 import subprocess
-import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
-import yaml
-
 from fiper_ros.dds import PARENT_PID_ENV
-from fiper_ros.launcher.config import LaunchConfig, NodeSpec, SECURITY_ENABLE_ENV
+from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, NodeSpec
 
 
 class ProcessGroup:
     """The launched processes, their output, their respawns and their shutdown."""
 
-    def __init__(self, grace_s: float, use_sim_time: bool = False) -> None:
+    def __init__(self, grace_s: float, params_dir: Path) -> None:
+        """``params_dir``: where the nodes' name/value parameters are written as parameter files."""
         self.grace_s = grace_s
-        self.use_sim_time = use_sim_time
+        self.params_dir = params_dir
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self.specs: dict[str, NodeSpec] = {}
         self.respawns: dict[str, int] = {}
@@ -32,18 +32,15 @@ class ProcessGroup:
         with self._print_lock:
             print(line, flush=True)
 
-    def start(self, spec: NodeSpec, use_sim_time: bool | None = None) -> None:
+    def start(self, spec: NodeSpec) -> None:
         """Start one node process and a thread relaying its output."""
-        if use_sim_time is not None:
-            self.use_sim_time = use_sim_time
         secure = os.environ.get(SECURITY_ENABLE_ENV, "").lower() == "true"  # then each node in its own enclave
-        cmd = [sys.executable, "-m", spec.module, *spec.ros_args(self.use_sim_time, enclave=secure)]
         env = os.environ | {"PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid())}
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,  # noqa: S603
-                                start_new_session=True, env=env)
+        proc = subprocess.Popen(spec.command(self.params_dir, enclave=secure), stdout=subprocess.PIPE,  # noqa: S603
+                                stderr=subprocess.STDOUT, text=True, start_new_session=True, env=env)
         self.procs[spec.name] = proc
         self.specs[spec.name] = spec
-        self.say(f"[launch] started {spec.name} (pid {proc.pid}): {spec.module} in {spec.namespace}")
+        self.say(f"[launch] started {spec.name} (pid {proc.pid}): {spec.package}/{spec.executable} in {spec.namespace}")
         threading.Thread(target=self._relay, args=(spec.name, proc), daemon=True).start()
 
     def _relay(self, name: str, proc: subprocess.Popen[str]) -> None:
@@ -99,7 +96,8 @@ class ProcessGroup:
 
 def run_processes(config: LaunchConfig, grace_s: float) -> int:
     """Run every node in its own process until Ctrl-C / SIGTERM or until one dies."""
-    group = ProcessGroup(grace_s, config.use_sim_time)
+    params_dir = tempfile.TemporaryDirectory(prefix="fiper-launch-")
+    group = ProcessGroup(grace_s, Path(params_dir.name))
     stop_event = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop_event.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -111,25 +109,32 @@ def run_processes(config: LaunchConfig, grace_s: float) -> int:
         group.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        params_dir.cleanup()
     group.say("[launch] " + ", ".join(f"{n}: exit {p.returncode}" for n, p in group.procs.items()))
     return status
 
 
-def build_node(spec: NodeSpec, use_sim_time: bool, context: Any = None) -> Any:
-    """The node of ``spec`` built in this process (``context``: an rclpy context, default the global one),
-    with the parameters its process would get: the parameter files' entries for it, then its inline ones."""
-    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file  # noqa: PLC0415 - rclpy only in-process
+def build_node(spec: NodeSpec, context: Any = None) -> Any:
+    """The node of ``spec`` built in this process (``context``: an rclpy context, default the global one), from
+    the ``--ros-args`` its process would get: rcl reads the same parameter files (wildcard entries included),
+    parameters and remaps. ``--log-level [NAME:=]LEVEL`` (which rcl takes only at init) sets the level of the
+    node's logger (or of NAME)."""
+    import rclpy.logging  # noqa: PLC0415 - rclpy only in-process
 
-    overrides: dict[str, Parameter] = {}
-    for file in spec.parameter_files:
-        if spec.fqn not in (yaml.safe_load(file.read_text()) or {}):
-            continue  # a shared file without an entry for this node (nodes.yaml and the sim bridge)
-        overrides |= {name: Parameter.from_parameter_msg(msg)
-                      for name, msg in parameter_dict_from_yaml_file(str(file), target_nodes=[spec.fqn]).items()}
-    values = {"use_sim_time": use_sim_time} | spec.parameters
-    overrides |= {k: Parameter(k, value=v) for k, v in values.items()}
-    node_class = importlib.import_module(spec.module).NODE_CLASS
-    return node_class(namespace=spec.namespace, parameter_overrides=list(overrides.values()), context=context)
+    with tempfile.TemporaryDirectory(prefix="fiper-launch-") as params_dir:  # read while the node is made
+        args = spec.ros_args(Path(params_dir))
+        level = ""
+        if "--log-level" in args:
+            i = args.index("--log-level")
+            level = args[i + 1] if i + 1 < len(args) else ""
+            del args[i:i + 2]
+        node = importlib.import_module(spec.module).NODE_CLASS(namespace=spec.namespace, cli_args=args,
+                                                               context=context)
+    if level:
+        name, _, severity = level.rpartition(":=")
+        rclpy.logging.set_logger_level(name or node.get_logger().name,
+                                       rclpy.logging.get_logging_severity_from_string(severity))
+    return node
 
 
 def run_in_process(config: LaunchConfig) -> int:
@@ -144,10 +149,10 @@ def run_in_process(config: LaunchConfig) -> int:
     try:
         executor = MultiThreadedExecutor()
         for spec in config.nodes:
-            node = build_node(spec, config.use_sim_time)
+            node = build_node(spec)
             nodes.append(node)
             executor.add_node(node)
-            print(f"[launch] {spec.name} running in-process ({spec.module})", flush=True)
+            print(f"[launch] {spec.name} running in-process ({spec.package}/{spec.executable})", flush=True)
         spin_until_shutdown(executor)
     except KeyboardInterrupt:  # while the nodes start
         pass

@@ -61,7 +61,7 @@ class AceNode(DetectorNode):
             directory = self.get_parameter("calibration_dir").value
             raise ValueError(f"calibration {directory} is observation-only (detectors "
                              f"{','.join(calibration.detectors)}): nothing for ace_node to score; launch the suite "
-                             "without it (fiper_ros/config/suite_obs.yaml)")
+                             "without it (fiper.launch.yaml observation_only:=true)")
         fk = None
         if calibration.action_space in JOINT_SPACES:
             urdf = self.get_parameter("urdf_path").value

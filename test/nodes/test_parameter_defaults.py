@@ -1,0 +1,155 @@
+"""One home per parameter default (#20): the node's own declaration (``declare_parameter``, with its description
+and range). A shipped launch file or parameter file sets a parameter only to choose another value for that launch;
+it never restates a default, and a launch argument that passes a value through to a node (``combine:=``,
+``use_sim_time:=``, ``batch:=``, ...) has that node's default as its own default. So no file can drift from the
+code: a repeated default, or one repeated with a different value, fails here."""
+from __future__ import annotations
+
+import importlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import rclpy
+import yaml
+from rclpy.context import Context
+
+from fiper_ros.launcher.config import load_launch, node_module
+
+ROOT = Path(os.environ["FIPER_ROOT"])
+LAUNCH_FILES = sorted([*(ROOT / "fiper_ros" / "launch").glob("*.launch.yaml"),
+                       *(ROOT / "sim_bridge" / "launch").glob("*.launch.yaml")])
+PARAMETER_FILES = [ROOT / "fiper_ros" / "config" / "nodes.yaml"]
+#: Launch arguments that choose a deployment's value (a path, a namespace), not a node default passed through.
+DEPLOYMENT_ARGUMENTS = {"calibration_dir", "model", "params_file", "namespace"}
+
+
+class Defaults:
+    """Each node module's declared defaults, from a node built (never spun) in a context of the test's own."""
+
+    def __init__(self, domain: int) -> None:
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.nodes: dict[str, Any] = {}
+
+    def of(self, module: str, name: str) -> tuple[bool, Any]:
+        """Whether the node of ``module`` declares ``name``, and its default."""
+        if module not in self.nodes:
+            self.nodes[module] = importlib.import_module(module).NODE_CLASS(context=self.context, namespace="/test")
+        node = self.nodes[module]
+        if not node.has_parameter(name):
+            return False, None
+        value = node.get_parameter(name).value
+        return True, value.tolist() if hasattr(value, "tolist") else list(value) if isinstance(value, tuple) else value
+
+    def close(self) -> None:
+        for node in self.nodes.values():
+            node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+@pytest.fixture
+def defaults(ros_domain: int) -> Iterator[Defaults]:
+    made = Defaults(ros_domain)
+    try:
+        yield made
+    finally:
+        made.close()
+
+
+def same(value: Any, default: Any) -> bool:
+    """Equal in value and type (``1`` is not ``1.0``: ROS would refuse the type)."""
+    return type(value) is type(default) and value == default
+
+
+def launch_problems(path: Path, defaults: Defaults) -> list[str]:
+    """What the launch file ``path`` (read as written: its own ``arg`` defaults and ``let`` values) does against the
+    one-home rule."""
+    entries = yaml.safe_load(path.read_text())["launch"]
+    arguments = {e["arg"]["name"]: e["arg"].get("default") for e in entries if "arg" in e}
+    problems = []
+    for entry in entries:
+        if "node" not in entry:
+            continue
+        node = entry["node"]
+        module = node_module(node["pkg"], node["exec"])
+        for param in node.get("param", []):
+            if "from" in param:
+                continue
+            name, value = param["name"], param["value"]
+            declared, default = defaults.of(module, name)
+            where = f"{path.name}: {node['name']}: {name}"
+            if not declared:
+                problems.append(f"{where}: not a parameter of {module}")
+            elif isinstance(value, str) and value.startswith("$(var ") and value.endswith(")"):
+                argument = value[len("$(var "):-1]
+                if argument in arguments and argument not in DEPLOYMENT_ARGUMENTS:
+                    passed = yaml.safe_load(str(arguments[argument]))
+                    if not same(passed, default):
+                        problems.append(f"{where}: argument {argument}'s default {passed!r} is not the node's "
+                                        f"default {default!r}")
+            elif "$(" not in str(value) and same(yaml.safe_load(value) if isinstance(value, str) else value, default):
+                problems.append(f"{where}: repeats the node's default {default!r}")
+    return problems
+
+
+def parameter_file_problems(path: Path, modules: dict[str, str], defaults: Defaults) -> list[str]:
+    """A parameter file's entries against the declarations of the nodes they apply to (``modules``: fully
+    qualified name -> module, of every node the shipped launch files start)."""
+    problems = []
+    for key, entry in (yaml.safe_load(path.read_text()) or {}).items():
+        targets = modules if key == "/**" else {key: modules[key]} if key in modules else {}
+        if not targets:
+            problems.append(f"{path.name}: {key}: no shipped launch file starts this node")
+        for name, value in entry["ros__parameters"].items():
+            for fqn, module in targets.items():
+                declared, default = defaults.of(module, name)
+                if not declared:
+                    problems.append(f"{path.name}: {fqn}: {name}: not a parameter of {module}")
+                elif same(value, default):
+                    problems.append(f"{path.name}: {fqn}: {name}: repeats the node's default {default!r}")
+    return problems
+
+
+def test_no_shipped_launch_or_parameter_file_repeats_a_default(defaults: Defaults) -> None:
+    problems = [problem for path in LAUNCH_FILES for problem in launch_problems(path, defaults)]
+    modules = {spec.fqn: spec.module for path in LAUNCH_FILES for spec in load_launch(path).nodes}
+    problems += [problem for path in PARAMETER_FILES for problem in parameter_file_problems(path, modules, defaults)]
+    assert problems == []
+    assert len(LAUNCH_FILES) == 4 and {"/fiper/fusion_node", "/sim/bridge_node"} <= set(modules)
+
+
+def test_every_value_a_shipped_launch_file_gives_has_the_declared_type(defaults: Defaults) -> None:
+    for path in LAUNCH_FILES:
+        for spec in load_launch(path).nodes:
+            for name, value in spec.parameters.items():
+                declared, default = defaults.of(spec.module, name)
+                assert declared, (path.name, spec.name, name)
+                assert type(value) is type(default), (path.name, spec.name, name, value, default)
+
+
+def test_a_repeated_default_and_a_pass_through_with_another_default_are_caught(tmp_path: Path,
+                                                                               defaults: Defaults) -> None:
+    bad = tmp_path / "bad.launch.yaml"
+    bad.write_text(yaml.safe_dump({"launch": [
+        {"arg": {"name": "combine", "default": "or"}},
+        {"arg": {"name": "deadline", "default": "1"}},
+        {"node": {"pkg": "fiper_ros", "exec": "fusion_node", "name": "fusion_node", "param": [
+            {"name": "heartbeat_s", "value": 0.5}, {"name": "combine", "value": "$(var combine)"},
+            {"name": "deadline_s", "value": "$(var deadline)"}, {"name": "buffer_size", "value": 32},
+            {"name": "no_such_parameter", "value": 1}]}}]}))
+    assert launch_problems(bad, defaults) == [
+        "bad.launch.yaml: fusion_node: heartbeat_s: repeats the node's default 0.5",
+        "bad.launch.yaml: fusion_node: combine: argument combine's default 'or' is not the node's default 'and'",
+        "bad.launch.yaml: fusion_node: deadline_s: argument deadline's default 1 is not the node's default 1.0",
+        "bad.launch.yaml: fusion_node: no_such_parameter: not a parameter of fiper_ros.nodes.fusion_node"]
+    params = tmp_path / "nodes.yaml"
+    params.write_text(yaml.safe_dump({"/**": {"ros__parameters": {"diagnostics_period_s": 1.0}},
+                                      "/fiper/fusion_node": {"ros__parameters": {"combine": "or"}},
+                                      "/elsewhere/node": {"ros__parameters": {"x": 1}}}))
+    modules = {"/fiper/fusion_node": "fiper_ros.nodes.fusion_node"}
+    assert parameter_file_problems(params, modules, defaults) == [
+        "nodes.yaml: /fiper/fusion_node: diagnostics_period_s: repeats the node's default 1.0",
+        "nodes.yaml: /elsewhere/node: no shipped launch file starts this node"]
