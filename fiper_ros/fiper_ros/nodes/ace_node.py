@@ -19,9 +19,9 @@ from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import ActionMonitor, StepScore
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import describe
 from fiper_ros.interface.conversions import floats_of, stamp_ns
 from fiper_ros.interface.topics import ARM_JOINT_NAMES
+from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation

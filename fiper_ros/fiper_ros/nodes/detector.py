@@ -15,8 +15,8 @@ from fiper_ros.core.monitor import StepScore
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.interface.messages import outcome_name
+from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.runtime.pending import StartGate
 from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,

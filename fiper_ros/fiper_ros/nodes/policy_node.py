@@ -23,12 +23,12 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from sensor_msgs.msg import Image, JointState
 
 from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.conversions import action_batch_msg, action_command_msg, embedding_msg, stamp_ns
+from fiper_ros.interface.messages import outcome_name
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy

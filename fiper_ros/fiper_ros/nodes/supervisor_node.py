@@ -18,10 +18,10 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
+from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, state_name
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, state_name
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
