@@ -29,8 +29,8 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import ActionCommand, RolloutEvent
 from fiper_msgs.srv import ResetRollout
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.interface.conversions import floats_of, rollout_event_msg, to_stamp
+from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
 

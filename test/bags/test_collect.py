@@ -29,8 +29,8 @@ from sim_bridge.collect_runner import collected_rollout_id
 from sim_bridge.robot import URDF_PATH
 
 from fiper_ros.bagio.reader import BagReader, find_bags
-from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.cli import main
 from fiper_ros.commands import collect
 from fiper_ros.commands.collect import bag_name

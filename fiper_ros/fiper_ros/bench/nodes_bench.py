@@ -32,11 +32,11 @@ from typing import Any
 import numpy as np
 
 from fiper_ros.bench import EVERY_ALARM
+from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
-from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.shm import clean_stale
