@@ -16,7 +16,6 @@ import pytest
 import rclpy
 import yaml
 from rclpy.context import Context
-from rclpy.node import NodeNameNonExistentError
 
 from fiper_ros.bagio.chunks import LiveChunks
 from fiper_ros.cli import main
@@ -27,10 +26,10 @@ from fiper_ros.client.suite_process import SuiteProcess, installed_config
 from fiper_ros.commands import demo, echo, grants, replay
 from fiper_ros.commands.grants import (Deployment, Grants, effective_parameters, node_grants, shipped_deployments,
                                        shipped_models, shipped_policy, tool_grants)
-from fiper_ros.commands.security import (SETTLE_S, differences, graph_grants, mismatches, observe_all, policy_xml,
-                                         read_policy, resolve)
+from fiper_ros.commands.security import (differences, mismatches, observe_all, policy_xml, read_policy, resolve,
+                                         settled_grants)
 from fiper_ros.core.detectors import DETECTORS
-from fiper_ros.interface.topics import TOPICS
+from fiper_ros.interface.topics import DIAGNOSTICS, TOPICS
 from fiper_ros.launcher.config import NodeSpec, dump_config, load_config
 
 ROOT = Path(os.environ["FIPER_ROOT"])
@@ -147,10 +146,12 @@ def test_each_tool_does_exactly_what_its_grants_say(demo_suite: SuiteProcess, ro
                         or box.tap.wanted - set(box.tap.types))
 
         wait(sessions, subscribed, 120.0)
-        echoed = echo_every_recorded_topic(stack, ros_domain, recorded)
-        tools = settled(recorded, [f"/{s.name}" for s in sessions] + [f"/{echo.NODE_NAME}"])
-    policy, derived = shipped(), tool_grants()
-    assert echoed == set(recorder.tap.types)  # one echo subscription per topic fiper record captures
+        # fiper echo of each topic fiper record captures, and of /diagnostics
+        echo_each(stack, ros_domain, recorder.tap.types | {DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"})
+        derived = tool_grants()
+        tools = settled_grants(recorded.node, derived, lambda: [s.spin_once(0.01) for s in sessions])
+    policy = shipped()
+    assert set(recorder.tap.types) == set(TOPICS)  # fiper record captured every topic of the bag schema
     for fqn, seen in tools.items():
         assert differences({fqn: derived[fqn]}, {fqn: seen}, ("its grants", "what it does")) == [], fqn
         assert policy.get(fqn) == seen, f"regenerate: {GENERATOR}"
@@ -174,36 +175,15 @@ def replay_arguments() -> argparse.Namespace:
     return parser.parse_args(["bag.mcap"])
 
 
-def echo_every_recorded_topic(stack: ExitStack, domain: int, recorded: RosSession) -> set[str]:
-    """``fiper echo``'s node, subscribed as ``fiper echo TOPIC`` does to each topic ``fiper record`` captured (and
-    /diagnostics, which its InfoTracker reads); the topics."""
+def echo_each(stack: ExitStack, domain: int, topics: dict[str, str]) -> None:
+    """``fiper echo``'s node, subscribed as ``fiper echo TOPIC`` subscribes, to each of ``topics`` (name -> type)."""
     context = Context()
     rclpy.init(context=context, domain_id=domain)
     stack.callback(rclpy.try_shutdown, context=context)
     node = rclpy.create_node(echo.NODE_NAME, context=context)
     stack.callback(node.destroy_node)
-    types = dict(recorded.node.get_topic_names_and_types())
-    topics = {t for t in graph_grants(recorded.node, f"/{record.NODE_NAME}").subscribe}
-    for topic in topics:
-        echo.subscribe(node, topic, types[topic][0], lambda _: None)
-    return topics - {"/diagnostics"}
-
-
-def settled(session: RosSession, fqns: list[str]) -> dict[str, Grants]:
-    """What the graph says each of ``fqns`` does, once every one is in it and it stayed the same for SETTLE_S."""
-    seen: dict[str, Grants] = {}
-    since = time.monotonic()
-    deadline = since + 30.0
-    while time.monotonic() - since < SETTLE_S:
-        assert time.monotonic() < deadline, f"the graph did not settle: {seen}"
-        try:
-            now = {fqn: graph_grants(session.node, fqn) for fqn in fqns}
-        except NodeNameNonExistentError:  # not discovered yet
-            now = {}
-        if now != seen or not now:
-            seen, since = now, time.monotonic()
-        session.spin_once(0.02)
-    return seen
+    for topic, type_name in topics.items():
+        echo.subscribe(node, topic, type_name, lambda _: None)
 
 
 # the rules and the format by hand ---------------------------------------------------------------------------
@@ -264,10 +244,12 @@ def test_a_node_that_does_more_than_its_grants_is_found(monkeypatch: pytest.Monk
     config = tmp_path / "fusion.yaml"
     config.write_text("namespace: /fiper\nnodes:\n  fusion_node:\n    module: fiper_ros.nodes.fusion_node\n")
     deployment = Deployment("by hand", load_config(config))
+    observed = observe_all([deployment])
+    assert mismatches(observed) == []
     fewer = grants.NODE_RULES["fiper_ros.nodes.fusion_node"]
     monkeypatch.setitem(grants.NODE_RULES, "fiper_ros.nodes.fusion_node",
                         lambda p: replace(fewer(p), reply=fewer(p).reply - {"~/reset"}))
-    assert mismatches(observe_all([deployment])) == [
+    assert mismatches(observed) == [
         "/fiper/fusion_node reply /fiper/fusion_node/reset: only in what it does (in by hand)"]
 
 

@@ -11,11 +11,13 @@ does exactly what its grants say.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 import time
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,9 @@ GRANT_KINDS = {"publish": ("topics", "topic"), "subscribe": ("topics", "topic"),
 ACTIVE_TIMEOUT_S = 60.0
 #: The graph must stay the same this long before it is read (every endpoint of every node announced).
 SETTLE_S = 0.5
+#: How long the graph may take to show every endpoint of a node: DDS discovers even a process's own endpoints on
+#: its own threads, which lag under load.
+DISCOVERY_TIMEOUT_S = 30.0
 
 
 def policy_xml(policy: Policy, generated_by: str) -> str:
@@ -93,10 +98,38 @@ def graph_grants(node: Any, fqn: str) -> Grants:
                   names(node.get_service_names_and_types_by_node), names(node.get_client_names_and_types_by_node))
 
 
+def settled_grants(node: Any, expected: Mapping[str, Grants], spin_once: Callable[[], None],
+                   timeout_s: float = DISCOVERY_TIMEOUT_S) -> dict[str, Grants]:
+    """What the graph, as ``node`` sees it, says each node of ``expected`` (by fully qualified name) does: once it
+    does what ``expected`` says and nothing changed for :data:`SETTLE_S`, else what it says after ``timeout_s``
+    (then its differences from ``expected`` name what is missing or more). ``spin_once`` lets callbacks run."""
+    seen: dict[str, Grants] = {}
+    since = time.monotonic()
+    deadline = since + timeout_s
+    while time.monotonic() < deadline:
+        now = {fqn: _graph_or_none(node, fqn) for fqn in expected}
+        if now != seen:
+            seen, since = now, time.monotonic()
+        elif seen == expected and time.monotonic() - since >= SETTLE_S:
+            break
+        spin_once()
+    return seen
+
+
+def _graph_or_none(node: Any, fqn: str) -> Grants:
+    """:func:`graph_grants`, or no grants while the node is not in the graph yet."""
+    from rclpy.node import NodeNameNonExistentError  # noqa: PLC0415
+
+    try:
+        return graph_grants(node, fqn)
+    except NodeNameNonExistentError:
+        return Grants()
+
+
 def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TIMEOUT_S) -> dict[str, Grants]:
     """Build the nodes ``specs`` (distinct names; ``use_sim_time`` inline) in this process in ``domain``, wait
-    until every lifecycle node is ACTIVE and the graph has settled, and return what each node does (read from
-    the graph)."""
+    until every lifecycle node is ACTIVE and the graph shows what its grants say (:func:`settled_grants`), and
+    return what each node does (read from the graph)."""
     import rclpy  # noqa: PLC0415 - only this step needs rclpy
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
@@ -119,25 +152,20 @@ def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TI
                 executor.spin_once(timeout_sec=0.02)
 
         spin(lambda: all(_state(n) == "active" for n in nodes))
-        fqns = [n.get_fully_qualified_name() for n in nodes]
-        seen: dict[str, Grants] = {}
-        settled_at = [time.monotonic()]
-
-        def settled() -> bool:
-            now = {fqn: graph_grants(nodes[0], fqn) for fqn in fqns}
-            if now != seen:
-                seen.clear()
-                seen.update(now)
-                settled_at[0] = time.monotonic()
-            return time.monotonic() - settled_at[0] >= SETTLE_S
-
-        spin(settled)
-        return dict(seen)
+        expected = {spec.fqn: node_grants(spec, False) for spec in specs}
+        return settled_grants(nodes[0], expected, lambda: executor.spin_once(timeout_sec=0.02))
     finally:
+        while nodes:
+            executor.remove_node(nodes[-1])
+            nodes.pop().destroy_node()
         executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
+        # A lifecycle node's state machine (its services, ~/transition_event, and so its rcl node) and the DDS
+        # participant live on until collected, and this frame must hold none of them: gone now, so no later
+        # participant in this domain meets a node of this name.
+        del executor
+        gc.collect()
         rclpy.try_shutdown(context=context)
+        context.destroy()
 
 
 def _state(node: Any) -> str:
@@ -171,15 +199,16 @@ def batches(nodes: Iterable[tuple[NodeSpec, list[str]]]) -> list[list[tuple[Node
 
 def observe_all(deployments: Iterable[Deployment], timeout_s: float = ACTIVE_TIMEOUT_S
                 ) -> list[tuple[NodeSpec, list[str], Grants]]:
-    """Build every distinct node of ``deployments``, a group at a time in a ROS domain of its own: each node, the
+    """Build every distinct node of ``deployments``, a group at a time in a ROS domain of its own (each held to
+    the end, so that no group meets what an earlier one left of a node of the same name): each node, the
     deployments it runs in, and what it does (read from the graph)."""
     from fiper_ros.dds import allocate_domain  # noqa: PLC0415
 
     observed = []
-    for group in batches(distinct_nodes(deployments)):
-        with allocate_domain() as domain:
-            seen = observe([spec for spec, _ in group], domain, timeout_s)
-        observed += [(spec, origins, seen[spec.fqn]) for spec, origins in group]
+    with ExitStack() as domains:
+        for group in batches(distinct_nodes(deployments)):
+            seen = observe([spec for spec, _ in group], domains.enter_context(allocate_domain()), timeout_s)
+            observed += [(spec, origins, seen[spec.fqn]) for spec, origins in group]
     return observed
 
 
