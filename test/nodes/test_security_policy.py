@@ -14,7 +14,6 @@ from pathlib import Path
 
 import pytest
 import rclpy
-import yaml
 from rclpy.context import Context
 
 from fiper_ros.bagio.chunks import LiveChunks
@@ -22,15 +21,16 @@ from fiper_ros.cli import main
 from fiper_ros.client import live_collect, record, snapshot
 from fiper_ros.client.replay import NODE_NAME as REPLAY, Player, played_topics
 from fiper_ros.client.ros_session import RosSession, enclave_args
-from fiper_ros.client.suite_process import SuiteProcess, installed_config
+from fiper_ros.client.suite_process import SuiteProcess, installed_launch
 from fiper_ros.commands import demo, echo, grants, replay
 from fiper_ros.commands.grants import (Deployment, Grants, effective_parameters, node_grants, shipped_deployments,
                                        shipped_models, shipped_policy, tool_grants)
 from fiper_ros.commands.security import (differences, mismatches, observe_all, policy_xml, read_policy, resolve,
                                          settled_grants)
 from fiper_ros.core.detectors import DETECTORS
-from fiper_ros.interface.topics import DIAGNOSTICS, TOPICS
-from fiper_ros.launcher.config import NodeSpec, dump_config, load_config
+from fiper_ros.interface.topics import ARM_JOINT_NAMES, DIAGNOSTICS, TOPICS
+from fiper_ros.launcher.config import NodeSpec, dump_launch, load_launch
+from fiper_ros.launcher.processes import build_node
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 POLICY = ROOT / "fiper_ros" / "config" / "sros2_policy.xml"
@@ -112,8 +112,8 @@ def wait(sessions: list[RosSession], condition: object, timeout_s: float = 60.0)
 def demo_suite(tmp_path: Path, ros_domain: int) -> Iterator[SuiteProcess]:
     """The demo's suite (every node, each its own process) on the shipped Sorting model, as ``fiper demo`` runs it."""
     model = grants.share("fiper_ros") / "models" / "sorting"
-    config = demo.demo_config(installed_config("demo.yaml"), model, model / "calibration", DETECTORS)
-    suite = SuiteProcess(dump_config(config, tmp_path / "launch.yaml"), ros_domain, echo=False,
+    config = demo.demo_config(installed_launch("demo.launch.yaml"), model, model / "calibration", DETECTORS)
+    suite = SuiteProcess(dump_launch(config, tmp_path / "launch.yaml"), ros_domain, echo=False,
                          log=tmp_path / "suite.log")
     try:
         yield suite
@@ -187,65 +187,89 @@ def echo_each(stack: ExitStack, domain: int, topics: dict[str, str]) -> None:
 
 
 # the rules and the format by hand ---------------------------------------------------------------------------
-def spec(module: str, name: str, namespace: str = "/fiper", files: tuple[Path, ...] = (), **parameters: object
-         ) -> NodeSpec:
-    return NodeSpec(name, module, namespace, files, dict(parameters))
+def spec(module: str, name: str, namespace: str = "/fiper", files: tuple[Path, ...] = (),
+         remaps: tuple[tuple[str, str], ...] = (), **parameters: object) -> NodeSpec:
+    return NodeSpec(name, "pkg", name, module, namespace, (*files, dict(parameters)), remaps)
 
 
-def test_a_nodes_grants_follow_its_calibration_its_parameters_and_its_namespace() -> None:
+def test_a_nodes_grants_follow_its_calibration_its_parameters_its_namespace_and_its_remaps() -> None:
     ace = spec("fiper_ros.nodes.ace_node", "ace_node", calibration_dir=str(SORTING))
-    grants_ee = node_grants(ace, False)
+    grants_ee = node_grants(ace)
     assert grants_ee.subscribe == {"/fiper/rollout_events", "/fiper/action_chunks"}
     assert grants_ee.publish == {"/fiper/scores/ace", "/diagnostics", "/rosout", "/parameter_events",
                                  "/fiper/ace_node/transition_event"}
     assert "/fiper/ace_node/get_state" in grants_ee.reply and len(grants_ee.reply) == 12 and not grants_ee.request
-    stacking = node_grants(replace(ace, parameters={"calibration_dir": str(STACKING), "joint_state_topic": "arm"}),
-                           True)
+    stacking = node_grants(spec("fiper_ros.nodes.ace_node", "ace_node", calibration_dir=str(STACKING),
+                                joint_state_topic="arm", use_sim_time=True))
     assert stacking.subscribe == {"/fiper/rollout_events", "/fiper/action_chunks", "/fiper/arm", "/clock"}
-    moved = node_grants(spec("fiper_ros.nodes.fusion_node", "fusion_node", "/robot1"), False)
-    assert moved.publish >= {"/robot1/alarm"} and moved.reply >= {"/robot1/fusion_node/reset"}
-    assert moved.subscribe == {"/robot1/rollout_events", "/robot1/scores/rnd_oe", "/robot1/scores/ace"}
-    supervisor = node_grants(spec("fiper_ros.nodes.supervisor_node", "supervisor_node", halt_service="stop"), False)
+    moved = node_grants(spec("fiper_ros.nodes.fusion_node", "fusion_node", "/robot1",
+                             remaps=(("alarm", "/cell/alarm"), ("/robot1/scores/ace", "scores/act"))))
+    assert "/cell/alarm" in moved.publish and "/robot1/alarm" not in moved.publish
+    assert moved.reply >= {"/robot1/fusion_node/reset"}
+    assert moved.subscribe == {"/robot1/rollout_events", "/robot1/scores/rnd_oe", "/robot1/scores/act"}
+    supervisor = node_grants(spec("fiper_ros.nodes.supervisor_node", "supervisor_node", halt_service="stop"))
     assert supervisor.request == {"/fiper/stop"} and supervisor.subscribe == {"/fiper/alarm", "/fiper/rollout_events"}
     assert "/fiper/supervisor_node/get_state" not in supervisor.reply  # a plain node: no lifecycle services
-    bridge = node_grants(spec("sim_bridge.bridge_node", "bridge_node", "/sim", images=False), False)
+    bridge = node_grants(spec("sim_bridge.bridge_node", "bridge_node", "/sim", images=False))
     assert bridge.publish & {"/camera/wrist/image_raw", "/clock"} == set() and bridge.reply >= {"/sim/reset"}
     with pytest.raises(grants.UnknownNode, match="my_pkg.my_node"):
-        node_grants(spec("my_pkg.my_node", "mine"), False)
+        node_grants(spec("my_pkg.my_node", "mine"))
     with pytest.raises(ValueError, match="calibration_dir is not set"):
-        node_grants(spec("fiper_ros.nodes.ace_node", "ace_node"), False)  # ACE: its subscriptions need it
+        node_grants(spec("fiper_ros.nodes.ace_node", "ace_node"))  # ACE: its subscriptions need it
 
 
-def test_parameters_come_from_the_files_then_the_launchs_sim_time_then_inline(tmp_path: Path) -> None:
+def test_parameters_come_as_rcl_reads_them(tmp_path: Path, ros_domain: int) -> None:
+    """Merged per node key, the keys applied in the order they first appeared (nodes.yaml's ``/**`` first, so
+    the node's own key wins over a later file's ``/**``): checked against the node rcl builds from the same
+    entries."""
     extra = tmp_path / "extra.yaml"
-    extra.write_text("/fiper/ace_node:\n  ros__parameters:\n    joint_state_topic: /from_file\n    use_sim_time: true\n"
-                     "/fiper/other:\n  ros__parameters:\n    urdf_path: /not/mine\n")
-    ace = spec("fiper_ros.nodes.ace_node", "ace_node", files=(NODES, extra), calibration_dir="c")
-    from_nodes_yaml = yaml.safe_load(NODES.read_text())["/fiper/ace_node"]["ros__parameters"]
-    assert effective_parameters(ace, False) == from_nodes_yaml | {"joint_state_topic": "/from_file",
-                                                                  "use_sim_time": False, "calibration_dir": "c"}
-    assert effective_parameters(replace(ace, parameters={"use_sim_time": True}), False)["use_sim_time"] is True
+    extra.write_text("/fiper/ace_node:\n  ros__parameters:\n    joint_state_topic: /from_file\n    ee_frame: own\n"
+                     "/**:\n  ros__parameters:\n    joint_state_topic: /wild\n"
+                     "/fiper/*:\n  ros__parameters:\n    urdf_path: /in_fiper\n"
+                     "/sim/*:\n  ros__parameters:\n    joint_names: [not, mine]\n")
+    def ace(*params: object) -> NodeSpec:
+        return NodeSpec("ace_node", "fiper_ros", "ace_node", "fiper_ros.nodes.ace_node", "/fiper", params)
+
+    cases = [(ace(NODES, extra, {"use_sim_time": True}),
+              {"joint_state_topic": "/from_file", "ee_frame": "own", "urdf_path": "/in_fiper", "use_sim_time": True}),
+             (ace(extra), {"joint_state_topic": "/wild", "ee_frame": "own", "urdf_path": "/in_fiper"})]  # /** later
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    try:
+        for node_spec, expected in cases:
+            assert effective_parameters(node_spec) == expected
+            node = build_node(node_spec, context)
+            assert {name: node.get_parameter(name).value for name in expected} == expected
+            assert node.get_parameter("joint_names").value == list(ARM_JOINT_NAMES)  # /sim/* is not its
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
 
 
 def test_the_shipped_suites_cover_every_shipped_calibration_and_every_launch_file() -> None:
     origins = [d.origin for d in shipped_deployments()]
     calibrations = [c for cs in shipped_models().values() for c in cs]
-    assert len(calibrations) == 4  # pusht, sorting, sorting's CP band, stacking
+    assert len(calibrations) == 4  # pusht, sorting (CP band), sorting's CP constant, stacking
+    launches = {p.name for p in grants.shipped_launches()}
+    assert launches == {"demo.launch.yaml", "fiper.launch.yaml", "policy.launch.yaml", "bridge.launch.yaml"}
+    assert all(f"fiper launch {name}" in origins for name in launches)  # with its default arguments
     for calibration in calibrations:
         shown = str(calibration.relative_to(grants.share("fiper_ros")))
         assert f"fiper replay --calibration {shown}" in origins
-        assert f"fiper launch demo.yaml on {shown}" in origins and f"fiper launch suite.yaml on {shown}" in origins
-    assert "fiper launch bridge.yaml" in origins  # no model or calibration in it: once
-    assert "fiper launch suite_obs.yaml on models/sorting/calibration" in origins
+        if shown != "models/sorting/calibration":  # the default arguments' own
+            assert {f"fiper launch demo.launch.yaml on {shown}", f"fiper launch fiper.launch.yaml on {shown}"} <= \
+                set(origins)
+    assert not any(o.startswith("fiper launch bridge.launch.yaml on") for o in origins)  # no model in it: once
     assert sum(o.startswith("fiper collect --ros") for o in origins) == 3 + 4  # each model, without and with each
 
 
 def test_a_node_that_does_more_than_its_grants_is_found(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    config = tmp_path / "fusion.yaml"
-    config.write_text("namespace: /fiper\nnodes:\n  fusion_node:\n    module: fiper_ros.nodes.fusion_node\n")
-    deployment = Deployment("by hand", load_config(config))
-    observed = observe_all([deployment])
-    assert mismatches(observed) == []
+    launch = tmp_path / "fusion.launch.yaml"
+    launch.write_text("launch:\n- node: {pkg: fiper_ros, exec: fusion_node, name: fusion_node, namespace: /fiper,\n"
+                      "          remap: [{from: alarm, to: /cell/alarm}]}\n")
+    observed = observe_all([Deployment("by hand", load_launch(launch))])
+    assert mismatches(observed) == []  # the remap as rcl applies it
+    assert "/cell/alarm" in observed[0][2].publish
     fewer = grants.NODE_RULES["fiper_ros.nodes.fusion_node"]
     monkeypatch.setitem(grants.NODE_RULES, "fiper_ros.nodes.fusion_node",
                         lambda p: replace(fewer(p), reply=fewer(p).reply - {"~/reset"}))

@@ -2,18 +2,20 @@
 
 Derived, never listed by hand. A node's grants follow from its module (one rule per node class below, with the
 names of :mod:`fiper_ros.interface.topics` and the parameters the node runs with: its launch file's parameter
-files and inline values, else the default it declares, which is the same constant); a tool's from the names its
-code uses. They describe a node once it is ACTIVE (the scoring nodes subscribe their inputs on activation).
+files and values, else the default it declares, which is the same constant; and its remaps); a tool's from the
+names its code uses. They describe a node once it is ACTIVE (the scoring nodes subscribe their inputs on
+activation).
 
 The shipped policy is the union over every suite the project starts (:func:`shipped_deployments`): each shipped
-launch file (``fiper launch``) with each shipped model and calibration, the suites of ``fiper replay`` and
-``fiper collect --ros``, and the tools' own nodes (:func:`tool_grants`). So a node's grants are what it does in
+launch file (``fiper launch``) with its default arguments and on each shipped model and calibration, the suites
+of ``fiper replay`` and ``fiper collect --ros``, and the tools' own nodes (:func:`tool_grants`). So a node's grants are what it does in
 any of them: ``ace_node`` subscribes ``/joint_states`` because the Stacking calibration's ACE maps joint
 velocities. test/nodes/test_security_policy.py builds each of these nodes and tools and checks that its real
 endpoints are exactly its grants.
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -30,7 +32,7 @@ from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CLOCK, DIAGNOSTICS, EMBEDDING,
                                         EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT, SIM_PROPRIO,
                                         SIM_RESET, TOPICS, relative, score_topic)
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, NodeSpec, load_config
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
 #: What every rclpy node has from ROS: its log and parameter events, its parameter and type description services.
@@ -70,10 +72,17 @@ class Grants:
     def __or__(self, other: Grants) -> Grants:
         return Grants(*(getattr(self, f.name) | getattr(other, f.name) for f in fields(self)))
 
-    def resolved(self, fqn: str) -> Grants:
-        """Every name made absolute as rclpy does for node ``fqn`` (:func:`resolve`)."""
+    def resolved(self, fqn: str, remaps: Iterable[tuple[str, str]] = ()) -> Grants:
+        """Every name made absolute as rclpy does for node ``fqn`` (:func:`resolve`), then renamed by the node's
+        ``remaps`` (``from``, ``to``: a whole name, as rcl matches it)."""
         namespace, node = split_node(fqn)
-        return Grants(*(frozenset(resolve(n, namespace, node) for n in getattr(self, f.name)) for f in fields(self)))
+        renamed = {resolve(a, namespace, node): resolve(b, namespace, node) for a, b in remaps}
+
+        def absolute(name: str) -> str:
+            full = resolve(name, namespace, node)
+            return renamed.get(full, full)
+
+        return Grants(*(frozenset(map(absolute, getattr(self, f.name))) for f in fields(self)))
 
 
 #: A policy: fully qualified node name -> its grants.
@@ -95,15 +104,30 @@ def resolve(name: str, namespace: str, node: str) -> str:
     return f"{base}/{node}/{name[1:].lstrip('/')}" if name.startswith("~") else f"{base}/{name}"
 
 
-def effective_parameters(spec: NodeSpec, use_sim_time: bool) -> dict[str, Any]:
-    """The parameters node ``spec`` gets from its launch (as :meth:`NodeSpec.ros_args` passes them): each
-    parameter file's entry for its fully qualified name, then the launch's ``use_sim_time``, then its inline
-    values. What it declares by default is not here."""
-    values: dict[str, Any] = {}
-    for file in spec.parameter_files:
-        entry = (yaml.safe_load(file.read_text()) or {}).get(spec.fqn) or {}
-        values |= entry.get("ros__parameters") or {}
-    return values | {"use_sim_time": use_sim_time} | spec.parameters
+def names_node(key: str, fqn: str) -> bool:
+    """Whether a parameter file's node key names node ``fqn``, as rcl reads it: ``*`` one name token, ``**`` any
+    number, a key without a leading ``/`` from the root."""
+    pattern = re.escape("/" + key.lstrip("/")).replace(r"\*\*", ".*").replace(r"\*", "[^/]*")
+    return re.fullmatch(pattern, fqn) is not None
+
+
+def effective_parameters(spec: NodeSpec) -> dict[str, Any]:
+    """The parameters node ``spec`` gets from its launch, as rcl and rclpy read its ``param`` entries: every
+    entry's values (a file's, or values by name, which the launcher passes as a file keyed by the node's name)
+    merged per node key, a later entry winning within a key; then the keys that name the node applied in the
+    order each key first appeared (so a ``/**`` that came first yields to the node's own key, whatever comes
+    later). What the node declares by default is not here."""
+    keys: dict[str, dict[str, Any]] = {}
+    for entry in spec.params:
+        items = (yaml.safe_load(entry.read_text()) or {}).items() if isinstance(entry, Path) else [(spec.fqn, entry)]
+        for key, content in items:
+            values = content if not isinstance(entry, Path) else (content or {}).get("ros__parameters") or {}
+            keys.setdefault("/" + str(key).lstrip("/"), {}).update(values)
+    merged: dict[str, Any] = {}
+    for key, values in keys.items():
+        if names_node(key, spec.fqn):
+            merged |= values
+    return merged
 
 
 # the rules, one per node class -----------------------------------------------------------------------------
@@ -188,13 +212,13 @@ NODE_RULES: dict[str, Rule] = {
 }
 
 
-def node_grants(spec: NodeSpec, use_sim_time: bool) -> Grants:
-    """What node ``spec`` of a launch with ``use_sim_time`` does once ACTIVE, by absolute name."""
+def node_grants(spec: NodeSpec) -> Grants:
+    """What node ``spec`` does once ACTIVE, by absolute name."""
     rule = NODE_RULES.get(spec.module)
     if rule is None:
         raise UnknownNode(f"node {spec.fqn}: no grants known for module {spec.module} (write its enclave by hand)")
     try:
-        return rule(effective_parameters(spec, use_sim_time)).resolved(spec.fqn)
+        return rule(effective_parameters(spec)).resolved(spec.fqn, spec.remaps)
     except (LaunchError, OSError, ValueError) as error:
         raise LaunchError(f"node {spec.fqn}: {error}") from error
 
@@ -231,7 +255,7 @@ def nodes_policy(deployments: Iterable[Deployment]) -> dict[str, Grants]:
     policy: dict[str, Grants] = {}
     for deployment in deployments:
         for spec in deployment.config.nodes:
-            policy[spec.fqn] = policy.get(spec.fqn, Grants()) | node_grants(spec, deployment.config.use_sim_time)
+            policy[spec.fqn] = policy.get(spec.fqn, Grants()) | node_grants(spec)
     return policy
 
 
@@ -247,17 +271,10 @@ def share(package: str) -> Path:
     return Path(get_package_share_directory(package))
 
 
-def shipped_configs() -> list[Path]:
-    """The installed launch files of fiper_ros and sim_bridge (their ``config/*.yaml`` that the launcher reads;
-    the others are parameter files)."""
-    found = []
-    for path in sorted(p for name in ("fiper_ros", "sim_bridge") for p in (share(name) / "config").glob("*.yaml")):
-        try:
-            load_config(path)
-        except LaunchError:
-            continue
-        found.append(path)
-    return found
+def shipped_launches() -> list[Path]:
+    """The installed launch files of fiper_ros and sim_bridge (``launch/*.launch.yaml``; ``fiper.launch.py`` only
+    includes its YAML)."""
+    return sorted(p for name in ("fiper_ros", "sim_bridge") for p in (share(name) / "launch").glob("*.launch.yaml"))
 
 
 def shipped_models() -> dict[Path, tuple[Path, ...]]:
@@ -277,33 +294,35 @@ def arm_for(calibration: Path) -> RobotModel | None:
 
 
 def shipped_deployments() -> Iterator[Deployment]:
-    """Every suite the project starts with what it ships: each launch file (``fiper launch``) on each shipped
-    model and calibration (the model where the file sets one, the calibration on the scoring and fusion nodes as
-    ``fiper demo`` sets it, the sim's arm on ACE for a joint-space one: so ``fiper demo``'s suites are among
-    them); ``fiper replay``'s suite for each calibration; ``fiper collect --ros``'s for each model, without and
-    with each of its calibrations."""
+    """Every suite the project starts with what it ships: each launch file (``fiper launch``) with its default
+    arguments, and on each shipped model and calibration (the arguments it declares of ``model``,
+    ``calibration_dir`` and ``observation_only``, as ``fiper demo`` gives them; the sim's arm on ACE for a
+    joint-space calibration, as ``fiper replay --urdf`` does: so ``fiper demo``'s suites are among them);
+    ``fiper replay``'s suite for each calibration; ``fiper collect --ros``'s for each model, without and with
+    each of its calibrations."""
     from fiper_ros.client.live_collect import LiveSettings, collect_config  # noqa: PLC0415
-    from fiper_ros.client.suite_process import (SUITE_CONFIGS, detectors_of, installed_config,  # noqa: PLC0415
-                                                replay_overrides, scoring_parameters)
+    from fiper_ros.client.suite_process import (SUITE_LAUNCH, detectors_of, installed_launch,  # noqa: PLC0415
+                                                replay_launch, robot_parameters, suite_arguments)
     from fiper_ros.policy.config import PolicyConfig  # noqa: PLC0415
 
     models = shipped_models()
     pairs = [(model, calibration) for model, calibrations in models.items() for calibration in calibrations]
-    for path in shipped_configs():
-        config = load_config(path)
-        variants: list[LaunchConfig] = []
+    for path in shipped_launches():
+        config = load_launch(path)
+        yield Deployment(f"fiper launch {path.name}", config)
+        declared = {argument.name for argument in config.arguments}
+        variants = [config.nodes]
         for model, calibration in pairs:
-            on_model = Overrides(by_module=scoring_parameters(calibration, arm_for(calibration)),
-                                 where_set={"model": str(model)})
-            variant = apply(config, on_model)
-            if variant not in variants:  # a file without model or calibration paths runs the same on every model
-                variants.append(variant)
-                on = "" if variant == config else f" on {_shown(calibration)}"
-                yield Deployment(f"fiper launch {path.name}{on}", variant)
+            given = {"model": str(model), **suite_arguments(calibration, detectors_of(calibration))}
+            on_model = load_launch(path, {k: v for k, v in given.items() if k in declared})
+            variant = apply(on_model, Overrides(by_module=robot_parameters(arm_for(calibration))))
+            if variant.nodes not in variants:  # a file without model or calibration arguments runs the same on all
+                variants.append(variant.nodes)
+                yield Deployment(f"fiper launch {path.name} on {_shown(calibration)}", variant)
     for _, calibration in pairs:
-        suite = installed_config(SUITE_CONFIGS[detectors_of(calibration)])
         yield Deployment(f"fiper replay --calibration {_shown(calibration)}",
-                         apply(load_config(suite), replay_overrides(calibration, arm_for(calibration))))
+                         replay_launch(installed_launch(SUITE_LAUNCH), calibration, detectors_of(calibration),
+                                       arm_for(calibration)))
     for model, calibrations in models.items():
         task = PolicyConfig.read(model / "policy.yaml").task
         for calibration in (None, *calibrations):
@@ -311,7 +330,7 @@ def shipped_deployments() -> Iterator[Deployment]:
             settings = LiveSettings(task, model, 0, 1, None, calibration, detectors)
             scored = "" if calibration is None else f" --calibration {_shown(calibration)}"
             yield Deployment(f"fiper collect --ros --task {task} --model {_shown(model)}{scored}",
-                             collect_config(installed_config("demo.yaml"), settings))
+                             collect_config(installed_launch("demo.launch.yaml"), settings))
 
 
 def _shown(path: Path) -> str:

@@ -18,13 +18,12 @@ import time
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from contextlib import ExitStack
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from fiper_ros.commands.grants import (Deployment, Grants, Policy, UnknownNode, effective_parameters, node_grants,
                                        nodes_policy, resolve, shipped_deployments, shipped_policy, split_node)
-from fiper_ros.launcher.config import LaunchError, NodeSpec, load_config
+from fiper_ros.launcher.config import LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.processes import build_node
 
 #: SROS2's policy format.
@@ -127,7 +126,7 @@ def _graph_or_none(node: Any, fqn: str) -> Grants:
 
 
 def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TIMEOUT_S) -> dict[str, Grants]:
-    """Build the nodes ``specs`` (distinct names; ``use_sim_time`` inline) in this process in ``domain``, wait
+    """Build the nodes ``specs`` (distinct names) in this process in ``domain``, wait
     until every lifecycle node is ACTIVE and the graph shows what its grants say (:func:`settled_grants`), and
     return what each node does (read from the graph)."""
     import rclpy  # noqa: PLC0415 - only this step needs rclpy
@@ -140,7 +139,7 @@ def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TI
     nodes: list[Any] = []
     try:
         for spec in specs:
-            nodes.append(build_node(spec, False, context))
+            nodes.append(build_node(spec, context))
             executor.add_node(nodes[-1])
         deadline = time.monotonic() + timeout_s
 
@@ -152,7 +151,7 @@ def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TI
                 executor.spin_once(timeout_sec=0.02)
 
         spin(lambda: all(_state(n) == "active" for n in nodes))
-        expected = {spec.fqn: node_grants(spec, False) for spec in specs}
+        expected = {spec.fqn: node_grants(spec) for spec in specs}
         return settled_grants(nodes[0], expected, lambda: executor.spin_once(timeout_sec=0.02))
     finally:
         while nodes:
@@ -174,14 +173,13 @@ def _state(node: Any) -> str:
 
 
 def distinct_nodes(deployments: Iterable[Deployment]) -> list[tuple[NodeSpec, list[str]]]:
-    """Each distinct node of ``deployments`` (module, name and parameters; ``use_sim_time`` made inline) and
-    the origins of the deployments it runs in."""
+    """Each distinct node of ``deployments`` (module, name, parameters, remaps and ROS arguments) and the origins
+    of the deployments it runs in."""
     found: dict[str, tuple[NodeSpec, list[str]]] = {}
     for deployment in deployments:
         for spec in deployment.config.nodes:
-            parameters = effective_parameters(spec, deployment.config.use_sim_time)
-            key = json.dumps([spec.module, spec.fqn, parameters], sort_keys=True, default=str)
-            spec = replace(spec, parameters={"use_sim_time": deployment.config.use_sim_time} | spec.parameters)
+            key = json.dumps([spec.module, spec.fqn, effective_parameters(spec), spec.remaps, spec.ros_arguments],
+                             sort_keys=True, default=str)
             found.setdefault(key, (spec, []))[1].append(deployment.origin)
     return list(found.values())
 
@@ -215,17 +213,16 @@ def observe_all(deployments: Iterable[Deployment], timeout_s: float = ACTIVE_TIM
 def mismatches(observed: Iterable[tuple[NodeSpec, list[str], Grants]]) -> list[str]:
     """Where an observed node does more or less than its grants, one line each."""
     return [f"{line} (in {origins[0]})" for spec, origins, seen in observed
-            for line in differences({spec.fqn: node_grants(spec, False)}, {spec.fqn: seen},
+            for line in differences({spec.fqn: node_grants(spec)}, {spec.fqn: seen},
                                     ("its grants", "what it does"))]
 
 
 # the command --------------------------------------------------------------------------------------------------
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper security``."""
-    parser.add_argument("configs", type=Path, nargs="*", metavar="CONFIG",
-                        help="launch YAMLs whose nodes the policy is for, as they are (default: every suite the "
-                             "project starts with every shipped model, and the tools); relative model and "
-                             "calibration paths by the usual rule")
+    parser.add_argument("configs", type=Path, nargs="*", metavar="LAUNCH",
+                        help="launch files whose nodes the policy is for, read with their default arguments "
+                             "(default: every suite the project starts with every shipped model, and the tools)")
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("-o", "--output", type=Path, help="write the policy here")
     mode.add_argument("--check", type=Path, metavar="POLICY", help="compare with this policy file; exit 1 if it "
@@ -238,7 +235,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """``fiper security``."""
     try:
-        deployments = ([Deployment(f"fiper launch {path}", load_config(path)) for path in args.configs]
+        deployments = ([Deployment(f"fiper launch {path}", load_launch(path)) for path in args.configs]
                        if args.configs else list(shipped_deployments()))
         if args.verify:
             observed = observe_all(deployments)
