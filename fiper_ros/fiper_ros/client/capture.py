@@ -22,7 +22,7 @@ from fiper_ros.bagio.schema import BagInfo, bag_qos, typestore
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import message_class
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.interface.topics import ACTIONS, DIAGNOSTICS, EMBEDDING, EVENTS, TOPICS
 
 #: Messages a capture subscription queues before the oldest is dropped.
 CAPTURE_DEPTH = 200
@@ -98,7 +98,7 @@ class InfoTracker:
 
     def __init__(self, session: RosSession, source: str) -> None:
         self.info = BagInfo(source=source)
-        session.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
+        session.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:

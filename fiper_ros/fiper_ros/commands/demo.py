@@ -27,7 +27,7 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError, fail
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, node_path, state_name
+from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, node_path, state_name
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -36,15 +36,17 @@ from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING
+from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, CLOCK, EMBEDDING, SIM_ACTION, SIM_PROPRIO
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.shm import clean_stale
 
 #: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
 #: node that must report ``lifecycle_state: active`` on /diagnostics before the first reset).
 SUPERVISOR = "/fiper/supervisor_node"
+#: The demo's own node, the operator's (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_demo"
 #: Recorded besides the bag schema's topics.
-EXTRA_TOPICS = ("/camera/wrist/image_raw", "/camera/third/image_raw", "/sim/proprio", "/sim/action", "/clock")
+EXTRA_TOPICS = (CAMERA_WRIST, CAMERA_THIRD, SIM_PROPRIO, SIM_ACTION, CLOCK)
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
 PROGRESS_EVERY = 5
 
@@ -80,6 +82,14 @@ class Display:
             print(f"\r  {line}", end="", flush=True)
         elif msg.step % PROGRESS_EVERY == 0:
             print(f"  {line}", flush=True)
+
+
+def operator(session: RosSession, suite: SuiteProcess, task: str, detectors: tuple[str, ...],
+             display: AlarmDisplay | None = None) -> tuple[Recorder, Driver]:
+    """The demo's side of ``session`` for a suite of ``detectors``: a recorder of its topics, both cameras,
+    ``/sim/*`` and ``/clock``, and the driver."""
+    recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
+    return recorder, Driver(session, suite, task, detectors, recorder=recorder, display=display)
 
 
 def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
@@ -159,11 +169,10 @@ def run_demo(args: argparse.Namespace) -> int:
                 remove(out)  # a refused demo leaves no run folder
             raise
         try:
-            with RosSession("fiper_demo", domain) as session:
+            with RosSession(NODE_NAME, domain) as session:
                 display = Display(sys.stdout.isatty())
-                recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
+                recorder, driver = operator(session, suite, args.task, detectors, display.alarm)
                 recorder.start(out / "bag")
-                driver = Driver(session, suite, args.task, detectors, recorder=recorder, display=display.alarm)
                 try:
                     print(f"starting {', '.join(spec.name for spec in config.nodes)}; judged by "
                           f"{judged_by(detectors)} ...", flush=True)

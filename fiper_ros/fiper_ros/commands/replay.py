@@ -15,7 +15,7 @@ from fiper_ros.bagio.atomic import atomic_output
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import ROLLOUT_GAP_NS
-from fiper_ros.client.replay import Player, find_calibration, played_topics, suite_subscribers
+from fiper_ros.client.replay import NODE_NAME, Player, find_calibration, played_topics, suite_subscribers
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, replay_config
 from fiper_ros.commands import options
@@ -42,7 +42,7 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
             suite = SuiteProcess(config, domain, echo=args.verbose)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)
-        session = stack.enter_context(RosSession("fiper_replay", domain))
+        session = stack.enter_context(RosSession(NODE_NAME, domain))
         player = Player(session, args)
         readers = [stack.enter_context(BagReader(bag)) for bag in bags]
         for reader in readers:
