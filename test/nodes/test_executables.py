@@ -74,11 +74,13 @@ def test_every_node_started_through_its_executable_from_another_directory_become
 def test_scoring_nodes_started_elsewhere_load_the_shipped_calibration_named_relatively(
         tmp_path: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
     """``calibration_dir: models/sorting/calibration`` from a directory without ``models/``: the
-    installed copy in the package share (fiper_ros/data_paths.py); the policy node's default model likewise."""
+    installed copy in the package share (fiper_ros/data_paths.py), for the scoring nodes and the fusion node (which
+    reads the detectors the calibration declares; it did not follow the rule); the policy node's default model
+    likewise."""
     relative = "models/sorting/calibration"
     assert not (tmp_path / relative).exists()
     shipped = load_calibration(SHIPPED / "sorting" / "calibration").content_hash
-    names = ("rnd_oe_node", "ace_node", "policy_node")
+    names = ("rnd_oe_node", "ace_node", "fusion_node", "policy_node")  # fusion: the detectors it declares
     procs = {name: start("fiper_ros", name, tmp_path, ros_domain, "/fiper",
                          {} if name == "policy_node" else {"calibration_dir": relative}) for name in names}
     try:

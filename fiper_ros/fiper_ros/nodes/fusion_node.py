@@ -23,6 +23,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
+from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns, to_stamp
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
@@ -100,6 +101,8 @@ class FusionNode(FiperNode):
     def configure(self) -> None:
         combine = self.get_parameter("combine").value
         directory = self.get_parameter("calibration_dir").value
+        if directory:  # relative: the working directory, the share, $FIPER_MODELS (as the scoring nodes)
+            directory = str(resolve_data_path(directory))
         detectors = declared_detectors(directory) if directory else DETECTORS
         self.fuser = AlarmFuser(combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
