@@ -87,6 +87,10 @@ class TopicTap:
             new.append(topic)
         return new
 
+    def matched_publishers(self) -> dict[str, int]:
+        """Per subscribed topic, how many publishers its subscription has matched."""
+        return {topic: subscription.get_publisher_count() for topic, subscription in self._subscriptions.items()}
+
     def now_ns(self) -> int:
         """Receive time stamp: the node clock."""
         return self.session.node.get_clock().now().nanoseconds

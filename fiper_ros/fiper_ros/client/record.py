@@ -6,7 +6,10 @@ publisher) with raw subscriptions and writes the CDR bytes as received, with eac
 offered QoS and the receive time as log time, until Ctrl-C / SIGTERM or ``--duration``. The bag is live
 (:class:`~fiper_ros.bagio.chunks.LiveChunks`): at its path from the start, a chunk on disk at least every
 ``--chunk-s`` seconds, ``metadata.yaml`` written when recording stops; a killed recorder leaves an
-unfinished bag that ``fiper bag recover`` finishes. :class:`Recorder` also serves ``fiper demo`` (one bag)
+unfinished bag that ``fiper bag recover`` finishes. ``fiper record`` reports on ``/diagnostics`` (as
+``/fiper_record``) how many publishers each of its subscriptions has matched, as the suite's nodes do, so a
+policy can wait until the recorder receives its VOLATILE steps (:mod:`fiper_ros.publishing`,
+``wait_for_suite(also=["/fiper_record"])``). :class:`Recorder` also serves ``fiper demo`` (one bag)
 and ``fiper collect --ros`` (a bag per rollout), both staged (complete or not there).
 """
 from __future__ import annotations
@@ -16,15 +19,22 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
 from fiper_ros.bagio.chunks import LiveChunks
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.client.capture import InfoTracker, TopicTap
 from fiper_ros.client.ros_session import RosSession
+from fiper_ros.interface import qos
+from fiper_ros.nodes.base import diagnostic_array
+from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 
 #: Seconds between two looks at the ROS graph for new topics.
 GRAPH_POLL_S = 0.5
+#: Seconds between two ``/diagnostics`` reports of ``fiper record`` (the nodes' default period).
+DIAGNOSTICS_PERIOD_S = 1.0
 
 
 class Recorder:
@@ -112,6 +122,7 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
     with RosSession("fiper_record", domain) as session:
         recorder = Recorder(session, topics)
         recorder.start(out, overwrite, live)
+        report_matches(session, recorder)
         print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:
@@ -124,3 +135,17 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
             recorder.abort()
             raise
         return recorder.finish()
+
+
+def report_matches(session: RosSession, recorder: Recorder) -> None:
+    """Publish, every :data:`DIAGNOSTICS_PERIOD_S` while the session spins, the recorder's matched publishers per
+    topic on ``/diagnostics`` (keys as the nodes': :data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`)."""
+    node = session.node
+    publisher = node.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+
+    def report() -> None:
+        matched = recorder.tap.matched_publishers()
+        values = {f"{MATCHED_PUBLISHERS}{topic}": str(count) for topic, count in sorted(matched.items())}
+        publisher.publish(diagnostic_array(node, DiagnosticStatus.OK, f"recording {len(matched)} topics", values))
+
+    node.create_timer(DIAGNOSTICS_PERIOD_S, report)
