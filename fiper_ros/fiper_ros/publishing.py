@@ -16,10 +16,11 @@ Add these lines to a policy (a runnable whole: ``python -m fiper_ros.examples.mi
 VOLATILE) and ``/fiper/rollout_events`` (:data:`~fiper_ros.interface.qos.EVENT`: RELIABLE, TRANSIENT_LOCAL). The
 inputs are VOLATILE: a step published before a scoring node's reader has matched the publisher is lost to it, so
 :meth:`~FiperPublisher.wait_for_suite` waits until every reader that reports its matches on ``/diagnostics`` (the
-suite's nodes, and ``fiper record``) has matched the publishers, at least one of them per input topic, and the
-fusion node is up; on timeout :class:`SuiteNotReady` names what is missing. A step's embedding and batch carry the
-same rollout id, step and stamp (the node clock's now, unless given). Messages are built by
-:mod:`fiper_ros.interface.conversions`, the code the suite's own policy node and bag tools use.
+suite's nodes, and ``fiper record``) has matched the publishers, among them an ACTIVE node of the suite per input
+topic, and the fusion node (the publisher of ``/fiper/alarm``) is ACTIVE; on timeout :class:`SuiteNotReady`
+names what is missing. A step's embedding and batch carry the same rollout id, step and stamp (the node clock's
+now, unless given). Messages are built by :mod:`fiper_ros.interface.conversions`, the code the suite's own policy
+node and bag tools use.
 """
 from __future__ import annotations
 
@@ -40,12 +41,15 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
 from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
+from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.runtime.wiring import unmatched_readers
 
 __all__ = ["FiperPublisher", "SuiteNotReady"]
 
 #: How often :meth:`FiperPublisher.wait_for_suite` looks at the graph and the reports it received.
 POLL_S = 0.05
+#: The /diagnostics key of a managed node's lifecycle state (the suite's nodes report it).
+LIFECYCLE_STATE = "lifecycle_state"
 #: Largest rollout id a message carries (``uint64``).
 MAX_ROLLOUT_ID = 2**64 - 1
 
@@ -108,21 +112,27 @@ class FiperPublisher:
         """What has not matched the publishers yet (empty: publishing loses nothing), from the ROS graph and the
         ``/diagnostics`` reports received so far: every reader that reports its matches, ``also`` (nodes, fully
         qualified, e.g. ``/fiper_record``, that must report a matched subscription of every input topic) and, with
-        ``suite``, at least one reader per input topic and the fusion node."""
+        ``suite``, an ACTIVE reader of the suite per input topic and an ACTIVE fusion node."""
         node, lines = self.node, []
         for publisher in self._inputs():
             topic = publisher.topic_name
             readers, unmatched = unmatched_readers(self._reports, topic, node.count_publishers(topic))
-            if suite and not readers:
-                lines.append(f"a node of the suite subscribing to {topic} (none reports one on /diagnostics)")
+            if suite and not any(self._active(reader) for reader in readers):
+                lines.append(f"an active node of the suite subscribing to {topic} (none reports one on /diagnostics)")
             lines += unmatched
             lines += [f"{name} to subscribe to {topic}" for name in also if name not in readers]
             lines += self._writer_side(publisher)
         if self.events is not None:
             lines += self._writer_side(self.events)
-        if suite and node.count_publishers(ALARM) < 1:
-            lines.append(f"the fusion node (no publisher of {ALARM})")
+        fusion = [fully_qualified(p.node_namespace, p.node_name) for p in node.get_publishers_info_by_topic(ALARM)]
+        if suite and not any(self._active(name) for name in fusion):
+            state = f"{', '.join(fusion)} not active" if fusion else f"no publisher of {ALARM}"
+            lines.append(f"the fusion node ({state})")
         return lines
+
+    def _active(self, name: str) -> bool:
+        """Whether the node ``name`` last reported its lifecycle state ACTIVE (a node of the suite, at work)."""
+        return self._reports.get(name, {}).get(LIFECYCLE_STATE) == "active"
 
     def _writer_side(self, publisher: Any) -> list[str]:
         """Our publisher must have matched every subscription of its topic in the graph."""
