@@ -37,7 +37,8 @@ def test_calibrate_uses_the_successes_and_prints_what_it_used(
 def test_a_window_longer_than_every_rollout_is_warned_and_the_summary_closes_the_output(
         tmp_path: Path, small_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "calibration"
-    assert main(["calibrate", str(small_bag), "-o", str(out), "--min-rollouts", "3", *SETTINGS, "--window-act", "21"]) == 0
+    assert main(["calibrate", str(small_bag), "-o", str(out), "--min-rollouts", "3", *SETTINGS,
+                 "--window-act", "21"]) == 0
     printed = capsys.readouterr()
     warning = ("warning: --window-act 21 is longer than every calibration rollout (the longest has 20 steps): ACE's "
                "windowed score sums the whole rollout so far at every step, as any window of 20 or more would; a "

@@ -44,7 +44,8 @@ def test_the_table_counts_per_scenario_and_over_all() -> None:
     assert math.isclose(everything.dt, (5 / 20 + 2 / 10) / 2)
     assert math.isnan(rows[1].tnr) and rows[1].to_dict()["tnr"] is None  # no success in "ood"
     assert table(rows) == [
-        "verdicts on 5 rollouts with a known outcome (failures are positives: an alarm on a failure is a true positive):",
+        "verdicts on 5 rollouts with a known outcome (failures are positives: an alarm on a failure is a true "
+        "positive):",
         "scenario         rollouts failures  TPR           successes  TNR           mean detection step",
         "id                      3        1  1.00 (1/1)            2  0.50 (1/2)    5.0 (DT 0.25)",
         "ood                     2        2  0.50 (1/2)            0  -             2.0 (DT 0.20)",

@@ -98,8 +98,8 @@ def test_echo_changes_and_brief_on_an_alarm_stream_by_hand() -> None:
 
 
 def test_echo_brief_of_scores_and_other_types() -> None:
-    scores = [Score(rollout_id=4, step=s, detector="ace", score=0.5, windowed_score=w, threshold=1.25, exceeded=w > 1.25,
-                    window=3, complete=s >= 2) for s, w in enumerate((0.5, 1.0, 1.5, 2.0, 1.0))]
+    scores = [Score(rollout_id=4, step=s, detector="ace", score=0.5, windowed_score=w, threshold=1.25,
+                    exceeded=w > 1.25, window=3, complete=s >= 2) for s, w in enumerate((0.5, 1.0, 1.5, 2.0, 1.0))]
     printer = Printer("fiper_msgs/msg/Score", brief=True, changes=True)
     assert [line for line in map(printer.text, scores) if line is not None] == [
         "rollout 4 step 0: ace score 0.500, windowed 0.500 <= 1.250 (below, window 3 (incomplete))",

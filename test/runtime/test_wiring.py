@@ -37,7 +37,8 @@ def test_topics_without_a_managed_publisher_and_unlisted_nodes_are_not_checked()
 def test_readers_are_the_nodes_reporting_a_subscription_of_the_topic_and_must_match_every_publisher() -> None:
     record = "/fiper_record"
     diagnostics = {RND_OE: {f"matched_publishers.{EMB}": "1", "matched_publishers./fiper/rollout_events": "0"},
-                   record: {f"matched_publishers.{EMB}": "2"}, FUSION: {"matched_publishers./fiper/rollout_events": "1"},
+                   record: {f"matched_publishers.{EMB}": "2"},
+                   FUSION: {"matched_publishers./fiper/rollout_events": "1"},
                    POLICY: {f"matched_subscribers.{EMB}": "2"}}
     readers = [RND_OE, record]  # sorted: "/fiper/..." before "/fiper_..."
     assert unmatched_readers(diagnostics, EMB, 1) == (readers, [])

@@ -231,7 +231,8 @@ def summary(calibration: Calibration) -> list[str]:
     split, estimate, settings = calibration.split, calibration.false_alarms, calibration.settings
     fitted = "RND-OE and R_d" if calibration.has_ace else "RND-OE"
     lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted {fitted}, "
-             f"{len(split['conformal'])} the thresholds" + (f" ({len(split['folds'])} folds)" if "folds" in split else ""),
+             f"{len(split['conformal'])} the thresholds"
+             + (f" ({len(split['folds'])} folds)" if "folds" in split else ""),
              "windows: " + ", ".join(f"{LABELS[d]} w_{SIDES[d][0].upper()} = {getattr(settings, f'window_{SIDES[d]}')}"
                                      for d in calibration.detectors) + f" policy steps ({settings.aggregation})"]
     for detector in calibration.detectors:

@@ -55,8 +55,9 @@ def to_yaml_lines(msg: Any, full: bool, indent: int = 0) -> list[str]:
 def alarm_brief(msg: Any) -> str:
     """A FailureAlarm on one line: rollout, step, state, the judged detectors' windowed scores against their
     thresholds (``>`` where exceeded), and why."""
-    scores = [f"{LABELS[d]} {getattr(msg, f'eta_{SIDES[d]}'):.3f}{'>' if getattr(msg, f'{SIDES[d]}_exceeded') else '<='}"
-              f"{getattr(msg, f'gamma_{SIDES[d]}'):.3f}" for d in DETECTORS
+    scores = [f"{LABELS[d]} {getattr(msg, f'eta_{SIDES[d]}'):.3f}"
+              f"{'>' if getattr(msg, f'{SIDES[d]}_exceeded') else '<='}{getattr(msg, f'gamma_{SIDES[d]}'):.3f}"
+              for d in DETECTORS
               if not np.isnan(getattr(msg, f"gamma_{SIDES[d]}"))]  # NaN: a detector the suite does not judge
     flags = " latched" * bool(msg.latched) + " (heartbeat)" * bool(msg.heartbeat)
     return " ".join([f"rollout {msg.rollout_id} step {msg.step}: {state_name(msg.state).upper()}{flags}", *scores,

@@ -135,7 +135,8 @@ def table(rows: Sequence[Tally]) -> list[str]:
         lines.append(f"{row.scenario:<16}{row.rollouts:>9}{row.failures:>9}  {_ratio(row.tp, row.failures):<14}"
                      f"{row.successes:>9}  {_ratio(row.tn, row.successes):<14}{mean}")
     if total.unknown:
-        lines.append(f"{total.unknown} rollout(s) without an outcome (no END, or END with OUTCOME_UNKNOWN): not counted")
+        lines.append(f"{total.unknown} rollout(s) without an outcome (no END, or END with OUTCOME_UNKNOWN): "
+                     "not counted")
     return lines
 
 
