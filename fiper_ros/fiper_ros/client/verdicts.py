@@ -8,7 +8,8 @@ END arrived and its last scored step has its verdict (or :data:`SETTLE_S` after 
 when the launch stops: first :meth:`LiveVerdicts.settle` (before the nodes stop: verdicts still on their way
 arrive), then :meth:`LiveVerdicts.close`. A rollout of which no verdict was seen (its START replayed from before
 these nodes ran, TRANSIENT_LOCAL) is left out and counted. The session starts before the nodes, so it has matched
-the fusion node's alarm publisher before the first decision.
+the fusion node's alarm publisher before the first decision. With ``--in-process`` the nodes' Ctrl-C ends this
+session too (rclpy shuts every context down): nothing settles then, the table holds what had arrived.
 """
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
+
+from rclpy.executors import ExternalShutdownException
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_ros.client.ros_session import RosSession
@@ -70,9 +73,12 @@ class LiveVerdicts:
             node.create_subscription(FailureAlarm, ALARM, self._on_alarm, qos.ALARM_EVERY)
             node.create_subscription(Score, SCORE_RND_OE, self._on_score, qos.SCORE_SUB)
             self._ready.set()
-            while not self._stop.is_set() or (time.monotonic() < self._settle_until and not self._settled()):
-                session.spin_once(0.05)
-                self._print_settled()
+            try:
+                while not self._stop.is_set() or (time.monotonic() < self._settle_until and not self._settled()):
+                    session.spin_once(0.05)
+                    self._print_settled()
+            except ExternalShutdownException:
+                pass  # --in-process: the nodes' Ctrl-C shut every rclpy context down, this one too
 
     # callbacks ----------------------------------------------------------------------------------------
     def _result(self, rollout_id: int) -> RolloutResult:
