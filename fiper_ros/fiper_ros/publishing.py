@@ -17,7 +17,8 @@ VOLATILE) and ``/fiper/rollout_events`` (:data:`~fiper_ros.interface.qos.EVENT`:
 inputs are VOLATILE: a step published before a scoring node's reader has matched the publisher is lost to it, so
 :meth:`~FiperPublisher.wait_for_suite` waits until every reader that reports its matches on ``/diagnostics`` (the
 suite's nodes, and ``fiper record``) has matched the publishers, among them an ACTIVE node of the suite per input
-topic, and the fusion node (the publisher of ``/fiper/alarm``) is ACTIVE; on timeout :class:`SuiteNotReady`
+topic, the fusion node (the publisher of ``/fiper/alarm``) is ACTIVE, and every reader of the alarm that reports
+(``fiper launch --summary``, ``fiper record``) has matched it; on timeout :class:`SuiteNotReady`
 names what is missing. A step's embedding and batch carry the same rollout id, step and stamp (the node clock's
 now, unless given). Messages are built by :mod:`fiper_ros.interface.conversions`, the code the suite's own policy
 node and bag tools use.
@@ -110,9 +111,10 @@ class FiperPublisher:
 
     def missing(self, also: Sequence[str] = (), suite: bool = True) -> list[str]:
         """What has not matched the publishers yet (empty: publishing loses nothing), from the ROS graph and the
-        ``/diagnostics`` reports received so far: every reader that reports its matches, ``also`` (nodes, fully
-        qualified, e.g. ``/fiper_record``, that must report a matched subscription of every input topic) and, with
-        ``suite``, an ACTIVE reader of the suite per input topic and an ACTIVE fusion node."""
+        ``/diagnostics`` reports received so far: every reader of the inputs or of ``/fiper/alarm`` that reports its
+        matches (for the alarm, KEEP_LAST(1) at the fusion node: so that the first verdicts are not lost to it),
+        ``also`` (nodes, fully qualified, e.g. ``/fiper_record``, that must report a matched subscription of every
+        input topic) and, with ``suite``, an ACTIVE reader of the suite per input topic and an ACTIVE fusion node."""
         node, lines = self.node, []
         for publisher in self._inputs():
             topic = publisher.topic_name
@@ -124,6 +126,8 @@ class FiperPublisher:
             lines += self._writer_side(publisher)
         if self.events is not None:
             lines += self._writer_side(self.events)
+        # who watches the suite's verdicts (fiper launch --summary, fiper record) must hear the first ones too
+        lines += unmatched_readers(self._reports, ALARM, node.count_publishers(ALARM))[1]
         fusion = [fully_qualified(p.node_namespace, p.node_name) for p in node.get_publishers_info_by_topic(ALARM)]
         if suite and not any(self._active(name) for name in fusion):
             state = f"{', '.join(fusion)} not active" if fusion else f"no publisher of {ALARM}"

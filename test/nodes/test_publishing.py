@@ -178,3 +178,20 @@ def test_a_recording_started_with_the_policy_holds_every_step(tmp_path: Path, ro
     (recorded,) = read_rollouts(bag)
     assert (recorded.rollout_id, recorded.success, recorded.length) == (str(rollout_id), True, 5)
     assert recorded.embeddings[:, 0].tolist() == [0, 1, 2, 3, 4]
+
+
+def test_a_reader_of_the_alarm_that_reports_must_have_matched_the_fusion_node(ends: Ends) -> None:
+    """``fiper launch --summary`` (and ``fiper record``) report their alarm subscription's matches: a policy waits
+    until they have matched the fusion node's KEEP_LAST(1) publisher, else the first verdicts are lost to them
+    (the walkthrough's summary missed the first steps of its first rollout)."""
+    from fiper_msgs.msg import FailureAlarm  # noqa: PLC0415
+
+    alarm = ends.listener.create_publisher(FailureAlarm, "/fiper/alarm", qos.ALARM_PUB)
+    assert ends.spin_until(lambda: ends.node.count_publishers("/fiper/alarm") == 1)
+    summary = "/fiper_launch_summary"
+    # what its /diagnostics said (the report's keys as client.capture.report_matches writes them)
+    ends.fiper._reports[summary] = {"matched_publishers./fiper/alarm": "0"}  # noqa: SLF001
+    assert f"{summary} to match 1 publishers of /fiper/alarm (has 0)" in ends.fiper.missing(suite=False)
+    ends.fiper._reports[summary] = {"matched_publishers./fiper/alarm": "1"}  # noqa: SLF001
+    assert ends.fiper.missing(suite=False) == []
+    ends.listener.destroy_publisher(alarm)

@@ -19,22 +19,15 @@ from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-
 from fiper_ros.bagio.chunks import LiveChunks
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.writer import BagWriter
-from fiper_ros.client.capture import InfoTracker, TopicTap
+from fiper_ros.client.capture import InfoTracker, TopicTap, report_matches
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.interface import qos
-from fiper_ros.nodes.base import diagnostic_array
-from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 
 #: Seconds between two looks at the ROS graph for new topics.
 GRAPH_POLL_S = 0.5
-#: Seconds between two ``/diagnostics`` reports of ``fiper record`` (the nodes' default period).
-DIAGNOSTICS_PERIOD_S = 1.0
 
 
 class Recorder:
@@ -122,7 +115,7 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
     with RosSession("fiper_record", domain) as session:
         recorder = Recorder(session, topics)
         recorder.start(out, overwrite, live)
-        report_matches(session, recorder)
+        report_matches(session, recorder.tap.matched_publishers)
         print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:
@@ -136,16 +129,3 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
             raise
         return recorder.finish()
 
-
-def report_matches(session: RosSession, recorder: Recorder) -> None:
-    """Publish, every :data:`DIAGNOSTICS_PERIOD_S` while the session spins, the recorder's matched publishers per
-    topic on ``/diagnostics`` (keys as the nodes': :data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`)."""
-    node = session.node
-    publisher = node.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
-
-    def report() -> None:
-        matched = recorder.tap.matched_publishers()
-        values = {f"{MATCHED_PUBLISHERS}{topic}": str(count) for topic, count in sorted(matched.items())}
-        publisher.publish(diagnostic_array(node, DiagnosticStatus.OK, f"recording {len(matched)} topics", values))
-
-    node.create_timer(DIAGNOSTICS_PERIOD_S, report)

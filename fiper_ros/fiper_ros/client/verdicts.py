@@ -7,8 +7,10 @@ decision (heartbeats aside) and RND-OE's scores (every judged step has one). A r
 END arrived and its last scored step has its verdict (or :data:`SETTLE_S` after the END, whatever came), the table
 when the launch stops: first :meth:`LiveVerdicts.settle` (before the nodes stop: verdicts still on their way
 arrive), then :meth:`LiveVerdicts.close`. A rollout of which no verdict was seen (its START replayed from before
-these nodes ran, TRANSIENT_LOCAL) is left out and counted. The session starts before the nodes, so it has matched
-the fusion node's alarm publisher before the first decision. With ``--in-process`` the nodes' Ctrl-C ends this
+these nodes ran, TRANSIENT_LOCAL) is left out and counted. The alarm is KEEP_LAST(1) on the fusion node's side: a
+decision published before this session's reader matched the fusion node is lost to it (discovery of a booting
+process can take seconds), so the session reports its matches on ``/diagnostics`` (``/fiper_launch_summary``), and
+a policy's ``wait_for_suite`` waits for it too. With ``--in-process`` the nodes' Ctrl-C ends this
 session too (rclpy shuts every context down): nothing settles then, the table holds what had arrived.
 """
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 from rclpy.executors import ExternalShutdownException
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
+from fiper_ros.client.capture import report_matches
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.evaluation.results import RolloutResult, StepResult, as_float32
 from fiper_ros.evaluation.verdicts import in_sample_warning, rollout_line, table, tally
@@ -69,9 +72,10 @@ class LiveVerdicts:
     def _run(self) -> None:
         with RosSession("fiper_launch_summary", self.domain) as session:
             node = session.node
-            node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
-            node.create_subscription(FailureAlarm, ALARM, self._on_alarm, qos.ALARM_EVERY)
-            node.create_subscription(Score, SCORE_RND_OE, self._on_score, qos.SCORE_SUB)
+            subscriptions = [node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT),
+                             node.create_subscription(FailureAlarm, ALARM, self._on_alarm, qos.ALARM_EVERY),
+                             node.create_subscription(Score, SCORE_RND_OE, self._on_score, qos.SCORE_SUB)]
+            report_matches(session, lambda: {s.topic_name: s.get_publisher_count() for s in subscriptions})
             self._ready.set()
             try:
                 while not self._stop.is_set() or (time.monotonic() < self._settle_until and not self._settled()):
