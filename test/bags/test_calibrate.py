@@ -1,4 +1,5 @@
-"""``fiper calibrate``: fits on the successful rollouts of bags, writes the directory, refuses clearly."""
+"""``fiper calibrate``: fits on the successful rollouts of bags, writes the directory, refuses clearly, warns of a
+window longer than every calibration rollout and closes with a summary of what it fitted."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -31,6 +32,31 @@ def test_calibrate_uses_the_successes_and_prints_what_it_used(
     settings = CalibrationSettings(window_obs=3, window_act=3, threshold="cp_constant", delta=0.3, rnd=rnd, seed=3,
                                    min_rollouts=3, split="same")
     assert calibrate(read_rollouts(small_bag), settings).content_hash == calibration.content_hash
+
+
+def test_a_window_longer_than_every_rollout_is_warned_and_the_summary_closes_the_output(
+        tmp_path: Path, small_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(small_bag), "-o", str(out), "--min-rollouts", "3", *SETTINGS,
+                 "--window-act", "21"]) == 0
+    printed = capsys.readouterr()
+    warning = ("warning: --window-act 21 is longer than every calibration rollout (the longest has 20 steps): ACE's "
+               "windowed score sums the whole rollout so far at every step, as any window of 20 or more would; a "
+               "shorter window reacts sooner")
+    assert printed.err.count(warning) == 1 and f"fiper calibrate: {warning}" in printed.err  # before the training
+    closing = printed.out[printed.out.index(f"calibration {out} written"):].splitlines()
+    hash_ = load_calibration(out).content_hash
+    assert closing[:3] == [f"calibration {out} written (hash {hash_}):",
+                           "  M = 3 successful rollouts fitted it (60 steps, 20 to 20 per rollout)",
+                           "  split: same: 3 successes fitted RND-OE and R_d, 3 the thresholds"]
+    assert closing[3] == "  windows: RND-OE w_O = 3, ACE w_A = 21 policy steps (window)"
+    assert [line.split(",")[0].split(":")[0] for line in closing[4:]] == [
+        "  threshold RND-OE", "  threshold ACE", "  false alarms on held-out successes", "  guarantee",
+        "  warning", "  warning"]  # the second: same-data calibration, not covered by Proposition 1
+    assert closing[-1] == f"  {warning}"
+    assert main(["calibrate", str(small_bag), "-o", str(tmp_path / "fits"), "--min-rollouts", "3", *SETTINGS,
+                 "--window-act", "20"]) == 0
+    assert "warning" not in capsys.readouterr().err  # a window of the longest rollout's length: no word
 
 
 def test_calibrate_refuses_too_few_successes(tmp_path: Path, small_bag: Path,

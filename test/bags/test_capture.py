@@ -1,19 +1,24 @@
 """``fiper record`` writes what was published (the latched rollout event too, with its offered QoS), and
 ``fiper snapshot`` (as the README writes it: no ``-o``) writes a bag around an alarm rise; both as separate
-processes over DDS (loopback). The black box's window, bounds and rise rule by hand: test_blackbox.py;
+processes over DDS (loopback). Beside a real suite, the snapshot after a latched alarm is one bag (the heartbeats
+after the END name the latched rollout, no second bag of "rollout 0"), and it replays to the suite's verdicts.
+The black box's window, bounds and rise rule by hand: test_blackbox.py;
 crashes: test_recordings.py."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 from helpers.dds import spawn_python, stop
 from helpers.stream import Policy
-from helpers.synthetic import make_rollout
+from helpers.suite import Suite
+from helpers.synthetic import FAIL_FROM, make_rollout
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.reader import BagReader
 from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.cli import main
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
 
@@ -85,3 +90,41 @@ def test_snapshot_writes_a_bag_around_an_alarm_rise(tmp_path: Path, ros_domain: 
     # rise and two after it lie well inside the 2 s and 1 s (the exact window: test_blackbox.py)
     assert steps == list(range(steps[0], steps[-1] + 1))
     assert steps[0] < rise_step - 3 and steps[-1] > rise_step + 1
+
+
+def test_the_snapshot_after_a_latched_alarm_is_one_bag_that_replays(tmp_path: Path, ros_domain: int,
+                                                                     small_calibration: Path) -> None:
+    out = tmp_path / "runs" / "snapshots"
+    suite = Suite(ros_domain, str(small_calibration))
+    proc = spawn_python(["-m", "fiper_ros.cli", "snapshot", "--before", "10", "--after", "5"], ros_domain, cwd=tmp_path)
+    try:
+        suite.wait_active()
+        drv = suite.driver
+        assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2  # noqa: SLF001
+                                and drv.embeddings.get_subscription_count() >= 2
+                                and drv.batches.get_subscription_count() >= 2
+                                and drv.events.get_subscription_count() >= 4, timeout=30), stop(proc)
+        rollout = make_rollout(330, fail=True)
+        alarms = suite.run(rollout, rollout_id=31)  # ends with END; the latch holds, the heartbeats repeat it
+        assert alarms[FAIL_FROM].state == FailureAlarm.STATE_ALARM
+        ended = len(drv.alarms)
+        # the snapshot is finished at rise + 5 s: the heartbeats of those seconds (after the END) are no rise
+        assert suite.spin_until(lambda: out.is_dir() and any((b / "metadata.yaml").is_file() for b in out.iterdir()),
+                                timeout=30)
+        beats = [m for m in drv.alarms[ended:] if m.heartbeat]
+        assert len(beats) >= 5 and all((m.rollout_id, m.state, m.latched) == (31, FailureAlarm.STATE_ALARM, True)
+                                       for m in beats), beats[:3]
+    finally:
+        output = stop(proc)
+        suite.close()
+    assert proc.returncode == 0, output
+    assert "1 snapshot(s) written" in output, output
+    (bag,) = out.iterdir()
+    assert bag.name.endswith(f"_rollout31_step{FAIL_FROM}")
+    report = tmp_path / "report.json"
+    assert main(["replay", str(bag), "--calibration", str(small_calibration), "--offline",
+                 "--report", str(report)]) == 0
+    (replayed,) = json.loads(report.read_text())["rollouts"]
+    assert (replayed["rollout_id"], replayed["outcome"], replayed["first_alarm"]) == (31, "failure", FAIL_FROM)
+    assert [s["state"] for s in replayed["steps"]] == [{FailureAlarm.STATE_OK: "ok", FailureAlarm.STATE_ALARM: "alarm"}[
+        alarms[t].state] for t in range(rollout.length)]

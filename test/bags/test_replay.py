@@ -1,6 +1,8 @@
 """``fiper replay`` through the real node processes over DDS (loopback) says exactly what the offline
 oracle (bag -> Rollouts -> core.monitor.predict_rollout) says, step for step, on every sample bag; a step
-without an alarm makes it exit 1."""
+without an alarm makes it exit 1. Its closing table (TPR, TNR, detection steps per scenario) on
+``bags/sorting_sim`` is the one counted by hand from bags/README.md's table, live and offline; replaying the
+calibration's own rollouts is said to be in-sample."""
 from __future__ import annotations
 
 import json
@@ -19,6 +21,7 @@ from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.evaluation.offline import predict_bag
+from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import EVENTS
 
 SAMPLES = Path(__file__).resolve().parents[2] / "bags"
@@ -52,6 +55,70 @@ PACING = {"pretzel_synthetic": ["--fast"], "pushchair_synthetic": ["--rate", "25
 ROLLOUTS = {"pretzel_synthetic": 20, "pushchair_synthetic": 20, "sorting_sim": 9}
 
 
+#: ``bags/sorting_sim`` by hand, from the table of bags/README.md (outcome, first alarm step; failures run 75 steps):
+#: id: success / none, failure / 18, success / none; box_pos: failure / 25, 21, 21; camera_moved: failure / 13, 12,
+#: success (48 steps) / 20. DT = first alarm / 75 for every detected failure.
+SORTING_VERDICTS = [
+    {"scenario": "box_pos", "rollouts": 3, "unknown_outcome": 0, "failures": 3, "successes": 0, "tp": 3, "fn": 0,
+     "tn": 0, "fp": 0, "tpr": 1.0, "tnr": None, "mean_detection_step": 67 / 3, "dt": 67 / 3 / 75},
+    {"scenario": "camera_moved", "rollouts": 3, "unknown_outcome": 0, "failures": 2, "successes": 1, "tp": 2, "fn": 0,
+     "tn": 0, "fp": 1, "tpr": 1.0, "tnr": 0.0, "mean_detection_step": 12.5, "dt": 12.5 / 75},
+    {"scenario": "id", "rollouts": 3, "unknown_outcome": 0, "failures": 1, "successes": 2, "tp": 1, "fn": 0,
+     "tn": 2, "fp": 0, "tpr": 1.0, "tnr": 1.0, "mean_detection_step": 18.0, "dt": 18 / 75},
+    {"scenario": "all", "rollouts": 9, "unknown_outcome": 0, "failures": 6, "successes": 3, "tp": 6, "fn": 0,
+     "tn": 2, "fp": 1, "tpr": 1.0, "tnr": 2 / 3, "mean_detection_step": 110 / 6, "dt": 110 / 6 / 75},
+]
+SORTING_TABLE = """\
+verdicts on 9 rollouts with a known outcome (failures are positives: an alarm on a failure is a true positive):
+scenario         rollouts failures  TPR           successes  TNR           mean detection step
+box_pos                 3        3  1.00 (3/3)            0  -             22.3 (DT 0.30)
+camera_moved            3        2  1.00 (2/2)            1  0.00 (0/1)    12.5 (DT 0.17)
+id                      3        1  1.00 (1/1)            2  1.00 (2/2)    18.0 (DT 0.24)
+all                     9        6  1.00 (6/6)            3  0.67 (2/3)    18.3 (DT 0.24)
+"""
+
+
+def _assert_sorting_verdicts(report: dict, stdout: str) -> None:
+    """The report's table is the one by hand (to float rounding), printed as such, and the bags' END events say the
+    outcomes it was counted from."""
+    assert len(report["verdicts"]) == len(SORTING_VERDICTS)
+    for row, expected in zip(report["verdicts"], SORTING_VERDICTS, strict=True):
+        assert row == pytest.approx(expected), row["scenario"]
+    assert SORTING_TABLE in stdout
+    outcomes = {}
+    for bag in find_bags([SAMPLES / "sorting_sim"]):
+        with BagReader(bag) as reader:
+            for message in reader.messages([EVENTS]):
+                event = reader.decode(message)
+                if event.event == RolloutEvent.EVENT_START:
+                    scenario = event.scenario
+                elif event.event == RolloutEvent.EVENT_END:
+                    outcomes.setdefault(scenario, []).append(outcome_name(event.outcome))
+    assert {k: sorted(v) for k, v in outcomes.items()} == {"id": ["failure", "success", "success"],
+                                                           "box_pos": ["failure"] * 3,
+                                                           "camera_moved": ["failure", "failure", "success"]}
+
+
+def test_offline_replay_prints_the_verdicts_counted_by_hand(ros_domain: int, tmp_path: Path) -> None:
+    report, result = _replay([str(SAMPLES / "sorting_sim"), "--offline"], ros_domain, tmp_path / "report.json")
+    _assert_sorting_verdicts(report, result.stdout)
+    assert "detected (true positive)" in result.stdout and "false alarm (false positive)" in result.stdout
+    assert report["in_sample"] == [] and "in-sample" not in result.stderr  # its calibration records no split
+
+
+def test_replaying_the_calibrations_own_rollouts_says_they_are_in_sample(
+        observation_bags: dict[str, Path], observation_calibration: Path, ros_domain: int, tmp_path: Path) -> None:
+    bags = [observation_bags["calibration"], observation_bags["test"]]  # ids 1..12 calibrated on, 21..23 not
+    report, result = _replay([*map(str, bags), "--calibration", str(observation_calibration), "--offline"],
+                             ros_domain, tmp_path / "report.json")
+    assert report["in_sample"] == list(range(1, 13))
+    assert ("fiper replay: warning: 12 of the 15 rollouts are the calibration's own (rollout 1, 2, 3, 4, 5, ...): it "
+            "was fitted on them, so their verdicts are in-sample") in result.stderr
+    report, result = _replay([str(bags[1]), "--calibration", str(observation_calibration), "--offline"],
+                             ros_domain, tmp_path / "test.json")
+    assert report["in_sample"] == [] and "warning" not in result.stderr
+
+
 def _bag_seconds(bags: list[Path]) -> float:
     total = 0.0
     for bag in find_bags(bags):
@@ -66,8 +133,10 @@ def test_live_replay_equals_offline_on_every_sample_bag(sample_set: Path, ros_do
     pacing = PACING[sample_set.name]
     # Equality is the point here, not latency: a step whose alarm is late on a loaded machine must not
     # count as missing (the default --step-timeout is 5 s); a dropped alarm still does.
-    report, _ = _replay([str(sample_set), *pacing, "--step-timeout", "30"], ros_domain, tmp_path / "report.json")
+    report, result = _replay([str(sample_set), *pacing, "--step-timeout", "30"], ros_domain, tmp_path / "report.json")
     expected = _offline([sample_set], sample_set / "calibration")
+    if sample_set.name == "sorting_sim":
+        _assert_sorting_verdicts(report, result.stdout)
     assert report["missing"] == []
     assert len(report["rollouts"]) == len(expected) == ROLLOUTS[sample_set.name]
     by_id = {r["rollout_id"]: r for r in expected}

@@ -1,4 +1,5 @@
-"""`fiper echo` and `fiper launch --in-process` over real DDS on loopback."""
+"""`fiper echo` (``--changes``, ``--brief``: on a stream by hand and on the alarm stream a live suite published) and
+`fiper launch --in-process` over real DDS on loopback."""
 from __future__ import annotations
 
 import os
@@ -12,12 +13,21 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
-from fiper_msgs.msg import FailureAlarm
+import math
+
+import pytest
+
+from fiper_msgs.msg import FailureAlarm, Score
+from fiper_ros.commands.echo import Printer
 from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.interface import qos
-from helpers.dds import ros_env, spawn_python
+from helpers.dds import ros_env, spawn_python, stop
 from helpers.launch import node_entry, suite_config, write_launch
-from helpers.suite import Driver
+from helpers.suite import Driver, Suite
+from helpers.synthetic import FAIL_FROM, make_rollout
+
+OK, ALARMED, UNKNOWN = FailureAlarm.STATE_OK, FailureAlarm.STATE_ALARM, FailureAlarm.STATE_UNKNOWN
+NAN = math.nan
 
 
 def _fiper(args: list[str], domain: int) -> subprocess.Popen[str]:
@@ -48,6 +58,83 @@ def test_echo_prints_a_latched_alarm_published_before_it_started(ros_domain: int
         rclpy.try_shutdown(context=context)
     assert echo.returncode == 0, out
     assert "rollout_id: 42" in out and "step: 7" in out and "state: 1" in out and "reason: 'both exceeded'" in out
+
+
+def _alarm(rollout_id: int, step: int, state: int, reason: str, *, heartbeat: bool = False,
+           act: bool = True) -> FailureAlarm:
+    """An alarm with RND-OE 2.0 against 1.5 and ACE 1.0 against 3.0 (``act`` False: ACE not judged, NaN)."""
+    return FailureAlarm(rollout_id=rollout_id, step=step, state=state, latched=state == ALARMED, obs_exceeded=True,
+                        act_exceeded=False, eta_obs=2.0, gamma_obs=1.5, eta_act=1.0 if act else NAN,
+                        gamma_act=3.0 if act else NAN, combine="and", reason=reason, heartbeat=heartbeat)
+
+
+#: An alarm stream as the fusion node publishes it around one alarmed rollout, by hand.
+STREAM = [
+    _alarm(0, 0, UNKNOWN, "no active rollout", heartbeat=True),
+    _alarm(0, 0, UNKNOWN, "no active rollout", heartbeat=True),
+    _alarm(4, 0, UNKNOWN, "waiting for the first scores of the rollout", heartbeat=True),
+    _alarm(4, 0, OK, "below thresholds"), _alarm(4, 0, OK, "below thresholds", heartbeat=True),
+    _alarm(4, 1, OK, "below thresholds"),
+    _alarm(4, 2, ALARMED, "exceeded: rnd_oe, ace (and)"), _alarm(4, 3, ALARMED, "latched since step 2"),
+    _alarm(4, 3, ALARMED, "latched since step 2", heartbeat=True),  # after the END: the rollout's own heartbeat
+    _alarm(5, 0, OK, "below threshold (rnd_oe alone)", act=False),
+]
+
+
+def test_echo_changes_and_brief_on_an_alarm_stream_by_hand() -> None:
+    printer = Printer("fiper_msgs/msg/FailureAlarm", brief=True, changes=True)
+    assert [line for line in map(printer.text, STREAM) if line is not None] == [
+        "rollout 0 step 0: UNKNOWN (heartbeat) RND-OE 2.000>1.500 ACE 1.000<=3.000 | no active rollout",
+        "rollout 4 step 0: UNKNOWN (heartbeat) RND-OE 2.000>1.500 ACE 1.000<=3.000 | waiting for the first scores of "
+        "the rollout",
+        "rollout 4 step 0: OK RND-OE 2.000>1.500 ACE 1.000<=3.000 | below thresholds",
+        "rollout 4 step 2: ALARM latched RND-OE 2.000>1.500 ACE 1.000<=3.000 | exceeded: rnd_oe, ace (and)",
+        "rollout 5 step 0: OK RND-OE 2.000>1.500 | below threshold (rnd_oe alone)"]
+    every = Printer("fiper_msgs/msg/FailureAlarm", brief=True)
+    assert sum(every.text(m) is not None for m in STREAM) == len(STREAM)
+    changes = Printer("fiper_msgs/msg/FailureAlarm", changes=True)  # the full block, only at a change
+    assert sum(changes.text(m) is not None for m in STREAM) == 5 and "reason: 'no active rollout'" in \
+        Printer("fiper_msgs/msg/FailureAlarm").text(STREAM[0])
+
+
+def test_echo_brief_of_scores_and_other_types() -> None:
+    scores = [Score(rollout_id=4, step=s, detector="ace", score=0.5, windowed_score=w, threshold=1.25,
+                    exceeded=w > 1.25, window=3, complete=s >= 2) for s, w in enumerate((0.5, 1.0, 1.5, 2.0, 1.0))]
+    printer = Printer("fiper_msgs/msg/Score", brief=True, changes=True)
+    assert [line for line in map(printer.text, scores) if line is not None] == [
+        "rollout 4 step 0: ace score 0.500, windowed 0.500 <= 1.250 (below, window 3 (incomplete))",
+        "rollout 4 step 2: ace score 0.500, windowed 1.500 > 1.250 (exceeded, window 3)",
+        "rollout 4 step 4: ace score 0.500, windowed 1.000 <= 1.250 (below, window 3)"]
+    with pytest.raises(ValueError, match="--brief formats fiper_msgs/msg/FailureAlarm and fiper_msgs/msg/Score, not "
+                                         "std_msgs/msg/String"):
+        Printer("std_msgs/msg/String", brief=True)
+    from std_msgs.msg import String  # noqa: PLC0415
+
+    strings = Printer("std_msgs/msg/String", changes=True)
+    assert [strings.text(String(data=d)) for d in ("a", "a", "b")] == ["data: 'a'\n---", None, "data: 'b'\n---"]
+
+
+def test_echo_changes_on_the_alarm_stream_of_a_live_suite(suite: Suite, ros_domain: int) -> None:
+    """``fiper echo /fiper/alarm --changes --brief`` beside a suite running a failing rollout and its heartbeats
+    after the END: one line per change of the stream the test's driver recorded (every message), the first ALARM
+    once, none of the latched steps and heartbeats that repeat it."""
+    echo = _fiper(["echo", "/fiper/alarm", "--changes", "--brief", "--wait", "30"], ros_domain)
+    drv = suite.driver
+    try:
+        assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2, 30)  # noqa: SLF001
+        suite.run(make_rollout(320, fail=True), rollout_id=21)  # ends with END
+        ended = len(drv.alarms)
+        assert suite.spin_until(lambda: sum(m.heartbeat for m in drv.alarms[ended:]) >= 3, 10)
+    finally:
+        out = stop(echo)
+    lines = [line for line in out.splitlines() if line.startswith("rollout 21 ")]
+    printer = Printer("fiper_msgs/msg/FailureAlarm", brief=True, changes=True)
+    recorded = [line for line in map(printer.text, [m for m in drv.alarms if m.rollout_id == 21]) if line is not None]
+    assert lines == recorded, out
+    assert [line.split(": ")[1].split()[0] for line in lines][-2:] == ["OK", "ALARM"]
+    assert lines[-1].startswith(f"rollout 21 step {FAIL_FROM}: ALARM latched RND-OE ")
+    repeats = [m for m in drv.alarms if m.rollout_id == 21 and m.state == ALARMED]
+    assert len(repeats) > len(make_rollout(320).embeddings) - FAIL_FROM  # latched steps and heartbeats, left out
 
 
 def test_echo_of_a_missing_topic_says_so(ros_domain: int) -> None:

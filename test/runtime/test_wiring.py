@@ -1,7 +1,8 @@
-"""missing_matches: when the suite's nodes have matched each other's topics (no DDS)."""
+"""missing_matches: when the suite's nodes have matched each other's topics; unmatched_readers: which readers of a
+policy's topic have not matched all its publishers (no DDS)."""
 from __future__ import annotations
 
-from fiper_ros.runtime.wiring import missing_matches
+from fiper_ros.runtime.wiring import missing_matches, unmatched_readers
 
 EMB = "/fiper/observation_embedding"
 POLICY, RND_OE, FUSION = "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/fusion_node"
@@ -31,3 +32,18 @@ def test_topics_without_a_managed_publisher_and_unlisted_nodes_are_not_checked()
     assert missing_matches(diagnostics, (POLICY,), {}) == []
     assert missing_matches(diagnostics, (POLICY, FUSION), {}) == [
         f"{FUSION} to match a publisher of {EMB}", f"{POLICY} to match 1 subscriptions of {EMB} (has 0)"]
+
+
+def test_readers_are_the_nodes_reporting_a_subscription_of_the_topic_and_must_match_every_publisher() -> None:
+    record = "/fiper_record"
+    diagnostics = {RND_OE: {f"matched_publishers.{EMB}": "1", "matched_publishers./fiper/rollout_events": "0"},
+                   record: {f"matched_publishers.{EMB}": "2"},
+                   FUSION: {"matched_publishers./fiper/rollout_events": "1"},
+                   POLICY: {f"matched_subscribers.{EMB}": "2"}}
+    readers = [RND_OE, record]  # sorted: "/fiper/..." before "/fiper_..."
+    assert unmatched_readers(diagnostics, EMB, 1) == (readers, [])
+    assert unmatched_readers(diagnostics, EMB, 2) == (readers, [f"{RND_OE} to match 2 publishers of {EMB} (has 1)"])
+    assert unmatched_readers(diagnostics, EMB, 3) == (readers, [f"{RND_OE} to match 3 publishers of {EMB} (has 1)",
+                                                                f"{record} to match 3 publishers of {EMB} (has 2)"])
+    assert unmatched_readers(diagnostics, "/fiper/action_chunks", 1) == ([], [])  # nobody reports a reader of it
+    assert unmatched_readers({}, EMB, 0) == ([], [])

@@ -24,12 +24,12 @@ PACKAGES = {"fiper_ros": ROOT / "fiper_ros" / "fiper_ros", "sim_bridge": ROOT / 
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("fiper_ros", "core", "interface", "dds", "shm", "data_paths"),  # the method; the wire; the platform
     ("runtime", "baselines"),  # streaming rules without rclpy; the comparison methods
-    ("bagio", "policy"),  # bag I/O without rclpy; the generative policies
+    ("bagio", "policy", "publishing"),  # bag I/O without rclpy; the generative policies; a policy's publishing side
     ("converters", "evaluation", "nodes"),  # foreign data -> rollouts; offline evaluation; the rclpy shells
     ("launcher", "sim_bridge"),  # launch files and node processes; the simulator side
     ("client",),  # talking to a running suite
     ("commands",),  # one module per fiper sub-command
-    ("cli", "bench"),  # the fiper entry point; benchmarks
+    ("cli", "bench", "examples"),  # the fiper entry point; benchmarks; example user code
 )
 LEVEL = {unit: level for level, units in enumerate(LAYERS) for unit in units}
 #: Units that must import without rclpy (the pure core, the streaming rules, bag I/O, evaluation).

@@ -113,8 +113,8 @@ class PolicyLedger:
 
     def __init__(self, node: PolicyNode) -> None:
         self.node = node
-        self.embeddings = record(node._embedding_pub)  # noqa: SLF001
-        self.batches = record(node._chunks_pub)  # noqa: SLF001
+        self.embeddings = record(node.fiper.embeddings)
+        self.batches = record(node.fiper.batches)
         self.commands = record(node._command_pub)  # noqa: SLF001
         self.valid_parts: dict[int, set[str]] = {}
         self.steps: dict[int, int] = {}

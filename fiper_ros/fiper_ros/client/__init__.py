@@ -5,10 +5,11 @@ black box, the bag player, the suite process a tool starts, and the operator tha
 - :mod:`.suite_process`: ``fiper launch`` of a suite in a child process.
 - :mod:`.capture`, :mod:`.record`, :mod:`.snapshot`: topics into bags (``fiper record``, ``fiper snapshot``).
 - :mod:`.replay`: bags into the suite (``fiper replay``'s player).
+- :mod:`.verdicts`: a live suite's verdicts per rollout and the TPR / TNR table (``fiper launch --summary``).
 - :mod:`.driver`, :mod:`.trace`, :mod:`.figure`: the operator of a live sim suite, what it saw of a rollout,
   and the figure of it (``fiper demo``, ``fiper collect --ros``); :mod:`.live_collect`: ``fiper collect --ros``.
 """
 from __future__ import annotations
 
 __all__ = ["capture", "driver", "figure", "live_collect", "record", "replay", "ros_session", "snapshot",
-           "suite_process", "trace"]
+           "suite_process", "trace", "verdicts"]

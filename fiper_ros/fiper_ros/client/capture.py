@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos
 
@@ -23,7 +23,11 @@ from fiper_ros.client.ros_session import RosSession
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import message_class
 from fiper_ros.interface.topics import ACTIONS, DIAGNOSTICS, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.nodes.base import diagnostic_array
+from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 
+#: Seconds between two ``/diagnostics`` reports of a tool's matches (the nodes' default period).
+DIAGNOSTICS_PERIOD_S = 1.0
 #: Messages a capture subscription queues before the oldest is dropped.
 CAPTURE_DEPTH = 200
 
@@ -87,6 +91,10 @@ class TopicTap:
             new.append(topic)
         return new
 
+    def matched_publishers(self) -> dict[str, int]:
+        """Per subscribed topic, how many publishers its subscription has matched."""
+        return {topic: subscription.get_publisher_count() for topic, subscription in self._subscriptions.items()}
+
     def now_ns(self) -> int:
         """Receive time stamp: the node clock."""
         return self.session.node.get_clock().now().nanoseconds
@@ -121,3 +129,19 @@ class InfoTracker:
             msg = typestore().deserialize_cdr(raw, msgtype)
             if msg.event == RolloutEvent.EVENT_START and msg.task:
                 self.info = replace(info, task=str(msg.task))
+
+
+def report_matches(session: RosSession, matched: Callable[[], dict[str, int]]) -> None:
+    """Publish on ``/diagnostics``, every :data:`DIAGNOSTICS_PERIOD_S` while the session spins, how many publishers
+    each subscription of the session's tool has matched (``matched()``: per topic), under the keys the suite's nodes
+    use (:data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`): a policy waits for such a reader too
+    (:meth:`fiper_ros.publishing.FiperPublisher.wait_for_suite`)."""
+    node = session.node
+    publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
+
+    def report() -> None:
+        counts = matched()
+        values = {f"{MATCHED_PUBLISHERS}{topic}": str(count) for topic, count in sorted(counts.items())}
+        publisher.publish(diagnostic_array(node, DiagnosticStatus.OK, f"reading {len(counts)} topics", values))
+
+    node.create_timer(DIAGNOSTICS_PERIOD_S, report)

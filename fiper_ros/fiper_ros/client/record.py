@@ -6,7 +6,10 @@ publisher) with raw subscriptions and writes the CDR bytes as received, with eac
 offered QoS and the receive time as log time, until Ctrl-C / SIGTERM or ``--duration``. The bag is live
 (:class:`~fiper_ros.bagio.chunks.LiveChunks`): at its path from the start, a chunk on disk at least every
 ``--chunk-s`` seconds, ``metadata.yaml`` written when recording stops; a killed recorder leaves an
-unfinished bag that ``fiper bag recover`` finishes. :class:`Recorder` also serves ``fiper demo`` (one bag)
+unfinished bag that ``fiper bag recover`` finishes. ``fiper record`` reports on ``/diagnostics`` (as
+``/fiper_record``) how many publishers each of its subscriptions has matched, as the suite's nodes do, so a
+policy can wait until the recorder receives its VOLATILE steps (:mod:`fiper_ros.publishing`,
+``wait_for_suite(also=["/fiper_record"])``). :class:`Recorder` also serves ``fiper demo`` (one bag)
 and ``fiper collect --ros`` (a bag per rollout), both staged (complete or not there).
 """
 from __future__ import annotations
@@ -20,7 +23,7 @@ from fiper_ros.bagio.chunks import LiveChunks
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.writer import BagWriter
-from fiper_ros.client.capture import InfoTracker, TopicTap
+from fiper_ros.client.capture import InfoTracker, TopicTap, report_matches
 from fiper_ros.client.ros_session import RosSession
 
 #: The node of ``fiper record`` (in the root namespace; its SROS2 enclave, docs/security.md).
@@ -114,6 +117,7 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
     with RosSession(NODE_NAME, domain) as session:
         recorder = Recorder(session, topics)
         recorder.start(out, overwrite, live)
+        report_matches(session, recorder.tap.matched_publishers)
         print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:
@@ -126,3 +130,4 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
             recorder.abort()
             raise
         return recorder.finish()
+

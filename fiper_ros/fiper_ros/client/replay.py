@@ -39,6 +39,7 @@ from fiper_ros.bagio.reader import BagReader
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import DETECTOR_TOPICS, SuiteProcess
 from fiper_ros.evaluation.results import RolloutResult, StepResult, as_float32
+from fiper_ros.evaluation.verdicts import rollout_line
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
@@ -215,7 +216,7 @@ class Player:
         result = self.results.setdefault(rollout_id, RolloutResult(rollout_id))
         result.outcome = OUTCOME_NAMES[SUCCESS_OF.get(outcome)]
         result.steps = self.steps_of(rollout_id)
-        print(result.summary(), flush=True)
+        print(rollout_line(result), flush=True)
 
     def steps_of(self, rollout_id: int) -> dict[int, StepResult]:
         """The per-step states received for ``rollout_id``."""

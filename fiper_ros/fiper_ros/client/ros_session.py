@@ -57,7 +57,8 @@ class RosSession:
         os.environ.pop("ROS_STATIC_PEERS", None)
         if threading.current_thread() is threading.main_thread():
             self._previous = {s: signal.signal(s, lambda *_: self.stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-        rclpy.init(args=enclave_args(self.name), context=self.context, domain_id=self.domain,
+        # No tool arguments: a tool's own (``fiper launch FILE name:=value``) are not ROS remap rules.
+        rclpy.init(args=enclave_args(self.name) or [], context=self.context, domain_id=self.domain,
                    signal_handler_options=SignalHandlerOptions.NO)
         self.node = Node(self.name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)

@@ -4,9 +4,12 @@ Reads every rollout of the bags, keeps those whose RolloutEvent END says SUCCESS
 conformal by default: RND-OE, ``R_d`` and the thresholds' shape on one part, the thresholds' conformal
 quantiles on the other; ``--split cross`` or ``--same-data`` instead), fits everything
 (:func:`fiper_ros.core.calibration.calibrate`), then writes the calibration directory (under a temporary
-name, renamed when complete) and prints what it fitted: the split, the rollouts behind each threshold,
-a leave-one-out estimate of the false-alarm rate and the guarantee. Too few successes, or a threshold that
-would be +inf: one line, exit status 2.
+name, renamed when complete) and closes with a summary of what it fitted: ``M`` (the successes, their
+steps), the split, the windows, the thresholds and the rollouts behind each, a leave-one-out estimate of the
+false-alarm rate and the guarantee. Too few successes, or a threshold that would be +inf: one line, exit
+status 2. A window longer than every successful rollout is warned about (before the training and again in the
+summary): the windowed score is then the sum over the whole rollout so far at every step, as any longer window
+would be, which is allowed (the shipped Sorting calibration's ACE window is such a one) but rarely meant.
 
 ``--detectors rnd_oe`` writes an observation-only calibration (RND-OE alone: its alarm is RND-OE's
 exceedance), which needs no action batches; bags without them and no ``--detectors rnd_oe`` are refused
@@ -69,10 +72,28 @@ def load_rollouts(bags: Sequence[Path]) -> list[Rollout]:
     return rollouts
 
 
+def window_warnings(settings: CalibrationSettings, successes: Sequence[Rollout]) -> list[str]:
+    """One warning per declared detector whose window (eqs. 2 and 5) is longer than every rollout of
+    ``successes``: its windowed score is the sum over the whole rollout so far at every step, as with any window
+    at least as long as the longest rollout."""
+    if settings.aggregation != "window" or not successes:
+        return []
+    longest = max(r.length for r in successes)
+    warnings = []
+    for detector in settings.detectors:
+        side = SIDES[detector]
+        window = getattr(settings, f"window_{side}")
+        if window > longest:
+            warnings.append(f"warning: --window-{side} {window} is longer than every calibration rollout (the longest "
+                            f"has {longest} steps): {LABELS[detector]}'s windowed score sums the whole rollout so far "
+                            f"at every step, as any window of {longest} or more would; a shorter window reacts sooner")
+    return warnings
+
+
 def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSettings, *, overwrite: bool = False,
-                   quiet: bool = False, fk: ForwardKinematics | None = None) -> Calibration:
+                   quiet: bool = False, fk: ForwardKinematics | None = None) -> tuple[Calibration, list[Rollout]]:
     """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``
-    (``fk``: the robot's forward kinematics, for joint-space actions)."""
+    (``fk``: the robot's forward kinematics, for joint-space actions); the calibration and the successes."""
     check_new(out, overwrite)
     rollouts = load_rollouts(bags)
     good = successful(rollouts)
@@ -87,6 +108,8 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
     if not quiet:
         print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
               f"{len(rollouts)} in {names}", flush=True)
+        for warning in window_warnings(settings, good):
+            print(f"fiper calibrate: {warning}", file=sys.stderr, flush=True)
     try:
         calibration = calibrate(rollouts, settings, fk=fk, progress=None if quiet else EpochPrinter())
     except CalibrationError as error:
@@ -95,7 +118,7 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
         raise BagError(f"{error}: give the robot model with --urdf, --ee-frame and --control-dt") from error
     with atomic_output(out, overwrite) as staging:
         calibration.save(staging)
-    return calibration
+    return calibration, good
 
 
 def settings_from(args: argparse.Namespace) -> CalibrationSettings:
@@ -164,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         settings = settings_from(args)
         fk = options.fk_of(options.robot_from(args))
         bags = find_bags(args.bags, strict=args.strict, command="calibrate")
-        calibration = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
+        calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
     except BagError as error:
         return fail("calibrate", error)
     shown = {k: v for k, v in settings.to_dict().items() if k != "rnd"}
@@ -176,9 +199,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(f"layout: E={calibration.embedding_dim}; observation-only: RND-OE alone (its alarm is its exceedance, no "
               "action batches used)")
-    for line in summary(calibration):
-        print(line)
-    print(f"calibration {args.out} written (hash {calibration.content_hash})")
+    print(f"calibration {args.out} written (hash {calibration.content_hash}):")
+    lengths = [r.length for r in successes]
+    for line in [f"M = {len(successes)} successful rollouts fitted it ({sum(lengths)} steps, {min(lengths)} to "
+                 f"{max(lengths)} per rollout)", *summary(calibration), *window_warnings(settings, successes)]:
+        print(f"  {line}")
     return 0
 
 
@@ -206,7 +231,10 @@ def summary(calibration: Calibration) -> list[str]:
     split, estimate, settings = calibration.split, calibration.false_alarms, calibration.settings
     fitted = "RND-OE and R_d" if calibration.has_ace else "RND-OE"
     lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted {fitted}, "
-             f"{len(split['conformal'])} the thresholds" + (f" ({len(split['folds'])} folds)" if "folds" in split else "")]
+             f"{len(split['conformal'])} the thresholds"
+             + (f" ({len(split['folds'])} folds)" if "folds" in split else ""),
+             "windows: " + ", ".join(f"{LABELS[d]} w_{SIDES[d][0].upper()} = {getattr(settings, f'window_{SIDES[d]}')}"
+                                     for d in calibration.detectors) + f" policy steps ({settings.aggregation})"]
     for detector in calibration.detectors:
         threshold = calibration.threshold(detector)
         parts = ", ".join(f"{k} {v}" for k, v in split["behind_thresholds"][SIDES[detector]].items())

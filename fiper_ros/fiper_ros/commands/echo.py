@@ -3,6 +3,11 @@
 There is no ``ros2 topic echo`` with the pip wheels. The type is taken from the ROS graph (or
 ``--type pkg/msg/Name``); the QoS follows the publishers' durability and reliability, so the latched
 ``/fiper/alarm`` is received by a late echo too. Long arrays are summarised unless ``--full``.
+
+``--brief`` prints a FailureAlarm or a Score on one line (:class:`Printer`); ``--changes`` only the messages that
+change the state: for an alarm its rollout or state (OK / ALARM / UNKNOWN; the heartbeats that repeat it and the
+latched steps after the first ALARM are left out), for a score its rollout or exceedance, for any other message
+its content (the header's stamp aside).
 """
 from __future__ import annotations
 
@@ -15,11 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.interface.messages import message_class
+from fiper_ros.core.detectors import DETECTORS, LABELS, SIDES
+from fiper_ros.interface.messages import message_class, state_name
 
 ARRAY_PREVIEW = 8
 #: The node of ``fiper echo`` (in the root namespace; its SROS2 enclave, docs/security.md).
 NODE_NAME = "fiper_echo"
+#: The message types ``--brief`` formats.
+ALARM_TYPE, SCORE_TYPE = "fiper_msgs/msg/FailureAlarm", "fiper_msgs/msg/Score"
 
 
 def to_yaml_lines(msg: Any, full: bool, indent: int = 0) -> list[str]:
@@ -61,13 +69,69 @@ def subscribe(node: Any, topic: str, type_name: str, on_message: Callable[[Any],
     return node.create_subscription(message_class(type_name), topic, on_message, profile)
 
 
+def alarm_brief(msg: Any) -> str:
+    """A FailureAlarm on one line: rollout, step, state, the judged detectors' windowed scores against their
+    thresholds (``>`` where exceeded), and why."""
+    scores = [f"{LABELS[d]} {getattr(msg, f'eta_{SIDES[d]}'):.3f}"
+              f"{'>' if getattr(msg, f'{SIDES[d]}_exceeded') else '<='}{getattr(msg, f'gamma_{SIDES[d]}'):.3f}"
+              for d in DETECTORS
+              if not np.isnan(getattr(msg, f"gamma_{SIDES[d]}"))]  # NaN: a detector the suite does not judge
+    flags = " latched" * bool(msg.latched) + " (heartbeat)" * bool(msg.heartbeat)
+    return " ".join([f"rollout {msg.rollout_id} step {msg.step}: {state_name(msg.state).upper()}{flags}", *scores,
+                     f"| {msg.reason}"])
+
+
+def score_brief(msg: Any) -> str:
+    """A Score on one line: rollout, step, detector, the step's score, the windowed score against the threshold."""
+    exceeded = "exceeded" if msg.exceeded else "below"
+    window = f"window {msg.window}" + ("" if msg.complete else " (incomplete)")
+    return (f"rollout {msg.rollout_id} step {msg.step}: {msg.detector} score {msg.score:.3f}, windowed "
+            f"{msg.windowed_score:.3f} {'>' if msg.exceeded else '<='} {msg.threshold:.3f} ({exceeded}, {window})")
+
+
+BRIEF = {ALARM_TYPE: alarm_brief, SCORE_TYPE: score_brief}
+
+
+class Printer:
+    """What ``fiper echo`` prints for each message of a topic of ``type_name`` (``None``: nothing)."""
+
+    def __init__(self, type_name: str, *, brief: bool = False, changes: bool = False, full: bool = False) -> None:
+        if brief and type_name not in BRIEF:
+            raise ValueError(f"--brief formats {' and '.join(BRIEF)}, not {type_name}")
+        self.type_name, self.brief, self.changes, self.full = type_name, brief, changes, full
+        self._last: object = None
+
+    def key(self, msg: Any) -> object:
+        """What a change is a change of: an alarm's rollout and state, a score's rollout, detector and exceedance,
+        else the whole message but the header."""
+        if self.type_name == ALARM_TYPE:
+            return msg.rollout_id, msg.state
+        if self.type_name == SCORE_TYPE:
+            return msg.rollout_id, msg.detector, msg.exceeded
+        return tuple(line for line in to_yaml_lines(msg, True) if not line.startswith(("header:", "  ")))
+
+    def text(self, msg: Any) -> str | None:
+        """The text of ``msg``, or ``None`` if ``--changes`` leaves it out."""
+        if self.changes:
+            key = self.key(msg)
+            if key == self._last:
+                return None
+            self._last = key
+        if self.brief:
+            return BRIEF[self.type_name](msg)
+        return "\n".join(to_yaml_lines(msg, self.full)) + "\n---"
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper echo``."""
     parser.add_argument("topic", help="topic name, e.g. /fiper/alarm")
     parser.add_argument("--type", help="message type pkg/msg/Name (default: from the ROS graph)")
-    parser.add_argument("--count", type=int, default=0, help="stop after this many messages (0: never)")
+    parser.add_argument("--count", type=int, default=0, help="stop after this many messages printed (0: never)")
     parser.add_argument("--wait", type=float, default=10.0, help="seconds to wait for the topic to appear")
     parser.add_argument("--full", action="store_true", help="print whole arrays")
+    parser.add_argument("--brief", action="store_true", help="one line per message (FailureAlarm, Score)")
+    parser.add_argument("--changes", action="store_true",
+                        help="only messages that change the state (an alarm's rollout or state, a score's exceedance)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,12 +155,19 @@ def run(args: argparse.Namespace) -> int:
             print(f"fiper echo: topic {args.topic} not found within {args.wait:g} s (give --type to wait for it)",
                   file=sys.stderr)
             return 1
+        try:
+            printer = Printer(type_name, brief=args.brief, changes=args.changes, full=args.full)
+        except ValueError as error:
+            print(f"fiper echo: {error} ({args.topic})", file=sys.stderr)
+            return 2
         seen = 0
 
         def on_message(msg: Any) -> None:
             nonlocal seen
-            seen += 1
-            print("\n".join(to_yaml_lines(msg, args.full)) + "\n---", flush=True)
+            text = printer.text(msg)
+            if text is not None:
+                seen += 1
+                print(text, flush=True)
 
         subscribe(node, args.topic, type_name, on_message)
         while rclpy.ok() and (args.count == 0 or seen < args.count):

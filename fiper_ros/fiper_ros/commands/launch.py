@@ -1,14 +1,18 @@
 """``fiper launch FILE [name:=value ...]``: start the nodes of a ROS 2 launch YAML (:mod:`fiper_ros.launcher`),
-the same file ``ros2 launch`` runs, with its launch arguments set on the command line."""
+the same file ``ros2 launch`` runs, with its launch arguments set on the command line. ``--summary`` prints each
+rollout's verdict as it ends and, when the launch stops, the table of TPR, TNR and detection steps
+(:mod:`fiper_ros.client.verdicts`)."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
+from fiper_ros.core.calibration_file import CALIBRATION_FILE, CalibrationError, read_yaml
+from fiper_ros.data_paths import DataPathNotFound, resolve_data_path
 from fiper_ros.dds import die_with_parent
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_launch, parse_arguments
-from fiper_ros.launcher.processes import run_in_process, run_processes
+from fiper_ros.launcher.processes import run_in_process, run_processes, say
 from fiper_ros.shm import clean_stale
 
 #: Options may come after the launch arguments (``fiper launch FILE a:=1 --in-process``), as with ``ros2 launch``.
@@ -22,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--show-args", "-s", action="store_true", help="list the file's launch arguments and exit")
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this one process")
     parser.add_argument("--grace", type=float, default=10.0, help="seconds a node gets to stop before SIGKILL")
+    parser.add_argument("--summary", action="store_true",
+                        help="print each rollout's verdict against its outcome and, on stop, TPR / TNR per scenario")
 
 
 def show_arguments(config: LaunchConfig) -> str:
@@ -47,4 +53,21 @@ def run(args: argparse.Namespace) -> int:
         print(show_arguments(config))
         return 0
     print(f"[launch] {clean_stale().summary()}", flush=True)
-    return run_in_process(config) if args.in_process else run_processes(config, args.grace)
+    if not args.summary:
+        return run_in_process(config) if args.in_process else run_processes(config, args.grace)
+    from fiper_ros.client.verdicts import LiveVerdicts  # noqa: PLC0415 - rclpy only with --summary
+
+    verdicts = LiveVerdicts(calibration_split(config), say=say)
+    verdicts.start()  # before the nodes: matched to the fusion node before its first decision
+    status = run_in_process(config) if args.in_process else run_processes(config, args.grace, verdicts.settle)
+    verdicts.close()
+    return status
+
+
+def calibration_split(config: LaunchConfig) -> dict[str, object]:
+    """The ``split`` record of the calibration the file's ``calibration_dir`` argument names (empty without one)."""
+    directory = config.values.get("calibration_dir")
+    try:
+        return dict(read_yaml(resolve_data_path(directory) / CALIBRATION_FILE).get("split") or {}) if directory else {}
+    except (CalibrationError, DataPathNotFound):
+        return {}  # the nodes say what is wrong with it

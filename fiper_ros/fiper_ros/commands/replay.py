@@ -1,5 +1,7 @@
 """``fiper replay BAG...``: play bags into the node suite (:class:`~fiper_ros.client.replay.Player`) or compute the
-alarms offline (:mod:`fiper_ros.evaluation.offline`), and report them per rollout (docs/bags.md)."""
+alarms offline (:mod:`fiper_ros.evaluation.offline`), and report them per rollout and in a closing table of TPR, TNR
+and detection steps (:mod:`fiper_ros.evaluation.verdicts`), with a warning when the bags are the calibration's own
+rollouts (docs/bags.md)."""
 from __future__ import annotations
 
 import argparse
@@ -21,6 +23,7 @@ from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed
 from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
+from fiper_ros.evaluation.verdicts import in_sample, in_sample_warning, rollout_line, table, tally
 from fiper_ros.interface.topics import INPUT_TOPICS
 
 
@@ -88,7 +91,7 @@ def _offline(bags: list[Path], directory: Path, args: argparse.Namespace) -> dic
     fk = options.fk_of(options.robot_from(args))
     results = [r for bag in bags for r in predict_bag(bag, calibration, fk)]
     for result in results:
-        print(result.summary())
+        print(rollout_line(result))
     return {"rollouts": results, "missing": [], "seconds": time.monotonic() - started,
             "steps": sum(len(r.steps) for r in results), "calibration": calibration, "interrupted": False}
 
@@ -147,12 +150,17 @@ def run(args: argparse.Namespace) -> int:
     rate = outcome["steps"] / outcome["seconds"] if outcome["seconds"] > 0 else 0.0
     print(f"{len(outcome['rollouts'])} rollouts, {outcome['steps']} steps in {outcome['seconds']:.1f} s "
           f"({rate:.1f} steps/s); {len(outcome['missing'])} steps without an alarm")
+    rows, calibration = tally(outcome["rollouts"]), outcome["calibration"]
+    print("\n".join(table(rows)))
+    split, ids = calibration.split if calibration else {}, [r.rollout_id for r in outcome["rollouts"]]
+    if warning := in_sample_warning(split, ids):
+        print(f"fiper replay: {warning}", file=sys.stderr)
     if args.report:
-        calibration = outcome["calibration"]
         report = {"bags": [str(b) for b in bags], "calibration": str(directory) if directory else None,
                   "calibration_hash": calibration.content_hash if calibration else None,
                   "mode": "offline" if args.offline else "live", "seconds": outcome["seconds"],
-                  "missing": outcome["missing"], "rollouts": [r.to_dict() for r in outcome["rollouts"]]}
+                  "missing": outcome["missing"], "rollouts": [r.to_dict() for r in outcome["rollouts"]],
+                  "verdicts": [row.to_dict() for row in rows], "in_sample": in_sample(split, ids)}
         with atomic_output(args.report, overwrite=True) as staging:
             staging.write_text(json.dumps(report, indent=1))
     if outcome["interrupted"]:

@@ -16,10 +16,11 @@ Modules, one concept each:
 - :mod:`.progress`: a stderr progress line.
 - :mod:`.offline`: the offline oracle of ``fiper replay --offline`` (bag -> FIPER per step).
 - :mod:`.results`: per-rollout prediction results, the same record for the live replay and the oracle.
+- :mod:`.verdicts`: each rollout's verdict against its outcome, and the TPR / TNR table of replay and launch.
 
 ``fiper evaluate`` is :mod:`fiper_ros.commands.evaluate`.
 """
 from __future__ import annotations
 
 __all__ = ["cache", "data", "engine", "methods", "offline", "plots", "progress", "protocol", "report", "results",
-           "scoring", "sweep", "synthetic", "threshold_grid"]
+           "scoring", "sweep", "synthetic", "threshold_grid", "verdicts"]

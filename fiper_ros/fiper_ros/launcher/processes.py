@@ -5,14 +5,28 @@ import importlib
 import os
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, NodeSpec
+
+
+#: One line at a time on stdout, from the node relays and whatever else a launch prints (``--summary``).
+_PRINT_LOCK = threading.Lock()
+
+
+def say(line: str) -> None:
+    """Print one line without interleaving with the nodes' output (one write: whole on a pipe shared with other
+    processes too, however stdout is buffered)."""
+    with _PRINT_LOCK:
+        sys.stdout.write(line + "\n")
+        sys.stdout.flush()
 
 
 class ProcessGroup:
@@ -25,12 +39,10 @@ class ProcessGroup:
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self.specs: dict[str, NodeSpec] = {}
         self.respawns: dict[str, int] = {}
-        self._print_lock = threading.Lock()
 
     def say(self, line: str) -> None:
         """Print one line without interleaving with the nodes' output."""
-        with self._print_lock:
-            print(line, flush=True)
+        say(line)
 
     def start(self, spec: NodeSpec) -> None:
         """Start one node process and a thread relaying its output."""
@@ -94,8 +106,9 @@ class ProcessGroup:
         return status
 
 
-def run_processes(config: LaunchConfig, grace_s: float) -> int:
-    """Run every node in its own process until Ctrl-C / SIGTERM or until one dies."""
+def run_processes(config: LaunchConfig, grace_s: float, before_stop: Callable[[], None] | None = None) -> int:
+    """Run every node in its own process until Ctrl-C / SIGTERM or until one dies (``before_stop``: called then,
+    before the nodes are stopped)."""
     params_dir = tempfile.TemporaryDirectory(prefix="fiper-launch-")
     group = ProcessGroup(grace_s, Path(params_dir.name))
     stop_event = threading.Event()
@@ -105,6 +118,8 @@ def run_processes(config: LaunchConfig, grace_s: float) -> int:
             group.start(spec)
         status = group.watch(stop_event, {spec.name for spec in config.nodes if spec.required})
     finally:
+        if before_stop is not None:
+            before_stop()
         group.say("[launch] stopping")
         group.stop()
         for sig, handler in previous.items():

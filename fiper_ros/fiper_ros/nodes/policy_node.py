@@ -4,7 +4,8 @@ A thin shell: the observation parts (both cameras, proprioception) are checked a
 (:class:`~fiper_ros.runtime.observation_sync.ObservationSync`), rollouts and policy steps are
 :class:`~fiper_ros.policy.session.PolicySession`'s business. Per step of the running rollout the node
 publishes the ObservationEmbedding and the ActionChunkBatch FIPER monitors (same stamp and step as
-the observation) and then the ActionCommand the robot executes (the first ``h`` actions of sample 0).
+the observation; :class:`~fiper_ros.publishing.FiperPublisher`, the policy authors' API) and then the
+ActionCommand the robot executes (the first ``h`` actions of sample 0).
 RolloutEvents are followed in a callback group of their own (the process spins two threads), so an END
 that arrives while a step computes is seen at once: that step is not published (its rollout is over;
 ``steps_dropped_after_end`` on /diagnostics). A lock guards the session and the observation buffer.
@@ -22,10 +23,10 @@ import torch
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from sensor_msgs.msg import Image, JointState
 
-from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
+from fiper_msgs.msg import ActionCommand, RolloutEvent
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
-from fiper_ros.interface.conversions import action_batch_msg, action_command_msg, embedding_msg, stamp_ns
+from fiper_ros.interface.conversions import action_command_msg, stamp_ns
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, EMBEDDING, EVENTS, SIM_ACTION, SIM_PROPRIO
 from fiper_ros.nodes.base import FiperNode, describe
@@ -33,6 +34,7 @@ from fiper_ros.nodes.main import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.session import PolicySession, PolicyStep
+from fiper_ros.publishing import FiperPublisher
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.observation_sync import ObservationSync
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
@@ -77,19 +79,20 @@ class PolicyNode(FiperNode):
         self._events_sub: Any = None
         self._inputs: list[Any] = []
 
-        def publisher(msg_type: Any, parameter: str) -> Any:
-            topic = self.get_parameter(parameter).value
-            return self.create_publisher(msg_type, topic, qos.INPUT, event_callbacks=self.publisher_events(topic))
-
-        self._embedding_pub = publisher(ObservationEmbedding, "embedding_topic")
-        self._chunks_pub = publisher(ActionChunkBatch, "action_chunks_topic")
-        self._command_pub = publisher(ActionCommand, "action_topic")
+        # The policy side of the contract (the sim bridge publishes the rollout events): fiper_ros.publishing.
+        self.fiper = FiperPublisher(self, embedding_topic=self.get_parameter("embedding_topic").value,
+                                    actions_topic=self.get_parameter("action_chunks_topic").value, events_topic=None,
+                                    event_callbacks=self.publisher_events)
+        command_topic = self.get_parameter("action_topic").value
+        self._command_pub = self.create_publisher(ActionCommand, command_topic, qos.INPUT,
+                                                  event_callbacks=self.publisher_events(command_topic))
 
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
         model = resolve_data_path(self.get_parameter("model").value)  # the rule of fiper_ros/data_paths.py
         torch.set_num_threads(self.get_parameter("torch_threads").value)
         policy = Policy.load(model)  # a missing file is named in the error (the parameter is `model`)
+        self.fiper.set_layout(policy.config.action_space, policy.config.exec_steps)
         self.session = PolicySession(policy, self.get_parameter("batch").value or None, self.reject,
                                      int(self.get_parameter("start_wait_s").value * 1e9))
         self.policy = policy
@@ -212,13 +215,10 @@ class PolicyNode(FiperNode):
                 self.get_logger().info(f"rollout {action.rollout_id} step {action.step} not published: the "
                                        "rollout ended while it was computed")
                 return
-            config = policy.config
-            self._embedding_pub.publish(embedding_msg(action.rollout_id, action.step, action.stamp,
-                                                      action.embedding))
-            self._chunks_pub.publish(action_batch_msg(action.rollout_id, action.step, action.stamp, action.chunks,
-                                                      config.exec_steps, config.action_space))
+            self.fiper.step(action.embedding, action.chunks, rollout_id=action.rollout_id, step=action.step,
+                            stamp_ns=action.stamp)
             self._command_pub.publish(action_command_msg(action.rollout_id, action.step, action.stamp,
-                                                         action.command, config.action_space,
+                                                         action.command, policy.config.action_space,
                                                          session.history_frames))
             self.published += 1
 

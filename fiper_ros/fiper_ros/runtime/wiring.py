@@ -4,7 +4,9 @@ Each node reports on ``/diagnostics``, per topic of its own, how many subscripti
 matched (``matched_subscribers.<topic>``) and how many publishers its subscription has matched
 (``matched_publishers.<topic>``). The policy's outputs are VOLATILE, so a detector whose subscription
 the policy has not matched yet loses the first steps of a rollout; whoever starts rollouts waits for
-:func:`missing_matches` to be empty first.
+:func:`missing_matches` to be empty first. A policy outside the suite (:mod:`fiper_ros.publishing`) sees
+its own publishers' matches, not its readers': :func:`unmatched_readers` tells it which readers report
+a subscription of its topic and which of them have not matched every publisher of it yet.
 """
 from __future__ import annotations
 
@@ -45,3 +47,27 @@ def missing_matches(diagnostics: Mapping[str, Mapping[str, str]], nodes: Sequenc
         missing += [f"{n} to match {needed} subscriptions of {topic} (has {counts[topic]})"
                     for n, counts in published.items() if counts.get(topic, needed) < needed]
     return missing
+
+
+def unmatched_readers(diagnostics: Mapping[str, Mapping[str, str]], topic: str,
+                      publishers: int) -> tuple[list[str], list[str]]:
+    """The nodes whose /diagnostics report a subscription of ``topic``, and what they have not matched yet.
+
+    DDS matching is not symmetric: a publisher can have matched a subscription whose reader has not matched
+    it yet, and a VOLATILE reader drops what it receives before. A reader that reports having matched at least
+    ``publishers`` publishers of ``topic`` (the ROS graph's count, the caller's own among them) has matched the
+    caller's too.
+
+    Args:
+        diagnostics: The latest /diagnostics key/values per node (fully qualified names).
+        topic: The topic (fully qualified).
+        publishers: How many publishers of ``topic`` the ROS graph shows.
+
+    Returns:
+        The reporting readers (sorted), and one line per reader that has matched fewer than ``publishers``.
+    """
+    key = f"{MATCHED_PUBLISHERS}{topic}"
+    readers = sorted(node for node, values in diagnostics.items() if key in values)
+    missing = [f"{node} to match {publishers} publishers of {topic} (has {diagnostics[node][key]})"
+               for node in readers if int(diagnostics[node][key]) < publishers]
+    return readers, missing

@@ -1,0 +1,54 @@
+"""The example policy (``python -m fiper_ros.examples.minimal_policy``, issue #25) started at the same moment as the
+suite (``fiper launch fiper.launch.yaml calibration_dir:=...``), both cold: it waits for the suite's scoring nodes
+(``FiperPublisher.wait_for_suite``) and then publishes at once; every step of every rollout gets its verdict, the
+first rollout's first steps included (published before the suite matched, they would be lost: the inputs are
+VOLATILE)."""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import pytest
+from helpers.alarms import AlarmListener
+from helpers.dds import spawn_python, stop
+from helpers.example_policy import STEPS, example_calibration
+from helpers.launch import Launch
+
+from fiper_msgs.msg import FailureAlarm
+from fiper_ros.examples.minimal_policy import failing_rollouts
+
+LAUNCH = Path(os.environ["FIPER_ROOT"]) / "fiper_ros" / "launch" / "fiper.launch.yaml"
+ROLLOUTS, FAILURES = 3, 1
+
+
+@pytest.mark.slow
+def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_domain: int) -> None:
+    calibration = example_calibration(tmp_path / "calibration")
+    listener = AlarmListener(ros_domain)
+    launch = Launch(LAUNCH, ros_domain, {"calibration_dir": str(calibration)})
+    policy = spawn_python(["-m", "fiper_ros.examples.minimal_policy", "--rollouts", str(ROLLOUTS), "--failures",
+                           str(FAILURES), "--seed", "0", "--wait", "240"], ros_domain)
+    try:
+        output, _ = policy.communicate(timeout=300)
+        assert policy.returncode == 0, output + "\n".join(launch.lines[-30:])
+        ids = [int(i) for i in re.findall(rf"rollout (\d+): {STEPS} steps", output)]
+        assert len(ids) == ROLLOUTS, output
+
+        def judged() -> bool:
+            verdicts = listener.verdicts()
+            return all(len(verdicts.get(i, {})) == STEPS for i in ids)
+
+        assert listener.spin_until(judged, 60), ({i: sorted(listener.verdicts().get(i, {})) for i in ids},
+                                                 launch.lines[-30:])
+    finally:
+        stop(policy)
+        launch.interrupt()
+        listener.close()
+    verdicts = listener.verdicts()
+    assert "waiting for suite" in output
+    for index, rollout_id in enumerate(ids):
+        states = [verdicts[rollout_id][t].state for t in range(STEPS)]
+        assert FailureAlarm.STATE_UNKNOWN not in states, (index, [verdicts[rollout_id][t].reason for t in range(STEPS)])
+        if index in failing_rollouts(ROLLOUTS, FAILURES):
+            assert FailureAlarm.STATE_ALARM in states, index
