@@ -47,3 +47,12 @@ def test_readers_are_the_nodes_reporting_a_subscription_of_the_topic_and_must_ma
                                                                 f"{record} to match 3 publishers of {EMB} (has 2)"])
     assert unmatched_readers(diagnostics, "/fiper/action_chunks", 1) == ([], [])  # nobody reports a reader of it
     assert unmatched_readers({}, EMB, 0) == ([], [])
+
+
+def test_a_node_without_diagnostics_yet_is_neither_reader_nor_publisher_and_every_topic_is_reported() -> None:
+    act = "/fiper/action_chunks"
+    diagnostics = {POLICY: {f"matched_subscribers.{EMB}": "1", f"matched_subscribers.{act}": "1"},
+                   RND_OE: {f"matched_publishers.{EMB}": "0"}, FUSION: {f"matched_publishers.{act}": "0"}}
+    nodes = (POLICY, RND_OE, FUSION, "/fiper/ace_node")  # the ACE node has not reported yet
+    assert missing_matches(diagnostics, nodes, {}) == [f"{FUSION} to match a publisher of {act}",
+                                                       f"{RND_OE} to match a publisher of {EMB}"]

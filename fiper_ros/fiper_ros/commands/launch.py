@@ -58,10 +58,11 @@ def run(args: argparse.Namespace) -> int:
     from fiper_ros.client.verdicts import LiveVerdicts  # noqa: PLC0415 - rclpy only with --summary
 
     verdicts = LiveVerdicts(calibration_split(config), say=say)
-    verdicts.start()  # before the nodes: matched to the fusion node before its first decision
-    status = run_in_process(config) if args.in_process else run_processes(config, args.grace, verdicts.settle)
-    verdicts.close()
-    return status
+    verdicts.start()  # before the nodes; it reports its matches, so a policy's wait_for_suite waits for it too
+    try:
+        return run_in_process(config) if args.in_process else run_processes(config, args.grace, verdicts.settle)
+    finally:
+        verdicts.close()
 
 
 def calibration_split(config: LaunchConfig) -> dict[str, object]:
