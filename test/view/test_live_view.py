@@ -35,7 +35,7 @@ from sensor_msgs.msg import Image
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import STATE_NAMES
-from fiper_ros.interface.topics import ALARM, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE, WRIST_CAMERA
+from fiper_ros.interface.topics import ALARM, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 BAGS = ROOT / "bags" / "pushchair_synthetic" / "test_rollouts"  # 10 rollouts; calibration/ next to them
@@ -83,7 +83,7 @@ class Tap:
         self.node.create_subscription(FailureAlarm, ALARM, lambda m: self.alarms.append(alarm_of(m)), qos.ALARM_EVERY)
         self.images = threading.Event()
         self.published_images = 0
-        self._camera = self.node.create_publisher(Image, WRIST_CAMERA, qos.INPUT)
+        self._camera = self.node.create_publisher(Image, CAMERA_WRIST, qos.INPUT)
         self.node.create_timer(1.0 / IMAGE_HZ, self._publish_image)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -155,7 +155,7 @@ async def drain(client: Client, topic: str, quiet_s: float, timeout: float = 300
 async def scenario(port: int, tap: Tap, domain: int, out: Path) -> dict[str, Any]:
     reader = await open_client(port)
     await reader.read_advertised(SERVED)
-    await reader.subscribe([*SCORES, ALARM, DIAGNOSTICS, WRIST_CAMERA])
+    await reader.subscribe([*SCORES, ALARM, DIAGNOSTICS, CAMERA_WRIST])
     stalled = await open_client(port, receive_buffer=16384, max_queue=1)  # never reads once subscribed
     await stalled.read_advertised(SERVED)
     await stalled.subscribe(sorted(SERVED))
@@ -190,8 +190,8 @@ async def scenario(port: int, tap: Tap, domain: int, out: Path) -> dict[str, Any
     assert replay.returncode == 0, (out / "replay.log").read_text()[-3000:]
     done.set()
     await reading
-    await drain(stalled, WRIST_CAMERA, quiet_s=3.0)
-    stalled_images = len(stalled.received[WRIST_CAMERA])
+    await drain(stalled, CAMERA_WRIST, quiet_s=3.0)
+    stalled_images = len(stalled.received[CAMERA_WRIST])
     diagnostics = len(stalled.received[DIAGNOSTICS])
     await stalled.read_until(lambda: len(stalled.received[DIAGNOSTICS]) > diagnostics, 30)  # still served
     late = await open_client(port)
@@ -228,13 +228,13 @@ def test_a_foxglove_client_gets_what_the_suite_published_beside_a_stalled_and_a_
     assert first_alarms, "the failures of the set are predicted"
     assert all(re.fullmatch(r"(RND-OE|ACE) .+ since step \d+.*: (both |one )?exceeded \(.+\)", r) for r in first_alarms)
     # the client that never read lost frames; the one that read got (nearly) all; the one that left, its first ones
-    read_images = len(reader.received[WRIST_CAMERA])
+    read_images = len(reader.received[CAMERA_WRIST])
     assert read_images > 2 * outcome["stalled_images"] > 0, (read_images, outcome["stalled_images"],
                                                             tap.published_images)
     assert outcome["left"] >= 10
     assert set(outcome["channels"]) == SERVED
     assert outcome["channels"][ALARM]["schemaName"] == "fiper_msgs/msg/FailureAlarm"
-    assert outcome["channels"][WRIST_CAMERA]["schemaName"] == "foxglove.RawImage"
+    assert outcome["channels"][CAMERA_WRIST]["schemaName"] == "foxglove.RawImage"
 
 
 def test_fiper_view_refuses_a_taken_port_in_one_line(ros_domain: int) -> None:

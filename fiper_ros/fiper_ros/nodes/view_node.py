@@ -30,7 +30,7 @@ from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_ros.interface import qos
-from fiper_ros.interface.topics import CAMERAS, DIAGNOSTICS
+from fiper_ros.interface.topics import ALARM, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE, relative
 from fiper_ros.nodes.base import describe, diagnostic_array
 from fiper_ros.nodes.main import run_node
 from fiper_ros.view.layout import installed_layout
@@ -38,10 +38,10 @@ from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, H
 
 #: The JSON topics the node serves (relative: in its namespace), their message class and subscription QoS.
 JSON_TOPICS: dict[str, tuple[type, QoSProfile]] = {
-    "scores/rnd_oe": (Score, qos.SCORE_SUB),
-    "scores/ace": (Score, qos.SCORE_SUB),
-    "alarm": (FailureAlarm, qos.ALARM_EVERY),
-    "rollout_events": (RolloutEvent, qos.EVENT),
+    relative(SCORE_RND_OE): (Score, qos.SCORE_SUB),
+    relative(SCORE_ACE): (Score, qos.SCORE_SUB),
+    relative(ALARM): (FailureAlarm, qos.ALARM_EVERY),
+    relative(EVENTS): (RolloutEvent, qos.EVENT),
     DIAGNOSTICS: (DiagnosticArray, qos.DIAGNOSTICS),
 }
 
