@@ -26,6 +26,7 @@ from typing import Any
 import pytest
 import rclpy
 from helpers.dds import ros_env, spawn_python, stop
+from helpers.diagnostics import DiagnosticsListener
 from helpers.foxglove_client import Client, open_client
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -249,3 +250,35 @@ def test_fiper_view_refuses_a_taken_port_in_one_line(ros_domain: int) -> None:
     assert result.returncode == 2
     assert result.stderr == f"fiper view: port {port} on 127.0.0.1 is taken (another live view, or a Foxglove " \
                             "bridge?)\n"
+
+
+def test_with_nobody_watching_the_view_reads_nothing_of_the_suite(ros_domain: int) -> None:
+    """On demand (the default): no reader of a topic until a client shows it, and none again once it left; so no
+    publisher of the suite sends the view anything while nobody watches (docs/benchmarks.md, the view's cost)."""
+    listener = DiagnosticsListener(ros_domain)
+    view, port, _ = start_view(ros_domain)
+    try:
+        def status() -> dict[str, str]:
+            return listener.statuses.get("fiper: /fiper/view_node", {})
+
+        def readers(topic: str) -> int:
+            return listener.node.count_subscribers(topic)
+
+        assert listener.spin_until(lambda: "topics_read" in status(), 30)  # serving, and saying what it reads
+        assert status()["topics_read"] == "0" and readers(ALARM) == 0 and readers(CAMERA_WRIST) == 0
+
+        async def watch_then_leave() -> None:
+            client = await open_client(port)
+            await client.read_advertised(SERVED)
+            await client.subscribe([ALARM])
+            assert await asyncio.to_thread(listener.spin_until, lambda: readers(ALARM) == 1, 30)
+            assert readers(CAMERA_WRIST) == 0  # only what a client shows
+            await client.ws.close()
+
+        asyncio.run(watch_then_leave())
+        assert listener.spin_until(lambda: readers(ALARM) == 0, 30)
+        assert view.poll() is None
+    finally:
+        output = stop(view)
+        listener.close()
+    assert view.returncode == 0, output[-3000:]

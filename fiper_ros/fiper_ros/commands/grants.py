@@ -320,9 +320,11 @@ def shipped_deployments() -> Iterator[Deployment]:
         config = load_launch(path)
         yield Deployment(f"fiper launch {path.name}", config)
         declared = {argument.name for argument in config.arguments}
-        if "view" in declared:  # the live view, as fiper demo runs it (any free port: building it serves)
-            yield Deployment(f"fiper launch {path.name} view:=true", load_launch(path, {"view": "true",
-                                                                                    "view_port": "0"}))
+        if "view" in declared:  # the live view as fiper demo runs it (any free port: building it serves), reading
+            # every topic at once: on demand it reads only what a client shows, but may read any of them
+            viewed = load_launch(path, {"view": "true", "view_port": "0"})
+            yield Deployment(f"fiper launch {path.name} view:=true",
+                             apply(viewed, Overrides(by_module={"fiper_ros.nodes.view_node": {"on_demand": False}})))
         variants = [config.nodes]
         for model, calibration in pairs:
             given = {"model": str(model), **suite_arguments(calibration, detectors_of(calibration))}

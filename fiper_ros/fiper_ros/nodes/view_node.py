@@ -7,13 +7,15 @@ namespace), ``/diagnostics`` and the ``cameras`` (absolute), and serves each on 
 suite's messages and the diagnostics, ``foxglove.RawImage`` for the images, so that Foxglove's Plot, State
 Transitions, Image and Diagnostics panels show them without set-up (``fiper_ros/config/foxglove/fiper.layout.json``).
 
-It never slows the suite: it is a process of its own and only ever reads. Its subscriptions take the raw bytes
-and a message is deserialized and translated only while a client is subscribed to its channel; the cameras
-use their own QoS (``qos.VIEW_IMAGE``: BEST_EFFORT, the newest frame), the scores, the alarm and the events
-the suite's TRANSIENT_LOCAL ones (a view started late shows the latest), every step's alarm
-(``qos.ALARM_EVERY``). A client that reads slowly or not at all loses the oldest of its at most ``backlog``
-queued messages; the other clients and the node go on. The server starts once the node spins; a port that is
-taken ends the node with one line naming it (exit status 2).
+It never slows the suite: it is a process of its own and only ever reads, and it subscribes to a topic only
+while a client is subscribed to its channel (``on_demand``, checked every :data:`SYNC_PERIOD_S`): with nobody
+watching it has no reader of the suite's topics, so no publisher of the suite sends it anything. Its
+subscriptions take the raw bytes, deserialized and translated only for a client. The cameras use their own
+QoS (``qos.VIEW_IMAGE``: BEST_EFFORT, the newest frame); the scores, the alarm and the events the suite's
+TRANSIENT_LOCAL ones (a client that subscribes late sees the latest), every step's alarm (``qos.ALARM_EVERY``).
+A client that reads slowly or not at all loses the oldest of its at most ``backlog`` queued messages; the
+other clients and the node go on. The server starts once the node spins; a port that is taken ends the node
+with one line naming it (exit status 2).
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
@@ -44,6 +47,8 @@ JSON_TOPICS: dict[str, tuple[type, QoSProfile]] = {
     relative(EVENTS): (RolloutEvent, qos.EVENT),
     DIAGNOSTICS: (DiagnosticArray, qos.DIAGNOSTICS),
 }
+#: How often the node matches its subscriptions to the channels the clients are subscribed to (``on_demand``).
+SYNC_PERIOD_S = 0.1
 
 
 class ViewNode(Node):
@@ -63,17 +68,26 @@ class ViewNode(Node):
                                                                   read_only=True))
         self.declare_parameter("diagnostics_period_s", 1.0,
                                describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
+        self.declare_parameter("on_demand", True, describe(
+            "subscribe to a topic only while a client shows it (false: to every topic from the start)",
+            read_only=True))
         self.server: ViewServer | None = None
-        self._json = {self.resolve_topic_name(name): cls for name, (cls, _) in JSON_TOPICS.items()}
+        #: Every topic served (resolved) -> its message class and subscription QoS.
+        self.streams: dict[str, tuple[type, QoSProfile]] = {
+            self.resolve_topic_name(name): spec for name, spec in JSON_TOPICS.items()}
         self._cameras = [self.resolve_topic_name(name) for name in self.get_parameter("cameras").value]
-        for name, (cls, profile) in JSON_TOPICS.items():
-            self.create_subscription(cls, name, self._forward(self.resolve_topic_name(name), cls), profile, raw=True)
-        for topic in self._cameras:
-            self.create_subscription(Image, topic, self._forward(topic, Image), qos.VIEW_IMAGE, raw=True)
+        self.streams |= {topic: (Image, qos.VIEW_IMAGE) for topic in self._cameras}
+        self._readers: dict[str, Subscription] = {}
+        self._on_demand = self.get_parameter("on_demand").value
+        if not self._on_demand:
+            for topic in self.streams:
+                self._subscribe(topic)
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics, clock=steady)
         self._start = self.create_timer(0.0, self._serve, clock=steady)
+        if self._on_demand:
+            self.create_timer(SYNC_PERIOD_S, self._sync, clock=steady)
 
     def _serve(self) -> None:
         """Start the server (once, when the node first spins: building the node binds no port)."""
@@ -81,13 +95,29 @@ class ViewNode(Node):
         port = self.get_parameter("port").value
         server = ViewServer(self.get_fully_qualified_name(), self.get_parameter("host").value, port,
                             self.get_parameter("backlog").value)
-        for topic, cls in self._json.items():
-            server.add_json(topic, cls)
+        for topic, (cls, _) in self.streams.items():
+            if topic not in self._cameras:
+                server.add_json(topic, cls)
         for topic in self._cameras:
             server.add_image(topic)
         self.server = server
         self.get_logger().info(f"serving {server.url} ({HOW_TO_OPEN}; layout {installed_layout()}): "
                                f"{', '.join(server.topics())}")
+
+    def _subscribe(self, topic: str) -> None:
+        cls, profile = self.streams[topic]
+        self._readers[topic] = self.create_subscription(cls, topic, self._forward(topic, cls), profile, raw=True)
+
+    def _sync(self) -> None:
+        """Subscribe to the topics a client wants now, unsubscribe from those no client wants any more."""
+        if self.server is None:
+            return
+        for topic in self.streams:
+            wanted = self.server.wanted(topic)
+            if wanted and topic not in self._readers:
+                self._subscribe(topic)
+            elif not wanted and topic in self._readers:
+                self.destroy_subscription(self._readers.pop(topic))
 
     def _forward(self, topic: str, cls: type) -> Callable[[bytes], None]:
         """The raw subscription's callback of ``topic``: translate and send only what a client wants."""
@@ -102,7 +132,8 @@ class ViewNode(Node):
         else:
             clients, subscriptions = self.server.clients()
             level, message = DiagnosticStatus.OK, f"serving {self.server.url}"
-            values = {"url": self.server.url, "clients": str(clients), "subscriptions": str(subscriptions)}
+            values = {"url": self.server.url, "clients": str(clients), "subscriptions": str(subscriptions),
+                      "topics_read": str(len(self._readers))}
             values |= {f"sent.{topic}": str(self.server.sent[topic]) for topic in self.server.topics()}
         self._diagnostics.publish(diagnostic_array(self, level, message, values))
 
