@@ -18,7 +18,7 @@ from helpers.spin import spin_until
 
 #: package -> its node executables.
 EXECUTABLES = {
-    "fiper_ros": ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node"),
+    "fiper_ros": ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node", "view_node"),
     "sim_bridge": ("bridge_node",),
 }
 SHIPPED = Path(os.environ["FIPER_ROOT"]) / "models"
@@ -50,7 +50,8 @@ def test_every_node_started_through_its_executable_from_another_directory_become
         tmp_path: Path, calibration_dir: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
     detector = {"calibration_dir": str(calibration_dir)}
     parameters: dict[str, Mapping[str, str]] = {"rnd_oe_node": detector, "ace_node": detector,
-                                                "policy_node": {"model": str(SHIPPED / "sorting")}}
+                                                "policy_node": {"model": str(SHIPPED / "sorting")},
+                                                "view_node": {"port": "0"}}  # any free port: tests run side by side
     procs: dict[str, subprocess.Popen[str]] = {}
     fqns = {}
     try:

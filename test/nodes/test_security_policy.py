@@ -93,6 +93,9 @@ def test_every_node_of_every_shipped_suite_does_exactly_what_its_grants_say() ->
     assert "/fiper/fusion_node/reset" in fusion.reply
     assert "/fiper/alarm" in supervisor.subscribe and supervisor.request == frozenset({"/sim/halt"})
     assert all("/fiper/alarm" not in g.publish for n, g in policy.items() if n != "/fiper/fusion_node")
+    # the live view (#22) only reads: it publishes nothing of the suite's, only its own diagnostics
+    assert used["/fiper/view_node"].publish == frozenset({DIAGNOSTICS, "/rosout", "/parameter_events"})
+    assert {"/fiper/alarm", "/fiper/scores/rnd_oe", "/camera/wrist/image_raw"} <= used["/fiper/view_node"].subscribe
     # the joint-velocity ACE (Stacking) subscribes the joint states; an end-effector one does not
     joints = {spec.parameters["calibration_dir"]: "/joint_states" in seen.subscribe
               for spec, _, seen in observed if spec.name == "ace_node"}
@@ -253,6 +256,7 @@ def test_the_shipped_suites_cover_every_shipped_calibration_and_every_launch_fil
     launches = {p.name for p in grants.shipped_launches()}
     assert launches == {"demo.launch.yaml", "fiper.launch.yaml", "policy.launch.yaml", "bridge.launch.yaml"}
     assert all(f"fiper launch {name}" in origins for name in launches)  # with its default arguments
+    assert {"fiper launch demo.launch.yaml view:=true", "fiper launch fiper.launch.yaml view:=true"} <= set(origins)
     for calibration in calibrations:
         shown = str(calibration.relative_to(grants.share("fiper_ros")))
         assert f"fiper replay --calibration {shown}" in origins

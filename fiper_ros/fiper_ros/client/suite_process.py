@@ -86,18 +86,18 @@ def installed_launch(name: str = SUITE_LAUNCH) -> Path:
 
 
 def replay_launch(launch: Path, calibration: Path, detectors: tuple[str, ...],
-                  robot: RobotModel | None = None) -> LaunchConfig:
-    """The suite of ``launch`` for a replay on ``calibration`` (declaring ``detectors``): sim time, and the
-    ``robot``'s URDF and EE frame on the ACE node."""
-    arguments = {"use_sim_time": "true", **suite_arguments(calibration, detectors)}
-    return apply(load_launch(launch, arguments), Overrides(by_module=robot_parameters(robot)))
+                  robot: RobotModel | None = None, arguments: Mapping[str, str] | None = None) -> LaunchConfig:
+    """The suite of ``launch`` for a replay on ``calibration`` (declaring ``detectors``): sim time, the ``robot``'s
+    URDF and EE frame on the ACE node, and the launch ``arguments`` given (the live view's)."""
+    given = {"use_sim_time": "true", **suite_arguments(calibration, detectors), **(arguments or {})}
+    return apply(load_launch(launch, given), Overrides(by_module=robot_parameters(robot)))
 
 
 def replay_config(launch: Path, calibration: Path, detectors: tuple[str, ...], out: Path,
-                  robot: RobotModel | None = None) -> Path:
-    """Write :func:`replay_launch` to ``out``."""
+                  robot: RobotModel | None = None, arguments: Mapping[str, str] | None = None) -> Path:
+    """Write :func:`replay_launch` to ``out``, read with the launch ``arguments`` given too (the live view's)."""
     try:
-        return dump_launch(replay_launch(launch, calibration, detectors, robot), out)
+        return dump_launch(replay_launch(launch, calibration, detectors, robot, arguments), out)
     except LaunchError as error:
         raise BagError(f"launch file {launch}: {error}") from error
 

@@ -29,9 +29,9 @@ from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.data_paths import resolve_data_path
-from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CLOCK, DIAGNOSTICS, EMBEDDING,
-                                        EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT, SIM_PROPRIO,
-                                        SIM_RESET, TOPICS, relative, score_topic)
+from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, CLOCK, DIAGNOSTICS,
+                                        EMBEDDING, EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT,
+                                        SIM_PROPRIO, SIM_RESET, TOPICS, relative, score_topic)
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
@@ -204,11 +204,20 @@ def bridge_node(p: Mapping[str, Any]) -> Grants:
         subscribe=(p.get("action_topic", SIM_ACTION),), reply=(SIM_RESET, SIM_HALT))
 
 
+def view_node(p: Mapping[str, Any]) -> Grants:
+    """``fiper_ros.nodes.view_node`` (the live view, a plain node): it only reads the suite's scores, alarm and
+    events, the diagnostics and its ``cameras``; it publishes its own diagnostics."""
+    return ros_node(p) | Grants.of(publish=(DIAGNOSTICS,), subscribe=(
+        *(relative(score_topic(d)) for d in DETECTORS), relative(ALARM), relative(EVENTS), DIAGNOSTICS,
+        *p.get("cameras", CAMERAS)))
+
+
 #: Node module (a launch file's ``module``) -> its rule.
 NODE_RULES: dict[str, Rule] = {
     "fiper_ros.nodes.rnd_oe_node": rnd_oe_node, "fiper_ros.nodes.ace_node": ace_node,
     "fiper_ros.nodes.fusion_node": fusion_node, "fiper_ros.nodes.supervisor_node": supervisor_node,
     "fiper_ros.nodes.policy_node": policy_node, "sim_bridge.bridge_node": bridge_node,
+    "fiper_ros.nodes.view_node": view_node,
 }
 
 
@@ -295,7 +304,7 @@ def arm_for(calibration: Path) -> RobotModel | None:
 
 def shipped_deployments() -> Iterator[Deployment]:
     """Every suite the project starts with what it ships: each launch file (``fiper launch``) with its default
-    arguments, and on each shipped model and calibration (the arguments it declares of ``model``,
+    arguments (and with the live view, where it declares ``view``), and on each shipped model and calibration (the arguments it declares of ``model``,
     ``calibration_dir`` and ``observation_only``, as ``fiper demo`` gives them; the sim's arm on ACE for a
     joint-space calibration, as ``fiper replay --urdf`` does: so ``fiper demo``'s suites are among them);
     ``fiper replay``'s suite for each calibration; ``fiper collect --ros``'s for each model, without and with
@@ -311,6 +320,11 @@ def shipped_deployments() -> Iterator[Deployment]:
         config = load_launch(path)
         yield Deployment(f"fiper launch {path.name}", config)
         declared = {argument.name for argument in config.arguments}
+        if "view" in declared:  # the live view as fiper demo runs it (any free port: building it serves), reading
+            # every topic at once: on demand it reads only what a client shows, but may read any of them
+            viewed = load_launch(path, {"view": "true", "view_port": "0"})
+            yield Deployment(f"fiper launch {path.name} view:=true",
+                             apply(viewed, Overrides(by_module={"fiper_ros.nodes.view_node": {"on_demand": False}})))
         variants = [config.nodes]
         for model, calibration in pairs:
             given = {"model": str(model), **suite_arguments(calibration, detectors_of(calibration))}

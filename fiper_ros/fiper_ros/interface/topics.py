@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from fiper_ros.interface import qos_spec
 from fiper_ros.interface.qos_spec import QosSpec
 
-__all__ = ["ACTIONS", "ALARM", "ARM_JOINT_NAMES", "CAMERA_THIRD", "CAMERA_WRIST", "CLOCK", "DIAGNOSTICS", "EMBEDDING",
-           "EVENTS", "INPUT_TOPICS", "JOINT_STATES", "NAMESPACE", "RESET_ALARM", "SCORE_ACE", "SCORE_RND_OE",
+__all__ = ["ACTIONS", "ALARM", "ARM_JOINT_NAMES", "CAMERAS", "CAMERA_THIRD", "CAMERA_WRIST", "CLOCK", "DIAGNOSTICS",
+           "EMBEDDING", "EVENTS", "INPUT_TOPICS", "JOINT_STATES", "NAMESPACE", "RESET_ALARM", "SCORE_ACE", "SCORE_RND_OE",
            "SIM_ACTION", "SIM_HALT", "SIM_PROPRIO", "SIM_RESET", "TOPICS", "TopicSpec", "relative", "score_topic"]
 
 #: The namespace of the suite's own topics in every shipped launch file. The scoring and fusion nodes name them
@@ -42,6 +42,7 @@ JOINT_STATES = "/joint_states"
 #: The sim bridge's other topics (a robot driver's): the policy's inputs and its command (the policy node's defaults).
 CAMERA_WRIST = "/camera/wrist/image_raw"
 CAMERA_THIRD = "/camera/third/image_raw"
+CAMERAS = (CAMERA_WRIST, CAMERA_THIRD)
 SIM_PROPRIO = "/sim/proprio"
 SIM_ACTION = "/sim/action"
 #: ROS's simulated time (the bridge publishes it in sim-time mode, ``fiper replay`` always) and diagnostics.
