@@ -30,7 +30,9 @@ def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_do
     policy = spawn_python(["-m", "fiper_ros.examples.minimal_policy", "--rollouts", str(ROLLOUTS), "--failures",
                            str(FAILURES), "--seed", "0", "--wait", "240"], ros_domain)
     try:
-        output, _ = policy.communicate(timeout=300)
+        # spun meanwhile: the listener reports its match, which the example waits for (see helpers/alarms.py)
+        assert listener.spin_until(lambda: policy.poll() is not None, 300), "the example did not finish"
+        output, _ = policy.communicate(timeout=30)
         assert policy.returncode == 0, output + "\n".join(launch.lines[-30:])
         ids = [int(i) for i in re.findall(rf"rollout (\d+): {STEPS} steps", output)]
         assert len(ids) == ROLLOUTS, output
@@ -40,7 +42,7 @@ def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_do
             return all(len(verdicts.get(i, {})) == STEPS for i in ids)
 
         assert listener.spin_until(judged, 60), ({i: sorted(listener.verdicts().get(i, {})) for i in ids},
-                                                 launch.lines[-30:])
+                                                 [line for line in launch.lines if ": rollout " in line])
     finally:
         stop(policy)
         launch.interrupt()

@@ -14,6 +14,7 @@ from dataclasses import replace
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos
 
@@ -131,12 +132,11 @@ class InfoTracker:
                 self.info = replace(info, task=str(msg.task))
 
 
-def report_matches(session: RosSession, matched: Callable[[], dict[str, int]]) -> None:
-    """Publish on ``/diagnostics``, every :data:`DIAGNOSTICS_PERIOD_S` while the session spins, how many publishers
-    each subscription of the session's tool has matched (``matched()``: per topic), under the keys the suite's nodes
+def report_matches(node: Node, matched: Callable[[], dict[str, int]]) -> None:
+    """Publish on ``/diagnostics``, every :data:`DIAGNOSTICS_PERIOD_S` while ``node`` is spun, how many publishers
+    each subscription of a tool's node has matched (``matched()``: per topic), under the keys the suite's nodes
     use (:data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`): a policy waits for such a reader too
     (:meth:`fiper_ros.publishing.FiperPublisher.wait_for_suite`)."""
-    node = session.node
     publisher = node.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
 
     def report() -> None:
