@@ -1,6 +1,7 @@
 """/fiper/alarm in a test: every FailureAlarm the fusion node published, in the test's own context. The listener
-reports its match on /diagnostics as the tools do, so a policy's ``wait_for_suite`` waits until it hears the fusion
-node (the alarm is KEEP_LAST(1) there: decisions before the match are lost to a late reader). Spin it meanwhile."""
+reports its match on /diagnostics as the tools do, so a policy that names it (``wait_for_suite(also=["/test_alarms"])``,
+``--wait-for suite /test_alarms``) waits until it hears the fusion node (the alarm is KEEP_LAST(1) there: decisions
+before the match are lost to a late reader). Spin it meanwhile."""
 from __future__ import annotations
 
 from fiper_msgs.msg import FailureAlarm

@@ -93,8 +93,10 @@ class TopicTap:
         return new
 
     def matched_publishers(self) -> dict[str, int]:
-        """Per subscribed topic, how many publishers its subscription has matched."""
-        return {topic: subscription.get_publisher_count() for topic, subscription in self._subscriptions.items()}
+        """Per wanted topic, how many publishers its subscription has matched: 0 while not subscribed yet (a
+        policy waits for it), those of an unknown type left out."""
+        counts = dict.fromkeys(sorted(self.wanted - self.skipped), 0)
+        return counts | {topic: sub.get_publisher_count() for topic, sub in self._subscriptions.items()}
 
     def now_ns(self) -> int:
         """Receive time stamp: the node clock."""
