@@ -9,7 +9,7 @@ PACKAGE = "fiper_ros"
 #: share directory, where relative model and calibration paths are looked up (fiper_ros/data_paths.py).
 MODELS = "models"
 #: Node executables (``ros2 run fiper_ros NAME``): each node module's ``main``.
-NODES = ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node")
+NODES = ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node", "view_node")
 
 
 def tree(folder: str) -> list[tuple[str, list[str]]]:
@@ -29,6 +29,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),  # the live view's layout
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.*")),  # ros2 launch fiper_ros fiper.launch.yaml
         *tree(MODELS),
     ],

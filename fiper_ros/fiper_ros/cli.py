@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bag": ("fiper_ros.commands.bag", "'fiper bag recover BAG': finish a recording that did not stop cleanly"),
     "evaluate": ("fiper_ros.commands.evaluate", "evaluate FIPER and the baselines on rollout datasets"),
     "security": ("fiper_ros.commands.security", "write or check the SROS2 access-control policy of the suite's nodes"),
+    "view": ("fiper_ros.commands.view", "serve the running suite live to Foxglove (WebSocket, 127.0.0.1:8765)"),
 }
 
 #: Modules whose absence means the workspace was not set up or not sourced.

@@ -83,15 +83,22 @@ def local_env(domain: int, base: dict[str, str] | None = None) -> dict[str, str]
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def die_with_parent() -> None:
-    """If ``FIPER_PARENT_PID`` names this process's parent, ask Linux to send SIGTERM when it dies, so that a
-    killed parent never leaves this process speaking in its domain. (Linux sends it when the parent's thread
-    that started this process ends: start such processes from a thread that lives as long as they should.)"""
-    parent = os.environ.get(PARENT_PID_ENV)
-    if not parent or not sys.platform.startswith("linux"):
+def die_with(parent: int) -> None:
+    """Ask Linux to send this process SIGTERM when ``parent`` (its parent) dies, so that a killed parent never
+    leaves it running (speaking in its domain, or working for nobody); SIGTERM at once if ``parent`` is gone
+    already. (Linux sends it when the parent's thread that started this process ends: start such processes
+    from a thread that lives as long as they should.)"""
+    if not sys.platform.startswith("linux"):
         return
     libc = ctypes.CDLL(None, use_errno=True)
     if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
         raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
-    if os.getppid() != int(parent):  # the launcher died before the request was in place
+    if os.getppid() != parent:  # the parent died before the request was in place
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def die_with_parent() -> None:
+    """:func:`die_with` the parent ``FIPER_PARENT_PID`` names, if it is set."""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if parent:
+        die_with(int(parent))

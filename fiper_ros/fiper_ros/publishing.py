@@ -41,7 +41,7 @@ from fiper_ros.core.rollout import ACTION_SPACES
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EMBEDDING, EVENTS
 from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.runtime.wiring import unmatched_readers
 
@@ -155,8 +155,7 @@ class FiperPublisher:
         spinning meanwhile, e.g. in another thread).
         """
         node = self.node
-        subscription = node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics,
-                                                qos.DIAGNOSTICS)
+        subscription = node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
         owner, executor = node.executor, None
         if owner is None or node not in owner.get_nodes():  # nobody spins the node (rclpy.spin_once leaves owner set)
             executor = SingleThreadedExecutor(context=node.context)

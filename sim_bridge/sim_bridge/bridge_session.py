@@ -67,7 +67,7 @@ class Ended:
     """Control steps executed in the rollout."""
 
 
-def rollout_id_of(counter: int, seed: int) -> int:
+def bridge_rollout_id(counter: int, seed: int) -> int:
     """Rollout id: the bridge run's rollout counter (from 1) in the high 32 bits, the seed's low 32 bits
     in the low 32 bits; unique within one run of the bridge and never 0."""
     return (counter << 32) | (int(seed) & 0xFFFFFFFF)
@@ -118,7 +118,7 @@ class BridgeSession:
         env.reset()
         self.started += 1
         limit = min(env.max_policy_steps, self.max_policy_steps) if self.max_policy_steps else env.max_policy_steps
-        self.rollout = Rollout(rollout_id_of(self.started, seed), task, scenario, int(seed), limit)
+        self.rollout = Rollout(bridge_rollout_id(self.started, seed), task, scenario, int(seed), limit)
         return self.rollout, aborted
 
     def end(self, reason: str) -> Ended | None:

@@ -4,11 +4,9 @@ worker processes, each written as the bag of the messages a policy node publishe
 """
 from __future__ import annotations
 
-import ctypes
 import itertools
 import multiprocessing
 import os
-import signal
 import zlib
 from collections.abc import Iterable
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -21,6 +19,7 @@ import torch
 from fiper_ros.bagio.collect_index import CollectSetup, RanEpisode
 from fiper_ros.bagio.rollout_bags import write_rollouts
 from fiper_ros.bagio.schema import BagInfo
+from fiper_ros.dds import die_with
 from fiper_ros.policy.policy import Policy
 
 from .closed_loop import EpisodeResult, run_episode
@@ -29,7 +28,7 @@ from .tasks import TASKS
 SOURCE = "fiper collect (sim, in-process)"
 
 
-def rollout_id_of(scenario: str, seed: int) -> int:
+def collected_rollout_id(scenario: str, seed: int) -> int:
     """Message ``rollout_id``: a hash of the scenario name in the high 32 bits (below 2^63), the seed in the low
     32 bits: unique over a collected data set and the same in every run."""
     return ((zlib.crc32(scenario.encode()) & 0x7FFF_FFFF) << 32) | seed
@@ -39,16 +38,10 @@ def rollout_id_of(scenario: str, seed: int) -> int:
 _worker_policy: Policy | None = None
 
 
-#: ``prctl`` option: the signal a process gets when its parent dies (Linux).
-PR_SET_PDEATHSIG = 1
-
-
 def _start_worker(parent: int, model_dir: str, threads: int) -> None:
     global _worker_policy  # noqa: PLW0603 - one policy per worker process
     # a collect that is killed takes its workers with it (they would run their episodes for nobody)
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    if os.getppid() != parent:  # the parent died before the line above
-        os._exit(1)
+    die_with(parent)
     torch.set_num_threads(threads)
     _worker_policy = Policy.load(model_dir)
 
@@ -61,7 +54,7 @@ def _run_in_worker(scenario: str, seed: int, batch: int, max_policy_steps: int |
 class InProcessRunner:
     """Episodes run without ROS (:func:`run_episode`: no DDS), in this process or in ``jobs`` worker
     processes; the bag is written from the recorded rollout on the sim's control clock, with ids from
-    :func:`rollout_id_of`.
+    :func:`collected_rollout_id`.
 
     Args:
         policy: The loaded policy.
@@ -130,7 +123,7 @@ class InProcessRunner:
             result = self._started.pop((scenario, seed)).result()
         assert result.rollout is not None  # run_episode records by default
         rollout = replace(result.rollout, metadata={**result.rollout.metadata, "max_steps": self.max_steps})
-        rollout_id = rollout_id_of(scenario, seed)
+        rollout_id = collected_rollout_id(scenario, seed)
 
         def write() -> None:
             write_rollouts(path, [rollout], [rollout_id], BagInfo(**fields), env_dt_ns=self.env_dt_ns)

@@ -25,12 +25,12 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState
 from sim_bridge import collect_runner
 from sim_bridge.closed_loop import EpisodeResult, run_episode
-from sim_bridge.collect_runner import rollout_id_of
+from sim_bridge.collect_runner import collected_rollout_id
 from sim_bridge.robot import URDF_PATH
 
 from fiper_ros.bagio.reader import BagReader, find_bags
-from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.cli import main
 from fiper_ros.commands import collect
 from fiper_ros.commands.collect import bag_name
@@ -75,7 +75,7 @@ def test_collect_writes_one_readable_bag_per_rollout(collected: Path) -> None:
         assert counts == {EVENTS: 2, EMBEDDING: 2, ACTIONS: 2}  # no /joint_states for an ee_position task
         assert [(e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in events] == [
             (0, 0, "sorting", scenario, 2), (1, 2, "sorting", scenario, 2)]  # START, END with FAILURE
-        assert {e.rollout_id for e in events} == {rollout_id_of(scenario, seed)}
+        assert {e.rollout_id for e in events} == {collected_rollout_id(scenario, seed)}
         assert stamps[1] - stamps[0] == 4 * 100_000_000  # h = 4 control steps at the sim's 10 Hz
         assert (info.task, info.split, info.synthetic, info.seed, info.policy) == (
             "sorting", "test", False, str(seed), "models/sorting")

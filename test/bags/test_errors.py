@@ -52,7 +52,7 @@ CALIBRATION_COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
     "replay": BAG_COMMANDS["replay"],
     "collect": lambda bag, cal, out: ["collect", "--task", "sorting", "--episodes", "1", "--ros", "--calibration",
                                       str(cal), "--out", str(out / "collected")],
-    "demo": lambda bag, cal, out: ["demo", "--calibration", str(cal), "--out", str(out / "demo")],
+    "demo": lambda bag, cal, out: ["demo", "--calibration", str(cal), "--no-view", "--out", str(out / "demo")],
 }
 
 

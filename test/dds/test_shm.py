@@ -15,10 +15,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-import yaml
-
 from fiper_ros.shm import SHM_DIR, clean_stale, group_files, maps_inodes
 from helpers.dds import ros_env, spawn_python, stop
+from helpers.launch import node_entry, write_launch
 
 #: Seconds a DDS node process gets to create its shared-memory files.
 START_TIMEOUT_S = 60.0
@@ -161,8 +160,7 @@ def test_the_launcher_reports_and_removes_stale_files_before_starting_nodes(tmp_
     with dds_node(ros_domain) as victim:
         dead = owned_files(victim.pid)
         sigkill(victim)
-    config = tmp_path / "launch.yaml"
-    config.write_text(yaml.safe_dump({"nodes": {"supervisor_node": {"module": "fiper_ros.nodes.supervisor_node"}}}))
+    config = write_launch(tmp_path / "launch.yaml", node_entry("supervisor_node"))
     launch = subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],  # noqa: S603
                               env=ros_env(ros_domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               start_new_session=True)

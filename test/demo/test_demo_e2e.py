@@ -3,6 +3,7 @@ over loopback DDS, on the shipped Sorting model and calibration; the live alarms
 on the very data the run recorded."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,10 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
     assert f"halting the robot (rollout {ood['rollout_id']}): ALARM" in log
     assert f"rollout {ood['rollout_id']} ended: failure (halted)" in log
     assert ood["alarm_step"] + 1 <= ood["policy_steps"] <= ood["alarm_step"] + 10, "the supervisor halts the robot"
-    assert "ALARM  step" in run.stdout
+    assert "ALARM  step" in run.stdout and "why: RND-OE " in run.stdout  # the alarm's one line (#22)
+    # the live view ran beside the suite (#22): its address and layout printed, the view node serving
+    assert "fiper demo: live view ws://127.0.0.1:0 (any free port" in run.stdout and "fiper.layout.json" in run.stdout
+    assert re.search(r"\[view_node\].*serving ws://127\.0\.0\.1:\d+ ", log)
     for name in ("rollout_id_1002.png", "rollout_box_pos_1000.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
 

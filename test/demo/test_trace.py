@@ -13,7 +13,7 @@ from fiper_ros.client.driver import alarm_line
 from fiper_ros.client.figure import plot_trace, trace_figure
 from fiper_ros.client.suite_process import suite_topics
 from fiper_ros.client.trace import EARLY_MESSAGES, RolloutEvents, RolloutTrace
-from fiper_ros.commands.demo import SUPERVISOR, demo_config, managed_nodes, problems_of
+from fiper_ros.commands.demo import SUPERVISOR, VIEW, demo_config, managed_nodes, plain_nodes, problems_of
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
 from fiper_ros.interface.topics import SCORE_ACE, SCORE_RND_OE, TOPICS
 
@@ -130,6 +130,16 @@ def test_demo_config_makes_model_and_calibration_absolute(tmp_path: Path) -> Non
     assert all(spec.parameters.get("use_sim_time", False) == (name != "bridge_node") for name, spec in nodes.items())
     assert managed_nodes(config) == ["/sim/bridge_node", "/fiper/policy_node", "/fiper/rnd_oe_node", "/fiper/ace_node",
                                      "/fiper/fusion_node"]
+    assert plain_nodes(config) == [SUPERVISOR]
+
+
+def test_the_demo_with_its_live_view_waits_for_the_view_node_in_the_graph_only(tmp_path: Path) -> None:
+    config = demo_config(DEMO_YAML, tmp_path / "model", tmp_path / "calibration", DETECTORS,
+                         {"view": "true", "view_port": "0"})
+    (view,) = [spec for spec in config.nodes if spec.name == "view_node"]
+    assert (view.namespace, view.parameters["port"], view.parameters["host"], view.required) == \
+        ("/fiper", 0, "127.0.0.1", False)  # the suite goes on without it
+    assert VIEW not in managed_nodes(config) and plain_nodes(config) == [VIEW, SUPERVISOR]
 
 
 def test_the_demo_of_an_observation_only_calibration_runs_no_ace_node(tmp_path: Path) -> None:

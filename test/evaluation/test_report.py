@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
+from fiper_ros.core.thresholds import conformal_quantile
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation
 from fiper_ros.evaluation.methods import ELAPSED, MethodSettings
 from fiper_ros.evaluation.protocol import METRICS
-from fiper_ros.core.thresholds import conformal_quantile
 from fiper_ros.evaluation.report import json_document, markdown, promise_rows
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 from fiper_ros.evaluation.synthetic import make_task

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
-from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.fusion import first_alarm
 from fiper_ros.core.metrics import evaluate
 from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import horizons
 from fiper_ros.evaluation.methods import MethodSettings

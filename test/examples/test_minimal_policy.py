@@ -28,6 +28,10 @@ def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_do
     calibration = example_calibration(tmp_path / "calibration")
     listener = AlarmListener(ros_domain)
     launch = Launch(LAUNCH, ros_domain, {"calibration_dir": str(calibration)})
+    # The test's own listener must hear the fusion node before the policy starts, or it misses verdicts the suite
+    # gave (its discovery took seconds under load in a full run: rollout 1's verdicts all unheard); the policy
+    # still starts cold against scoring nodes that have not matched its publishers.
+    assert listener.spin_until(lambda: bool(listener.alarms), 180), launch.lines[-30:]
     policy = spawn_python(["-m", "fiper_ros.examples.minimal_policy", "--rollouts", str(ROLLOUTS), "--failures",
                            str(FAILURES), "--seed", "0", "--wait", "240", "--wait-for", "suite", "/test_alarms"],
                           ros_domain)

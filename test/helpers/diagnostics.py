@@ -9,8 +9,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from fiper_ros.interface import qos
 from helpers.spin import Listener
 
-#: The supervisor is a plain node (no lifecycle): it is up once it reports on /diagnostics.
-PLAIN_NODES = ("supervisor_node",)
+#: The supervisor and the live view are plain nodes (no lifecycle): up once they report on /diagnostics.
+PLAIN_NODES = ("supervisor_node", "view_node")
 
 
 class DiagnosticsListener(Listener):

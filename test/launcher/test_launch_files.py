@@ -162,7 +162,7 @@ def test_files_that_are_not_launch_yaml_are_refused(tmp_path: Path) -> None:
 def test_an_unknown_argument_is_refused_with_the_declared_ones() -> None:
     assert refused(FIPER, {"calibraton_dir": "x"}) == (
         f"{FIPER}: unknown launch argument calibraton_dir (it declares: autostart, calibration_dir, combine, "
-        "log_level, namespace, observation_only, params_file, use_sim_time)")
+        "log_level, namespace, observation_only, params_file, use_sim_time, view, view_host, view_port)")
     assert "is not one of and, or" in refused(FIPER, {"combine": "AND"})
 
 

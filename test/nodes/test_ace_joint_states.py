@@ -17,8 +17,8 @@ from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import ActionMonitor
 from fiper_ros.interface import qos
-from fiper_ros.nodes.ace_node import AceNode
 from fiper_ros.interface.conversions import action_batch_msg, rollout_event_msg, to_stamp
+from fiper_ros.nodes.ace_node import AceNode
 from helpers.spin import spin_until
 
 CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "stacking" / "calibration"

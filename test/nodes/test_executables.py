@@ -18,7 +18,7 @@ from helpers.spin import spin_until
 
 #: package -> its node executables.
 EXECUTABLES = {
-    "fiper_ros": ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node"),
+    "fiper_ros": ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node", "view_node"),
     "sim_bridge": ("bridge_node",),
 }
 SHIPPED = Path(os.environ["FIPER_ROOT"]) / "models"
@@ -50,7 +50,8 @@ def test_every_node_started_through_its_executable_from_another_directory_become
         tmp_path: Path, calibration_dir: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
     detector = {"calibration_dir": str(calibration_dir)}
     parameters: dict[str, Mapping[str, str]] = {"rnd_oe_node": detector, "ace_node": detector,
-                                                "policy_node": {"model": str(SHIPPED / "sorting")}}
+                                                "policy_node": {"model": str(SHIPPED / "sorting")},
+                                                "view_node": {"port": "0"}}  # any free port: tests run side by side
     procs: dict[str, subprocess.Popen[str]] = {}
     fqns = {}
     try:
@@ -74,11 +75,13 @@ def test_every_node_started_through_its_executable_from_another_directory_become
 def test_scoring_nodes_started_elsewhere_load_the_shipped_calibration_named_relatively(
         tmp_path: Path, ros_domain: int, listener: DiagnosticsListener) -> None:
     """``calibration_dir: models/sorting/calibration`` from a directory without ``models/``: the
-    installed copy in the package share (fiper_ros/data_paths.py); the policy node's default model likewise."""
+    installed copy in the package share (fiper_ros/data_paths.py), for the scoring nodes and the fusion node (which
+    reads the detectors the calibration declares; it did not follow the rule); the policy node's default model
+    likewise."""
     relative = "models/sorting/calibration"
     assert not (tmp_path / relative).exists()
     shipped = load_calibration(SHIPPED / "sorting" / "calibration").content_hash
-    names = ("rnd_oe_node", "ace_node", "policy_node")
+    names = ("rnd_oe_node", "ace_node", "fusion_node", "policy_node")  # fusion: the detectors it declares
     procs = {name: start("fiper_ros", name, tmp_path, ros_domain, "/fiper",
                          {} if name == "policy_node" else {"calibration_dir": relative}) for name in names}
     try:

@@ -42,10 +42,10 @@ from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import RolloutPrediction, predict_rollout
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
-from fiper_ros.nodes import ace_node, detector
-from fiper_ros.nodes.ace_node import AceNode
 from fiper_ros.interface.conversions import (action_batch_msg, embedding_msg, float_array, rollout_event_msg, stamp_ns,
                                              to_stamp)
+from fiper_ros.nodes import ace_node, detector
+from fiper_ros.nodes.ace_node import AceNode
 from fiper_ros.nodes.fusion_node import FusionNode
 from fiper_ros.nodes.rnd_oe_node import RndOeNode
 from fiper_ros.nodes.supervisor_node import SupervisorNode

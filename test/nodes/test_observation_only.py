@@ -22,6 +22,7 @@ from fiper_ros.core.detectors import OBSERVATION_ONLY
 from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import embedding_msg
+from fiper_ros.runtime.alarm import ratio_text
 from helpers.spin import spin_until
 from helpers.suite import STATE, STEP_NS, Driver
 from helpers.synthetic import FAIL_FROM, make_calibration, make_rollout
@@ -86,9 +87,15 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
                 assert math.isnan(msg.eta_act) and math.isnan(msg.gamma_act)
             assert (prediction.first_alarm_step is not None) == fail
             if fail:
-                assert alarms[prediction.first_alarm_step].reason == \
-                    "exceeded: rnd_oe (rnd_oe alone: combine does not apply)"
-                assert prediction.first_alarm_step >= FAIL_FROM
+                first = prediction.first_alarm_step
+                since = first  # the first step of RND-OE's unbroken run of exceedances up to the alarm
+                while since > 0 and prediction.obs_exceeded[since - 1]:
+                    since -= 1
+                ratio = ratio_text(float(np.float32(prediction.obs_windowed[first])),
+                                   float(np.float32(prediction.obs_thresholds[first])))
+                assert alarms[first].reason == \
+                    f"RND-OE {ratio} threshold since step {since}: exceeded (rnd_oe alone: combine does not apply)"
+                assert first >= FAIL_FROM
         assert fusion.fuser.suspicion == "" and fusion.publisher_check.watch.findings == ()
         said = [m.reason for m in driver.alarms]  # verdicts and heartbeats: not a word about ACE
         assert len(said) >= 2 * 20 and not [r for r in said if "ace" in r], [r for r in said if "ace" in r][:3]

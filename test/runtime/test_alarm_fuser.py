@@ -11,7 +11,7 @@ from helpers.alarm_pairs import fuse_pair as _pair
 
 from fiper_ros.core.fusion import alarms_over_rollout
 from fiper_ros.runtime.alarm import (ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore,
-                                     reset_refusal)
+                                     explanation, ratio_text, reset_refusal)
 
 S = 1_000_000_000
 MS = 1_000_000
@@ -41,17 +41,18 @@ def test_an_ok_carries_both_detectors_numbers_and_the_later_stamp() -> None:
     assert _pair(_started("or"), 0, 0.5, 0.25, stamps=(9, 7)).stamp_ns == 9
 
 
-@pytest.mark.parametrize(("combine", "obs", "act", "names"), [
-    ("and", 2.0, 3.0, "rnd_oe, ace"), ("or", 0.5, 3.0, "ace"), ("or", 2.0, 0.5, "rnd_oe")])
-def test_an_alarm_names_the_detectors_that_exceeded_and_the_combine(combine: str, obs: float, act: float,
-                                                                     names: str) -> None:
+@pytest.mark.parametrize(("combine", "obs", "act", "reason"), [
+    ("and", 2.0, 3.0, "RND-OE 2x threshold since step 4, ACE 3x since step 4: both exceeded (and)"),
+    ("or", 0.5, 3.0, "ACE 3x threshold since step 4: one exceeded (or)"),
+    ("or", 2.0, 0.5, "RND-OE 2x threshold since step 4: one exceeded (or)")])
+def test_an_alarm_explains_which_detectors_exceeded_by_how_much_and_the_combine(combine: str, obs: float,
+                                                                                 act: float, reason: str) -> None:
     fuser = _started(combine)
     state = _pair(fuser, 4, obs, act)
     assert _fields(state) == _state(step=4, state=ALARM, latched=True, obs_exceeded=obs > 1, act_exceeded=act > 1,
-                                    eta_obs=obs, eta_act=act, combine=combine,
-                                    reason=f"exceeded: {names} ({combine})")
+                                    eta_obs=obs, eta_act=act, combine=combine, reason=reason)
     assert (fuser.latched, fuser.alarm_step) == (True, 4)
-    assert _pair(fuser, 5, 0.0, 0.0).reason == "latched since step 4"
+    assert _pair(fuser, 5, 0.0, 0.0).reason == f"latched since step 4: {reason}"
 
 
 @pytest.mark.parametrize(("kwargs", "reason"), [
@@ -305,3 +306,73 @@ def test_the_fusers_latch_equals_the_offline_running_or_of_eq_7(combine: str) ->
         seen_alarm += first is not None
         seen_quiet += first is None
     assert seen_alarm and seen_quiet  # both outcomes exercised
+
+
+# ---- the alarm's one line: which score, how far over its threshold, since which step (issue #22) ---------------
+@pytest.mark.parametrize(("windowed", "threshold", "text"), [
+    (1.9, 1.0, "1.9x"), (2.1, 2.0, "1.05x"), (1.0, 1.0, "1x"), (24.69, 2.0, "12.3x"), (99.96, 1.0, "100x"),
+    (999.4, 1.0, "999x"), (999.5, 1.0, "1000x"), (2469.2, 2.0, "1235x"),
+    (0.5, 0.0, "0.5 > threshold 0"), (0.5, -0.25, "0.5 > threshold -0.25"), (0.5, math.inf, "0.5 > threshold inf"),
+    (math.inf, 1.0, "inf > threshold 1"), (math.nan, 1.0, "nan > threshold 1"),
+    (0.5, math.nan, "0.5 > threshold nan"),
+])
+def test_a_ratio_to_the_threshold_reads_in_three_digits_and_both_numbers_where_a_ratio_says_nothing(
+        windowed: float, threshold: float, text: str) -> None:
+    assert ratio_text(windowed, threshold) == text
+
+
+def test_the_explanation_names_each_exceeded_score_once_and_who_exceeded() -> None:
+    both = [("rnd_oe", 1.9, 1.0, 10), ("ace", 2.1, 2.0, 25)]
+    assert explanation(both, 2, "(and)") == \
+        "RND-OE 1.9x threshold since step 10, ACE 1.05x since step 25: both exceeded (and)"
+    assert explanation(both[1:], 2, "(or)") == "ACE 1.05x threshold since step 25: one exceeded (or)"
+    assert explanation(both[:1], 1, "(alone)") == "RND-OE 1.9x threshold since step 10: exceeded (alone)"
+    zero = [("rnd_oe", 0.5, 0.0, 3), ("ace", 2.1, 2.0, 4)]  # the word "threshold" once, where the first ratio is
+    assert explanation(zero, 2, "(or)") == \
+        "RND-OE 0.5 > threshold 0 since step 3, ACE 1.05x since step 4: both exceeded (or)"
+
+
+def test_and_says_since_when_each_score_has_exceeded_without_a_break() -> None:
+    fuser = _started()
+    assert _pair(fuser, 0, 1.5, 0.5).state == OK
+    assert _pair(fuser, 1, 0.5, 0.5).state == OK  # RND-OE's run breaks here
+    for step in (2, 3):
+        assert _pair(fuser, step, 1.5, 0.5).state == OK
+    assert fuser.exceeding_since == {"rnd_oe": 2}
+    state = _pair(fuser, 4, 1.9, 1.05)
+    assert state.state == ALARM
+    assert state.reason == "RND-OE 1.9x threshold since step 2, ACE 1.05x since step 4: both exceeded (and)"
+    assert _pair(fuser, 5, 0.0, 0.0, gamma=(math.inf, 1.0)).reason == f"latched since step 4: {state.reason}"
+    fuser.reset()  # judged afresh: runs before the reset no longer count
+    assert fuser.exceeding_since == {} and fuser.explained == ""
+    assert _pair(fuser, 6, 3.0, 3.0).reason == \
+        "RND-OE 3x threshold since step 6, ACE 3x since step 6: both exceeded (and)"
+    fuser.start(2, 0)
+    assert fuser.exceeding_since == {} and fuser.explained == ""
+
+
+def test_or_names_the_one_that_exceeded_and_since_when_and_both_when_both_do() -> None:
+    fuser = _started("or")
+    assert _pair(fuser, 0, 0.5, 1.2).reason == "ACE 1.2x threshold since step 0: one exceeded (or)"
+    other = _started("or")
+    _pair(other, 0, 0.5, 0.5)
+    _pair(other, 1, 0.5, 0.5, gamma=(1.0, 1.0))
+    assert _pair(other, 2, 2.5, 4.0, gamma=(1.0, 2.0)).reason == \
+        "RND-OE 2.5x threshold since step 2, ACE 2x since step 2: both exceeded (or)"
+
+
+def test_an_undecided_step_and_a_step_never_judged_break_a_run() -> None:
+    fuser = _started()
+    _pair(fuser, 0, 1.5, 0.5)
+    assert _pair(fuser, 1, 1.5, 0.5, flags=(False, False)).state == UNKNOWN  # contradicts its flag: undecided
+    assert fuser.exceeding_since == {}
+    _pair(fuser, 2, 1.5, 0.5)
+    assert fuser.exceeding_since == {"rnd_oe": 2}
+    state = _pair(fuser, 5, 1.5, 1.5)  # steps 3 and 4 never fused here
+    assert state.state == ALARM and state.reason == \
+        "RND-OE 1.5x threshold since step 5, ACE 1.5x since step 5: both exceeded (and)"
+
+
+def test_a_zero_threshold_is_said_with_both_numbers() -> None:
+    state = _pair(_started("or"), 0, 0.5, 0.25, gamma=(0.0, 1.0))
+    assert (state.state, state.reason) == (ALARM, "RND-OE 0.5 > threshold 0 since step 0: one exceeded (or)")

@@ -35,9 +35,9 @@ def test_the_alarm_is_rnd_oes_exceedance_and_latches_whatever_the_combine(combin
     assert _score(fuser, 1, 1.0).state == OK  # equal is not exceeded (strict >)
     alarm = _score(fuser, 2, 2.0)
     assert alarm.state == ALARM and alarm.latched and alarm.obs_exceeded and alarm.combine == ""
-    assert alarm.reason == f"exceeded: rnd_oe {ALONE}"
+    assert alarm.reason == f"RND-OE 2x threshold since step 2: exceeded {ALONE}"
     later = _score(fuser, 3, 0.0)
-    assert later.state == ALARM and later.reason == "latched since step 2"
+    assert later.state == ALARM and later.reason == f"latched since step 2: {alarm.reason}"
     fuser.reset()
     assert _score(fuser, 4, 0.0).state == OK
 
@@ -48,7 +48,8 @@ def test_the_pair_keeps_its_combine_and_reasons() -> None:
     assert fuser.detectors == ("rnd_oe", "ace") and fuser.combined == "or"
     assert fuser.add(DetectorScore("rnd_oe", 1, 0, 2.0, 1.0, 0, True, True), 0) is None  # waits for ace
     state = fuser.add(DetectorScore("ace", 1, 0, 0.0, 1.0, 0, True, False), 0)
-    assert (state.state, state.combine, state.reason) == (ALARM, "or", "exceeded: rnd_oe (or)")
+    assert (state.state, state.combine) == (ALARM, "or")
+    assert state.reason == "RND-OE 2x threshold since step 0: one exceeded (or)"
 
 
 @pytest.mark.parametrize("gamma", [math.inf, math.nan])

@@ -48,6 +48,7 @@ def test_each_node_of_the_suite_is_matched_by_exactly_one_analyzer(context: Cont
 
 def test_a_remapped_namespace_still_lands_in_its_group_and_other_statuses_in_none(context: Context) -> None:
     assert analyzers_of(status_name(context, "fusion_node", "/robot2/fiper")) == ["/FIPER/Fusion"]
+    assert analyzers_of(status_name(context, "view_node", "/fiper")) == ["/FIPER/View"]  # the live view (#22)
     assert analyzers_of(status_name(context, "ace_node", "/")) == ["/FIPER/Detectors"]
     for other in ("motor: /arm/ace_node", "/fiper/fusion_node", "fiper: /fiper/fusion_node_2", "fiper: /x/my_policy_node"):
         assert analyzers_of(other) == [], other

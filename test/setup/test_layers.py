@@ -23,7 +23,7 @@ PACKAGES = {"fiper_ros": ROOT / "fiper_ros" / "fiper_ros", "sim_bridge": ROOT / 
 #: Lowest first. A unit may import the units of the layers below its own.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("fiper_ros", "core", "interface", "dds", "shm", "data_paths"),  # the method; the wire; the platform
-    ("runtime", "baselines"),  # streaming rules without rclpy; the comparison methods
+    ("runtime", "baselines", "view"),  # streaming rules without rclpy; the comparison methods; the live view
     ("bagio", "policy", "publishing"),  # bag I/O without rclpy; the generative policies; a policy's publishing side
     ("converters", "evaluation", "nodes"),  # foreign data -> rollouts; offline evaluation; the rclpy shells
     ("launcher", "sim_bridge"),  # launch files and node processes; the simulator side
@@ -32,8 +32,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("cli", "bench", "examples"),  # the fiper entry point; benchmarks; example user code
 )
 LEVEL = {unit: level for level, units in enumerate(LAYERS) for unit in units}
-#: Units that must import without rclpy (the pure core, the streaming rules, bag I/O, evaluation).
-RCLPY_FREE = ("core", "runtime", "bagio", "converters", "evaluation")
+#: Units that must import without rclpy (the pure core, the streaming rules, bag I/O, evaluation, the live view).
+RCLPY_FREE = ("core", "runtime", "bagio", "converters", "evaluation", "view")
 
 
 def modules() -> Iterator[tuple[str, Path]]:

@@ -14,9 +14,9 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, JointState
 
 from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import rollout_event_msg, to_stamp
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.nodes.policy_node import PolicyNode
 from helpers.spin import spin_until
 from sim_ros.bridge_client import IMAGE_TOPICS

@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 
 from fiper_msgs.msg import ActionCommand
 from fiper_ros.runtime.validation import InputRejected
-from sim_bridge.bridge_session import ACTION_SPACES, JOINT_NAMES, PROPRIO_NAMES, BridgeSession, rollout_id_of
+from sim_bridge.bridge_session import ACTION_SPACES, JOINT_NAMES, PROPRIO_NAMES, BridgeSession, bridge_rollout_id
 from sim_bridge.tasks import TASKS
 
 
@@ -33,9 +33,9 @@ def test_task_tables_match_the_tasks_and_messages() -> None:
 
 def test_rollout_ids_are_unique_and_carry_counter_and_seed() -> None:
     seeds = [0, 1, 2**32 + 1, 2**40, 0, 7, 7] * 7  # repeated seeds, seeds equal modulo 2**32
-    ids = {rollout_id_of(counter, seed) for counter, seed in enumerate(seeds, start=1)}
+    ids = {bridge_rollout_id(counter, seed) for counter, seed in enumerate(seeds, start=1)}
     assert len(ids) == len(seeds)  # the run's counter tells them apart
-    assert rollout_id_of(3, 17) >> 32 == 3 and rollout_id_of(3, 17) & 0xFFFFFFFF == 17
+    assert bridge_rollout_id(3, 17) >> 32 == 3 and bridge_rollout_id(3, 17) & 0xFFFFFFFF == 17
     assert 0 not in ids
 
 

@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from fiper_ros.baselines.base import BaselineError, read_model, training_rollouts, write_model
-from fiper_ros.core.torch_mlp import build_mlp
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.torch_mlp import build_mlp
 
 LOG = logging.getLogger(__name__)
 

@@ -32,8 +32,8 @@ from fiper_ros.baselines.base import BaselineError, read_model, training_rollout
 from fiper_ros.core.mlp import LayerSpec
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rnd_train import TorchRND
-from fiper_ros.core.torch_mlp import build_mlp
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.torch_mlp import build_mlp
 
 WEIGHTS_FILE = "rnd_a.pt"
 CONFIG_FILE = "rnd_a.json"

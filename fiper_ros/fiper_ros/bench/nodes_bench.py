@@ -13,6 +13,9 @@ suite: the seconds from the exec of ``fiper launch`` until all three nodes are A
 another (the driver's inputs matched by the scoring nodes, the events by all three, the scores subscribed
 by the fusion node and the alarm published, as the driver's graph shows them). After the runs: each suite
 node's peak RSS. The load average is printed before and after: the figures depend on what else runs.
+
+``--view`` runs the live view (``fiper view``, issue #22) beside the suite, with no client connected: the
+figures with and without it say what the view costs the suite when nobody watches.
 """
 from __future__ import annotations
 
@@ -32,11 +35,11 @@ from typing import Any
 import numpy as np
 
 from fiper_ros.bench import EVERY_ALARM
+from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
-from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.shm import clean_stale
@@ -269,8 +272,9 @@ def bench_startup(shape: Shape, config: Path, domain: int) -> dict[str, Startup]
         driver.close()
 
 
-def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, Any]:
-    """Start-up, latency at 10 Hz, the highest sustained rate and the nodes' peak memory for one shape."""
+def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False) -> dict[str, Any]:
+    """Start-up, latency at 10 Hz, the highest sustained rate and the nodes' peak memory for one shape (``view``:
+    with ``fiper view`` running beside the suite, no client connected)."""
     with tempfile.TemporaryDirectory() as tmp, allocate_domain() as domain:
         work = Path(tmp)
         config = _suite_config(shaped_calibration(shape, work / "calibration"), work)
@@ -278,6 +282,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, Any]:
         driver = Driver(shape, domain)
         started = time.monotonic()
         launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain)
+        viewer = _start([sys.executable, "-m", "fiper_ros.cli", "view", "--port", "0"], domain) if view else None
         try:
             suite_s = driver.wait_ready([spec.fqn for spec in load_launch(config).nodes]) - started
             driver.spin_for(1.0)
@@ -300,6 +305,8 @@ def bench_shape(shape: Shape, steps: int, rates: list[float]) -> dict[str, Any]:
         finally:
             driver.close()
             _stop(launch)
+            if viewer is not None:
+                _stop(viewer)
 
 
 def startup_lines(shape: Shape, result: dict[str, Any]) -> list[str]:
@@ -327,12 +334,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=300, help="steps of the 10 Hz latency run")
     parser.add_argument("--rates", type=float, nargs="+", default=[50, 100, 200, 300, 400, 600, 800])
+    parser.add_argument("--view", action="store_true", help="with fiper view beside the suite (no client connected)")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz; "
-          f"load average {load_average()}")
+          f"{'with' if args.view else 'without'} the live view; load average {load_average()}")
     print(clean_stale().summary(), flush=True)
     for shape in SHAPES:
-        r = bench_shape(shape, args.steps, args.rates)
+        r = bench_shape(shape, args.steps, args.rates, args.view)
         for line in startup_lines(shape, r):
             print(line, flush=True)
         print(f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "

@@ -23,7 +23,7 @@ from fiper_ros.bagio.schema import BagInfo, bag_qos, typestore
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import message_class
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.interface.topics import ACTIONS, DIAGNOSTICS, EMBEDDING, EVENTS, TOPICS
 from fiper_ros.nodes.base import diagnostic_array
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 
@@ -109,7 +109,7 @@ class InfoTracker:
 
     def __init__(self, session: RosSession, source: str) -> None:
         self.info = BagInfo(source=source)
-        session.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
+        session.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -139,7 +139,7 @@ def report_matches(node: Node, matched: Callable[[], dict[str, int]]) -> None:
     each subscription of a tool's node has matched (``matched()``: per topic), under the keys the suite's nodes
     use (:data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`): a policy waits for such a reader too
     (:meth:`fiper_ros.publishing.FiperPublisher.wait_for_suite`)."""
-    publisher = node.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+    publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
 
     def report() -> None:
         counts = matched()

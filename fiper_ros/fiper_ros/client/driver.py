@@ -30,7 +30,7 @@ from fiper_ros.client.trace import RolloutEvents, RolloutTrace
 from fiper_ros.core.detectors import LABELS, SIDES
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import ACTIONS, ALARM, EVENTS
+from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EVENTS, SIM_RESET
 from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
@@ -107,8 +107,8 @@ class Driver:
         self.events = RolloutEvents()
         #: The followed rollouts' traces, by rollout id.
         self.traces = self.events.traces
-        self._reset = node.create_client(ResetRollout, "/sim/reset")
-        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, qos.DIAGNOSTICS)
+        self._reset = node.create_client(ResetRollout, SIM_RESET)
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
         for detector in detectors:
             node.create_subscription(Score, DETECTOR_TOPICS[detector][2], self._on_score, TRACE_QOS)
         node.create_subscription(FailureAlarm, ALARM, self._on_alarm, TRACE_QOS)

@@ -48,6 +48,8 @@ from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, lo
 from fiper_ros.launcher.overrides import Overrides, apply
 
 SOURCE = "fiper collect (sim, ROS)"
+#: The node of ``fiper collect --ros`` (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_collect"
 #: Nodes of ``demo.launch.yaml`` the collect always runs (with a calibration also those of :func:`scoring_modules`).
 POLICY_NODES = ("bridge_node", "policy_node")
 #: Hidden folder of the suite's launch file and output, inside the collect folder.
@@ -106,6 +108,14 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
 
 
+def operator(session: RosSession, suite: SuiteProcess, settings: LiveSettings) -> tuple[Recorder, Driver]:
+    """The collect's side of ``session``: a recorder of the bag schema's inputs (scored: the topics of its
+    detectors' suite) and the driver."""
+    topics = suite_topics(settings.detectors) if settings.calibration is not None else INPUT_TOPICS
+    recorder = Recorder(session, topics, source=SOURCE)
+    return recorder, Driver(session, suite, settings.task, settings.detectors, recorder=recorder)
+
+
 class RosRunner:
     """Runs ``fiper collect`` episodes through the live suite (a collect runner; use as a context manager).
 
@@ -149,11 +159,9 @@ class RosRunner:
         domain = self._stack.enter_context(allocate_domain())
         suite = SuiteProcess(launch, domain, echo=False, log=self.work / "suite.log")
         self._stack.callback(suite.stop)
-        session = self._stack.enter_context(RosSession("fiper_collect", domain))
-        topics = suite_topics(self.settings.detectors) if self.scored else INPUT_TOPICS
-        recorder = Recorder(session, topics, source=SOURCE)
+        session = self._stack.enter_context(RosSession(NODE_NAME, domain))
+        recorder, driver = operator(session, suite, self.settings)
         self._stack.callback(recorder.abort)
-        driver = Driver(session, suite, self.settings.task, self.settings.detectors, recorder=recorder)
         names = ", ".join(spec.name for spec in config.nodes)
         judged = f"; judged by {judged_by(self.settings.detectors)}" if self.scored else ""
         print(f"starting {names} in ROS domain {domain} (loopback only){judged} ...", file=sys.stderr, flush=True)

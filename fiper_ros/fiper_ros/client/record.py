@@ -26,6 +26,8 @@ from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.client.capture import InfoTracker, TopicTap, report_matches
 from fiper_ros.client.ros_session import RosSession
 
+#: The node of ``fiper record`` (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_record"
 #: Seconds between two looks at the ROS graph for new topics.
 GRAPH_POLL_S = 0.5
 
@@ -112,7 +114,7 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
            live: LiveChunks) -> int:
     """Record until stopped; returns the number of messages written. An error stops the recording and leaves
     the bag unfinished (with everything received)."""
-    with RosSession("fiper_record", domain) as session:
+    with RosSession(NODE_NAME, domain) as session:
         recorder = Recorder(session, topics)
         recorder.start(out, overwrite, live)
         report_matches(session.node, recorder.tap.matched_publishers)

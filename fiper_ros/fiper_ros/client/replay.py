@@ -43,11 +43,13 @@ from fiper_ros.evaluation.verdicts import rollout_line
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
-from fiper_ros.interface.topics import ACTIONS, ALARM as ALARM_TOPIC, EMBEDDING, EVENTS, INPUT_TOPICS, TOPICS
+from fiper_ros.interface.topics import ACTIONS, ALARM as ALARM_TOPIC, CLOCK, EMBEDDING, EVENTS, INPUT_TOPICS, TOPICS
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
 
+#: The node of ``fiper replay`` (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_replay"
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
 WARM_UP_S = 1.0
 
@@ -91,7 +93,7 @@ class Player:
         self.settle_s = args.settle
         self.clock_period_ns = int(1e9 / args.clock_hz)
         self.publishers: dict[str, Any] = {}
-        self.clock = self.node.create_publisher(Clock, "/clock", QoSProfile(depth=1))
+        self.clock = self.node.create_publisher(Clock, CLOCK, QoSProfile(depth=1))
         self.alarms: dict[tuple[int, int], FailureAlarm] = {}
         self.node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, qos.ALARM_EVERY)
         self.results: dict[int, RolloutResult] = {}

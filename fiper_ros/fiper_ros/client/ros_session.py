@@ -2,7 +2,9 @@
 
 The process joins ``domain`` (default: ``ROS_DOMAIN_ID`` of the environment) with discovery kept on
 loopback (:func:`fiper_ros.dds.local_env`). rclpy's own signal handlers are off: SIGINT and SIGTERM set
-:attr:`RosSession.stop`, so a command can finish its bag cleanly instead of dying mid-write.
+:attr:`RosSession.stop`, so a command can finish its bag cleanly instead of dying mid-write. With
+``ROS_SECURITY_ENABLE=true`` the session runs in the SROS2 enclave named as its node (``/<name>``), as the launcher
+runs each node in its own (docs/security.md).
 """
 from __future__ import annotations
 
@@ -20,11 +22,20 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from fiper_ros.dds import local_env
+from fiper_ros.launcher.config import SECURITY_ENABLE_ENV
 
 
 def environment_domain() -> int:
     """``ROS_DOMAIN_ID`` of this process (0 if unset)."""
     return int(os.environ.get("ROS_DOMAIN_ID", "0") or 0)
+
+
+def enclave_args(name: str) -> list[str] | None:
+    """The ROS arguments of a tool's process whose node ``name`` sits in the root namespace: its own enclave,
+    ``/<name>`` (the shipped policy's), when security is on; else none."""
+    if os.environ.get(SECURITY_ENABLE_ENV, "").lower() != "true":
+        return None
+    return ["--ros-args", "--enclave", f"/{name}"]
 
 
 class RosSession:
@@ -46,8 +57,9 @@ class RosSession:
         os.environ.pop("ROS_STATIC_PEERS", None)
         if threading.current_thread() is threading.main_thread():
             self._previous = {s: signal.signal(s, lambda *_: self.stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-        # No command-line arguments: a tool's own (``fiper launch FILE name:=value``) are not ROS remap rules.
-        rclpy.init(args=[], context=self.context, domain_id=self.domain, signal_handler_options=SignalHandlerOptions.NO)
+        # No tool arguments: a tool's own (``fiper launch FILE name:=value``) are not ROS remap rules.
+        rclpy.init(args=enclave_args(self.name) or [], context=self.context, domain_id=self.domain,
+                   signal_handler_options=SignalHandlerOptions.NO)
         self.node = Node(self.name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

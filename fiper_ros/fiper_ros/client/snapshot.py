@@ -35,6 +35,8 @@ from fiper_ros.interface.messages import NO_ROLLOUT
 from fiper_ros.interface.topics import ALARM
 
 GRAPH_POLL_S = 0.5
+#: The node of ``fiper snapshot`` (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_snapshot"
 #: Rollouts whose alarm state the black box keeps (the most recent ones).
 TRACKED_ROLLOUTS = 64
 #: Snapshot bags open at once (rises of several rollouts within one ``--after``).
@@ -205,20 +207,28 @@ class Recorder:
         self.written += 1
 
 
+def black_box(session: RosSession, out: Path, topics: list[str], before_s: float, after_s: float, max_bytes: int,
+              live: LiveChunks) -> Recorder:
+    """The black box of ``session``: it watches ``topics`` (empty: the bag schema's) and always the alarm."""
+    tracker = InfoTracker(session, "fiper snapshot")
+    recorder: Recorder | None = None
+
+    def sink(topic: str, msgtype: str, time_ns: int, raw: bytes) -> None:
+        assert recorder is not None
+        recorder.add(topic, msgtype, time_ns, raw)
+
+    tap = TopicTap(session, [*topics, ALARM] if topics else [], sink)
+    recorder = Recorder(out, before_s, after_s, max_bytes, live, tap, tracker)
+    return recorder
+
+
 def snapshot(out: Path, topics: list[str], before_s: float, after_s: float, max_bytes: int, live: LiveChunks,
              duration: float | None, domain: int | None) -> Recorder:
     """Run the black box until stopped; returns it (snapshots written, rises skipped)."""
     out.mkdir(parents=True, exist_ok=True)
-    with RosSession("fiper_snapshot", domain) as session:
-        tracker = InfoTracker(session, "fiper snapshot")
-        recorder: Recorder | None = None
-
-        def sink(topic: str, msgtype: str, time_ns: int, raw: bytes) -> None:
-            assert recorder is not None
-            recorder.add(topic, msgtype, time_ns, raw)
-
-        tap = TopicTap(session, [*topics, ALARM] if topics else [], sink)  # the alarm is always watched
-        recorder = Recorder(out, before_s, after_s, max_bytes, live, tap, tracker)
+    with RosSession(NODE_NAME, domain) as session:
+        recorder = black_box(session, out, topics, before_s, after_s, max_bytes, live)
+        tap = recorder.tap
         print(f"black box on {', '.join(sorted(tap.wanted))} in ROS domain {session.domain}: {before_s:g} s "
               f"(at most {max_bytes / 2**20:g} MB) before and {after_s:g} s after every alarm rise into {out}",
               flush=True)

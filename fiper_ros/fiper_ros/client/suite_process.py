@@ -27,8 +27,8 @@ from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import PARENT_PID_ENV, local_env
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, JOINT_STATES, SCORE_ACE, SCORE_RND_OE, TOPICS
-from fiper_ros.launcher.config import LaunchError
-from fiper_ros.launcher.overrides import Overrides, rewrite
+from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
+from fiper_ros.launcher.overrides import Overrides, apply
 
 #: The scoring node of each detector, by module; the fusion node.
 DETECTOR_MODULES = {RND_OE: "fiper_ros.nodes.rnd_oe_node", ACE: "fiper_ros.nodes.ace_node"}
@@ -85,13 +85,19 @@ def installed_launch(name: str = SUITE_LAUNCH) -> Path:
     return Path(get_package_share_directory("fiper_ros")) / "launch" / name
 
 
+def replay_launch(launch: Path, calibration: Path, detectors: tuple[str, ...],
+                  robot: RobotModel | None = None, arguments: Mapping[str, str] | None = None) -> LaunchConfig:
+    """The suite of ``launch`` for a replay on ``calibration`` (declaring ``detectors``): sim time, the ``robot``'s
+    URDF and EE frame on the ACE node, and the launch ``arguments`` given (the live view's)."""
+    given = {"use_sim_time": "true", **suite_arguments(calibration, detectors), **(arguments or {})}
+    return apply(load_launch(launch, given), Overrides(by_module=robot_parameters(robot)))
+
+
 def replay_config(launch: Path, calibration: Path, detectors: tuple[str, ...], out: Path,
-                  robot: RobotModel | None = None) -> Path:
-    """Write the suite of ``launch`` for a replay on ``calibration`` (declaring ``detectors``) to ``out``: sim time,
-    and the ``robot``'s URDF and EE frame on the ACE node."""
+                  robot: RobotModel | None = None, arguments: Mapping[str, str] | None = None) -> Path:
+    """Write :func:`replay_launch` to ``out``, read with the launch ``arguments`` given too (the live view's)."""
     try:
-        return rewrite(launch, Overrides(by_module=robot_parameters(robot)), out,
-                       {"use_sim_time": "true", **suite_arguments(calibration, detectors)})
+        return dump_launch(replay_launch(launch, calibration, detectors, robot, arguments), out)
     except LaunchError as error:
         raise BagError(f"launch file {launch}: {error}") from error
 

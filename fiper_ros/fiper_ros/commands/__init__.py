@@ -8,4 +8,4 @@ trains and evaluates the sim policies, outside ``fiper``.
 from __future__ import annotations
 
 __all__ = ["bag", "calibrate", "collect", "convert", "demo", "doctor", "echo", "evaluate", "launch", "options",
-           "record", "replay", "samples", "security", "snapshot"]
+           "record", "replay", "samples", "security", "snapshot", "view"]

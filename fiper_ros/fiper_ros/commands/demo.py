@@ -6,7 +6,9 @@ the example supervisor, each its own OS process) in a ROS domain of its own, the
 operator would from this process: it waits until every node is active, resets the bridge into one
 in-distribution and one harmful out-of-distribution rollout, prints a progress line per policy step and
 each alarm (the windowed scores against their thresholds), and records everything it sees (suite
-topics and both cameras) into one MCAP bag. Afterwards it writes a PNG per rollout and ``summary.json``.
+topics and both cameras) into one MCAP bag. Unless ``--no-view``, the suite includes the live view
+(``view_node``, docs/view.md): the demo prints its address and the Foxglove layout to import; a view port that
+is taken only turns the view off, with a line that says so. Afterwards it writes a PNG per rollout and ``summary.json``.
 The exit status is 1 if any part failed: a node died or never became active, a rollout did not end,
 a score stream stayed silent, or the monitor reported UNKNOWN.
 
@@ -27,24 +29,30 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError, fail
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, alarm_line, node_path, state_name
+from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, node_path, state_name
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, suite_arguments, suite_topics
 from fiper_ros.client.trace import RolloutTrace
+from fiper_ros.commands import options
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING
+from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, CLOCK, EMBEDDING, SIM_ACTION, SIM_PROPRIO
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.shm import clean_stale
 
 #: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
 #: node that must report ``lifecycle_state: active`` on /diagnostics before the first reset).
 SUPERVISOR = "/fiper/supervisor_node"
+#: The live view (``--no-view`` leaves it out) is a plain node too.
+VIEW = "/fiper/view_node"
+PLAIN = (SUPERVISOR, VIEW)
+#: The demo's own node, the operator's (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_demo"
 #: Recorded besides the bag schema's topics.
-EXTRA_TOPICS = ("/camera/wrist/image_raw", "/camera/third/image_raw", "/sim/proprio", "/sim/action", "/clock")
+EXTRA_TOPICS = (CAMERA_WRIST, CAMERA_THIRD, SIM_PROPRIO, SIM_ACTION, CLOCK)
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
 PROGRESS_EVERY = 5
 
@@ -75,11 +83,19 @@ class Display:
         if state == "UNKNOWN":
             self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
         elif state == "ALARM" and trace.alarm_step == msg.step:
-            self.say(f"  ALARM  {line}")
+            self.say(f"  ALARM  {line}\n         why: {msg.reason}")
         elif self.tty:
             print(f"\r  {line}", end="", flush=True)
         elif msg.step % PROGRESS_EVERY == 0:
             print(f"  {line}", flush=True)
+
+
+def operator(session: RosSession, suite: SuiteProcess, task: str, detectors: tuple[str, ...],
+             display: AlarmDisplay | None = None) -> tuple[Recorder, Driver]:
+    """The demo's side of ``session`` for a suite of ``detectors``: a recorder of its topics, both cameras,
+    ``/sim/*`` and ``/clock``, and the driver."""
+    recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
+    return recorder, Driver(session, suite, task, detectors, recorder=recorder, display=display)
 
 
 def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
@@ -107,15 +123,22 @@ def problems_of(trace: RolloutTrace) -> list[str]:
     return problems
 
 
-def demo_config(source: Path, model: Path, calibration: Path, detectors: tuple[str, ...]) -> LaunchConfig:
+def demo_config(source: Path, model: Path, calibration: Path, detectors: tuple[str, ...],
+                view: dict[str, str] | None = None) -> LaunchConfig:
     """The launch file ``source`` read with ``model:=`` and the calibration's arguments (``calibration_dir:=``, and
-    ``observation_only:=true`` for one that declares RND-OE alone: no ACE node; ``detectors``: those it declares)."""
-    return load_launch(source, {"model": str(model), **suite_arguments(calibration, detectors)})
+    ``observation_only:=true`` for one that declares RND-OE alone: no ACE node; ``detectors``: those it declares),
+    and ``view``'s (:func:`~fiper_ros.commands.options.view_arguments`: the live view)."""
+    return load_launch(source, {"model": str(model), **suite_arguments(calibration, detectors), **(view or {})})
 
 
 def managed_nodes(config: LaunchConfig) -> list[str]:
-    """The nodes of ``config`` (``/ns/name``) that must report ``active``: all but the :data:`SUPERVISOR`."""
-    return [path for spec in config.nodes if (path := node_path(spec.namespace, spec.name)) != SUPERVISOR]
+    """The nodes of ``config`` (``/ns/name``) that must report ``active``: all but the plain ones (:data:`PLAIN`)."""
+    return [path for spec in config.nodes if (path := node_path(spec.namespace, spec.name)) not in PLAIN]
+
+
+def plain_nodes(config: LaunchConfig) -> list[str]:
+    """The plain nodes of ``config`` (``/ns/name``), which only have to be in the graph."""
+    return [path for spec in config.nodes if (path := node_path(spec.namespace, spec.name)) in PLAIN]
 
 
 def check_calibration(model: Path, calibration: Path) -> None:
@@ -143,13 +166,20 @@ def run_demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     plans = [Plan("in-distribution", "id", args.id_seed), Plan("harmful OOD", args.ood_scenario, args.ood_seed)]
     started = time.monotonic()
-    config = demo_config(args.config or installed_launch("demo.launch.yaml"), model, calibration, detectors)
+    try:
+        view = options.view_arguments(args)
+    except BagError as error:  # the demo's main job goes on without it
+        print(f"fiper demo: the live view is off: {error}", flush=True)
+        view = {}
+    config = demo_config(args.config or installed_launch("demo.launch.yaml"), model, calibration, detectors, view)
     launch = dump_launch(config, out / "launch.yaml")  # as it runs: every value literal
     traces: list[RolloutTrace] = []
     problems: list[str] = []
     print(f"fiper demo: {clean_stale().summary()}", flush=True)
     with allocate_domain() as domain:
         print(f"fiper demo: ROS domain {domain} (loopback only), output {out}", flush=True)
+        if view:
+            print(f"fiper demo: {options.view_banner(args.view_port)}", flush=True)
         suite = SuiteProcess(launch, domain, echo=args.verbose, log=out / "suite.log")
         try:
             check_calibration(model, calibration)  # while the nodes boot
@@ -159,15 +189,14 @@ def run_demo(args: argparse.Namespace) -> int:
                 remove(out)  # a refused demo leaves no run folder
             raise
         try:
-            with RosSession("fiper_demo", domain) as session:
+            with RosSession(NODE_NAME, domain) as session:
                 display = Display(sys.stdout.isatty())
-                recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
+                recorder, driver = operator(session, suite, args.task, detectors, display.alarm)
                 recorder.start(out / "bag")
-                driver = Driver(session, suite, args.task, detectors, recorder=recorder, display=display.alarm)
                 try:
                     print(f"starting {', '.join(spec.name for spec in config.nodes)}; judged by "
                           f"{judged_by(detectors)} ...", flush=True)
-                    driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=(SUPERVISOR,))
+                    driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=plain_nodes(config))
                     print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
                     for plan in plans:
                         traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
@@ -213,6 +242,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ready-timeout", type=float, default=90.0, help="seconds for every node to become active")
     parser.add_argument("--rollout-timeout", type=float, default=120.0, help="seconds one rollout may take")
     parser.add_argument("-v", "--verbose", action="store_true", help="show the nodes' output")
+    options.add_view_arguments(parser, on_by_default=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ import argparse
 import array
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,8 @@ from fiper_ros.core.detectors import DETECTORS, LABELS, SIDES
 from fiper_ros.interface.messages import message_class, state_name
 
 ARRAY_PREVIEW = 8
+#: The node of ``fiper echo`` (in the root namespace; its SROS2 enclave, docs/security.md).
+NODE_NAME = "fiper_echo"
 #: The message types ``--brief`` formats.
 ALARM_TYPE, SCORE_TYPE = "fiper_msgs/msg/FailureAlarm", "fiper_msgs/msg/Score"
 
@@ -50,6 +53,20 @@ def to_yaml_lines(msg: Any, full: bool, indent: int = 0) -> list[str]:
         else:
             lines.append(f"{pad}{name}: {value!r}" if isinstance(value, str) else f"{pad}{name}: {value}")
     return lines
+
+
+def subscribe(node: Any, topic: str, type_name: str, on_message: Callable[[Any], None]) -> Any:
+    """Subscribe ``node`` to ``topic`` with the QoS its publishers allow: TRANSIENT_LOCAL if one is latched (so
+    the latest latched message arrives), BEST_EFFORT if one is."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+
+    publishers = node.get_publishers_info_by_topic(topic)
+    latched = any(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in publishers)
+    best_effort = any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in publishers)
+    profile = QoSProfile(depth=10,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+                         reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE)
+    return node.create_subscription(message_class(type_name), topic, on_message, profile)
 
 
 def alarm_brief(msg: Any) -> str:
@@ -121,10 +138,11 @@ def run(args: argparse.Namespace) -> int:
     """``fiper echo``."""
     import rclpy  # noqa: PLC0415
     from rclpy.executors import ExternalShutdownException  # noqa: PLC0415
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
 
-    rclpy.init()
-    node = rclpy.create_node("fiper_echo")
+    from fiper_ros.client.ros_session import enclave_args  # noqa: PLC0415
+
+    rclpy.init(args=enclave_args(NODE_NAME))
+    node = rclpy.create_node(NODE_NAME)
     try:
         type_name = args.type
         deadline = time.monotonic() + args.wait
@@ -137,12 +155,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"fiper echo: topic {args.topic} not found within {args.wait:g} s (give --type to wait for it)",
                   file=sys.stderr)
             return 1
-        publishers = node.get_publishers_info_by_topic(args.topic)
-        latched = any(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in publishers)
-        best_effort = any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in publishers)
-        profile = QoSProfile(depth=10,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
-                             reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE)
         try:
             printer = Printer(type_name, brief=args.brief, changes=args.changes, full=args.full)
         except ValueError as error:
@@ -157,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
                 seen += 1
                 print(text, flush=True)
 
-        node.create_subscription(message_class(type_name), args.topic, on_message, profile)
+        subscribe(node, args.topic, type_name, on_message)
         while rclpy.ok() and (args.count == 0 or seen < args.count):
             rclpy.spin_once(node, timeout_sec=0.1)
         return 0

@@ -37,21 +37,21 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from fiper_ros.commands import options  # noqa: E402
 from fiper_ros.bagio.atomic import atomic_files, check_directory  # noqa: E402
 from fiper_ros.bagio.errors import BagError, fail  # noqa: E402
+from fiper_ros.commands import options  # noqa: E402
+from fiper_ros.core.calibration import SPLITS  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
+from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.methods import METHODS, MethodSettings, observation_methods  # noqa: E402
-from fiper_ros.core.calibration import SPLITS  # noqa: E402
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
-from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
 from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
-from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
 from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
+from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
 
 LOG = logging.getLogger(__name__)
 

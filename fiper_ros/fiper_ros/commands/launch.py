@@ -1,13 +1,16 @@
 """``fiper launch FILE [name:=value ...]``: start the nodes of a ROS 2 launch YAML (:mod:`fiper_ros.launcher`),
 the same file ``ros2 launch`` runs, with its launch arguments set on the command line. ``--summary`` prints each
 rollout's verdict as it ends and, when the launch stops, the table of TPR, TNR and detection steps
-(:mod:`fiper_ros.client.verdicts`)."""
+(:mod:`fiper_ros.client.verdicts`). ``--view`` is ``view:=true`` (the live view, docs/view.md) for a file that
+declares it (``fiper.launch.yaml`` and what includes it), with the port checked first and the address printed."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
+from fiper_ros.bagio.errors import BagError
+from fiper_ros.commands import options
 from fiper_ros.core.calibration_file import CALIBRATION_FILE, CalibrationError, read_yaml
 from fiper_ros.data_paths import DataPathNotFound, resolve_data_path
 from fiper_ros.dds import die_with_parent
@@ -28,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grace", type=float, default=10.0, help="seconds a node gets to stop before SIGKILL")
     parser.add_argument("--summary", action="store_true",
                         help="print each rollout's verdict against its outcome and, on stop, TPR / TNR per scenario")
+    options.add_view_arguments(parser)
 
 
 def show_arguments(config: LaunchConfig) -> str:
@@ -45,13 +49,16 @@ def run(args: argparse.Namespace) -> int:
     """``fiper launch``."""
     die_with_parent()  # started by a demo or a test fixture: the suite goes with it
     try:
-        config = load_launch(args.file, parse_arguments(args.arguments))
-    except LaunchError as error:
+        view = options.view_arguments(args) if not args.show_args else {}
+        config = load_launch(args.file, parse_arguments(args.arguments) | view)
+    except (LaunchError, BagError) as error:
         print(f"fiper launch: {error}", file=sys.stderr)
         return 2
     if args.show_args:
         print(show_arguments(config))
         return 0
+    if view:
+        print(f"[launch] {options.view_banner(args.view_port)}", flush=True)
     print(f"[launch] {clean_stale().summary()}", flush=True)
     if not args.summary:
         return run_in_process(config) if args.in_process else run_processes(config, args.grace)

@@ -72,3 +72,42 @@ def add_strict_argument(parser: argparse.ArgumentParser | argparse._ArgumentGrou
                         help="refuse an unfinished bag (a recording that did not stop cleanly) instead of reading "
                              "it up to its last complete chunk with a warning")
 
+
+
+def add_view_arguments(parser: argparse.ArgumentParser, on_by_default: bool = False) -> None:
+    """The live view beside the suite a command starts (docs/view.md): ``--view`` (``--no-view`` where it is on by
+    default, as in ``fiper demo``) and ``--view-port``."""
+    from fiper_ros.view.server import DEFAULT_HOST, DEFAULT_PORT  # noqa: PLC0415 - only the commands that have it
+
+    if on_by_default:
+        parser.add_argument("--no-view", dest="view", action="store_false",
+                            help="do not serve the live view (Foxglove WebSocket, docs/view.md)")
+    else:
+        parser.add_argument("--view", action="store_true",
+                            help=f"also serve the suite live to Foxglove (WebSocket on {DEFAULT_HOST}, docs/view.md)")
+    parser.add_argument("--view-port", type=int, default=DEFAULT_PORT,
+                        help=f"port of the live view (default {DEFAULT_PORT}; 0: any free port, logged by view_node)")
+
+
+def view_arguments(args: argparse.Namespace) -> dict[str, str]:
+    """The launch arguments (``fiper.launch.yaml``) that add the live view asked for on the command line; none
+    without it. :class:`~fiper_ros.bagio.errors.BagError` for a port that cannot be served (one line, naming it)."""
+    from fiper_ros.view.server import DEFAULT_HOST, port_problem  # noqa: PLC0415
+
+    if not args.view:
+        return {}
+    if not 0 <= args.view_port <= 65535:
+        raise BagError(f"--view-port must be in 0..65535, got {args.view_port}")
+    problem = port_problem(DEFAULT_HOST, args.view_port)
+    if problem:
+        raise BagError(f"live view: {problem}: give another --view-port")
+    return {"view": "true", "view_port": str(args.view_port)}
+
+
+def view_banner(port: int) -> str:
+    """The line that tells where the live view is and which layout to import in Foxglove."""
+    from fiper_ros.view.layout import installed_layout  # noqa: PLC0415
+    from fiper_ros.view.server import DEFAULT_HOST, HOW_TO_OPEN, address  # noqa: PLC0415
+
+    where = address(DEFAULT_HOST, port) if port else f"{address(DEFAULT_HOST, 0)} (any free port: view_node logs it)"
+    return f"live view {where} ({HOW_TO_OPEN}); layout {installed_layout()}"

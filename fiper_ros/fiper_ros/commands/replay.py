@@ -17,7 +17,7 @@ from fiper_ros.bagio.atomic import atomic_output
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import ROLLOUT_GAP_NS
-from fiper_ros.client.replay import Player, find_calibration, played_topics, suite_subscribers
+from fiper_ros.client.replay import NODE_NAME, Player, find_calibration, played_topics, suite_subscribers
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, replay_config
 from fiper_ros.commands import options
@@ -40,12 +40,15 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
         if launch:
             assert directory is not None
             workdir = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="fiper-replay-")))
+            view = options.view_arguments(args)
             config = replay_config(args.launch or installed_launch(), directory, detectors,
-                                   workdir / "suite.launch.yaml", options.robot_from(args))
+                                   workdir / "suite.launch.yaml", options.robot_from(args), view)
             suite = SuiteProcess(config, domain, echo=args.verbose)
+            if view:
+                print(f"fiper replay: {options.view_banner(args.view_port)}", file=sys.stderr, flush=True)
             stack.callback(suite.stop)
         calibration = checked_calibration(directory, bags)
-        session = stack.enter_context(RosSession("fiper_replay", domain))
+        session = stack.enter_context(RosSession(NODE_NAME, domain))
         player = Player(session, args)
         readers = [stack.enter_context(BagReader(bag)) for bag in bags]
         for reader in readers:
@@ -120,6 +123,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--verbose", action="store_true", help="show the launched suite's output")
     options.add_strict_argument(parser)
     options.add_robot_arguments(parser, control_dt=False)
+    options.add_view_arguments(parser)
 
 
 def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | None]:
@@ -142,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
         return fail("replay", "--rate and --clock-hz must be > 0")
     if args.report is not None and args.report.is_dir():
         return fail("replay", f"--report {args.report} is a directory: give a file name")
+    if args.view and (args.no_launch or args.offline):
+        return fail("replay", "--view goes with the suite replay launches: beside a running suite, run fiper view")
     try:
         bags, directory = _bags_and_calibration(args)
         outcome = _offline(bags, directory, args) if args.offline else _play_all(args, bags, directory)

@@ -1,71 +1,43 @@
-"""``fiper security``: the SROS2 access-control policy of the suite, from the endpoints its nodes really create
-(docs/security.md).
+"""``fiper security``: the SROS2 access-control policy of the suite (docs/security.md).
 
-The nodes of a launch file, with its default launch arguments (default: the demo's, the whole suite with the sim
-bridge, the policy and the example supervisor) are built in this process, in a ROS domain of their own on
-loopback, and brought to ACTIVE; the ROS graph then says, per node, which topics it publishes and subscribes,
-which services it offers and which it calls. That is the policy (SROS2's format 0.2.0): one enclave per node, named as the node (its fully
-qualified name), every topic and service by its absolute name, no wildcard, nothing else allowed. ``--check``
-compares the policy with a file and fails on any difference: a topic or service the code uses now and the
-shipped policy does not name (or the other way round) is a policy to regenerate.
+The policy (SROS2's format 0.2.0) has one enclave per node and per tool, named as it (its fully qualified name),
+holding exactly what :mod:`fiper_ros.commands.grants` derives it does: every topic it publishes and subscribes,
+every service it offers and calls, by absolute name, no wildcard, nothing else allowed. Without a launch file it
+is the shipped policy: every node of every suite the project starts and every tool. ``--check`` compares a
+policy file with that and fails on any difference. ``--verify`` builds each distinct node of those suites in
+this process, in ROS domains of its own on loopback, brings it to ACTIVE and checks from the ROS graph that it
+does exactly what its grants say.
 """
 from __future__ import annotations
 
 import argparse
+import gc
+import json
 import sys
 import time
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_launch
+from fiper_ros.commands.grants import (Deployment, Grants, Policy, UnknownNode, effective_parameters, node_grants,
+                                       nodes_policy, resolve, shipped_deployments, shipped_policy, split_node)
+from fiper_ros.launcher.config import LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.processes import build_node
 
 #: SROS2's policy format.
 POLICY_VERSION = "0.2.0"
-#: What may be done on each kind of name: (XML element of the list, its attribute, element of one name).
+#: What may be done on each kind of name: (XML element of the list, element of one name).
 GRANT_KINDS = {"publish": ("topics", "topic"), "subscribe": ("topics", "topic"),
                "reply": ("services", "service"), "request": ("services", "service")}
 #: How long the nodes get to reach ACTIVE (a policy node loads its model, the bridge its scene).
 ACTIVE_TIMEOUT_S = 60.0
 #: The graph must stay the same this long before it is read (every endpoint of every node announced).
 SETTLE_S = 0.5
-
-
-@dataclass(frozen=True)
-class Grants:
-    """What one node does on the ROS graph, by absolute name: topics it publishes and subscribes, services it
-    offers (``reply``) and calls (``request``)."""
-
-    publish: frozenset[str] = field(default_factory=frozenset)
-    subscribe: frozenset[str] = field(default_factory=frozenset)
-    reply: frozenset[str] = field(default_factory=frozenset)
-    request: frozenset[str] = field(default_factory=frozenset)
-
-    def names(self, kind: str) -> list[str]:
-        """The names of one kind (a key of :data:`GRANT_KINDS`), sorted."""
-        return sorted(getattr(self, kind))
-
-
-#: A policy: fully qualified node name -> its grants.
-Policy = Mapping[str, Grants]
-
-
-def split_node(fqn: str) -> tuple[str, str]:
-    """``/ns/name`` -> (``/ns``, ``name``); the root namespace is ``/``."""
-    namespace, _, name = fqn.rpartition("/")
-    return namespace or "/", name
-
-
-def resolve(name: str, namespace: str, node: str) -> str:
-    """A name of a policy file made absolute as SROS2 does: ``/x`` as is, ``~x`` under the node, ``x`` under
-    its namespace."""
-    if name.startswith("/"):
-        return name
-    base = namespace.rstrip("/")
-    return f"{base}/{node}/{name[1:].lstrip('/')}" if name.startswith("~") else f"{base}/{name}"
+#: How long the graph may take to show every endpoint of a node: DDS discovers even a process's own endpoints on
+#: its own threads, which lag under load.
+DISCOVERY_TIMEOUT_S = 30.0
 
 
 def policy_xml(policy: Policy, generated_by: str) -> str:
@@ -99,7 +71,7 @@ def read_policy(text: str) -> dict[str, Grants]:
         for kind, (element, item) in GRANT_KINDS.items():
             for grant in profile.iterfind(f"{element}[@{kind}='ALLOW']"):
                 grants[kind] |= {resolve((e.text or "").strip(), namespace, node) for e in grant.iterfind(item)}
-    return {fqn: Grants(**{kind: frozenset(names) for kind, names in grants.items()}) for fqn, grants in policy.items()}
+    return {fqn: Grants.of(**grants) for fqn, grants in policy.items()}
 
 
 def differences(first: Policy, second: Policy, names: tuple[str, str] = ("the first", "the second")) -> list[str]:
@@ -113,6 +85,7 @@ def differences(first: Policy, second: Policy, names: tuple[str, str] = ("the fi
     return lines
 
 
+# what the nodes really do -----------------------------------------------------------------------------------
 def graph_grants(node: Any, fqn: str) -> Grants:
     """What the ROS graph, as ``node`` sees it, says node ``fqn`` does."""
     namespace, name = split_node(fqn)
@@ -124,9 +97,38 @@ def graph_grants(node: Any, fqn: str) -> Grants:
                   names(node.get_service_names_and_types_by_node), names(node.get_client_names_and_types_by_node))
 
 
-def collect(config: LaunchConfig, domain: int, timeout_s: float = ACTIVE_TIMEOUT_S) -> dict[str, Grants]:
-    """Build the nodes of ``config`` in this process in ``domain``, wait until every lifecycle node is ACTIVE
-    and the graph has settled, and return what each node does (read from the graph)."""
+def settled_grants(node: Any, expected: Mapping[str, Grants], spin_once: Callable[[], None],
+                   timeout_s: float = DISCOVERY_TIMEOUT_S) -> dict[str, Grants]:
+    """What the graph, as ``node`` sees it, says each node of ``expected`` (by fully qualified name) does: once it
+    does what ``expected`` says and nothing changed for :data:`SETTLE_S`, else what it says after ``timeout_s``
+    (then its differences from ``expected`` name what is missing or more). ``spin_once`` lets callbacks run."""
+    seen: dict[str, Grants] = {}
+    since = time.monotonic()
+    deadline = since + timeout_s
+    while time.monotonic() < deadline:
+        now = {fqn: _graph_or_none(node, fqn) for fqn in expected}
+        if now != seen:
+            seen, since = now, time.monotonic()
+        elif seen == expected and time.monotonic() - since >= SETTLE_S:
+            break
+        spin_once()
+    return seen
+
+
+def _graph_or_none(node: Any, fqn: str) -> Grants:
+    """:func:`graph_grants`, or no grants while the node is not in the graph yet."""
+    from rclpy.node import NodeNameNonExistentError  # noqa: PLC0415
+
+    try:
+        return graph_grants(node, fqn)
+    except NodeNameNonExistentError:
+        return Grants()
+
+
+def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TIMEOUT_S) -> dict[str, Grants]:
+    """Build the nodes ``specs`` (distinct names) in this process in ``domain``, wait
+    until every lifecycle node is ACTIVE and the graph shows what its grants say (:func:`settled_grants`), and
+    return what each node does (read from the graph)."""
     import rclpy  # noqa: PLC0415 - only this step needs rclpy
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
@@ -136,7 +138,7 @@ def collect(config: LaunchConfig, domain: int, timeout_s: float = ACTIVE_TIMEOUT
     executor = SingleThreadedExecutor(context=context)
     nodes: list[Any] = []
     try:
-        for spec in config.nodes:
+        for spec in specs:
             nodes.append(build_node(spec, context))
             executor.add_node(nodes[-1])
         deadline = time.monotonic() + timeout_s
@@ -149,25 +151,20 @@ def collect(config: LaunchConfig, domain: int, timeout_s: float = ACTIVE_TIMEOUT
                 executor.spin_once(timeout_sec=0.02)
 
         spin(lambda: all(_state(n) == "active" for n in nodes))
-        fqns = [n.get_fully_qualified_name() for n in nodes]
-        seen: dict[str, Grants] = {}
-        settled_at = [time.monotonic()]
-
-        def settled() -> bool:
-            now = {fqn: graph_grants(nodes[0], fqn) for fqn in fqns}
-            if now != seen:
-                seen.clear()
-                seen.update(now)
-                settled_at[0] = time.monotonic()
-            return time.monotonic() - settled_at[0] >= SETTLE_S
-
-        spin(settled)
-        return dict(seen)
+        expected = {spec.fqn: node_grants(spec) for spec in specs}
+        return settled_grants(nodes[0], expected, lambda: executor.spin_once(timeout_sec=0.02))
     finally:
+        while nodes:
+            executor.remove_node(nodes[-1])
+            nodes.pop().destroy_node()
         executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
+        # A lifecycle node's state machine (its services, ~/transition_event, and so its rcl node) and the DDS
+        # participant live on until collected, and this frame must hold none of them: gone now, so no later
+        # participant in this domain meets a node of this name.
+        del executor
+        gc.collect()
         rclpy.try_shutdown(context=context)
+        context.destroy()
 
 
 def _state(node: Any) -> str:
@@ -175,44 +172,95 @@ def _state(node: Any) -> str:
     return node.lifecycle_state() if hasattr(node, "lifecycle_state") else "active"
 
 
-def default_config() -> Path:
-    """The demo's launch file: every node of the suite."""
-    from fiper_ros.client.suite_process import installed_launch  # noqa: PLC0415
+def distinct_nodes(deployments: Iterable[Deployment]) -> list[tuple[NodeSpec, list[str]]]:
+    """Each distinct node of ``deployments`` (module, name, parameters, remaps and ROS arguments) and the origins
+    of the deployments it runs in."""
+    found: dict[str, tuple[NodeSpec, list[str]]] = {}
+    for deployment in deployments:
+        for spec in deployment.config.nodes:
+            key = json.dumps([spec.module, spec.fqn, effective_parameters(spec), spec.remaps, spec.ros_arguments],
+                             sort_keys=True, default=str)
+            found.setdefault(key, (spec, []))[1].append(deployment.origin)
+    return list(found.values())
 
-    return installed_launch("demo.launch.yaml")
+
+def batches(nodes: Iterable[tuple[NodeSpec, list[str]]]) -> list[list[tuple[NodeSpec, list[str]]]]:
+    """``nodes`` in groups that hold each node name at most once (one group's nodes run side by side)."""
+    groups: list[list[tuple[NodeSpec, list[str]]]] = []
+    for node in nodes:
+        group = next((g for g in groups if all(s.fqn != node[0].fqn for s, _ in g)), None)
+        if group is None:
+            groups.append(group := [])
+        group.append(node)
+    return groups
 
 
+def observe_all(deployments: Iterable[Deployment], timeout_s: float = ACTIVE_TIMEOUT_S
+                ) -> list[tuple[NodeSpec, list[str], Grants]]:
+    """Build every distinct node of ``deployments``, a group at a time in a ROS domain of its own (each held to
+    the end, so that no group meets what an earlier one left of a node of the same name): each node, the
+    deployments it runs in, and what it does (read from the graph)."""
+    from fiper_ros.dds import allocate_domain  # noqa: PLC0415
+
+    observed = []
+    with ExitStack() as domains:
+        for group in batches(distinct_nodes(deployments)):
+            seen = observe([spec for spec, _ in group], domains.enter_context(allocate_domain()), timeout_s)
+            observed += [(spec, origins, seen[spec.fqn]) for spec, origins in group]
+    return observed
+
+
+def mismatches(observed: Iterable[tuple[NodeSpec, list[str], Grants]]) -> list[str]:
+    """Where an observed node does more or less than its grants, one line each."""
+    return [f"{line} (in {origins[0]})" for spec, origins, seen in observed
+            for line in differences({spec.fqn: node_grants(spec)}, {spec.fqn: seen},
+                                    ("its grants", "what it does"))]
+
+
+# the command --------------------------------------------------------------------------------------------------
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper security``."""
-    parser.add_argument("config", type=Path, nargs="?",
-                        help="launch YAML whose nodes the policy is for, read with its default arguments (default: "
-                             "the installed demo.launch.yaml, the whole suite)")
+    parser.add_argument("configs", type=Path, nargs="*", metavar="LAUNCH",
+                        help="launch files whose nodes the policy is for, read with their default arguments "
+                             "(default: every suite the project starts with every shipped model, and the tools)")
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("-o", "--output", type=Path, help="write the policy here")
     mode.add_argument("--check", type=Path, metavar="POLICY", help="compare with this policy file; exit 1 if it "
-                                                                   "allows more or less than the nodes use")
+                                                                   "allows more or less than the policy")
+    mode.add_argument("--verify", action="store_true", help="build every node in this process (loopback, ROS "
+                                                            "domains of its own) and check that each does exactly "
+                                                            "what its grants say; exit 1 if not")
 
 
 def run(args: argparse.Namespace) -> int:
     """``fiper security``."""
-    from fiper_ros.dds import allocate_domain  # noqa: PLC0415
-
-    path = args.config or default_config()
     try:
-        config = load_launch(path)
-    except LaunchError as error:
+        deployments = ([Deployment(f"fiper launch {path}", load_launch(path)) for path in args.configs]
+                       if args.configs else list(shipped_deployments()))
+        if args.verify:
+            observed = observe_all(deployments)
+            found = mismatches(observed)
+            for line in found:
+                print(f"fiper security: {line}")
+            print(f"fiper security: {len(observed)} distinct nodes built, {len(found)} differences from their grants")
+            return 1 if found else 0
+        policy = nodes_policy(deployments) if args.configs else shipped_policy()
+    except (LaunchError, UnknownNode) as error:
         print(f"fiper security: {error}", file=sys.stderr)
         return 2
-    with allocate_domain() as domain:
-        policy = collect(config, domain)
+    except TimeoutError as error:  # --verify: a node that never became active does nothing to compare
+        print(f"fiper security: {error}", file=sys.stderr)
+        return 1
+    what = " ".join(map(_shown, args.configs)) or "every suite the project starts and its tools"
     if args.check is not None:
         found = differences(read_policy(args.check.read_text()), policy, (str(args.check), "the code"))
         for line in found:
             print(f"fiper security: {line}")
-        print(f"fiper security: {args.check} {'differs from' if found else 'is'} what the nodes of {path} use")
+        print(f"fiper security: {args.check} {'differs from' if found else 'is'} the policy of {what}")
         return 1 if found else 0
-    args.output.write_text(policy_xml(policy, f"fiper security {_shown(path)} -o {_shown(args.output)}"))
-    print(f"fiper security: {len(policy)} enclaves written to {args.output}")
+    command = " ".join(["fiper security", *map(_shown, args.configs), "-o", _shown(args.output)])
+    args.output.write_text(policy_xml(policy, command))
+    print(f"fiper security: {len(policy)} enclaves written to {args.output} ({what})")
     return 0
 
 

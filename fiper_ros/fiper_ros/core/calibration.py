@@ -52,10 +52,10 @@ from fiper_ros.core.ace import action_ranges, cell_size, check_alpha
 # CALIBRATION_FILE, FORMAT_VERSION and CalibrationError live in calibration_file (the YAML alone) and are used from here.
 from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, LEGACY_FORMAT_VERSION, CalibrationError,
                                              check_files, one_line, read_yaml)
-from fiper_ros.core.profiles import Profile, get_profile
 from fiper_ros.core.detectors import ACE, DETECTORS, LABELS, RND_OE, SIDES, check_detectors
 from fiper_ros.core.fusion import COMBINES, exceeds, fuse_declared
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
+from fiper_ros.core.profiles import Profile, get_profile
 from fiper_ros.core.rnd_oe import CONFIG_FILE as RND_CONFIG_FILE
 from fiper_ros.core.rnd_oe import LEGACY_WEIGHTS_FILE as RND_LEGACY_WEIGHTS_FILE
 from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig, RNDError

@@ -20,7 +20,7 @@ from fiper_ros.interface import qos_spec
 from fiper_ros.interface.qos_spec import ALARM_HEARTBEAT_S, SCORE_HEARTBEAT_S, QosSpec
 
 __all__ = ["ALARM", "ALARM_EVERY", "ALARM_HEARTBEAT_S", "ALARM_LEASE", "ALARM_LIVE", "ALARM_PUB", "DIAGNOSTICS",
-           "EVENT", "INPUT", "SCORE_HEARTBEAT_S", "SCORE_LEASE", "SCORE_PUB", "SCORE_SUB", "profile"]
+           "EVENT", "INPUT", "SCORE_HEARTBEAT_S", "SCORE_LEASE", "SCORE_PUB", "SCORE_SUB", "VIEW_IMAGE", "profile"]
 
 #: Lease of the score streams' liveliness: a dead scoring process is noticed within this time.
 SCORE_LEASE = Duration(nanoseconds=qos_spec.SCORE_LEASE_NS)
@@ -53,3 +53,7 @@ ALARM_LIVE = profile(qos_spec.ALARM_LIVE)
 #: Every step's alarm, not only the latest state (the bag replay, benchmarks): see :data:`.qos_spec.ALARM_EVERY`.
 ALARM_EVERY = profile(qos_spec.ALARM_EVERY)
 DIAGNOSTICS = profile(qos_spec.DIAGNOSTICS)
+#: A viewer's camera subscription (``fiper view``): BEST_EFFORT, the newest frame only. A reader that falls
+#: behind loses frames instead of asking the publisher to resend them (compatible with RELIABLE publishers).
+VIEW_IMAGE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                        durability=DurabilityPolicy.VOLATILE)

@@ -1,7 +1,7 @@
-"""The suite's topics: names, message types, the QoS their publishers offer, the Panda arm joints.
+"""The suite's topics and services: names, message types, the QoS their publishers offer, the Panda arm joints.
 
-A bag records each topic with its publishers' offered QoS (docs/bags.md); the nodes, the bag tools and the
-clients all take the names from here.
+A bag records each topic with its publishers' offered QoS (docs/bags.md); the nodes, the bag tools, the
+clients and the SROS2 policy (docs/security.md) all take the names from here.
 """
 from __future__ import annotations
 
@@ -10,16 +10,49 @@ from dataclasses import dataclass
 from fiper_ros.interface import qos_spec
 from fiper_ros.interface.qos_spec import QosSpec
 
-__all__ = ["ACTIONS", "ALARM", "ARM_JOINT_NAMES", "EMBEDDING", "EVENTS", "INPUT_TOPICS", "JOINT_STATES", "SCORE_ACE",
-           "SCORE_RND_OE", "TOPICS", "TopicSpec"]
+__all__ = ["ACTIONS", "ALARM", "ARM_JOINT_NAMES", "CAMERAS", "CAMERA_THIRD", "CAMERA_WRIST", "CLOCK", "DIAGNOSTICS",
+           "EMBEDDING", "EVENTS", "INPUT_TOPICS", "JOINT_STATES", "NAMESPACE", "RESET_ALARM", "SCORE_ACE", "SCORE_RND_OE",
+           "SIM_ACTION", "SIM_HALT", "SIM_PROPRIO", "SIM_RESET", "TOPICS", "TopicSpec", "relative", "score_topic"]
 
-EMBEDDING = "/fiper/observation_embedding"
-ACTIONS = "/fiper/action_chunks"
-EVENTS = "/fiper/rollout_events"
-SCORE_RND_OE = "/fiper/scores/rnd_oe"
-SCORE_ACE = "/fiper/scores/ace"
-ALARM = "/fiper/alarm"
+#: The namespace of the suite's own topics in every shipped launch file. The scoring and fusion nodes name them
+#: relative to their own namespace (:func:`relative`), so a launch in another namespace moves them together.
+NAMESPACE = "/fiper"
+
+
+def score_topic(detector: str) -> str:
+    """The score topic of a detector (``rnd_oe``, ``ace``: :mod:`fiper_ros.core.detectors`)."""
+    return f"{NAMESPACE}/scores/{detector}"
+
+
+def relative(topic: str) -> str:
+    """A topic of the suite named relative to :data:`NAMESPACE` (``/fiper/alarm`` -> ``alarm``)."""
+    prefix = f"{NAMESPACE}/"
+    if not topic.startswith(prefix):
+        raise ValueError(f"{topic} is not in the suite's namespace {NAMESPACE}")
+    return topic.removeprefix(prefix)
+
+
+EMBEDDING = f"{NAMESPACE}/observation_embedding"
+ACTIONS = f"{NAMESPACE}/action_chunks"
+EVENTS = f"{NAMESPACE}/rollout_events"
+SCORE_RND_OE = score_topic("rnd_oe")
+SCORE_ACE = score_topic("ace")
+ALARM = f"{NAMESPACE}/alarm"
 JOINT_STATES = "/joint_states"
+#: The sim bridge's other topics (a robot driver's): the policy's inputs and its command (the policy node's defaults).
+CAMERA_WRIST = "/camera/wrist/image_raw"
+CAMERA_THIRD = "/camera/third/image_raw"
+CAMERAS = (CAMERA_WRIST, CAMERA_THIRD)
+SIM_PROPRIO = "/sim/proprio"
+SIM_ACTION = "/sim/action"
+#: ROS's simulated time (the bridge publishes it in sim-time mode, ``fiper replay`` always) and diagnostics.
+CLOCK = "/clock"
+DIAGNOSTICS = "/diagnostics"
+#: Services: the bridge's reset (fiper_msgs/ResetRollout) and halt (std_srvs/Trigger, the supervisor's
+#: default), the fusion node's own alarm reset (fiper_msgs/ResetAlarm, a private name).
+SIM_RESET = "/sim/reset"
+SIM_HALT = "/sim/halt"
+RESET_ALARM = "~/reset"
 #: The arm joints ACE integrates joint velocities from, picked by name from ``/joint_states``
 #: (the ace_node's default ``joint_names``; the simulated Franka's arm joints).
 ARM_JOINT_NAMES: tuple[str, ...] = tuple(f"panda_joint{i}" for i in range(1, 8))

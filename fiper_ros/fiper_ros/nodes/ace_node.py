@@ -19,9 +19,9 @@ from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.core.monitor import ActionMonitor, StepScore
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import describe
 from fiper_ros.interface.conversions import floats_of, stamp_ns
-from fiper_ros.interface.topics import ARM_JOINT_NAMES
+from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, JOINT_STATES, relative
+from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation
@@ -35,14 +35,14 @@ class AceNode(DetectorNode):
     """Scores each batch of sampled action chunks with action-chunk entropy."""
 
     detector = "ace"
-    input_topic = "action_chunks"
+    input_topic = relative(ACTIONS)
     input_type = ActionChunkBatch
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ace_node", **kwargs)
         self.declare_parameter("urdf_path", "", describe("robot URDF for joint-space actions", read_only=True))
         self.declare_parameter("ee_frame", "panda_hand", describe("end-effector frame of the URDF", read_only=True))
-        self.declare_parameter("joint_state_topic", "/joint_states",
+        self.declare_parameter("joint_state_topic", JOINT_STATES,
                                describe("measured joint positions, for joint-velocity actions", read_only=True))
         self.declare_parameter("joint_names", list(ARM_JOINT_NAMES),
                                describe("joints of the URDF chain, picked by name from joint_states", read_only=True))

@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from fiper_ros.interface import qos
+from fiper_ros.interface.topics import DIAGNOSTICS
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
@@ -28,7 +29,7 @@ from fiper_ros.runtime.validation import InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
-INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", "/diagnostics")
+INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", DIAGNOSTICS)
 #: How often a node that watches its topics' publishers looks at the graph (a second suite: noticed within 1 s).
 PUBLISHER_CHECK_PERIOD_S = 0.25
 
@@ -80,7 +81,7 @@ class FiperNode(LifecycleNode):
         self._log_limit = RateLimitedLog(self.get_parameter("log_period_s").value)
         #: Wall-clock (steady) time for what must not stall with a paused /clock: heartbeats, retries.
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self.publish_diagnostics, clock=self.steady)
         self.publisher_check: PublisherCheck | None = None
         self._autostart_timer = None

@@ -15,8 +15,9 @@ from fiper_ros.core.monitor import StepScore
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.interface.messages import outcome_name
+from fiper_ros.interface.topics import EVENTS, relative, score_topic
+from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.runtime.pending import StartGate
 from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
@@ -60,16 +61,16 @@ class DetectorNode(FiperNode):
         #: STARTs of the rollout already active (ignored: its steps and windows are kept).
         self.repeated_starts = 0
         self._inputs: list[Any] = []
+        score = relative(score_topic(self.detector))
         self._score_pub = self.create_lifecycle_publisher(
-            Score, f"scores/{self.detector}", qos.SCORE_PUB,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-            event_callbacks=self.publisher_events(f"scores/{self.detector}"),
+            Score, score, qos.SCORE_PUB, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            event_callbacks=self.publisher_events(score),
         )
         # Liveliness is a wall-clock contract (DDS lease): assert it on the steady clock, also under sim time.
         self.create_timer(qos.SCORE_HEARTBEAT_S, self._score_pub.assert_liveliness, clock=self.steady)
         # Events are followed in every state, so a rollout started before activation is known.
-        self.create_subscription(RolloutEvent, "rollout_events", self._on_event, qos.EVENT,
-                                 event_callbacks=self.subscription_events("rollout_events"))
+        self.create_subscription(RolloutEvent, relative(EVENTS), self._on_event, qos.EVENT,
+                                 event_callbacks=self.subscription_events(relative(EVENTS)))
         self.watch_publishers()  # one publisher per input (of allowed_publishers, if set); the scores only from here
 
     # lifecycle ----------------------------------------------------------------------------------------

@@ -23,9 +23,11 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
+from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns, to_stamp
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
+from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime.alarm import DETECTORS, AlarmFuser, AlarmState, DetectorScore, reset_refusal
@@ -84,20 +86,23 @@ class FusionNode(FiperNode):
         self._inputs: list[Any] = []
         self._timer: Any = None
         self._alarm_pub = self.create_lifecycle_publisher(
-            FailureAlarm, "alarm", qos.ALARM_PUB, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-            event_callbacks=self.publisher_events("alarm"),
+            FailureAlarm, relative(ALARM_TOPIC), qos.ALARM_PUB,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            event_callbacks=self.publisher_events(relative(ALARM_TOPIC)),
         )
         # Liveliness (a DDS lease, wall clock): a supervisor counts the live publishers of the alarm.
         self.create_timer(qos.ALARM_HEARTBEAT_S, self._alarm_pub.assert_liveliness, clock=self.steady)
-        self.create_service(ResetAlarm, "~/reset", self._on_reset)
+        self.create_service(ResetAlarm, RESET_ALARM, self._on_reset)
         #: Reset requests, by outcome ("accepted", "refused").
         self.resets: Counter[str] = Counter()
-        self.score_topics = {d: self.resolve_topic_name(f"scores/{d}") for d in DETECTORS}
+        self.score_topics = {d: self.resolve_topic_name(relative(score_topic(d))) for d in DETECTORS}
         self.watch_publishers(self._on_publishers)
 
     def configure(self) -> None:
         combine = self.get_parameter("combine").value
         directory = self.get_parameter("calibration_dir").value
+        if directory:  # relative: the working directory, the share, $FIPER_MODELS (as the scoring nodes)
+            directory = str(resolve_data_path(directory))
         detectors = declared_detectors(directory) if directory else DETECTORS
         self.fuser = AlarmFuser(combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
@@ -109,14 +114,14 @@ class FusionNode(FiperNode):
 
     def activate(self) -> None:
         for detector in self.fuser.detectors:
-            topic = f"scores/{detector}"
+            topic = relative(score_topic(detector))
             self._inputs.append(self.create_subscription(
                 Score, topic, self._on_score, qos.SCORE_SUB,
                 event_callbacks=self.subscription_events(topic, lambda info, d=detector: self._on_liveliness(d, info)),
             ))
         self._inputs.append(self.create_subscription(
-            RolloutEvent, "rollout_events", self._on_event, qos.EVENT,
-            event_callbacks=self.subscription_events("rollout_events")))
+            RolloutEvent, relative(EVENTS), self._on_event, qos.EVENT,
+            event_callbacks=self.subscription_events(relative(EVENTS))))
         self._timer = self.create_timer(self.get_parameter("check_period_s").value, self._on_timer)
 
     def deactivate(self) -> None:

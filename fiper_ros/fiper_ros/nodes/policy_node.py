@@ -24,12 +24,12 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from sensor_msgs.msg import Image, JointState
 
 from fiper_msgs.msg import ActionCommand, RolloutEvent
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
-from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.conversions import action_command_msg, stamp_ns
+from fiper_ros.interface.messages import outcome_name
+from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, EMBEDDING, EVENTS, SIM_ACTION, SIM_PROPRIO
+from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
@@ -57,14 +57,14 @@ class PolicyNode(FiperNode):
         declare("start_wait_s", 1.0, describe("how long an observation may wait for its rollout's START",
                                               read_only=True, low=0.0, high=60.0))
         declare("events_topic", EVENTS, describe("RolloutEvent input", read_only=True))
-        declare("wrist_image_topic", "/camera/wrist/image_raw", describe("wrist camera, rgb8", read_only=True))
-        declare("third_image_topic", "/camera/third/image_raw", describe("third-person camera, rgb8",
+        declare("wrist_image_topic", CAMERA_WRIST, describe("wrist camera, rgb8", read_only=True))
+        declare("third_image_topic", CAMERA_THIRD, describe("third-person camera, rgb8",
                                                                          read_only=True))
-        declare("proprio_topic", "/sim/proprio", describe("proprioception (sensor_msgs/JointState positions)",
+        declare("proprio_topic", SIM_PROPRIO, describe("proprioception (sensor_msgs/JointState positions)",
                                                           read_only=True))
         declare("embedding_topic", EMBEDDING, describe("ObservationEmbedding output", read_only=True))
         declare("action_chunks_topic", ACTIONS, describe("ActionChunkBatch output", read_only=True))
-        declare("action_topic", "/sim/action", describe("ActionCommand output (the robot's input)", read_only=True))
+        declare("action_topic", SIM_ACTION, describe("ActionCommand output (the robot's input)", read_only=True))
         self.policy: Policy | None = None
         self.session: PolicySession | None = None
         self.sync: ObservationSync[np.ndarray] = ObservationSync((*CAMERAS, PROPRIO))

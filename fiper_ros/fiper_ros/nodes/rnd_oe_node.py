@@ -10,6 +10,7 @@ from fiper_msgs.msg import ObservationEmbedding
 from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.monitor import ObservationMonitor
 from fiper_ros.interface.conversions import floats_of
+from fiper_ros.interface.topics import EMBEDDING, relative
 from fiper_ros.nodes.detector import DetectorNode
 from fiper_ros.nodes.main import run_node
 from fiper_ros.runtime import validation
@@ -19,7 +20,7 @@ class RndOeNode(DetectorNode):
     """Scores each observation embedding with the calibrated RND-OE model."""
 
     detector = "rnd_oe"
-    input_topic = "observation_embedding"
+    input_topic = relative(EMBEDDING)
     input_type = ObservationEmbedding
 
     def __init__(self, **kwargs: Any) -> None:

@@ -18,10 +18,11 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
+from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, state_name
+from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, DIAGNOSTICS, EVENTS, SIM_HALT
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, state_name
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 
@@ -32,8 +33,8 @@ class SupervisorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("supervisor_node", **kwargs)
-        self.declare_parameter("alarm_topic", "/fiper/alarm", describe("FailureAlarm topic", read_only=True))
-        self.declare_parameter("halt_service", "/sim/halt", describe("std_srvs/Trigger that halts the robot",
+        self.declare_parameter("alarm_topic", ALARM_TOPIC, describe("FailureAlarm topic", read_only=True))
+        self.declare_parameter("halt_service", SIM_HALT, describe("std_srvs/Trigger that halts the robot",
                                                                       read_only=True))
         self.declare_parameter("deadline_s", 2.0, describe("tolerated UNKNOWN; tolerated silence while no rollout "
                                                            "runs or its period is not measured yet",
@@ -43,7 +44,7 @@ class SupervisorNode(Node):
                                         low=0.0, high=1000.0))
         self.declare_parameter("silence_floor_s", 0.1,
                                describe("the period-based silence deadline is never shorter", low=0.0, high=600.0))
-        self.declare_parameter("events_topic", "/fiper/rollout_events",
+        self.declare_parameter("events_topic", EVENTS,
                                describe("RolloutEvent topic: which rollout is running", read_only=True))
         self.declare_parameter("alarm_publishers", ["/fiper/fusion_node"], describe(
             "nodes that may publish the alarm topic, one publisher each (relative names: in this node's namespace)",
@@ -68,7 +69,7 @@ class SupervisorNode(Node):
                                          self.alarm_topic, info.not_alive_count)))
         self.create_subscription(RolloutEvent, self.get_parameter("events_topic").value, self._on_event, qos.EVENT)
         self.create_timer(0.02, self._on_clock)
-        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.DIAGNOSTICS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics,
                           clock=self._steady)
 

@@ -17,6 +17,11 @@ A step's exceedance is the detector's own decision (``Score.exceeded``, made in 
 :func:`fiper_ros.core.fusion.exceeds`), not a comparison of the float32 numbers the message carries:
 rounding to float32 can turn ``eta > gamma`` into ``eta == gamma``, and the offline oracle decides in
 float64. The float32 numbers still have to agree with it (:func:`decision`).
+
+An ALARM says in one line what a person can act on (:func:`explanation`): which windowed score exceeded,
+by how much relative to its threshold, and since which step it has exceeded without a break, e.g.
+"RND-OE 1.9x threshold since step 10, ACE 1.05x since step 25: both exceeded (and)"; the steps after it
+repeat that line behind "latched since step N: ".
 """
 from __future__ import annotations
 
@@ -24,13 +29,40 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
-from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, check_detectors
+from fiper_ros.core.detectors import ACE, DETECTORS, LABELS, RND_OE, check_detectors
 from fiper_ros.core.fusion import exceeds, fuse_declared
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
 from fiper_ros.runtime.stats import PeriodEstimator
 
 #: Longest requester or reason of a reset, in characters (what is logged stays one line of the log).
 MAX_RESET_TEXT = 200
+#: Ratios to a threshold from this on are said in whole numbers ("1000x", "1234x"); below it in 3 significant
+#: digits ("1.05x", "12.3x", "999x"), which from here on would need an exponent.
+WHOLE_RATIO = 999.5
+
+
+def ratio_text(windowed: float, threshold: float) -> str:
+    """How far ``windowed`` is from ``threshold``, for people: their ratio, ``"1.9x"`` (:data:`WHOLE_RATIO`), or,
+    where a ratio says nothing (a threshold that is not a positive finite number, a non-finite score), both
+    numbers: ``"0.5 > threshold 0"``."""
+    if not (math.isfinite(windowed) and math.isfinite(threshold) and threshold > 0):
+        return f"{windowed:.3g} > threshold {threshold:.3g}"
+    ratio = windowed / threshold
+    return f"{ratio:.0f}x" if ratio >= WHOLE_RATIO else f"{ratio:.3g}x"
+
+
+def explanation(exceeded: list[tuple[str, float, float, int]], declared: int, how: str) -> str:
+    """The one line of an ALARM: per exceeded detector (``(name, windowed, threshold, since step)``, in
+    :data:`DETECTORS` order) its label, its ratio to the threshold and the step since which it exceeded, then
+    who exceeded and how the detectors were combined (``how``: ``"(and)"``, ``"(or)"`` or the alone note;
+    ``declared``: how many detectors are judged)."""
+    parts = []
+    for name, windowed, threshold, since in exceeded:
+        ratio = ratio_text(windowed, threshold)
+        word = " threshold" if not parts and ratio.endswith("x") else ""
+        parts.append(f"{LABELS[name]} {ratio}{word} since step {since}")
+    who = "" if declared == 1 else "both " if len(exceeded) == 2 else "one "
+    return f"{', '.join(parts)}: {who}exceeded {how}"
 
 
 def reset_refusal(allowed: bool, requester: str, reason: str) -> str:
@@ -174,6 +206,11 @@ class AlarmFuser:
         """The latest fused state of this rollout (``None`` before its first step is fused)."""
         self.unjudged: tuple[int, int] | None = None
         """The first and last policy step of this rollout that never got a verdict here, if any."""
+        self.exceeding_since: dict[str, int] = {}
+        """Per detector whose latest fused step exceeded: the first step of that unbroken run of exceedances
+        (a step never fused here breaks every run)."""
+        self.explained = ""
+        """The ALARM's :func:`explanation`, while the latch holds."""
         self.tainted = ""
         """Why scores of this rollout could not be attributed (``""``: they could, all along): set when a score
         of it is taken in doubt, or doubt arises while it runs (:meth:`suspect`)."""
@@ -234,6 +271,7 @@ class AlarmFuser:
         if score.step > self._next_step:  # steps that will never be fused: an alarm there cannot be ruled out
             first = self._next_step if self.unjudged is None else self.unjudged[0]
             self.unjudged = (first, score.step - 1)
+            self.exceeding_since.clear()  # a run of exceedances is counted over judged steps only
         self._next_step = max(self._next_step, score.step + 1)
         self.last = self._fuse([entry[d] for d in self.detectors])
         return self.last
@@ -242,6 +280,11 @@ class AlarmFuser:
         """The state of one step from the declared detectors' scores (in :attr:`detectors` order)."""
         decisions = [decision(s) for s in scores]
         exceeded = [bool(d) for d in decisions]
+        for score, exceeds_now in zip(scores, exceeded):  # an undecided step breaks the run, as a step below does
+            if exceeds_now:
+                self.exceeding_since.setdefault(score.detector, score.step)
+            else:
+                self.exceeding_since.pop(score.detector, None)
         by_name = {s.detector: (s, e) for s, e in zip(scores, exceeded)}
         obs, obs_exc = by_name[RND_OE]
         act, act_exc = by_name.get(ACE, (None, False))
@@ -252,7 +295,8 @@ class AlarmFuser:
             stamp_ns=max(s.stamp_ns for s in scores),
         )
         if self.latched:  # the latch wins over whatever this step brings
-            return AlarmState(state=ALARM, latched=True, reason=f"latched since step {self.alarm_step}", **common)
+            return AlarmState(state=ALARM, latched=True,
+                              reason=f"latched since step {self.alarm_step}: {self.explained}", **common)
         uncalibrated = [s.detector for s in scores if not math.isfinite(s.threshold)]
         if uncalibrated:
             return AlarmState(state=UNKNOWN, latched=False, reason=f"no threshold: {', '.join(uncalibrated)}",
@@ -266,8 +310,9 @@ class AlarmFuser:
         # its "not exceeded" is not. An alarm therefore stands; an OK needs complete windows.
         if bool(fuse_declared(exceeded, self.combine)):
             self.latched, self.alarm_step = True, obs.step
-            names = [s.detector for s, e in zip(scores, exceeded) if e]
-            return AlarmState(state=ALARM, latched=True, reason=f"exceeded: {', '.join(names)} {self._how}", **common)
+            self.explained = explanation([(s.detector, s.windowed, s.threshold, self.exceeding_since[s.detector])
+                                          for s, e in zip(scores, exceeded) if e], len(scores), self._how)
+            return AlarmState(state=ALARM, latched=True, reason=self.explained, **common)
         if self.unjudged is not None:  # the latch may have fired at a step never judged here
             first, last = self.unjudged
             return AlarmState(state=UNKNOWN, latched=False, reason=f"not every step of {first}..{last} was judged "
