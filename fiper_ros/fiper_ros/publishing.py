@@ -41,7 +41,7 @@ from fiper_ros.core.rollout import ACTION_SPACES
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EMBEDDING, EVENTS
 from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.runtime.wiring import unmatched_readers
 
@@ -113,16 +113,17 @@ class FiperPublisher:
         """What has not matched the publishers yet (empty: publishing loses nothing), from the ROS graph and the
         ``/diagnostics`` reports received so far: every reader of the inputs or of ``/fiper/alarm`` that reports its
         matches (for the alarm, KEEP_LAST(1) at the fusion node: so that the first verdicts are not lost to it),
-        ``also`` (nodes, fully qualified, e.g. ``/fiper_record``, that must report a matched subscription of every
-        input topic) and, with ``suite``, an ACTIVE reader of the suite per input topic and an ACTIVE fusion node."""
-        node, lines = self.node, []
+        ``also`` (nodes, fully qualified, e.g. ``/fiper_record``, that must have reported: a reader this process has not
+        discovered yet cannot be waited for otherwise) and, with ``suite``, an ACTIVE reader of the suite per input
+        topic and an ACTIVE fusion node."""
+        node = self.node
+        lines = [f"{name} to report its matches on /diagnostics" for name in also if name not in self._reports]
         for publisher in self._inputs():
             topic = publisher.topic_name
             readers, unmatched = unmatched_readers(self._reports, topic, node.count_publishers(topic))
             if suite and not any(self._active(reader) for reader in readers):
                 lines.append(f"an active node of the suite subscribing to {topic} (none reports one on /diagnostics)")
             lines += unmatched
-            lines += [f"{name} to subscribe to {topic}" for name in also if name not in readers]
             lines += self._writer_side(publisher)
         if self.events is not None:
             lines += self._writer_side(self.events)
@@ -154,8 +155,7 @@ class FiperPublisher:
         spinning meanwhile, e.g. in another thread).
         """
         node = self.node
-        subscription = node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics,
-                                                qos.DIAGNOSTICS)
+        subscription = node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
         owner, executor = node.executor, None
         if owner is None or node not in owner.get_nodes():  # nobody spins the node (rclpy.spin_once leaves owner set)
             executor = SingleThreadedExecutor(context=node.context)

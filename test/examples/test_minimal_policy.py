@@ -2,7 +2,8 @@
 suite (``fiper launch fiper.launch.yaml calibration_dir:=...``), both cold: it waits for the suite's scoring nodes
 (``FiperPublisher.wait_for_suite``) and then publishes at once; every step of every rollout gets its verdict, the
 first rollout's first steps included (published before the suite matched, they would be lost: the inputs are
-VOLATILE)."""
+VOLATILE). The test's alarm listener is named in ``--wait-for`` (helpers/alarms.py): the alarm is KEEP_LAST(1) at the
+fusion node, and a listener the example does not wait for missed the first rollout's verdicts under load."""
 from __future__ import annotations
 
 import os
@@ -32,9 +33,12 @@ def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_do
     # still starts cold against scoring nodes that have not matched its publishers.
     assert listener.spin_until(lambda: bool(listener.alarms), 180), launch.lines[-30:]
     policy = spawn_python(["-m", "fiper_ros.examples.minimal_policy", "--rollouts", str(ROLLOUTS), "--failures",
-                           str(FAILURES), "--seed", "0", "--wait", "240"], ros_domain)
+                           str(FAILURES), "--seed", "0", "--wait", "240", "--wait-for", "suite", "/test_alarms"],
+                          ros_domain)
     try:
-        output, _ = policy.communicate(timeout=300)
+        # spun meanwhile: the listener reports its match, which the example waits for (see helpers/alarms.py)
+        assert listener.spin_until(lambda: policy.poll() is not None, 300), "the example did not finish"
+        output, _ = policy.communicate(timeout=30)
         assert policy.returncode == 0, output + "\n".join(launch.lines[-30:])
         ids = [int(i) for i in re.findall(rf"rollout (\d+): {STEPS} steps", output)]
         assert len(ids) == ROLLOUTS, output
@@ -44,7 +48,7 @@ def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_do
             return all(len(verdicts.get(i, {})) == STEPS for i in ids)
 
         assert listener.spin_until(judged, 60), ({i: sorted(listener.verdicts().get(i, {})) for i in ids},
-                                                 launch.lines[-30:])
+                                                 [line for line in launch.lines if ": rollout " in line])
     finally:
         stop(policy)
         launch.interrupt()

@@ -14,6 +14,7 @@ from dataclasses import replace
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos
 
@@ -92,8 +93,10 @@ class TopicTap:
         return new
 
     def matched_publishers(self) -> dict[str, int]:
-        """Per subscribed topic, how many publishers its subscription has matched."""
-        return {topic: subscription.get_publisher_count() for topic, subscription in self._subscriptions.items()}
+        """Per wanted topic, how many publishers its subscription has matched: 0 while not subscribed yet (a
+        policy waits for it), those of an unknown type left out."""
+        counts = dict.fromkeys(sorted(self.wanted - self.skipped), 0)
+        return counts | {topic: sub.get_publisher_count() for topic, sub in self._subscriptions.items()}
 
     def now_ns(self) -> int:
         """Receive time stamp: the node clock."""
@@ -131,12 +134,11 @@ class InfoTracker:
                 self.info = replace(info, task=str(msg.task))
 
 
-def report_matches(session: RosSession, matched: Callable[[], dict[str, int]]) -> None:
-    """Publish on ``/diagnostics``, every :data:`DIAGNOSTICS_PERIOD_S` while the session spins, how many publishers
-    each subscription of the session's tool has matched (``matched()``: per topic), under the keys the suite's nodes
+def report_matches(node: Node, matched: Callable[[], dict[str, int]]) -> None:
+    """Publish on ``/diagnostics``, every :data:`DIAGNOSTICS_PERIOD_S` while ``node`` is spun, how many publishers
+    each subscription of a tool's node has matched (``matched()``: per topic), under the keys the suite's nodes
     use (:data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`): a policy waits for such a reader too
     (:meth:`fiper_ros.publishing.FiperPublisher.wait_for_suite`)."""
-    node = session.node
     publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
 
     def report() -> None:

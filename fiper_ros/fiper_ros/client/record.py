@@ -117,7 +117,7 @@ def record(out: Path, topics: list[str], duration: float | None, domain: int | N
     with RosSession(NODE_NAME, domain) as session:
         recorder = Recorder(session, topics)
         recorder.start(out, overwrite, live)
-        report_matches(session, recorder.tap.matched_publishers)
+        report_matches(session.node, recorder.tap.matched_publishers)
         print(f"recording {', '.join(sorted(recorder.tap.wanted))} in ROS domain {session.domain} to {out} "
               f"({'Ctrl-C to stop' if duration is None else f'{duration:g} s'})", flush=True)
         try:

@@ -75,7 +75,7 @@ class LiveVerdicts:
             subscriptions = [node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT),
                              node.create_subscription(FailureAlarm, ALARM, self._on_alarm, qos.ALARM_EVERY),
                              node.create_subscription(Score, SCORE_RND_OE, self._on_score, qos.SCORE_SUB)]
-            report_matches(session, lambda: {s.topic_name: s.get_publisher_count() for s in subscriptions})
+            report_matches(node, lambda: {s.topic_name: s.get_publisher_count() for s in subscriptions})
             self._ready.set()
             try:
                 while not self._stop.is_set() or (time.monotonic() < self._settle_until and not self._settled()):
