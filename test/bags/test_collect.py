@@ -13,7 +13,9 @@ import signal
 import subprocess
 import sys
 import time
+import tracemalloc
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,7 +31,7 @@ from sim_bridge.collect_runner import collected_rollout_id
 from sim_bridge.robot import URDF_PATH
 
 from fiper_ros.bagio.reader import BagReader, find_bags
-from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.bagio.rollout_bags import _joint_state_cdr, read_rollouts
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.cli import main
 from fiper_ros.commands import collect
@@ -246,6 +248,40 @@ def test_a_batch_logged_before_the_joint_state_of_its_stamp_gets_that_state(tmp_
     assert order[:2] == [ACTIONS, JOINT_STATES]
     (original,) = read_rollouts(bag)
     (rollout,) = read_rollouts(late)
+    np.testing.assert_array_equal(rollout.metadata["joint_positions"], original.metadata["joint_positions"])
+
+
+def test_reading_a_bag_of_many_joint_states_keeps_no_more_of_them_than_its_batches(tmp_path: Path) -> None:
+    # #18: the reader kept every /joint_states message of a bag (any of them can be a batch's answer when the
+    # log order is not the stamps'); it now keeps at most one per batch. rosbags' own reading of the bag costs
+    # about 670 bytes per message (its index): what read_rollouts adds on top of that must not grow with them.
+    _, bag = _stacking_bag(tmp_path, 3)
+    crowded, extra = tmp_path / "crowded", 30_000
+    with BagReader(bag) as reader, BagWriter(crowded) as writer:
+        writer.info = reader.info
+        first = next(reader.messages([JOINT_STATES]))
+        for index in range(extra):  # stamped before the first step's state: never a batch's answer
+            writer.write(JOINT_STATES, first.log_time_ns, _joint_state_cdr(index + 1, np.full(7, float(index))),
+                         first.msgtype)
+        for message in reader.messages():
+            writer.write(message.topic, message.log_time_ns, message.raw, message.msgtype)
+
+    def peak(read: Callable[[], object]) -> int:
+        tracemalloc.start()
+        try:
+            read()
+            return tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+
+    def iterate() -> None:
+        with BagReader(crowded) as reader:
+            for _ in reader.messages():
+                pass
+
+    added = peak(lambda: read_rollouts(crowded)) - peak(iterate)
+    assert added < 700_000, added  # 0.38 MB; the old reader, keeping all 30,000: 1.03 MB
+    (original,), (rollout,) = read_rollouts(bag), read_rollouts(crowded)
     np.testing.assert_array_equal(rollout.metadata["joint_positions"], original.metadata["joint_positions"])
 
 

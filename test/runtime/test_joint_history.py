@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from fiper_ros.runtime.joint_history import JointHistory, StampGate
+from fiper_ros.runtime.joint_history import JointHistory, LatestNotAfter, StampGate
 
 
 def q(value: float) -> np.ndarray:
@@ -64,3 +66,28 @@ def test_a_gate_without_wait_releases_everything_at_once() -> None:
     history.add(200, q(1.0))
     history.add(100, q(2.0))
     assert history.latest_stamp == 200
+
+
+def test_the_lookup_of_known_stamps_keeps_one_state_per_interval() -> None:
+    lookup = LatestNotAfter([300, 100, 300])
+    for stamp in (50, 90, 100, 250, 200, 301, 10_000):  # three states before 100, two between, two after 300
+        lookup.offer(stamp, q(stamp))
+    assert len(lookup) == 2  # the 100 and the 250: the others can never be the answer
+    assert {stamp: position[0] for stamp, position in lookup.positions().items()} == {100: 100, 300: 250}
+    late = LatestNotAfter([100, 200])
+    late.offer(150, q(1.0))
+    late.offer(150, q(2.0))  # a repeated stamp: the later offer, as JointHistory.add
+    assert set(late.positions()) == {200} and late.positions()[200][0] == 2.0
+
+
+@given(st.lists(st.integers(0, 50), max_size=12), st.lists(st.tuples(st.integers(0, 60), st.integers()), max_size=40))
+def test_the_lookup_equals_the_history_of_every_state(queries: list[int], states: list[tuple[int, int]]) -> None:
+    history, lookup = JointHistory(capacity=max(1, len(states))), LatestNotAfter(queries)
+    for stamp, value in states:
+        history.add(stamp, q(value))
+        lookup.offer(stamp, q(value))
+    assert len(lookup) <= len(set(queries))
+    expected = {stamp: history.at(stamp) for stamp in queries if history.at(stamp) is not None}
+    found = lookup.positions()
+    assert set(found) == set(expected)
+    assert all(np.array_equal(found[stamp], expected[stamp]) for stamp in expected)

@@ -37,7 +37,7 @@ from fiper_ros.core.scores import JOINT_POSITIONS_KEY
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg, stamp_ns
 from fiper_ros.interface.messages import OUTCOME_OF, SUCCESS_OF
 from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES, TOPICS
-from fiper_ros.runtime.joint_history import JointHistory
+from fiper_ros.runtime.joint_history import LatestNotAfter
 
 LOG = logging.getLogger(__name__)
 
@@ -178,14 +178,9 @@ def _arm_joints(msg: Any) -> np.ndarray:
 
 def _collect(bag: BagReader) -> list[_Collected]:
     rollouts: dict[int, _Collected] = {}
-    states: list[tuple[int, np.ndarray]] = []
     batch_stamps: list[tuple[_Collected, int, int]] = []  # (rollout, step, the batch's stamp)
-    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS, JOINT_STATES]):
+    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS]):
         msg = bag.decode(message)
-        if message.topic == JOINT_STATES:
-            if all(name in msg.name for name in ARM_JOINT_NAMES):
-                states.append((stamp_ns(msg.header.stamp), _arm_joints(msg)))
-            continue
         record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task,
                                                                      exec_steps=bag.info.exec_steps))
         if message.topic == EVENTS:
@@ -204,16 +199,26 @@ def _collect(bag: BagReader) -> list[_Collected]:
             record.batches[int(msg.step)] = data.reshape(shape)
             record.exec_steps, record.action_space = int(msg.exec_steps), str(msg.action_space)
             batch_stamps.append((record, int(msg.step), stamp_ns(msg.header.stamp)))
-    # The ACE node's rule over every state of the bag, not only those logged before the batch: a recorder
-    # can take a batch before the states stamped up to it (other topics, another publisher; seen under load).
-    joints = JointHistory(capacity=max(1, len(states)))
-    for stamp, position in sorted(states, key=lambda state: state[0]):
-        joints.add(stamp, position)
-    for record, step, stamp in batch_stamps:
-        position = joints.at(stamp)
-        if position is not None:
-            record.joints[step] = position
+    _resolve_joints(bag, batch_stamps)
     return list(rollouts.values())
+
+
+def _resolve_joints(bag: BagReader, batch_stamps: list[tuple[_Collected, int, int]]) -> None:
+    """Each batch's joint position: the ACE node's rule over every state of the bag, not only those logged
+    before the batch (a recorder can take a batch before the states stamped up to it: other topics, another
+    publisher; seen under load). A second pass over the states keeps one per batch at most, so a bag of many
+    ``/joint_states`` costs no more memory than its batches."""
+    if not batch_stamps or JOINT_STATES not in bag.topics:
+        return
+    lookup = LatestNotAfter(stamp for _, _, stamp in batch_stamps)
+    for message in bag.messages([JOINT_STATES]):
+        msg = bag.decode(message)
+        if all(name in msg.name for name in ARM_JOINT_NAMES):
+            lookup.offer(stamp_ns(msg.header.stamp), _arm_joints(msg))
+    positions = lookup.positions()
+    for record, step, stamp in batch_stamps:
+        if stamp in positions:
+            record.joints[step] = positions[stamp]
 
 
 def _to_rollout(record: _Collected, path: Path, has_actions: bool) -> Rollout:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import bisect
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -57,6 +57,45 @@ class JointHistory:
         """The position with the latest stamp not after ``stamp_ns``; None if every kept one is later."""
         index = bisect.bisect_right(self._stamps, stamp_ns)
         return self._positions[index - 1] if index > 0 else None
+
+
+class LatestNotAfter:
+    """The same rule for a set of stamps known in advance, over joint states offered in any order.
+
+    A bag reader knows every batch's stamp before it reads the joint states (a second pass over the bag), so it
+    keeps, per interval between two consecutive batch stamps, only the latest state in it: memory grows with
+    the number of batches, never with the number of ``/joint_states`` messages a bag holds.
+    """
+
+    def __init__(self, stamps: Iterable[int]) -> None:
+        self._stamps = sorted(set(stamps))
+        self._latest: list[tuple[int, np.ndarray] | None] = [None] * len(self._stamps)
+
+    def __len__(self) -> int:
+        """How many joint states are kept (at most one per stamp asked for)."""
+        return sum(entry is not None for entry in self._latest)
+
+    def offer(self, stamp_ns: int, position: np.ndarray) -> None:
+        """A joint position measured at ``stamp_ns``; of equal stamps the one offered last is kept, as
+        :meth:`JointHistory.add` keeps it."""
+        index = bisect.bisect_left(self._stamps, stamp_ns)
+        if index == len(self._stamps):
+            return  # after every stamp asked for
+        entry = self._latest[index]
+        if entry is None or stamp_ns >= entry[0]:
+            self._latest[index] = (stamp_ns, position)
+
+    def positions(self) -> dict[int, np.ndarray]:
+        """Per stamp asked for, the position with the latest stamp not after it (stamps before every
+        offered state left out): :meth:`JointHistory.at` over all the states offered."""
+        found: dict[int, np.ndarray] = {}
+        latest: np.ndarray | None = None
+        for stamp, entry in zip(self._stamps, self._latest):
+            if entry is not None:
+                latest = entry[1]
+            if latest is not None:
+                found[stamp] = latest
+        return found
 
 
 class StampGate:
