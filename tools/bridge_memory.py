@@ -9,23 +9,17 @@ node runs them; VmRSS every 25 rollouts.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from sim_bridge.bridge_session import BridgeSession
 
+from fiper_ros.bench import memory_mb
+
 CONTROL_STEPS = 40
-
-
-def rss_mb() -> float:
-    """This process's VmRSS in MB."""
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def main(argv: list[str]) -> int:
@@ -47,7 +41,8 @@ def main(argv: list[str]) -> int:
             if ended is not None:
                 break
         if i % 25 == 0 or i == rollouts - 1:
-            print(f"{mode} rollout {i}: RSS {rss_mb():.1f} MB ({time.monotonic() - started:.0f} s)", flush=True)
+            print(f"{mode} rollout {i}: RSS {memory_mb(os.getpid()):.1f} MB ({time.monotonic() - started:.0f} s)",
+                  flush=True)
     session.close()
     return 0
 

@@ -6,7 +6,9 @@ code: a repeated default, or one repeated with a different value, fails here."""
 from __future__ import annotations
 
 import importlib
+import itertools
 import os
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,7 @@ import pytest
 import rclpy
 import yaml
 from rclpy.context import Context
+from rclpy.exceptions import ParameterUninitializedException
 
 from fiper_ros.launcher.config import load_launch, node_module
 
@@ -41,7 +44,10 @@ class Defaults:
         node = self.nodes[module]
         if not node.has_parameter(name):
             return False, None
-        value = node.get_parameter(name).value
+        try:
+            value = node.get_parameter(name).value
+        except ParameterUninitializedException:  # declared with a type and no default ("unset")
+            return True, None
         return True, value.tolist() if hasattr(value, "tolist") else list(value) if isinstance(value, tuple) else value
 
     def close(self) -> None:
@@ -153,3 +159,74 @@ def test_a_repeated_default_and_a_pass_through_with_another_default_are_caught(t
     assert parameter_file_problems(params, modules, defaults) == [
         "nodes.yaml: /fiper/fusion_node: diagnostics_period_s: repeats the node's default 1.0",
         "nodes.yaml: /elsewhere/node: no shipped launch file starts this node"]
+
+
+#: The parameter tables of the docs (file, a line of the text just before the table) and the node modules a row
+#: without a ``node`` column is about.
+DOC_TABLES = [(ROOT / "docs" / "nodes.md", "Who may publish what a node consumes", ()),
+              (ROOT / "docs" / "nodes.md", "Parameters (all read-only; the defaults are the node's declarations",
+               ("fiper_ros.nodes.policy_node",)),
+              (ROOT / "docs" / "sim.md", "All read-only (set them at start-up); the defaults are the node's",
+               ("sim_bridge.bridge_node",))]
+#: The ``node`` column's words.
+DOC_NODES = {"scoring nodes": ("fiper_ros.nodes.rnd_oe_node", "fiper_ros.nodes.ace_node"),
+             "fusion": ("fiper_ros.nodes.fusion_node",), "supervisor": ("fiper_ros.nodes.supervisor_node",)}
+#: Default cells in words, and what each says of the declared default (None: said elsewhere in the docs, the
+#: ``FiperNode`` shell's or the topic table's).
+DOC_WORDS = {"unset": lambda default: default in ("", [], None), "as the suite": None,
+             "as the bridge publishes them": None, "as in the topic table": None}
+
+
+def doc_table(path: Path, before: str) -> list[dict[str, str]]:
+    """The rows of the first markdown table after the line holding ``before``, as header -> cell."""
+    lines = path.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if before in line)
+    table = [line for line in itertools.takewhile(lambda line: line.startswith("|"),
+                                                  itertools.dropwhile(lambda line: not line.startswith("|"),
+                                                                      lines[start:]))]
+    cells = [[cell.strip() for cell in line.strip("|").split(" | ")] for line in table]
+    return [dict(zip(cells[0], row)) for row in cells[2:]]
+
+
+def doc_problems(path: Path, before: str, modules: tuple[str, ...], defaults: Defaults) -> list[str]:
+    """A docs parameter table against the declarations: every name a parameter of its node(s), every default
+    cell the declared default (one value for all the row's names, or one per name) or words of :data:`DOC_WORDS`."""
+    problems = []
+    for row in doc_table(path, before):
+        names = re.findall(r"`([^`]+)`", row["parameter"])
+        nodes = [module for word in row["node"].split(", ") for module in DOC_NODES[word]] if "node" in row \
+            else list(modules)
+        cell = row["default"]
+        values: list[Any] = [yaml.safe_load(value.strip("`")) for value in re.split(r",\s*(?![^\[]*\])", cell)]
+        for index, name in enumerate(names):
+            for module in nodes:
+                declared, default = defaults.of(module, name)
+                where = f"{path.name}: {name} ({module})"
+                if not declared:
+                    problems.append(f"{where}: not a parameter")
+                elif cell in DOC_WORDS:
+                    check = DOC_WORDS[cell]
+                    if check is not None and not check(default):
+                        problems.append(f"{where}: says {cell!r}, the default is {default!r}")
+                elif len(values) not in (1, len(names)):
+                    problems.append(f"{where}: {len(values)} defaults for {len(names)} parameters")
+                elif not same(values[index if len(values) > 1 else 0], default):
+                    problems.append(f"{where}: says {cell}, the default is {default!r}")
+    return problems
+
+
+def test_the_docs_parameter_tables_state_the_declared_defaults(defaults: Defaults) -> None:
+    problems = [problem for path, before, modules in DOC_TABLES
+                for problem in doc_problems(path, before, modules, defaults)]
+    assert problems == []
+    assert sum(len(doc_table(path, before)) for path, before, _ in DOC_TABLES) >= 20  # the tables were found
+
+
+def test_a_docs_table_with_a_wrong_default_is_caught(tmp_path: Path, defaults: Defaults) -> None:
+    doc = tmp_path / "doc.md"
+    doc.write_text("The table:\n\n| parameter | node | default | meaning |\n| --- | --- | --- | --- |\n"
+                   "| `allow_reset` | fusion | `false` | x |\n| `deadline_s`, `buffer_size` | fusion | 1.0, 64 | x |\n"
+                   "| `allowed_publishers` | scoring nodes | unset | x |\n| `no_such` | supervisor | 1 | x |\n")
+    assert doc_problems(doc, "The table:", (), defaults) == [
+        "doc.md: allow_reset (fiper_ros.nodes.fusion_node): says `false`, the default is True",
+        "doc.md: no_such (fiper_ros.nodes.supervisor_node): not a parameter"]

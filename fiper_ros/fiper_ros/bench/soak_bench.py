@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
-from fiper_ros.bench import EVERY_ALARM
+from fiper_ros.bench import EVERY_ALARM, memory_mb
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, state_name
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_launch
@@ -88,17 +88,6 @@ class Block:
                 f"{self.steps:4d} steps ({self.steps / self.length_s:.2f}/s), {self.rollouts} rollouts, "
                 f"{self.alarms} alarms | latency p50 {p50:6.1f} ms p99 {p99:6.1f} ms | unanswered {self.unanswered}, "
                 f"overtaken {self.overtaken}, UNKNOWN {self.unknown}, foreign {self.foreign} | RSS MB: {rss}")
-
-
-def rss_mb(pid: int) -> float:
-    """Resident memory of process ``pid`` in MB (``VmRSS``); NaN if it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    except OSError:
-        pass
-    return float("nan")
 
 
 class StepMatcher:
@@ -203,7 +192,7 @@ class Meter:
         stale = self.matcher.expire(time.monotonic_ns())
         block.unanswered = sum(rollout in self.followed for rollout, _ in stale)
         block.foreign = len(stale) - block.unanswered
-        block.rss_mb = {name: rss_mb(pid) for name, pid in self.pids.items()}
+        block.rss_mb = {name: memory_mb(pid) for name, pid in self.pids.items()}
         self.blocks.append(block)
         print(block.line(), flush=True)
         self.block = Block(block.index + 1, block.start_s + length_s, self.block_s)
