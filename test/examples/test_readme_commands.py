@@ -112,14 +112,16 @@ COVERAGE: dict[str, Coverage] = {
     ". ./env.sh": Run(OWN),
     "fiper record -o runs/my_rollouts": Serve(
         "(Ctrl-C to stop)", OWN, expect=("runs/my_rollouts: ",),
-        feed="python -m fiper_ros.examples.minimal_policy --rollouts 38 --rate 100 --wait-for /fiper_record"),
+        feed="python -m fiper_ros.examples.minimal_policy --rollouts 38 --rate 100 --task my_task "
+             "--wait-for /fiper_record"),
     "fiper calibrate runs/my_rollouts -o my_calibration --threshold cp_band --window-obs 5 --window-act 5": Run(
         OWN, expect=("M = 38 successful rollouts fitted it", "guarantee: at most 0.05 of new successful rollouts alarmed"),
         files=("my_calibration/calibration.yaml",)),
     "fiper launch fiper_ros/launch/fiper.launch.yaml calibration_dir:=my_calibration --summary": Serve(
         "fusing rnd_oe, ace (calibration my_calibration)", OWN,
         meanwhile=(PUBLISHER, SUPERVISOR, "bin/fiper echo /fiper/alarm", "bin/fiper view"),
-        expect=("[summary] rollout ", "[summary] verdicts on 1 rollouts with a known outcome")),
+        # the README policy's step was judged (no "1 unknown": the calibration is of its task)
+        expect=("my_task/id: 1 steps, first alarm ", "[summary] verdicts on 1 rollouts with a known outcome")),
     PUBLISHER: Run(expect=("readme policy: one rollout sent",)),
     SUPERVISOR: Run(expect=("readme supervisor: alarm state",)),
     "bin/fiper echo /fiper/alarm": Serve("reason: "),
