@@ -34,6 +34,9 @@ def test_cli_writes_markdown_json_and_pngs(tmp_path: Path, tiny_dataset: Dataset
                  "| OR | time-var. |", "| OR | CP scaled |", "Fixed default configuration", "Calibration: split conformal",
                  "## The promise: false alarms on held-out ID successes, paper protocol", "FA / TPR at δ = 0.1"):
         assert text in markdown, text
+    sizes = f"{len(tiny_dataset.calibration_successes)} calibration successes, {len(tiny_dataset.test)} test rollouts"
+    assert f"Tasks: sorting ({sizes}, SYNTHETIC); push_t (50 calibration successes, 16 test rollouts, SYNTHETIC)." \
+        in markdown  # what each figure names at its foot too; the tiny data set is synthetic as well
     document = json.loads((out / "results.json").read_text())
     assert document["synthetic"] is True
     assert set(document["protocols"]) == {"paper", "clean"}

@@ -30,14 +30,15 @@ POLICY_PERIOD_S = STEP_NS / 1e9
 
 
 class Launch:
-    """``fiper launch CONFIG name:=value ...`` in its own process group and ROS domain (in ``cwd``)."""
+    """``fiper launch CONFIG name:=value ...`` in its own process group and ROS domain (in ``cwd``, with ``env`` set
+    beside the test's ROS environment)."""
 
     def __init__(self, config: Path, domain: int, arguments: dict[str, str] | None = None,
-                 cwd: Path | None = None) -> None:
+                 cwd: Path | None = None, env: dict[str, str] | None = None) -> None:
         named = [f"{name}:={value}" for name, value in (arguments or {}).items()]
         self.proc = subprocess.Popen(  # noqa: S603
             [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), *named, "--grace", "5"],
-            cwd=cwd, env=ros_env(domain) | {PARENT_PID_ENV: str(os.getpid())}, stdout=subprocess.PIPE,
+            cwd=cwd, env=ros_env(domain) | {PARENT_PID_ENV: str(os.getpid())} | (env or {}), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self.lines: list[str] = []
         threading.Thread(target=self._read, daemon=True).start()
@@ -59,8 +60,19 @@ class Launch:
             raise AssertionError(f"{name} not started:\n" + "\n".join(self.lines))
         return pids[-1]
 
+    def wait_for(self, condition: Callable[[], bool], timeout: float = 120.0) -> bool:
+        """Poll until ``condition()`` or ``timeout`` seconds (or until the launch exited); whether it held."""
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline or self.proc.poll() is not None:
+                return condition()
+            time.sleep(0.05)
+        return True
+
     def interrupt(self) -> int:
-        """Ctrl-C the launch; its exit status."""
+        """Ctrl-C the launch (unless it has exited already); its exit status."""
+        if self.proc.poll() is not None:
+            return self.proc.returncode
         os.killpg(self.proc.pid, signal.SIGINT)
         return self.proc.wait(timeout=30)
 

@@ -4,6 +4,7 @@ substitution, an unknown or missing launch argument); ``name:=value`` arguments;
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +77,20 @@ def test_arguments_lets_and_substitutions_reach_the_nodes(tmp_path: Path) -> Non
     assert "alarm:=/arm/alarm" in args and args[-2:] == ["--log-level", "warn"]
 
 
+def test_output_and_respawn_max_retries_are_read_as_launch_ros_means_them(tmp_path: Path) -> None:
+    path = write(tmp_path / "o.launch.yaml", node("rnd_oe_node"), node("ace_node", output="log"),
+                 node("fusion_node", output="both", respawn="true", respawn_max_retries=2),
+                 node("supervisor_node", respawn="true", respawn_max_retries=0))
+    plain, logged, both, never = load_launch(path).nodes
+    assert [(s.output, s.to_screen, s.to_log) for s in (plain, logged, both)] == [
+        ("screen", True, False), ("log", False, True), ("both", True, True)]
+    assert plain.respawn_max_retries == -1 and both.respawn_max_retries == 2 and never.respawn_max_retries == 0
+    assert [both.may_respawn(n) for n in range(4)] == [True, True, False, False]
+    assert not never.may_respawn(0) and not plain.may_respawn(0)  # no respawn: true
+    assert replace(plain, respawn=True).may_respawn(10 ** 6)  # -1: unlimited
+    assert load_launch(dump_launch(load_launch(path), tmp_path / "out.launch.yaml")).nodes == load_launch(path).nodes
+
+
 @pytest.mark.parametrize(("value", "expected"), [
     ("true", True), ("1", 1), ("1.5", 1.5), ("and", "and"), ("'1.0'", "1.0"), ("''", ""), ("[1, 2]", [1, 2]),
     (0.5, 0.5), (False, False), (["x", "y"], ["x", "y"]), ([1, 2], [1, 2]),
@@ -120,10 +135,12 @@ def test_an_include_shares_the_scope_and_its_arguments_are_declared(tmp_path: Pa
     ([node(param=[{"name": "p", "value": "$(command ls)"}])], "substitution $(command ...) is not supported"),
     ([node(namespace="$(eval '1')")], "substitution $(eval ...) is not supported"),
     ([node(param=[{"name": "p", "value": "x", "type": "str"}])], "attribute 'type' is not supported"),
-    ([node(output="log")], "output 'log' is not supported"),
+    ([node(output="own_log")], "output 'own_log' is not supported (one of screen, log, both)"),
     ([node(on_exit="restart")], "on_exit 'restart' is not supported (only shutdown)"),
     ([node(respawn="maybe")], "respawn must be true or false, got 'maybe'"),
     ([node(respawn_delay=-1)], "respawn_delay must be >= 0, got -1"),
+    ([node(respawn_max_retries=-2)], "respawn_max_retries must be an integer >= -1 (-1: unlimited), got -2"),
+    ([node(respawn_max_retries=1.5)], "respawn_max_retries must be an integer >= -1 (-1: unlimited), got 1.5"),
     ([node(param=[{"from": "params.yaml"}])], "param from 'params.yaml' is relative: write $(dirname)/params.yaml"),
     ([node(param=[{"from": "/no/such/params.yaml"}])], "param from: no such file /no/such/params.yaml"),
     ([node(param=[{"name": "p", "value": "$(var nothing)"}])], "$(var nothing): no launch argument or let named"),

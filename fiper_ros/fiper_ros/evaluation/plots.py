@@ -10,6 +10,9 @@
 - ``example_rollouts.png``: FIPER's selected configuration on one test rollout per category of the
   first task: both windowed scores, both thresholds and the alarm step (computed through the core
   single-configuration functions).
+
+Every figure names at its foot the data it was drawn from (tasks, calibration successes, test rollouts), so a
+figure of a small or synthetic set says so.
 """
 
 from __future__ import annotations
@@ -31,10 +34,18 @@ from fiper_ros.evaluation.data import CATEGORIES  # noqa: E402
 from fiper_ros.evaluation.engine import EvaluationResult  # noqa: E402
 from fiper_ros.evaluation.methods import METHODS  # noqa: E402
 from fiper_ros.evaluation.protocol import METRICS, nanmean  # noqa: E402
-from fiper_ros.evaluation.report import KIND_LABELS, LABELS, config_text, middle_delta  # noqa: E402
+from fiper_ros.evaluation.report import KIND_LABELS, LABELS, config_text, data_text, middle_delta  # noqa: E402
 from fiper_ros.evaluation.sweep import FIPER, Group  # noqa: E402
 
 IMPACT_WINDOW = 15
+
+
+def _save(figure: plt.Figure, path: Path, result: EvaluationResult, dpi: int) -> None:
+    """Write ``figure`` to ``path`` labelled at its foot with the data it was drawn from (:func:`data_text`)."""
+    figure.text(0.005, 0.005, f"data: {data_text(result)}", fontsize=7, color="dimgray", ha="left", va="bottom")
+    figure.tight_layout(rect=(0.0, 0.03, 1.0, 1.0))
+    figure.savefig(path, dpi=dpi)
+    plt.close(figure)
 
 
 def _middle_delta(result: EvaluationResult) -> float:
@@ -80,9 +91,7 @@ def scores_by_category(result: EvaluationResult, path: Path) -> None:
     axis.axhline(1.0, color="black", linewidth=0.8, linestyle="--")
     axis.legend(ncol=4, fontsize=8)
     axis.set_title("Per-step scores by rollout category (w = 1, mean over tasks; bars: 25/75 %)")
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    _save(figure, path, result, dpi=110)
 
 
 def _series(result: EvaluationResult, method: str, kind: str, labels: list[str]) -> np.ndarray:
@@ -119,9 +128,7 @@ def window_impact(result: EvaluationResult, path: Path) -> None:
         axes[m, 0].set_ylabel(LABELS[metric])
     axes[0, -1].legend(fontsize=7)
     figure.suptitle("Impact of the window size (mean over tasks, seeds and deltas)")
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
+    _save(figure, path, result, dpi=100)
 
 
 def delta_impact(result: EvaluationResult, path: Path) -> None:
@@ -143,9 +150,7 @@ def delta_impact(result: EvaluationResult, path: Path) -> None:
         axes[m, 0].set_ylabel(LABELS[metric])
     axes[0, -1].legend(fontsize=7)
     figure.suptitle(f"Impact of the quantile 1 - delta (w = {window}, mean over tasks and seeds)")
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
+    _save(figure, path, result, dpi=100)
 
 
 def example_rollouts(result: EvaluationResult, path: Path, group: Group) -> None:
@@ -173,9 +178,7 @@ def example_rollouts(result: EvaluationResult, path: Path, group: Group) -> None
         axes[0, column].set_title(f"{category}: {dataset.test[index].rollout_id}", fontsize=8)
         axes[1, column].set_xlabel("policy step")
     figure.suptitle(f"FIPER on {dataset.task} ({config_text(group)}, delta = {_middle_delta(result)})")
-    figure.tight_layout()
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
+    _save(figure, path, result, dpi=100)
 
 
 def write_figures(result: EvaluationResult, directory: Path) -> list[str]:

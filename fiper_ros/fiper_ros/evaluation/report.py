@@ -324,6 +324,14 @@ def _infinite_summary(result: EvaluationResult) -> list[str]:
     return lines
 
 
+def data_text(result: EvaluationResult) -> str:
+    """What the run evaluated: per task its calibration successes and test rollouts, and SYNTHETIC where its data
+    is (the first line of ``results.md`` and the foot of every figure)."""
+    return "; ".join(f"{d.task} ({len(d.calibration_successes)} calibration successes, {len(d.test)} test rollouts"
+                     f"{', SYNTHETIC' if any(r.metadata.get('synthetic') for r in d.test) else ''})"
+                     for d in result.datasets)
+
+
 def markdown(result: EvaluationResult, figures: list[str]) -> str:
     """The whole ``results.md``."""
     s = result.settings
@@ -333,7 +341,7 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
         lines += ["> **SYNTHETIC DATA** (`fiper_ros.evaluation.synthetic`): these numbers exercise the engine; "
                   "they say nothing about real policies.", ""]
     lines += [
-        f"Tasks: {', '.join(result.tasks)}. Seeds: {', '.join(map(str, s.seeds))}. Profile: {s.method_settings.profile}.",
+        f"Tasks: {data_text(result)}. Seeds: {', '.join(map(str, s.seeds))}. Profile: {s.method_settings.profile}.",
         f"Calibration: {SPLIT_TEXT[s.method_settings.split]}; the same split of every task and seed for every method.",
         f"Sweep: windows {min(s.sweep.windows)}..{max(s.sweep.windows)}"
         f"{' + cumulative' if s.sweep.cumulative else ''}, 1-delta in "

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         for index in range(args.rollouts):
             fails = index in failing
             policy = StandInPolicy(seed + index, args.steps, args.steps // 3 if fails else None)
-            rollout_id = fiper.start(task=TASK, scenario="ood" if fails else "id", max_steps=args.steps)
+            rollout_id = fiper.start(task=args.task, scenario="ood" if fails else "id", max_steps=args.steps)
             for t in range(args.steps):
                 began = time.monotonic()
                 embedding, chunks = policy.act(t)
@@ -113,6 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=20, help="policy steps per rollout (default 20)")
     parser.add_argument("--rate", type=float, default=20.0, help="policy steps per second (default 20)")
     parser.add_argument("--seed", type=int, help="seed of the first rollout (default: from the clock)")
+    parser.add_argument("--task", default=TASK, help=f"the task its rollouts name (default {TASK})")
     parser.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the readers (default 60)")
     parser.add_argument("--wait-for", nargs="+", default=[SUITE], metavar="WHO",
                         help=f"'{SUITE}' (the FIPER suite's nodes) and/or nodes that report their matches on "

@@ -9,7 +9,8 @@ A launch file is ``launch:``, a list of tags (docs/install.md, "Launch files", h
 - ``include`` (``file``, ``arg: [{name, value}]``): another launch file, read in the same scope (as
   ``IncludeLaunchDescription`` does): its arguments see the values set here and on the command line.
 - ``node`` (``pkg``, ``exec``, ``name``, ``namespace``, ``param``, ``remap``, ``respawn``, ``respawn_delay``,
-  ``output: screen``, ``ros_args``, ``on_exit: shutdown``): one node process. ``pkg`` + ``exec`` name a console
+  ``respawn_max_retries``, ``output`` (``screen``, ``log``, ``both``), ``ros_args``, ``on_exit: shutdown``): one
+  node process. ``pkg`` + ``exec`` name a console
   script of an installed ament_python package (what ``ros2 run`` starts); the launcher runs its module.
   ``param`` entries are ``{from: FILE}`` or ``{name, value}`` (nested ``param`` lists give dotted names),
   applied in order, later ones winning, as ``launch_ros`` does; a value's text is read as YAML after its
@@ -21,8 +22,10 @@ substituted (``$(find-pkg-share PKG)/...`` or ``$(dirname)/...``): a launch file
 directory. Anything else (another tag, attribute or substitution) is refused with one line naming it.
 
 The launcher itself (:mod:`fiper_ros.launcher.processes`) starts each node as ``python -m MODULE --ros-args ...``
-in its own process group, relays its output prefixed with the node name, respawns a ``respawn`` node
-``respawn_delay`` seconds after it exited (not while the launch stops), stops everything when a required node
+in its own process group, relays its output prefixed with the node name (``output: screen``, the default), into
+its log file (``log``: :func:`fiper_ros.launcher.processes.launch_log_directory` says where) or both, respawns a
+``respawn`` node ``respawn_delay`` seconds after it exited (not while the launch stops; at most
+``respawn_max_retries`` times, -1: unlimited, as ``launch_ros``), stops everything when a required node
 exits, forwards Ctrl-C / SIGTERM (SIGINT, then SIGKILL after a grace period) and exits 1 if any node exited on its
 own. Every node process dies with the launcher (``FIPER_PARENT_PID``). With ``ROS_SECURITY_ENABLE=true`` each
 node process runs in its own SROS2 enclave, named as the node (docs/security.md). ``--in-process`` runs all
@@ -52,9 +55,13 @@ TAGS: dict[str, frozenset[str]] = {
     "arg": frozenset({"name", "default", "description", "choice"}),
     "let": frozenset({"name", "value"}),
     "include": frozenset({"file", "arg"}),
-    "node": frozenset({"pkg", "exec", "name", "namespace", "param", "remap", "respawn", "respawn_delay", "output",
-                       "ros_args", "on_exit"}),
+    "node": frozenset({"pkg", "exec", "name", "namespace", "param", "remap", "respawn", "respawn_delay",
+                       "respawn_max_retries", "output", "ros_args", "on_exit"}),
 }
+#: A node's ``output``, as ``launch_ros``: its lines on the launcher's screen, in its log file, or in both.
+OUTPUTS = ("screen", "log", "both")
+#: ``respawn_max_retries`` of a node that does not set it: respawned without limit (``launch_ros``'s -1).
+UNLIMITED_RESPAWNS = -1
 #: Attributes every tag takes: ``if: $(var x)`` / ``unless: ...`` (``true``/``false``/``1``/``0``) skip the tag.
 CONDITIONS = frozenset({"if", "unless"})
 #: Includes nested deeper than this are refused (a file that includes itself).
@@ -91,6 +98,24 @@ class NodeSpec:
     """Start the node again when it exits on its own."""
     respawn_delay: float = 0.0
     """Seconds between an exit and the respawn."""
+    respawn_max_retries: int = UNLIMITED_RESPAWNS
+    """Respawns at most (:data:`UNLIMITED_RESPAWNS`: no limit); after them an exit is final."""
+    output: str = "screen"
+    """Where the node's output goes (one of :data:`OUTPUTS`)."""
+
+    @property
+    def to_screen(self) -> bool:
+        """Whether the launcher relays the node's lines to its own output."""
+        return self.output in ("screen", "both")
+
+    @property
+    def to_log(self) -> bool:
+        """Whether the node's lines go to its log file."""
+        return self.output in ("log", "both")
+
+    def may_respawn(self, respawns: int) -> bool:
+        """Whether the node is started again after an exit, having been respawned ``respawns`` times."""
+        return self.respawn and (self.respawn_max_retries == UNLIMITED_RESPAWNS or respawns < self.respawn_max_retries)
 
     @property
     def fqn(self) -> str:
@@ -203,7 +228,7 @@ def dump_launch(config: LaunchConfig, path: Path) -> Path:
     entries = []
     for spec in config.nodes:
         node: dict[str, Any] = {"pkg": spec.package, "exec": spec.executable, "name": spec.name,
-                                "namespace": spec.namespace, "output": "screen"}
+                                "namespace": spec.namespace, "output": spec.output}
         params = []
         for entry in spec.params:
             if isinstance(entry, Path):
@@ -219,6 +244,8 @@ def dump_launch(config: LaunchConfig, path: Path) -> Path:
             node["ros_args"] = shlex.join(spec.ros_arguments)
         if spec.respawn:
             node |= {"respawn": "true", "respawn_delay": spec.respawn_delay}
+            if spec.respawn_max_retries != UNLIMITED_RESPAWNS:
+                node["respawn_max_retries"] = spec.respawn_max_retries
         if spec.required:
             node["on_exit"] = "shutdown"
         entries.append({"node": node})
@@ -356,15 +383,18 @@ class _Reader:
             raise LaunchError(f"{entry.where}: a second node of this name (fiper launch names processes by node)")
         namespace = "/" + entry.text("namespace", default="/").strip("/")
         output = entry.text("output", default="screen")
-        if output != "screen":
-            raise LaunchError(f"{entry.where}: output {output!r} is not supported: fiper launch relays every node's "
-                              "output to its own (output: screen)")
+        if output not in OUTPUTS:
+            raise LaunchError(f"{entry.where}: output {output!r} is not supported (one of {', '.join(OUTPUTS)})")
         on_exit = entry.text("on_exit", default="")
         if on_exit not in ("", "shutdown"):
             raise LaunchError(f"{entry.where}: on_exit {on_exit!r} is not supported (only shutdown)")
         respawn_delay = entry.number("respawn_delay", 0.0)
         if respawn_delay < 0:
             raise LaunchError(f"{entry.where}: respawn_delay must be >= 0, got {respawn_delay:g}")
+        retries = entry.number("respawn_max_retries", UNLIMITED_RESPAWNS)
+        if not retries.is_integer() or retries < UNLIMITED_RESPAWNS:
+            raise LaunchError(f"{entry.where}: respawn_max_retries must be an integer >= {UNLIMITED_RESPAWNS} "
+                              f"({UNLIMITED_RESPAWNS}: unlimited), got {retries:g}")
         try:
             module = node_module(package, executable)
         except LaunchError as error:
@@ -374,7 +404,7 @@ class _Reader:
         self.nodes.append(NodeSpec(
             name, package, executable, module, namespace, self._params(entry), remaps,
             tuple(shlex.split(entry.text("ros_args", default=""))), on_exit == "shutdown",
-            entry.flag("respawn"), respawn_delay))
+            entry.flag("respawn"), respawn_delay, int(retries), output))
 
     def _params(self, entry: _Entry) -> tuple[ParameterEntry, ...]:
         params: list[ParameterEntry] = []

@@ -4,14 +4,16 @@ from __future__ import annotations
 import importlib
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, NodeSpec
@@ -29,13 +31,26 @@ def say(line: str) -> None:
         sys.stdout.flush()
 
 
+def launch_log_directory(env: Mapping[str, str]) -> Path:
+    """Where this launch's node log files go (``output: log`` / ``both``: ``<dir>/<node name>.log``), as
+    ``launch_ros``: ``$ROS_LOG_DIR``, else ``$ROS_HOME/log``, else ``~/.ros/log``, and in it one directory per
+    launch named by its start time, host and launcher pid."""
+    if env.get("ROS_LOG_DIR"):
+        root = Path(env["ROS_LOG_DIR"])
+    else:
+        root = Path(env["ROS_HOME"]) / "log" if env.get("ROS_HOME") else Path.home() / ".ros" / "log"
+    return root.expanduser() / f"{datetime.now():%Y-%m-%d-%H-%M-%S-%f}-{socket.gethostname()}-{os.getpid()}"
+
+
 class ProcessGroup:
     """The launched processes, their output, their respawns and their shutdown."""
 
-    def __init__(self, grace_s: float, params_dir: Path) -> None:
-        """``params_dir``: where the nodes' name/value parameters are written as parameter files."""
+    def __init__(self, grace_s: float, params_dir: Path, log_dir: Path | None = None) -> None:
+        """``params_dir``: where the nodes' name/value parameters are written as parameter files; ``log_dir``: where
+        the log files of nodes with ``output: log`` or ``both`` go (default :func:`launch_log_directory`)."""
         self.grace_s = grace_s
         self.params_dir = params_dir
+        self.log_dir = log_dir or launch_log_directory(os.environ)
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self.specs: dict[str, NodeSpec] = {}
         self.respawns: dict[str, int] = {}
@@ -53,12 +68,26 @@ class ProcessGroup:
         self.procs[spec.name] = proc
         self.specs[spec.name] = spec
         self.say(f"[launch] started {spec.name} (pid {proc.pid}): {spec.package}/{spec.executable} in {spec.namespace}")
-        threading.Thread(target=self._relay, args=(spec.name, proc), daemon=True).start()
+        log = None
+        if spec.to_log:
+            path = self.log_dir / f"{spec.name}.log"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            log = path.open("a")  # a respawned node's lines follow its earlier ones
+            self.say(f"[launch] {spec.name}'s output (output: {spec.output}) goes to {path}")
+        threading.Thread(target=self._relay, args=(spec, proc, log), daemon=True).start()
 
-    def _relay(self, name: str, proc: subprocess.Popen[str]) -> None:
+    def _relay(self, spec: NodeSpec, proc: subprocess.Popen[str], log: IO[str] | None) -> None:
         assert proc.stdout is not None
-        for line in proc.stdout:
-            self.say(f"[{name}] {line.rstrip()}")
+        try:
+            for line in proc.stdout:
+                if log is not None:
+                    log.write(line)
+                    log.flush()
+                if spec.to_screen:
+                    self.say(f"[{spec.name}] {line.rstrip()}")
+        finally:
+            if log is not None:
+                log.close()
 
     def stop(self) -> None:
         """SIGINT every running process, SIGKILL what is left after the grace period."""
@@ -77,8 +106,9 @@ class ProcessGroup:
     def watch(self, stop_event: threading.Event, required: set[str]) -> int:
         """Run until ``stop_event``, every node has exited for good, or a required node exited.
 
-        A node with ``respawn`` is started again ``respawn_delay`` seconds after it exited. Returns 0, or 1
-        if any node exited on its own (the others keep running unless it was required).
+        A node with ``respawn`` is started again ``respawn_delay`` seconds after it exited, unless it has been
+        respawned ``respawn_max_retries`` times already (which is said). Returns 0, or 1 if any node exited on its
+        own (the others keep running unless it was required).
         """
         reported: set[str] = set()
         due: dict[str, float] = {}
@@ -91,8 +121,13 @@ class ProcessGroup:
                     status = 1
                     spec = self.specs[name]
                     if spec.respawn and name not in required:
-                        due[name] = time.monotonic() + spec.respawn_delay
-                        self.say(f"[launch] respawning {name} in {spec.respawn_delay:g} s")
+                        respawns = self.respawns.get(name, 0)
+                        if spec.may_respawn(respawns):
+                            due[name] = time.monotonic() + spec.respawn_delay
+                            self.say(f"[launch] respawning {name} in {spec.respawn_delay:g} s")
+                        else:
+                            self.say(f"[launch] not respawning {name} again: respawned {respawns} time(s), its "
+                                     f"respawn_max_retries {spec.respawn_max_retries}")
             if reported & required:
                 self.say(f"[launch] required node(s) {', '.join(sorted(reported & required))} exited")
                 break
