@@ -42,11 +42,13 @@ def test_spin_until_shutdown_returns_only_after_the_callbacks_in_flight(ros_doma
         rclpy.try_shutdown(context=context)
 
 
-def _run_node_process(factory_body: str, domain: int, interrupt_after: str | None = None) -> tuple[int, str]:
+def _run_node_process(factory_body: str, domain: int, interrupt_after: str | None = None,
+                      executor: str = "single") -> tuple[int, str]:
     """Run ``run_node`` on ``factory()`` (given by its body) in a child process; send SIGINT once the child
     printed ``interrupt_after``; return its exit status and output."""
     script = ("import faulthandler, sys, rclpy\nfrom fiper_ros.nodes.main import run_node\n"
-              f"def factory():\n{textwrap.indent(factory_body, '    ')}\nsys.exit(run_node(factory, []))\n")
+              f"def factory():\n{textwrap.indent(factory_body, '    ')}\n"
+              f"sys.exit(run_node(factory, [], executor={executor!r}))\n")
     child = spawn_python(["-c", script], domain)
     lines = []
     if interrupt_after is not None:
@@ -121,3 +123,19 @@ def test_sigterm_shuts_down_once_and_ignores_the_next(ros_domain: int) -> None:
     finally:
         signal.signal(signal.SIGTERM, previous)
         rclpy.try_shutdown()
+
+
+def test_a_node_process_on_the_events_executor_keeps_firing_its_timers(ros_domain: int, monkeypatch) -> None:
+    """Issue #24: rclpy's EventsExecutor.spin() busy-waits in this wheel and never dispatches a timer after the
+    first events (docs/benchmarks.md); run_node spins it in bounded slices, so the timer fires again and again
+    and SIGINT ends the process."""
+    monkeypatch.delenv("FIPER_EXECUTOR", raising=False)
+    body = textwrap.dedent("""\
+        faulthandler.dump_traceback_later(30, exit=True)  # a wedged spin ends the child: the test fails, not hangs
+        node = rclpy.create_node("ticker")
+        ticks = iter(range(1000))
+        node.create_timer(0.02, lambda: print(f"tick {next(ticks)}", flush=True))
+        return node""")
+    status, out = _run_node_process("import rclpy\n" + body, ros_domain, interrupt_after="tick 5", executor="events")
+    assert status == 0, out
+    assert "tick 5" in out

@@ -4,7 +4,10 @@ The three FIPER nodes run as separate processes (``fiper launch``) in a private 
 loopback. A driver in this process publishes an embedding and an action-chunk batch per policy step
 and receives the FailureAlarm of that step; latency = alarm received - embedding published (one
 monotonic clock, same process). Measured per task shape: p50 / p99 latency at 10 Hz, and the highest
-sustained rate (steps/s) at which every step's alarm arrives and the backlog stays below 0.5 s.
+sustained rate (steps/s) at which every step's alarm arrives and the backlog stays below 0.5 s; for each rate
+tried, its p50 / p99 and the CPU milliseconds per step of each suite process and of the driver (``/proc``: all
+threads, DDS's included), which say where the time goes. Every figure is printed with its ratio to issue #24's
+target. The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
 
 Start-up (issue #24), per shape before the latency runs: each node started alone (its command line as
 ``fiper launch`` builds it), the seconds from its exec to ACTIVE (the driver asks its lifecycle
@@ -14,12 +17,16 @@ another (the driver's inputs matched by the scoring nodes, the events by all thr
 by the fusion node and the alarm published, as the driver's graph shows them). After the runs: each suite
 node's peak RSS. The load average is printed before and after: the figures depend on what else runs.
 
+``--profile DIR`` profiles the suite's nodes (``cProfile`` of their main thread's CPU time, ``FIPER_PROFILE_DIR``)
+and the driver's timed runs into ``DIR/<shape>/<process>.prof`` (``python -m pstats``); profiled figures are slower.
+
 ``--view`` runs the live view (``fiper view``, issue #22) beside the suite, with no client connected: the
 figures with and without it say what the view costs the suite when nobody watches.
 """
 from __future__ import annotations
 
 import argparse
+import cProfile
 import os
 import re
 import signal
@@ -42,12 +49,17 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
+from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV
 from fiper_ros.shm import clean_stale
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
-#: included) within :data:`TARGET_SUITE_S`.
+#: included) within :data:`TARGET_SUITE_S`; alarm latency p99 at 10 Hz at most :data:`TARGET_P99_MS`; each node's
+#: peak RSS at most :data:`TARGET_RSS_MB` (the hour-long figure is the soak benchmark's); the sustained rate of a
+#: shape: :attr:`Shape.target_rate`.
 TARGET_NODE_S = 1.5
 TARGET_SUITE_S = 3.0
+TARGET_P99_MS = 5.0
+TARGET_RSS_MB = 150.0
 #: Period of the lifecycle ``get_state`` requests while waiting for ACTIVE: the resolution of the start-up figures.
 POLL_S = 0.02
 #: Longest wait for a node or the suite to come up.
@@ -64,9 +76,11 @@ class Shape:
     horizon: int
     action_dim: int
     exec_steps: int
+    target_rate: float
+    """Issue #24: the steps/s the suite sustains at this shape, every step's alarm received."""
 
 
-SHAPES = (Shape("pusht", 64, 256, 16, 3, 8), Shape("pretzel", 512, 30, 16, 5, 8))
+SHAPES = (Shape("pusht", 64, 256, 16, 3, 8, 1000.0), Shape("pretzel", 512, 30, 16, 5, 8, 600.0))
 
 
 def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
@@ -97,8 +111,8 @@ def _suite_config(calibration: Path, work: Path) -> Path:
                    {"calibration_dir": str(calibration)})
 
 
-def _start(command: list[str], domain: int) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(command, env=local_env(domain), stdout=subprocess.DEVNULL,  # noqa: S603
+def _start(command: list[str], domain: int, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(command, env=env or local_env(domain), stdout=subprocess.DEVNULL,  # noqa: S603
                             stderr=subprocess.DEVNULL, start_new_session=True)
 
 
@@ -114,14 +128,25 @@ def peak_rss_mb(pid: int) -> float:
     return int(re.search(r"^VmHWM:\s+(\d+) kB", status, re.MULTILINE).group(1)) / 1024  # type: ignore[union-attr]
 
 
-def node_peaks(launcher: int) -> dict[str, float]:
-    """Peak RSS (MB) of each node process ``fiper launch`` (pid ``launcher``) started, by module."""
-    peaks = {}
+def node_pids(launcher: int) -> dict[str, int]:
+    """The pid of each node process ``fiper launch`` (pid ``launcher``) started, by module."""
+    pids = {}
     for child in Path(f"/proc/{launcher}/task/{launcher}/children").read_text().split():
         command = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
         if b"-m" in command:
-            peaks[command[command.index(b"-m") + 1].decode().rsplit(".", 1)[-1]] = peak_rss_mb(int(child))
-    return peaks
+            pids[command[command.index(b"-m") + 1].decode().rsplit(".", 1)[-1]] = int(child)
+    return pids
+
+
+def node_peaks(launcher: int) -> dict[str, float]:
+    """Peak RSS (MB) of each node process ``fiper launch`` (pid ``launcher``) started, by module."""
+    return {name: peak_rss_mb(pid) for name, pid in node_pids(launcher).items()}
+
+
+def cpu_seconds(pid: int) -> float:
+    """The CPU time (user + system, all threads) a live process has used, in seconds."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 @dataclass(frozen=True)
@@ -151,22 +176,24 @@ class Driver:
     def __init__(self, shape: Shape, domain: int) -> None:
         import rclpy  # noqa: PLC0415
         from rclpy.context import Context  # noqa: PLC0415
-        from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
         from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent  # noqa: PLC0415
 
         from fiper_ros.interface import qos  # noqa: PLC0415
+        from fiper_ros.nodes.main import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
 
         self.shape = shape
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.node = rclpy.create_node("bench_driver", namespace="/fiper", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor = new_executor(default=EXECUTOR_EVENTS, context=self.context)  # as the suite's nodes
         self.executor.add_node(self.node)
         self.emb_pub = self.node.create_publisher(ObservationEmbedding, "observation_embedding", qos.INPUT)
         self.act_pub = self.node.create_publisher(ActionChunkBatch, "action_chunks", qos.INPUT)
         self.event_pub = self.node.create_publisher(RolloutEvent, "rollout_events", qos.EVENT)
         self.received: dict[tuple[int, int], int] = {}
+        #: Steps published whose alarm has not arrived yet.
+        self.waiting: set[tuple[int, int]] = set()
         self.clients: dict[str, Any] = {}
         self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM_EVERY)
         rng = np.random.default_rng(1)
@@ -178,6 +205,7 @@ class Driver:
         key = (msg.rollout_id, msg.step)  # type: ignore[attr-defined]
         if key not in self.received and not msg.heartbeat:  # type: ignore[attr-defined]
             self.received[key] = time.monotonic_ns()
+            self.waiting.discard(key)
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -245,12 +273,14 @@ class Driver:
             emb = embedding_msg(rollout_id, step, stamp, self.embedding)
             act = action_batch_msg(rollout_id, step, stamp, self.actions, self.shape.exec_steps, "ee_position")
             sent[step] = time.monotonic_ns()
+            self.waiting.add((rollout_id, step))
             self.emb_pub.publish(emb)
             self.act_pub.publish(act)
         last_sent = time.monotonic_ns()
         end = time.monotonic() + 5.0
-        while time.monotonic() < end and any((rollout_id, s) not in self.received for s in sent):
+        while time.monotonic() < end and self.waiting:  # not a scan of every step per alarm: that took a core's time
             self.executor.spin_once(timeout_sec=0.01)
+        self.waiting.clear()
         got = [self.received[(rollout_id, s)] - sent[s] for s in sent if (rollout_id, s) in self.received]
         missing = steps - len(got)
         backlog = (max(self.received.get((rollout_id, s), last_sent) for s in sent) - last_sent) / 1e9
@@ -272,34 +302,57 @@ def bench_startup(shape: Shape, config: Path, domain: int) -> dict[str, Startup]
         driver.close()
 
 
-def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False) -> dict[str, Any]:
+def cpu_per_step(pids: dict[str, int], before: dict[str, float], steps: int) -> dict[str, float]:
+    """The CPU milliseconds per step each process used since ``before`` (its :func:`cpu_seconds` then)."""
+    return {name: (cpu_seconds(pid) - before[name]) / steps * 1e3 for name, pid in pids.items()}
+
+
+def rate_line(shape: Shape, rate: float, latencies: np.ndarray, missing: int, backlog: float, ok: bool,
+              cpu: dict[str, float]) -> str:
+    """One sustained-rate run: lost steps, backlog, latency, and where the CPU went (ms per step per process)."""
+    p50, p99 = (np.percentile(latencies, q) if len(latencies) else float("nan") for q in (50, 99))
+    where = ", ".join(f"{name} {ms:.2f}" for name, ms in sorted(cpu.items()))
+    return (f"  {shape.name}: {rate:6.0f} steps/s -> missing {missing}, backlog {backlog:.3f} s, p50 {p50:.2f} ms, "
+            f"p99 {p99:.2f} ms {'ok' if ok else 'NOT sustained'}; CPU ms/step: {where}, total "
+            f"{sum(cpu.values()):.2f}")
+
+
+def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False,
+                profile: Path | None = None) -> dict[str, Any]:
     """Start-up, latency at 10 Hz, the highest sustained rate and the nodes' peak memory for one shape (``view``:
-    with ``fiper view`` running beside the suite, no client connected)."""
+    with ``fiper view`` running beside the suite, no client connected; ``profile``: the suite's nodes and the
+    driver's timed runs profiled into that folder)."""
     with tempfile.TemporaryDirectory() as tmp, allocate_domain() as domain:
         work = Path(tmp)
         config = _suite_config(shaped_calibration(shape, work / "calibration"), work)
         startup = bench_startup(shape, config, domain)
         driver = Driver(shape, domain)
+        env = local_env(domain) | ({PROFILE_ENV: str(profile / shape.name)} if profile else {})
         started = time.monotonic()
-        launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain)
+        launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain, env)
         viewer = _start([sys.executable, "-m", "fiper_ros.cli", "view", "--port", "0"], domain) if view else None
+        driver_profile = cProfile.Profile(time.thread_time)
         try:
             suite_s = driver.wait_ready([spec.fqn for spec in load_launch(config).nodes]) - started
+            pids = node_pids(launch.pid) | {"driver": os.getpid()}
             driver.spin_for(1.0)
             driver.run(1, 20, 10.0)  # warm-up
+            if profile:
+                driver_profile.enable()
             lat, missing, _ = driver.run(2, steps, 10.0)
             result: dict[str, Any] = {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)),
                                       "missing_at_10hz": float(missing), "sustained_hz": 0.0, "startup": startup,
                                       "suite_s": suite_s}
             for i, rate in enumerate(rates):
-                lat_r, missing_r, backlog = driver.run(10 + i, max(100, int(rate * 2)), rate)
+                before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+                n = max(100, int(rate * 2))
+                lat_r, missing_r, backlog = driver.run(10 + i, n, rate)
                 ok = missing_r == 0 and backlog < 0.5
-                print(f"  {shape.name}: {rate:6.0f} steps/s -> missing {missing_r}, backlog {backlog:.3f} s, "
-                      f"p50 {np.percentile(lat_r, 50) if len(lat_r) else float('nan'):.2f} ms "
-                      f"{'ok' if ok else 'NOT sustained'}", flush=True)
+                print(rate_line(shape, rate, lat_r, missing_r, backlog, ok, cpu_per_step(pids, before, n)), flush=True)
                 if not ok:
                     break
                 result["sustained_hz"] = rate
+            driver_profile.disable()
             result["peaks_mb"] = node_peaks(launch.pid)
             return result
         finally:
@@ -307,21 +360,38 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
             _stop(launch)
             if viewer is not None:
                 _stop(viewer)
+            if profile:
+                driver_profile.dump_stats(profile / shape.name / "driver.prof")
+
+
+def ratio(value: float, target: float, unit: str, most: bool = True) -> str:
+    """``value`` as a ratio to its ``target`` (``most``: the target is an upper bound, else a lower one)."""
+    return f"(target {'<=' if most else '>='} {target:g} {unit}: {value / target:.2f}x)"
 
 
 def startup_lines(shape: Shape, result: dict[str, Any]) -> list[str]:
     """The start-up and memory figures of one shape, each with its ratio to the target where there is one."""
     lines = []
     for name, startup in result["startup"].items():
-        target = f" (target <= {TARGET_NODE_S:g} s: {startup.seconds / TARGET_NODE_S:.2f}x)" if "fusion" not in name \
-            else ""
+        target = f" {ratio(startup.seconds, TARGET_NODE_S, 's')}" if "fusion" not in name else ""
         lines.append(f"{shape.name}: {name} alone: ACTIVE {startup.seconds:.2f} s after exec{target}, peak RSS "
-                     f"{startup.peak_mb:.0f} MB")
+                     f"{startup.peak_mb:.0f} MB {ratio(startup.peak_mb, TARGET_RSS_MB, 'MB')}")
     lines.append(f"{shape.name}: suite: all three ACTIVE and wired {result['suite_s']:.2f} s after exec of "
-                 f"fiper launch (target <= {TARGET_SUITE_S:g} s: {result['suite_s'] / TARGET_SUITE_S:.2f}x)")
+                 f"fiper launch {ratio(result['suite_s'], TARGET_SUITE_S, 's')}")
     peaks = ", ".join(f"{name} {mb:.0f} MB" for name, mb in sorted(result["peaks_mb"].items()))
-    lines.append(f"{shape.name}: peak RSS in the suite after the runs: {peaks}")
+    worst = max(result["peaks_mb"].values())
+    lines.append(f"{shape.name}: peak RSS in the suite after the runs: {peaks}; the largest "
+                 f"{ratio(worst, TARGET_RSS_MB, 'MB')}")
     return lines
+
+
+def latency_line(shape: Shape, result: dict[str, Any]) -> str:
+    """The 10 Hz latency and the sustained rate of one shape, with their ratios to the targets."""
+    return (f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "
+            f"latency at 10 Hz p50 {result['p50_ms']:.2f} ms, p99 {result['p99_ms']:.2f} ms "
+            f"{ratio(result['p99_ms'], TARGET_P99_MS, 'ms')}, missing {int(result['missing_at_10hz'])}; sustained "
+            f"{result['sustained_hz']:.0f} steps/s "
+            f"{ratio(result['sustained_hz'], shape.target_rate, 'steps/s', most=False)}")
 
 
 def load_average() -> str:
@@ -333,20 +403,22 @@ def main() -> int:
     """Print the figures of every shape and the ratios to the targets."""
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=300, help="steps of the 10 Hz latency run")
-    parser.add_argument("--rates", type=float, nargs="+", default=[50, 100, 200, 300, 400, 600, 800])
+    parser.add_argument("--rates", type=float, nargs="+", default=[100, 200, 300, 400, 600, 800, 1000, 1200, 1500])
     parser.add_argument("--view", action="store_true", help="with fiper view beside the suite (no client connected)")
+    parser.add_argument("--profile", type=Path, metavar="DIR",
+                        help="profile the suite's nodes (their main thread's CPU time) and the driver's timed runs "
+                             "into DIR/<shape>/<node>.prof (python -m pstats); the figures are then not comparable")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz; "
-          f"{'with' if args.view else 'without'} the live view; load average {load_average()}")
+          f"{'with' if args.view else 'without'} the live view; executor of the nodes and the driver: "
+          f"{os.environ.get(EXECUTOR_ENV) or 'default'}; load average {load_average()}")
     print(clean_stale().summary(), flush=True)
     for shape in SHAPES:
-        r = bench_shape(shape, args.steps, args.rates, args.view)
-        for line in startup_lines(shape, r):
+        if args.profile:
+            (args.profile / shape.name).mkdir(parents=True, exist_ok=True)
+        r = bench_shape(shape, args.steps, args.rates, args.view, args.profile)
+        for line in [*startup_lines(shape, r), latency_line(shape, r)]:
             print(line, flush=True)
-        print(f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "
-              f"latency p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms (target p99 <= 15 ms: "
-              f"{r['p99_ms'] / 15:.2f}x), missing {int(r['missing_at_10hz'])}; sustained {r['sustained_hz']:.0f} steps/s "
-              f"(target >= 200: {r['sustained_hz'] / 200:.2f}x)", flush=True)
     print(f"load average at the end {load_average()}")
     return 0
 

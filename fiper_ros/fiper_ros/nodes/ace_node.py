@@ -23,7 +23,7 @@ from fiper_ros.interface.conversions import floats_of, stamp_ns
 from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, JOINT_STATES, relative
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector import DetectorNode
-from fiper_ros.nodes.main import run_node
+from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.joint_history import JointHistory, StampGate
 from fiper_ros.runtime.validation import InputRejected
@@ -163,7 +163,7 @@ NODE_CLASS = AceNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.ace_node --ros-args ...``."""
-    return run_node(AceNode, args)
+    return run_node(AceNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ from fiper_ros.interface.conversions import stamp_ns, to_stamp
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
 from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import run_node
+from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime.alarm import DETECTORS, AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.pending import StartGate
 from fiper_ros.runtime.publishers import Expected
@@ -290,7 +290,7 @@ NODE_CLASS = FusionNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.fusion_node --ros-args ...``."""
-    return run_node(FusionNode, args)
+    return run_node(FusionNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":

@@ -6,33 +6,74 @@ no longer stalls a callback for milliseconds (the tail of the node benchmark, do
 A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows.
 A node started by ``fiper launch`` dies with it (``FIPER_PARENT_PID``: Linux's parent-death signal), so a
 killed launcher never leaves a stale suite speaking on the suite's topics.
+
+The executor (issue #24, docs/benchmarks.md "Nodes"): the scoring and fusion nodes spin rclpy's C++
+``EventsExecutor`` by default, the other single-threaded nodes rclpy's Python ``SingleThreadedExecutor``;
+``FIPER_EXECUTOR=events`` or ``single`` chooses for every single-threaded node process. The EventsExecutor is
+spun in slices of :data:`EVENTS_SLICE_S` (``spin_once`` with a timeout), never by its untimed ``spin()``: in
+this rclpy wheel (manylinux_2_28, built without ``pthread_cond_clockwait``) that waits on its event queue until
+``steady_clock::time_point::max()``, which libstdc++ converts to an overflowed system-clock deadline, so the
+wait never sleeps: the main thread busy-loops holding the queue's lock, the DDS threads that enqueue timer and
+message events block on it, and no timer, message or service request is ever dispatched again (the "stopped
+timers" of the first attempt). ``FIPER_PROFILE_DIR=DIR`` profiles the spinning (``cProfile``, the main thread's
+CPU time) into ``DIR/<node name>.prof`` at shutdown (``make bench-nodes`` ``--profile``).
 """
 from __future__ import annotations
 
+import cProfile
 import faulthandler
 import gc
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import rclpy
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.context import Context
 from rclpy.exceptions import NotInitializedException
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 
 from fiper_ros.dds import die_with_parent
 
 CALLBACK_DRAIN_S = 30.0
 """Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
+#: Environment variable that chooses the executor of every single-threaded node process: :data:`EXECUTOR_EVENTS` or
+#: :data:`EXECUTOR_SINGLE`.
+EXECUTOR_ENV = "FIPER_EXECUTOR"
+EXECUTOR_EVENTS, EXECUTOR_SINGLE = "events", "single"
+#: Longest single ``spin_once`` of an EventsExecutor (it returns at once on work or shutdown; see the module doc).
+EVENTS_SLICE_S = 0.5
+#: Environment variable naming a folder: each node process profiles its spinning into ``<node name>.prof`` there.
+PROFILE_ENV = "FIPER_PROFILE_DIR"
 
 
-def spin_until_shutdown(executor: Executor) -> None:
+def new_executor(threads: int = 1, default: str = EXECUTOR_SINGLE, context: Context | None = None) -> Any:
+    """The executor of a node process (``threads`` > 1: a multi-threaded one); a single-threaded one is of the
+    kind :data:`EXECUTOR_ENV` names, else ``default``."""
+    if threads > 1:
+        return MultiThreadedExecutor(num_threads=threads, context=context)
+    kind = os.environ.get(EXECUTOR_ENV) or default
+    if kind == EXECUTOR_EVENTS:
+        return EventsExecutor(context=context)
+    if kind == EXECUTOR_SINGLE:
+        return SingleThreadedExecutor(context=context)
+    raise ValueError(f"{EXECUTOR_ENV}={kind!r}: expected {EXECUTOR_EVENTS!r} or {EXECUTOR_SINGLE!r}")
+
+
+def spin_until_shutdown(executor: Any) -> None:
     """Spin until Ctrl-C / SIGTERM shuts rclpy down, however rclpy reports the shutdown; return once the
-    callbacks in flight have finished (``stop_executor``)."""
+    callbacks in flight have finished (``stop_executor``). An EventsExecutor spins in bounded slices."""
     try:
-        executor.spin()
+        if isinstance(executor, Executor):
+            executor.spin()
+        else:
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=EVENTS_SLICE_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:
@@ -44,11 +85,13 @@ def spin_until_shutdown(executor: Executor) -> None:
         stop_executor(executor)
 
 
-def stop_executor(executor: Executor) -> None:
+def stop_executor(executor: Any) -> None:
     """Shut ``executor`` down and wait (at most ``CALLBACK_DRAIN_S``) for the callbacks still running in its
     threads, so that its nodes may be destroyed (a callback that outlives its node fails on a destroyed
-    handle)."""
+    handle). An EventsExecutor runs its callbacks in the thread that spins it: none is in flight here."""
     executor.shutdown()
+    if not isinstance(executor, Executor):
+        return
     # rclpy 7.1 (Jazzy) sets its shutdown flag before testing it, so Executor.shutdown() never waits for
     # the callbacks in flight; wait on the executor's own work tracker instead.
     executor._work_tracker.wait(CALLBACK_DRAIN_S)  # noqa: SLF001
@@ -73,9 +116,27 @@ def _on_sigterm(*_: Any) -> None:
     shut_down()
 
 
-def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1) -> int:
+def spin_profiled(executor: Any, node: Any) -> None:
+    """:func:`spin_until_shutdown`, profiled into :data:`PROFILE_ENV`'s folder if that is set (the CPU time of
+    this thread: waiting is not counted)."""
+    folder = os.environ.get(PROFILE_ENV)
+    if not folder:
+        spin_until_shutdown(executor)
+        return
+    profile = cProfile.Profile(time.thread_time)
+    profile.enable()
+    try:
+        spin_until_shutdown(executor)
+    finally:
+        profile.disable()
+        profile.dump_stats(Path(folder) / f"{node.get_name()}.prof")
+
+
+def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1,
+             executor: str = EXECUTOR_SINGLE) -> int:
     """Create the node from ``factory`` and spin it (in ``threads`` threads: callback groups of its own run
-    beside the default group) until interrupted; returns the exit status."""
+    beside the default group; one thread: on the ``executor`` kind unless :data:`EXECUTOR_ENV` says otherwise)
+    until interrupted; returns the exit status."""
     faulthandler.enable()
     die_with_parent()
     rclpy.init(args=sys.argv if args is None else args)
@@ -83,11 +144,11 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads
     node = None
     try:
         node = factory()
-        executor = SingleThreadedExecutor() if threads == 1 else MultiThreadedExecutor(num_threads=threads)
-        executor.add_node(node)
+        spinner = new_executor(threads, executor)
+        spinner.add_node(node)
         gc.collect()
         gc.freeze()
-        spin_until_shutdown(executor)
+        spin_profiled(spinner, node)
     except KeyboardInterrupt:  # during start-up
         pass
     except (RCLError, NotInitializedException):

@@ -12,7 +12,7 @@ from fiper_ros.core.monitor import ObservationMonitor
 from fiper_ros.interface.conversions import floats_of
 from fiper_ros.interface.topics import EMBEDDING, relative
 from fiper_ros.nodes.detector import DetectorNode
-from fiper_ros.nodes.main import run_node
+from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 
 
@@ -43,7 +43,7 @@ NODE_CLASS = RndOeNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.rnd_oe_node --ros-args ...``."""
-    return run_node(RndOeNode, args)
+    return run_node(RndOeNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":
