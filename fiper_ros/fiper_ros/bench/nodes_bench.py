@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import cProfile
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -41,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.bench import EVERY_ALARM
+from fiper_ros.bench import EVERY_ALARM, memory_mb
 from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
@@ -122,12 +121,6 @@ def _stop(process: subprocess.Popen[bytes]) -> None:
     process.wait(timeout=30)
 
 
-def peak_rss_mb(pid: int) -> float:
-    """The peak resident set size (``VmHWM``) of a live process, in MB."""
-    status = Path(f"/proc/{pid}/status").read_text()
-    return int(re.search(r"^VmHWM:\s+(\d+) kB", status, re.MULTILINE).group(1)) / 1024  # type: ignore[union-attr]
-
-
 def node_pids(launcher: int) -> dict[str, int]:
     """The pid of each node process ``fiper launch`` (pid ``launcher``) started, by module."""
     pids = {}
@@ -140,7 +133,7 @@ def node_pids(launcher: int) -> dict[str, int]:
 
 def node_peaks(launcher: int) -> dict[str, float]:
     """Peak RSS (MB) of each node process ``fiper launch`` (pid ``launcher``) started, by module."""
-    return {name: peak_rss_mb(pid) for name, pid in node_pids(launcher).items()}
+    return {name: memory_mb(pid, "VmHWM") for name, pid in node_pids(launcher).items()}
 
 
 def cpu_seconds(pid: int) -> float:
@@ -165,7 +158,7 @@ def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
         process = _start(command, domain)
         try:
             active = driver.wait_active([spec.fqn])
-            return Startup(active - started, peak_rss_mb(process.pid))
+            return Startup(active - started, memory_mb(process.pid, "VmHWM"))
         finally:
             _stop(process)
 
