@@ -28,7 +28,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config", [*glob("config/*.yaml"), "config/fastdds_discovery.xml"]),
         (f"share/{PACKAGE}/config/foxglove", glob("config/foxglove/*.json")),  # the live view's layout
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.*")),  # ros2 launch fiper_ros fiper.launch.yaml
         *tree(MODELS),

@@ -1,6 +1,7 @@
 """Suite-wide fixtures: refuse to run outside the workspace environment; DDS isolation per test; Fast DDS
 shared memory of dead processes removed at the start of the session and of every DDS test (tests kill
-nodes on purpose)."""
+nodes on purpose). The tests' own participants use the suite's Fast DDS discovery profile, as docs/nodes.md
+tells a supervisor to (the nodes they start use it anyway): a node they start is seen within about 0.5 s."""
 from __future__ import annotations
 
 import os
@@ -8,6 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from fiper_ros.nodes.main import use_discovery_profile
 from helpers.dds import allocate_domain, clean_stale
 
 #: The session's start-up cleaning, reported in pytest's header.
@@ -19,6 +21,7 @@ def pytest_configure(config: pytest.Config) -> None:
     if os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") != "LOCALHOST" or not os.environ.get("FIPER_ROOT"):
         pytest.exit("run the tests through 'make test' (or source ./env.sh first): DDS must stay on loopback", 2)
     config.stash[_STARTUP_CLEANING] = clean_stale().summary()
+    use_discovery_profile()  # before any participant of this process
 
 
 def pytest_report_header(config: pytest.Config) -> str:

@@ -9,13 +9,18 @@ tried, its p50 / p99 and the CPU milliseconds per step of each suite process and
 threads, DDS's included), which say where the time goes. Every figure is printed with its ratio to issue #24's
 target. The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
 
-Start-up (issue #24), per shape before the latency runs: each node started alone (its command line as
-``fiper launch`` builds it), the seconds from its exec to ACTIVE (the driver asks its lifecycle
-``get_state`` service every 20 ms: the figure's resolution) and its peak RSS then (``VmHWM``); then the
-suite: the seconds from the exec of ``fiper launch`` until all three nodes are ACTIVE and discovered one
-another (the driver's inputs matched by the scoring nodes, the events by all three, the scores subscribed
-by the fusion node and the alarm published, as the driver's graph shows them). After the runs: each suite
-node's peak RSS. The load average is printed before and after: the figures depend on what else runs.
+Start-up (issue #24), per shape before the latency runs, each start repeated (:data:`NODE_STARTS`,
+:data:`SUITE_STARTS`: DDS discovery takes a few ms or one to three seconds from one start to the next): each
+node started alone (its command line as ``fiper launch`` builds it), the seconds from its exec to ACTIVE by the
+node's own ``ACTIVE`` log line (:func:`fiper_ros.nodes.main.process_age_s`), and until the driver sees it ACTIVE
+(it asks the node's lifecycle ``get_state`` service every 20 ms: discovery included, the figure's resolution),
+its peak RSS then (``VmHWM``); then the suite: the seconds from the exec of ``fiper launch`` until all three
+nodes are ACTIVE and discovered one another (the driver's inputs matched by the scoring nodes, the events by
+all three, the scores subscribed by the fusion node and the alarm published, as the driver's graph shows them).
+The targets are judged on the median start. For reference, the same discovery without our code: a plain rclpy
+node's publisher (:data:`PLAIN_NODE`), seconds from its creation until the driver's graph shows it. After the
+runs: each suite node's peak RSS. The load average is printed before and after: the figures depend on what
+else runs.
 
 ``--profile DIR`` profiles the suite's nodes (``cProfile`` of their main thread's CPU time, ``FIPER_PROFILE_DIR``)
 and the driver's timed runs into ``DIR/<shape>/<process>.prof`` (``python -m pstats``); profiled figures are slower.
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -36,7 +42,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -48,7 +54,8 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
-from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV
+from fiper_ros.nodes.base import ACTIVE_LOG
+from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV, use_discovery_profile
 from fiper_ros.shm import clean_stale
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
@@ -63,6 +70,17 @@ TARGET_RSS_MB = 150.0
 POLL_S = 0.02
 #: Longest wait for a node or the suite to come up.
 STARTUP_TIMEOUT_S = 120.0
+#: Starts of each node alone, and of the suite, per shape; and of the plain rclpy node (:data:`PLAIN_NODE`).
+NODE_STARTS, SUITE_STARTS, PLAIN_STARTS = 3, 5, 8
+#: A node without any of our code: prints ``created`` and ``time.monotonic()`` once its node exists, then creates a
+#: publisher of topic ``argv[1]`` and lives until killed (the driver's graph times the discovery).
+PLAIN_NODE = ("import sys, time, rclpy; from std_msgs.msg import String; rclpy.init(); n = rclpy.create_node('plain'); "
+              "print('created', time.monotonic(), flush=True); n.create_publisher(String, sys.argv[1], 10); "
+              "time.sleep(60)")
+#: Lines the plain node may print before its ``created`` line (Fast DDS writes its own log to standard output).
+PLAIN_OUTPUT_LINES = 100
+#: A node's log line saying it reached ACTIVE, with the seconds since its process started.
+ACTIVE_LINE = re.compile(rf"\]: {ACTIVE_LOG} (\d+(?:\.\d+)?) s after the process started")
 
 
 @dataclass(frozen=True)
@@ -79,7 +97,7 @@ class Shape:
     """Issue #24: the steps/s the suite sustains at this shape, every step's alarm received."""
 
 
-SHAPES = (Shape("pusht", 64, 256, 16, 3, 8, 1000.0), Shape("pretzel", 512, 30, 16, 5, 8, 600.0))
+SHAPES = (Shape("pusht", 64, 256, 16, 2, 8, 1000.0), Shape("pretzel", 512, 30, 16, 5, 8, 600.0))
 
 
 def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
@@ -110,9 +128,23 @@ def _suite_config(calibration: Path, work: Path) -> Path:
                    {"calibration_dir": str(calibration)})
 
 
-def _start(command: list[str], domain: int, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(command, env=env or local_env(domain), stdout=subprocess.DEVNULL,  # noqa: S603
-                            stderr=subprocess.DEVNULL, start_new_session=True)
+def _start(command: list[str], domain: int, env: dict[str, str] | None = None,
+           output: Path | None = None) -> subprocess.Popen[bytes]:
+    """Start ``command`` in its own process group; its output into the file ``output``, else discarded."""
+    with open(output or os.devnull, "wb") as sink:  # the child holds its own descriptor
+        return subprocess.Popen(command, env=env or local_env(domain), stdout=sink,  # noqa: S603
+                                stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def own_active_s(output: Path) -> dict[str, float]:
+    """Each node's seconds from its exec to ACTIVE by its own log line in ``output``, by node name (the last word
+    of the logger's name: ``[fiper.ace_node]``)."""
+    seconds = {}
+    for line in output.read_text(errors="replace").splitlines():
+        if match := ACTIVE_LINE.search(line):
+            logger = line[:match.start()].rsplit("[", 1)[-1]
+            seconds[logger.rsplit(".", 1)[-1]] = float(match.group(1))
+    return seconds
 
 
 def _stop(process: subprocess.Popen[bytes]) -> None:
@@ -144,23 +176,55 @@ def cpu_seconds(pid: int) -> float:
 
 @dataclass(frozen=True)
 class Startup:
-    """One node started alone: seconds from its exec to ACTIVE, and its peak RSS then."""
+    """One node started alone: seconds from its exec to ACTIVE by its own log and as the driver saw it (discovery
+    included), and its peak RSS then."""
 
-    seconds: float
+    own_s: float
+    seen_s: float
     peak_mb: float
 
 
 def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
     """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE."""
-    with tempfile.TemporaryDirectory() as params_dir:  # its parameter files, read at its start
-        command = spec.command(Path(params_dir))
+    with tempfile.TemporaryDirectory() as work:  # its parameter files, read at its start, and its output
+        command, output = spec.command(Path(work)), Path(work) / "output.log"
         started = time.monotonic()
-        process = _start(command, domain)
+        process = _start(command, domain, output=output)
         try:
             active = driver.wait_active([spec.fqn])
-            return Startup(active - started, memory_mb(process.pid, "VmHWM"))
+            peak = memory_mb(process.pid, "VmHWM")
         finally:
             _stop(process)
+        return Startup(own_active_s(output).get(spec.name, float("nan")), active - started, peak)
+
+
+def _created(output: IO[bytes]) -> float:
+    """The ``time.monotonic()`` of the plain node's ``created`` line."""
+    for _ in range(PLAIN_OUTPUT_LINES):
+        words = output.readline().split()
+        if len(words) == 2 and words[0] == b"created":
+            return float(words[1])
+    raise RuntimeError(f"the plain node printed no 'created' line in {PLAIN_OUTPUT_LINES} lines")
+
+
+def plain_discovery(driver: Driver, domain: int, starts: int) -> list[float]:
+    """Seconds from a plain rclpy node's creation (:data:`PLAIN_NODE`, a new process each start) until the driver's
+    graph shows its publisher: DDS discovery alone, without any code of ours."""
+    seconds = []
+    for start in range(starts):
+        topic = f"/bench_plain_{start}"
+        process = subprocess.Popen([sys.executable, "-c", PLAIN_NODE, topic], env=local_env(domain),  # noqa: S603
+                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            created = _created(process.stdout)  # type: ignore[arg-type]
+            end = time.monotonic() + STARTUP_TIMEOUT_S
+            while not driver.node.count_publishers(topic) and time.monotonic() < end:
+                driver.executor.spin_once(timeout_sec=0.002)
+            seconds.append(time.monotonic() - created)
+        finally:
+            process.kill()
+            process.wait()
+    return seconds
 
 
 class Driver:
@@ -286,11 +350,13 @@ class Driver:
         self._rclpy.try_shutdown(context=self.context)
 
 
-def bench_startup(shape: Shape, config: Path, domain: int) -> dict[str, Startup]:
-    """Each node of the launch YAML ``config`` started alone, one after the other."""
+def bench_startup(shape: Shape, config: Path, domain: int, starts: int = NODE_STARTS) -> dict[str, list[Startup]]:
+    """Each node of the launch YAML ``config`` started alone, one after the other, ``starts`` rounds."""
     driver = Driver(shape, domain)
+    nodes = load_launch(config).nodes
     try:
-        return {spec.name: node_startup(spec, driver, domain) for spec in load_launch(config).nodes}
+        rounds = [[node_startup(spec, driver, domain) for spec in nodes] for _ in range(starts)]
+        return {spec.name: [one[i] for one in rounds] for i, spec in enumerate(nodes)}
     finally:
         driver.close()
 
@@ -320,13 +386,25 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
         config = _suite_config(shaped_calibration(shape, work / "calibration"), work)
         startup = bench_startup(shape, config, domain)
         driver = Driver(shape, domain)
+        plain = plain_discovery(driver, domain, PLAIN_STARTS)
         env = local_env(domain) | ({PROFILE_ENV: str(profile / shape.name)} if profile else {})
-        started = time.monotonic()
-        launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain, env)
+        suite_s: list[float] = []
+        suite_own_s: list[float] = []
+        for start in range(SUITE_STARTS):  # the last start's suite stays up for the latency runs
+            output = work / f"suite.{start}.log"
+            started = time.monotonic()
+            launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain, env, output)
+            try:
+                suite_s.append(driver.wait_ready([spec.fqn for spec in load_launch(config).nodes]) - started)
+            except BaseException:
+                _stop(launch)
+                raise
+            suite_own_s.append(max(own_active_s(output).values(), default=float("nan")))
+            if start < SUITE_STARTS - 1:
+                _stop(launch)
         viewer = _start([sys.executable, "-m", "fiper_ros.cli", "view", "--port", "0"], domain) if view else None
         driver_profile = cProfile.Profile(time.thread_time)
         try:
-            suite_s = driver.wait_ready([spec.fqn for spec in load_launch(config).nodes]) - started
             pids = node_pids(launch.pid) | {"driver": os.getpid()}
             driver.spin_for(1.0)
             driver.run(1, 20, 10.0)  # warm-up
@@ -335,7 +413,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
             lat, missing, _ = driver.run(2, steps, 10.0)
             result: dict[str, Any] = {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)),
                                       "missing_at_10hz": float(missing), "sustained_hz": 0.0, "startup": startup,
-                                      "suite_s": suite_s}
+                                      "suite_s": suite_s, "suite_own_s": suite_own_s, "plain_s": plain}
             for i, rate in enumerate(rates):
                 before = {name: cpu_seconds(pid) for name, pid in pids.items()}
                 n = max(100, int(rate * 2))
@@ -362,15 +440,30 @@ def ratio(value: float, target: float, unit: str, most: bool = True) -> str:
     return f"(target {'<=' if most else '>='} {target:g} {unit}: {value / target:.2f}x)"
 
 
+def seconds(values: Sequence[float]) -> str:
+    """Start-up figures in seconds, in the order measured."""
+    return " / ".join(f"{value:.2f}" for value in values)
+
+
 def startup_lines(shape: Shape, result: dict[str, Any]) -> list[str]:
-    """The start-up and memory figures of one shape, each with its ratio to the target where there is one."""
+    """The start-up and memory figures of one shape, each with its ratio to the target (on the median start) where
+    there is one."""
     lines = []
-    for name, startup in result["startup"].items():
-        target = f" {ratio(startup.seconds, TARGET_NODE_S, 's')}" if "fusion" not in name else ""
-        lines.append(f"{shape.name}: {name} alone: ACTIVE {startup.seconds:.2f} s after exec{target}, peak RSS "
-                     f"{startup.peak_mb:.0f} MB {ratio(startup.peak_mb, TARGET_RSS_MB, 'MB')}")
-    lines.append(f"{shape.name}: suite: all three ACTIVE and wired {result['suite_s']:.2f} s after exec of "
-                 f"fiper launch {ratio(result['suite_s'], TARGET_SUITE_S, 's')}")
+    for name, starts in result["startup"].items():
+        own = [start.own_s for start in starts]
+        median = float(np.median(own))
+        target = f" {ratio(median, TARGET_NODE_S, 's')}" if "fusion" not in name else ""
+        lines.append(f"{shape.name}: {name} alone, {len(starts)} starts: ACTIVE {seconds(own)} s after exec by its own "
+                     f"log (median {median:.2f} s{target}); seen ACTIVE by the driver (discovery included) "
+                     f"{seconds([start.seen_s for start in starts])} s; peak RSS "
+                     f"{max(start.peak_mb for start in starts):.0f} MB "
+                     f"{ratio(max(start.peak_mb for start in starts), TARGET_RSS_MB, 'MB')}")
+    suite = result["suite_s"]
+    lines.append(f"{shape.name}: suite, {len(suite)} starts: all three ACTIVE and wired {seconds(suite)} s after "
+                 f"exec of fiper launch (median {float(np.median(suite)):.2f} s {ratio(float(np.median(suite)), TARGET_SUITE_S, 's')}); the last "
+                 f"node ACTIVE by its own log {seconds(result['suite_own_s'])} s after its exec")
+    lines.append(f"{shape.name}: reference, DDS discovery without our code: a plain rclpy node's publisher seen by "
+                 f"the driver {seconds(result['plain_s'])} s after the node's creation")
     peaks = ", ".join(f"{name} {mb:.0f} MB" for name, mb in sorted(result["peaks_mb"].items()))
     worst = max(result["peaks_mb"].values())
     lines.append(f"{shape.name}: peak RSS in the suite after the runs: {peaks}; the largest "
@@ -398,13 +491,18 @@ def main() -> int:
     parser.add_argument("--steps", type=int, default=300, help="steps of the 10 Hz latency run")
     parser.add_argument("--rates", type=float, nargs="+", default=[100, 200, 300, 400, 600, 800, 1000, 1200, 1500])
     parser.add_argument("--view", action="store_true", help="with fiper view beside the suite (no client connected)")
+    parser.add_argument("--default-dds", action="store_true",
+                        help="the driver on Fast DDS's defaults, not the suite's discovery profile (as a supervisor "
+                             "that does not set FASTRTPS_DEFAULT_PROFILES_FILE; the nodes use it either way)")
     parser.add_argument("--profile", type=Path, metavar="DIR",
                         help="profile the suite's nodes (their main thread's CPU time) and the driver's timed runs "
                              "into DIR/<shape>/<node>.prof (python -m pstats); the figures are then not comparable")
     args = parser.parse_args()
+    dds_profile = None if args.default_dds else use_discovery_profile()  # before the driver's rclpy.init
     print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz; "
           f"{'with' if args.view else 'without'} the live view; executor of the nodes and the driver: "
-          f"{os.environ.get(EXECUTOR_ENV) or 'default'}; load average {load_average()}")
+          f"{os.environ.get(EXECUTOR_ENV) or 'default'}; the driver's DDS profile: {dds_profile or 'Fast DDS defaults'}; "
+          f"load average {load_average()}")
     print(clean_stale().summary(), flush=True)
     for shape in SHAPES:
         if args.profile:

@@ -3,7 +3,8 @@
 Live bags (``fiper record``, ``fiper snapshot``): how a live bag goes to disk (``--chunk-s``, ``--chunk-mb``:
 :class:`~fiper_ros.bagio.chunks.LiveChunks`), i.e. how much a crash can lose. Reading commands (``fiper
 replay``, ``calibrate`` and ``evaluate``): whether an unfinished bag is taken (``--strict``). No heavy imports:
-``fiper evaluate`` reads its options without the ROS message build.
+``fiper evaluate`` reads its options without the ROS message build, and ``fiper launch`` without numpy or
+pinocchio (the robot model is imported where one is built: the launcher's start-up, issue #24).
 
 The robot model of the offline commands (``fiper calibrate``, ``evaluate``, ``replay``):
 
@@ -14,10 +15,13 @@ first (``--control-dt``). The ACE node takes the same as parameters (``urdf_path
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, DEFAULT_CHUNK_S, LiveChunks
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.core.kinematics import KinematicsError, PinocchioFK, RobotModel
+
+if TYPE_CHECKING:
+    from fiper_ros.core.kinematics import PinocchioFK, RobotModel
 
 
 def add_robot_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, control_dt: bool = True) -> None:
@@ -39,6 +43,8 @@ def robot_from(args: argparse.Namespace) -> RobotModel | None:
         return None
     if control_dt is not None and control_dt <= 0:
         raise BagError(f"--control-dt must be > 0, got {control_dt}")
+    from fiper_ros.core.kinematics import RobotModel  # noqa: PLC0415 - numpy and pinocchio only where needed
+
     return RobotModel(args.urdf, args.ee_frame, control_dt)
 
 
@@ -46,6 +52,8 @@ def fk_of(robot: RobotModel | None) -> PinocchioFK | None:
     """The robot's FK, checked now (a missing URDF or frame is a :class:`BagError`)."""
     if robot is None:
         return None
+    from fiper_ros.core.kinematics import KinematicsError  # noqa: PLC0415
+
     try:
         return robot.forward_kinematics()
     except KinematicsError as error:

@@ -23,6 +23,7 @@ from rclpy.parameter import Parameter
 from fiper_ros.interface import qos
 from fiper_ros.interface.topics import DIAGNOSTICS
 from fiper_ros.nodes.graph_watch import PublisherCheck
+from fiper_ros.nodes.main import process_age_s
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
 from fiper_ros.runtime.validation import InputRejected
@@ -30,6 +31,9 @@ from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", DIAGNOSTICS)
+#: Start of the log line of a node that reached ACTIVE; the seconds since its process started follow
+#: (``make bench-nodes`` reads them).
+ACTIVE_LOG = "ACTIVE"
 #: How often a node that watches its topics' publishers looks at the graph (a second suite: noticed within 1 s).
 PUBLISHER_CHECK_PERIOD_S = 0.25
 
@@ -115,9 +119,11 @@ class FiperNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Create subscriptions (inputs start flowing)."""
+        """Create subscriptions (inputs start flowing); say so, with the seconds since the process started."""
         self.activate()
-        return super().on_activate(state)
+        result = super().on_activate(state)
+        self.get_logger().info(f"{ACTIVE_LOG} {process_age_s():.2f} s after the process started")
+        return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Destroy subscriptions (inputs stop)."""

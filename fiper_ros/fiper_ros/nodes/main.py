@@ -38,6 +38,7 @@ from rclpy.exceptions import NotInitializedException
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 
+from fiper_ros.data_paths import package_share
 from fiper_ros.dds import die_with_parent
 
 CALLBACK_DRAIN_S = 30.0
@@ -48,8 +49,42 @@ EXECUTOR_ENV = "FIPER_EXECUTOR"
 EXECUTOR_EVENTS, EXECUTOR_SINGLE = "events", "single"
 #: Longest single ``spin_once`` of an EventsExecutor (it returns at once on work or shutdown; see the module doc).
 EVENTS_SLICE_S = 0.5
+#: Fast DDS's variable naming its XML profiles file, and the files it reads from the working directory without it.
+FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+FASTDDS_DEFAULT_FILES = ("DEFAULT_FASTRTPS_PROFILES.xml", "DEFAULT_FASTDDS_PROFILES.xml")
+#: The RMW implementations that read Fast DDS profiles (ROS 2's default is the first).
+FASTDDS_RMWS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
+#: The suite's Fast DDS profile in the package share: a participant announces itself every 0.5 s, not 3 s.
+DISCOVERY_PROFILE = Path("config") / "fastdds_discovery.xml"
 #: Environment variable naming a folder: each node process profiles its spinning into ``<node name>.prof`` there.
 PROFILE_ENV = "FIPER_PROFILE_DIR"
+
+
+def process_age_s() -> float:
+    """Seconds since this process was started (its exec, from ``/proc``: to the kernel's clock tick, 10 ms): what
+    a node's ``ACTIVE`` log line reports, and ``make bench-nodes`` reads as the node's own start-up (issue #24)."""
+    started_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+    uptime_s = float(Path("/proc/uptime").read_text().split()[0])
+    return uptime_s - started_ticks / os.sysconf("SC_CLK_TCK")
+
+
+def use_discovery_profile() -> Path | None:
+    """Point Fast DDS at the suite's discovery profile (:data:`DISCOVERY_PROFILE`, docs/nodes.md "DDS discovery")
+    for this process's participants and its children, before ``rclpy.init``. Returns the profile's path while it
+    is in effect (set now, or by a parent), None where the user's own settings apply: another RMW,
+    :data:`FASTDDS_PROFILES_ENV` naming another file, a default profiles file in the working directory, or no
+    installed share."""
+    share = package_share()
+    ours = share / DISCOVERY_PROFILE if share is not None else None
+    given = os.environ.get(FASTDDS_PROFILES_ENV)
+    if given:
+        return ours if ours is not None and Path(given) == ours else None
+    if os.environ.get("RMW_IMPLEMENTATION", FASTDDS_RMWS[0]) not in FASTDDS_RMWS or ours is None or not ours.is_file():
+        return None
+    if any(Path(name).exists() for name in FASTDDS_DEFAULT_FILES):
+        return None
+    os.environ[FASTDDS_PROFILES_ENV] = str(ours)
+    return ours
 
 
 def new_executor(threads: int = 1, default: str = EXECUTOR_SINGLE, context: Context | None = None) -> Any:
@@ -139,11 +174,15 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads
     until interrupted; returns the exit status."""
     faulthandler.enable()
     die_with_parent()
+    profile = use_discovery_profile()
     rclpy.init(args=sys.argv if args is None else args)
     signal.signal(signal.SIGTERM, _on_sigterm)
     node = None
     try:
         node = factory()
+        if profile is not None:
+            node.get_logger().info(f"DDS discovery: Fast DDS profile {profile} (set {FASTDDS_PROFILES_ENV} to use "
+                                   "your own)")
         spinner = new_executor(threads, executor)
         spinner.add_node(node)
         gc.collect()

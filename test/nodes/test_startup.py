@@ -1,0 +1,126 @@
+"""Issue #24, start-up: a node process points Fast DDS at the suite's discovery profile unless the user has a
+profile of their own, says so and logs the seconds from its exec to ACTIVE; ``fiper launch`` starts its nodes
+without importing numpy or pinocchio. (How fast that is, is ``make bench-nodes``'s figure, not a test's.)"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from fiper_ros.data_paths import package_share
+from fiper_ros.dds import local_env
+from fiper_ros.nodes import main
+from fiper_ros.nodes.main import DISCOVERY_PROFILE, FASTDDS_PROFILES_ENV, process_age_s, use_discovery_profile
+
+ROOT = Path(__file__).resolve().parents[2]
+CALIBRATION = ROOT / "models" / "pusht" / "calibration"
+OURS = package_share() / DISCOVERY_PROFILE  # type: ignore[operator]
+
+
+@pytest.fixture
+def clean_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> pytest.MonkeyPatch:
+    """No Fast DDS profile variable, the default RMW, and a working directory without profiles files."""
+    monkeypatch.delenv(FASTDDS_PROFILES_ENV, raising=False)
+    monkeypatch.delenv("RMW_IMPLEMENTATION", raising=False)
+    monkeypatch.chdir(tmp_path)
+    return monkeypatch
+
+
+def test_the_profile_is_installed_in_the_share() -> None:
+    assert OURS.is_file()
+    assert "<leaseAnnouncement>" in OURS.read_text()
+
+
+def test_without_settings_of_the_user_the_suite_profile_is_used(clean_env: pytest.MonkeyPatch) -> None:
+    assert use_discovery_profile() == OURS
+    assert os.environ[FASTDDS_PROFILES_ENV] == str(OURS)
+    assert use_discovery_profile() == OURS  # set by a parent (fiper launch's children): still in effect
+
+
+def test_a_profile_of_the_user_wins(clean_env: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    theirs = tmp_path / "theirs.xml"
+    theirs.write_text("<profiles/>")
+    clean_env.setenv(FASTDDS_PROFILES_ENV, str(theirs))
+    assert use_discovery_profile() is None
+    assert os.environ[FASTDDS_PROFILES_ENV] == str(theirs)
+
+
+@pytest.mark.parametrize("name", main.FASTDDS_DEFAULT_FILES)
+def test_a_default_profiles_file_in_the_working_directory_wins(clean_env: pytest.MonkeyPatch, tmp_path: Path,
+                                                               name: str) -> None:
+    (tmp_path / name).write_text("<profiles/>")
+    assert use_discovery_profile() is None
+    assert FASTDDS_PROFILES_ENV not in os.environ
+
+
+def test_another_rmw_is_left_alone(clean_env: pytest.MonkeyPatch) -> None:
+    clean_env.setenv("RMW_IMPLEMENTATION", "rmw_cyclonedds_cpp")
+    assert use_discovery_profile() is None
+    assert FASTDDS_PROFILES_ENV not in os.environ
+
+
+def test_process_age_counts_from_the_exec() -> None:
+    """A child that sleeps 0.5 s before it asks is at least that old (the kernel's tick: 10 ms)."""
+    code = ("import time; time.sleep(0.5); from fiper_ros.nodes.main import process_age_s; "
+            "print(process_age_s())")
+    age = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                               timeout=60).stdout)
+    assert 0.49 <= age < 60
+    assert 0 <= process_age_s()
+
+
+def test_a_node_process_uses_the_profile_and_logs_its_start_up(ros_domain: int) -> None:
+    """The fusion node, started as a console script would be (no profile variable set): it names the profile,
+    Fast DDS reads it without an error, and the node says ACTIVE with its seconds since exec."""
+    env = {k: v for k, v in local_env(ros_domain).items() if k != FASTDDS_PROFILES_ENV}
+    process = subprocess.Popen(  # noqa: S603
+        [sys.executable, "-m", "fiper_ros.nodes.fusion_node", "--ros-args", "-r", "__ns:=/fiper",
+         "-p", f"calibration_dir:={CALIBRATION}"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    lines: list[str] = []
+    try:
+        assert process.stdout is not None
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not any("ACTIVE" in line for line in lines):
+            line = process.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+    finally:
+        started = "".join(lines)  # up to ACTIVE: a Ctrl-C in the transition's last step may print an error after it
+        os.killpg(process.pid, signal.SIGINT)
+        lines += process.communicate(timeout=30)[0].splitlines(keepends=True)
+    output = "".join(lines)
+    assert f"DDS discovery: Fast DDS profile {OURS}" in started, output
+    assert "Error" not in started, output  # Fast DDS reports an unreadable profile as an XMLParser error
+    active = [line for line in lines if "]: ACTIVE " in line]
+    assert active and active[0].rstrip().endswith("s after the process started"), output
+    assert 0 < float(active[0].split("]: ACTIVE ")[1].split()[0]) < 60
+
+
+def test_fiper_launch_starts_without_numpy_or_pinocchio() -> None:
+    """The launcher parses the shipped suite and finds its node modules with numpy and pinocchio refused (they
+    took a third of its start-up before the nodes were started)."""
+    code = """
+import importlib.abc, sys
+class Refuse(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("numpy", "pinocchio"):
+            raise ModuleNotFoundError(f"{name} is blocked by the test", name=name)
+        return None
+sys.meta_path.insert(0, Refuse())
+from fiper_ros.cli import main
+from fiper_ros.launcher.config import node_module
+assert main(["launch", "fiper_ros/launch/fiper.launch.yaml", "--show-args"]) == 0
+assert node_module("fiper_ros", "ace_node") == "fiper_ros.nodes.ace_node"
+assert not {"numpy", "pinocchio"} & set(sys.modules)
+print("ok")
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False,
+                            cwd=ROOT)
+    assert result.returncode == 0 and result.stdout.endswith("ok\n"), result.stdout + result.stderr
