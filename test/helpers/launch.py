@@ -22,11 +22,16 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import PARENT_PID_ENV
+from fiper_ros.interface.topics import score_topic
+from fiper_ros.nodes.graph_watch import NOT_NAMED, PUBLISHERS_KEY
+from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 from helpers.dds import ros_env
 from helpers.spin import spin_until
 from helpers.suite import STEP_NS, Driver
 
 POLICY_PERIOD_S = STEP_NS / 1e9
+#: The score topics the fusion node reads, fully qualified.
+SCORE_TOPICS = tuple(score_topic(detector) for detector in ("rnd_oe", "ace"))
 
 
 class Launch:
@@ -133,14 +138,26 @@ class Rig:
     def wait_healthy(self, name: str) -> None:
         """Wait until ``name`` reports ACTIVE again, the fusion node attributes every score stream to the suite
         (a respawned node's publishers are named in its graph: a rollout started before is doubted, rightly) and
-        the driver's topics are wired to the whole suite."""
+        the driver's topics are wired to the whole suite. Attributed: a fusion report received after that ACTIVE
+        has matched every publisher of the score topics the driver's graph shows (a respawned node's too: its
+        scores may reach the fusion node before the graph names it, about a second with the suite's discovery
+        profile) and names them all."""
         key, fusion = f"fiper: /fiper/{name}", "fiper: /fiper/fusion_node"
         self.driver.diagnostics.pop(key, None)
         self.driver.diagnostics.pop(fusion, None)
         assert self.spin_until(lambda: self.driver.diagnostics.get(key, {}).get("lifecycle_state") == "active",
                                timeout=60), "\n".join(self.launch.lines[-40:])
-        assert self.spin_until(lambda: self.driver.diagnostics.get(fusion, {}).get("scores_in_doubt") == "no",
-                               timeout=60), (self.driver.diagnostics.get(fusion), "\n".join(self.launch.lines[-40:]))
+        self.driver.diagnostics.pop(fusion, None)
+
+        def attributed() -> bool:
+            values = self.driver.diagnostics.get(fusion, {})
+            matched = all(int(values.get(f"{MATCHED_PUBLISHERS}{topic}", "0")) >= self.driver.count_publishers(topic)
+                          for topic in SCORE_TOPICS)
+            named = not any(NOT_NAMED in value for k, value in values.items() if k.startswith(PUBLISHERS_KEY))
+            return values.get("scores_in_doubt") == "no" and matched and named
+
+        assert self.spin_until(attributed, timeout=60), (self.driver.diagnostics.get(fusion),
+                                                         "\n".join(self.launch.lines[-40:]))
         assert self.spin_until(lambda: self.driver.embeddings.get_subscription_count() >= 1
                                and self.driver.batches.get_subscription_count() >= 1
                                and self.driver.events.get_subscription_count() >= 4)

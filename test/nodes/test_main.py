@@ -42,9 +42,18 @@ def test_spin_until_shutdown_returns_only_after_the_callbacks_in_flight(ros_doma
         rclpy.try_shutdown(context=context)
 
 
+#: A factory body's first lines: a node class that says when it is destroyed.
+PROBE = textwrap.dedent("""\
+    class Probe(rclpy.node.Node):
+        def destroy_node(self):
+            print("destroy_node called", flush=True)
+            super().destroy_node()
+    """)
+
+
 def _run_node_process(factory_body: str, domain: int, interrupt_after: str | None = None,
-                      executor: str = "single") -> tuple[int, str]:
-    """Run ``run_node`` on ``factory()`` (given by its body) in a child process; send SIGINT once the child
+                      executor: str = "single", stop: signal.Signals = signal.SIGINT) -> tuple[int, str]:
+    """Run ``run_node`` on ``factory()`` (given by its body) in a child process; send ``stop`` once the child
     printed ``interrupt_after``; return its exit status and output."""
     script = ("import faulthandler, sys, rclpy\nfrom fiper_ros.nodes.main import run_node\n"
               f"def factory():\n{textwrap.indent(factory_body, '    ')}\n"
@@ -55,7 +64,7 @@ def _run_node_process(factory_body: str, domain: int, interrupt_after: str | Non
         for line in child.stdout:
             lines.append(line)
             if interrupt_after in line:
-                child.send_signal(signal.SIGINT)
+                child.send_signal(stop)
                 break
     out, _ = child.communicate(timeout=60)
     return child.returncode, "".join(lines) + out
@@ -63,11 +72,7 @@ def _run_node_process(factory_body: str, domain: int, interrupt_after: str | Non
 
 def test_a_stopped_node_process_destroys_its_node_and_exits_0(ros_domain: int) -> None:
     # destroying the node deletes its DDS entities and their shared-memory segments (docs/nodes.md)
-    body = textwrap.dedent("""\
-        class Probe(rclpy.node.Node):
-            def destroy_node(self):
-                print("destroy_node called", flush=True)
-                super().destroy_node()
+    body = PROBE + textwrap.dedent("""\
         node = Probe("probe")
         node.create_timer(0.05, lambda: print("spinning", flush=True))
         return node""")
@@ -139,3 +144,26 @@ def test_a_node_process_on_the_events_executor_keeps_firing_its_timers(ros_domai
     status, out = _run_node_process("import rclpy\n" + body, ros_domain, interrupt_after="tick 5", executor="events")
     assert status == 0, out
     assert "tick 5" in out
+
+
+def test_sigterm_stops_a_node_on_the_events_executor_without_failing_a_callback(ros_domain: int,
+                                                                               monkeypatch) -> None:
+    """The SIGTERM handler runs at the start of a callback while an EventsExecutor spins; shutting the context
+    down there failed that callback (a FATAL "Exception in 'timers' callback: ... context is invalid" at every
+    SIGTERM). Now the spin loop ends after the callback, and the node is destroyed and the process exits 0."""
+    monkeypatch.delenv("FIPER_EXECUTOR", raising=False)
+    body = PROBE + textwrap.dedent("""\
+        from std_msgs.msg import String
+        node = Probe("talker")
+        publisher = node.create_publisher(String, "chatter", 10)
+        ticks = iter(range(100000))
+        def tick():
+            publisher.publish(String(data="tick"))
+            print(f"tick {next(ticks)}", flush=True)
+        node.create_timer(0.005, tick)
+        return node""")
+    status, out = _run_node_process("import rclpy.node\n" + body, ros_domain, interrupt_after="tick 20",
+                                    executor="events", stop=signal.SIGTERM)
+    assert status == 0, out
+    assert "Exception in" not in out and "FATAL" not in out, out
+    assert "destroy_node called" in out

@@ -12,6 +12,8 @@ from fiper_ros.runtime.publishers import Expected, Publisher, PublisherWatch, fu
 
 #: Key prefix of the graph's publishers of a topic in /diagnostics.
 PUBLISHERS_KEY = "publishers."
+#: How those values write a publisher whose node the graph does not name yet.
+NOT_NAMED = "(not named yet)"
 
 
 class PublisherCheck:
@@ -64,7 +66,7 @@ class PublisherCheck:
 
     def diagnostic_values(self) -> dict[str, str]:
         """The publishers of every watched topic (``publishers.<topic>``) and the findings seen so far."""
-        values = {f"{PUBLISHERS_KEY}{topic}": ",".join(p.node or "(not named yet)" for p in publishers) or "none"
+        values = {f"{PUBLISHERS_KEY}{topic}": ",".join(p.node or NOT_NAMED for p in publishers) or "none"
                   for topic, publishers in sorted(self.graph.items())}
         return values | {"unexpected_publishers": str(len(self.watch.findings)),
                          "unexpected_publishers_seen": str(self.watch.seen)}

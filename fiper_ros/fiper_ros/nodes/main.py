@@ -107,8 +107,12 @@ def spin_until_shutdown(executor: Any) -> None:
         if isinstance(executor, Executor):
             executor.spin()
         else:
-            while rclpy.ok():
-                executor.spin_once(timeout_sec=EVENTS_SLICE_S)
+            _termination.events_spinning = True
+            try:
+                while rclpy.ok() and not _termination.requested:
+                    executor.spin_once(timeout_sec=EVENTS_SLICE_S)
+            finally:
+                _termination.events_spinning = False
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RCLError:
@@ -142,13 +146,29 @@ def shut_down() -> None:
             raise
 
 
+class _Termination:
+    """What the SIGTERM handler found and asked: whether an EventsExecutor was spinning, whether to stop."""
+
+    events_spinning = False
+    requested = False
+
+
+_termination = _Termination()
+
+
 def _on_sigterm(*_: Any) -> None:
-    """SIGTERM: shut rclpy down, once. Python runs a handler inside whatever the main thread waits on (a lock,
-    a join), so a second SIGTERM (the launcher's stop, then the parent-death signal as the launcher exits)
-    must not enter ``shut_down`` again while the first holds rclpy's context lock: that deadlocked a fusion
-    node, which then outlived its test and the launcher, still in the domain."""
+    """SIGTERM: stop, once. Python runs a handler inside whatever the main thread waits on (a lock, a join), so a
+    second SIGTERM (the launcher's stop, then the parent-death signal as the launcher exits) must not enter
+    ``shut_down`` again while the first holds rclpy's context lock: that deadlocked a fusion node, which then
+    outlived its test and the launcher, still in the domain. While an EventsExecutor spins, the main thread runs
+    Python only in a callback, so the handler runs at a callback's start: shutting the context down there failed
+    that callback on the dead context (a FATAL "Exception in 'timers' callback" at every SIGTERM, a ``docker stop``
+    or a launch's escalation). There the handler only asks the spin loop to end; :func:`run_node` shuts down after
+    the callback."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    shut_down()
+    _termination.requested = True
+    if not _termination.events_spinning:
+        shut_down()
 
 
 def spin_profiled(executor: Any, node: Any) -> None:
