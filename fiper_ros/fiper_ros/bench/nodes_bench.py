@@ -54,8 +54,8 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
-from fiper_ros.nodes.base import ACTIVE_LOG
-from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV, use_discovery_profile
+from fiper_ros.nodes.base import ACTIVE_LOG, ACTIVE_LOG_END
+from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
 from fiper_ros.shm import clean_stale
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
@@ -80,7 +80,7 @@ PLAIN_NODE = ("import sys, time, rclpy; from std_msgs.msg import String; rclpy.i
 #: Lines the plain node may print before its ``created`` line (Fast DDS writes its own log to standard output).
 PLAIN_OUTPUT_LINES = 100
 #: A node's log line saying it reached ACTIVE, with the seconds since its process started.
-ACTIVE_LINE = re.compile(rf"\]: {ACTIVE_LOG} (\d+(?:\.\d+)?) s after the process started")
+ACTIVE_LINE = re.compile(rf"\]: {ACTIVE_LOG} (\d+(?:\.\d+)?) {re.escape(ACTIVE_LOG_END)}")
 
 
 @dataclass(frozen=True)
@@ -170,8 +170,8 @@ def node_peaks(launcher: int) -> dict[str, float]:
 
 def cpu_seconds(pid: int) -> float:
     """The CPU time (user + system, all threads) a live process has used, in seconds."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    fields = proc_stat(pid)
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime, fields 14 and 15
 
 
 @dataclass(frozen=True)
@@ -388,6 +388,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
         driver = Driver(shape, domain)
         plain = plain_discovery(driver, domain, PLAIN_STARTS)
         env = local_env(domain) | ({PROFILE_ENV: str(profile / shape.name)} if profile else {})
+        fqns = [spec.fqn for spec in load_launch(config).nodes]
         suite_s: list[float] = []
         suite_own_s: list[float] = []
         for start in range(SUITE_STARTS):  # the last start's suite stays up for the latency runs
@@ -395,7 +396,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
             started = time.monotonic()
             launch = _start([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)], domain, env, output)
             try:
-                suite_s.append(driver.wait_ready([spec.fqn for spec in load_launch(config).nodes]) - started)
+                suite_s.append(driver.wait_ready(fqns) - started)
             except BaseException:
                 _stop(launch)
                 raise
@@ -451,17 +452,17 @@ def startup_lines(shape: Shape, result: dict[str, Any]) -> list[str]:
     lines = []
     for name, starts in result["startup"].items():
         own = [start.own_s for start in starts]
-        median = float(np.median(own))
+        median, peak = float(np.median(own)), max(start.peak_mb for start in starts)
         target = f" {ratio(median, TARGET_NODE_S, 's')}" if "fusion" not in name else ""
         lines.append(f"{shape.name}: {name} alone, {len(starts)} starts: ACTIVE {seconds(own)} s after exec by its own "
                      f"log (median {median:.2f} s{target}); seen ACTIVE by the driver (discovery included) "
                      f"{seconds([start.seen_s for start in starts])} s; peak RSS "
-                     f"{max(start.peak_mb for start in starts):.0f} MB "
-                     f"{ratio(max(start.peak_mb for start in starts), TARGET_RSS_MB, 'MB')}")
+                     f"{peak:.0f} MB {ratio(peak, TARGET_RSS_MB, 'MB')}")
     suite = result["suite_s"]
+    suite_median = float(np.median(suite))
     lines.append(f"{shape.name}: suite, {len(suite)} starts: all three ACTIVE and wired {seconds(suite)} s after "
-                 f"exec of fiper launch (median {float(np.median(suite)):.2f} s {ratio(float(np.median(suite)), TARGET_SUITE_S, 's')}); the last "
-                 f"node ACTIVE by its own log {seconds(result['suite_own_s'])} s after its exec")
+                 f"exec of fiper launch (median {suite_median:.2f} s {ratio(suite_median, TARGET_SUITE_S, 's')}); the "
+                 f"last node ACTIVE by its own log {seconds(result['suite_own_s'])} s after its exec")
     lines.append(f"{shape.name}: reference, DDS discovery without our code: a plain rclpy node's publisher seen by "
                  f"the driver {seconds(result['plain_s'])} s after the node's creation")
     peaks = ", ".join(f"{name} {mb:.0f} MB" for name, mb in sorted(result["peaks_mb"].items()))

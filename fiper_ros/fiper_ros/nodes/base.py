@@ -31,9 +31,9 @@ from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
 INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", DIAGNOSTICS)
-#: Start of the log line of a node that reached ACTIVE; the seconds since its process started follow
-#: (``make bench-nodes`` reads them).
-ACTIVE_LOG = "ACTIVE"
+#: The log line of a node that reached ACTIVE: :data:`ACTIVE_LOG`, the seconds since its process started, then
+#: :data:`ACTIVE_LOG_END` (``make bench-nodes`` reads the seconds).
+ACTIVE_LOG, ACTIVE_LOG_END = "ACTIVE", "s after the process started"
 #: How often a node that watches its topics' publishers looks at the graph (a second suite: noticed within 1 s).
 PUBLISHER_CHECK_PERIOD_S = 0.25
 
@@ -122,7 +122,7 @@ class FiperNode(LifecycleNode):
         """Create subscriptions (inputs start flowing); say so, with the seconds since the process started."""
         self.activate()
         result = super().on_activate(state)
-        self.get_logger().info(f"{ACTIVE_LOG} {process_age_s():.2f} s after the process started")
+        self.get_logger().info(f"{ACTIVE_LOG} {process_age_s():.2f} {ACTIVE_LOG_END}")
         return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:

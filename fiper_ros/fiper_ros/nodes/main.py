@@ -60,10 +60,16 @@ DISCOVERY_PROFILE = Path("config") / "fastdds_discovery.xml"
 PROFILE_ENV = "FIPER_PROFILE_DIR"
 
 
+def proc_stat(pid: int | str = "self") -> list[str]:
+    """The fields of ``/proc/<pid>/stat`` after the command name (which may hold spaces and parentheses): index 0
+    is the state, field 3 of proc(5); times are in clock ticks (``os.sysconf("SC_CLK_TCK")``)."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+
+
 def process_age_s() -> float:
     """Seconds since this process was started (its exec, from ``/proc``: to the kernel's clock tick, 10 ms): what
     a node's ``ACTIVE`` log line reports, and ``make bench-nodes`` reads as the node's own start-up (issue #24)."""
-    started_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+    started_ticks = int(proc_stat()[19])  # starttime, field 22 of proc(5)
     uptime_s = float(Path("/proc/uptime").read_text().split()[0])
     return uptime_s - started_ticks / os.sysconf("SC_CLK_TCK")
 
