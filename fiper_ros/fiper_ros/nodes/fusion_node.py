@@ -268,6 +268,13 @@ class FusionNode(FiperNode):
         self._last_publish_ns = self.now_ns()
         self._last_published = (state.rollout_id, state.state, state.reason)
 
+    def running_taint(self) -> str:
+        """Why scores of the running rollout could not be attributed (``""``: they could, or none runs). An ended
+        rollout's taint still doubts its late steps, but is no doubt about the suite now: late (durable) scores of
+        it, taken by a respawned fusion node before its graph named their node, kept ``scores_in_doubt`` from
+        saying ``no`` until the next START."""
+        return self.fuser.tainted if self.fuser.active_rollout is not None else ""
+
     def diagnostic_values(self) -> dict[str, str]:
         values = {f"published.{k}": str(v) for k, v in self.states.items()}
         values |= {f"resets.{outcome}": str(self.resets[outcome]) for outcome in ("accepted", "refused")}
@@ -278,7 +285,7 @@ class FusionNode(FiperNode):
                        "detectors": ",".join(self.fuser.detectors),
                        "waiting_for_start": str(len(self.pending)),
                        "repeated_starts": str(self.repeated_starts),
-                       "scores_in_doubt": self.fuser.suspicion or self.fuser.tainted or "no",
+                       "scores_in_doubt": self.fuser.suspicion or self.running_taint() or "no",
                        "deadline_ms": f"{self.fuser.deadline() / 1e6:.1f}",
                        "policy_period_ms": "unknown" if (p := self.fuser.period.period_ns()) is None else f"{p / 1e6:.1f}"}
         return values
