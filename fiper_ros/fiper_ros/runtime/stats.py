@@ -32,7 +32,9 @@ class PeriodEstimator:
     policy that leaves them 0) say nothing about the period and are not counted.
 
     The median keeps one slow step (a GC pause, a busy core) from moving it; a step gap counts as that
-    many periods (the time is divided by the step difference).
+    many periods (the time is divided by the step difference). It is computed when an interval arrives, not at
+    each :meth:`period_ns`: the fusion node's staleness check asks for it at 50 Hz (issue #24, a numpy median
+    of the window cost some 25 us per call).
     """
 
     def __init__(self, window: int = 8) -> None:
@@ -40,22 +42,25 @@ class PeriodEstimator:
             raise ValueError(f"window must be >= 1, got {window}")
         self._intervals: deque[float] = deque(maxlen=window)
         self._last: tuple[int, int] | None = None
+        self._period_ns: int | None = None
 
     def reset(self) -> None:
         """A new rollout: forget the previous one's steps."""
         self._intervals.clear()
         self._last = None
+        self._period_ns = None
 
     def add(self, step: int, now_ns: int) -> None:
         """Policy step ``step`` stamped ``now_ns``."""
         if self._last is not None and step > self._last[0] and now_ns > self._last[1]:
             self._intervals.append((now_ns - self._last[1]) / (step - self._last[0]))
+            self._period_ns = int(np.median(self._intervals))
         if self._last is None or step > self._last[0]:
             self._last = (step, now_ns)
 
     def period_ns(self) -> int | None:
         """The median period in nanoseconds, or None before two steps arrived."""
-        return int(np.median(self._intervals)) if self._intervals else None
+        return self._period_ns
 
     def deadline_ns(self, periods: float, floor_ns: int, fallback_ns: int) -> int:
         """``periods`` measured periods, at least ``floor_ns``; ``fallback_ns`` while the period is unknown or
