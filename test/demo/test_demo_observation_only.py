@@ -7,8 +7,10 @@ The calibration is made here by the project's own commands, as a user would: ``f
 successful in-distribution Sorting rollouts of the shipped policy (in-process, B = 4 for speed: RND-OE reads
 the embeddings alone) and ``fiper calibrate --detectors rnd_oe`` on them (split conformal: RND-OE fitted on 4,
 the CP-constant threshold on the other 4, delta 0.2). Measured with it on this machine: the demo's harmful OOD
-rollout (box_pos seed 1000) crosses the threshold (31.0) at step 15 and peaks at 37.6 unhalted, the
-in-distribution one (id seed 1002) peaks at 26.8.
+rollout (box_pos seed 1000) crossed the threshold (31.0) at step 15 and peaked at 37.6 unhalted, the
+in-distribution one (id seed 1002) at 26.8. The rollouts and the training are float32 numerics whose kernels
+depend on the CPU: since this machine has AVX-512 (2026-12-02) the threshold is 35.7 and the OOD rollout crosses
+it at step 29 (peak 37.4), so ``fiper collect --ros`` runs it for 40 steps.
 """
 from __future__ import annotations
 
@@ -101,7 +103,7 @@ def test_the_demo_runs_rnd_oe_alone_and_its_alarms_equal_the_offline_oracle(
 @pytest.mark.slow
 def test_collect_ros_records_rnd_oe_alone_and_the_bag_replays(
         observation_calibration: Path, ros_domain: int, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    out, steps = tmp_path / "collected", 20
+    out, steps = tmp_path / "collected", 40
     assert main(["collect", "--task", "sorting", "--scenarios", "box_pos", "--episodes", "1", "--seed", "1000",
                  "--max-policy-steps", str(steps), "--ros", "--calibration", str(observation_calibration),
                  "--out", str(out)]) == 0
@@ -117,7 +119,7 @@ def test_collect_ros_records_rnd_oe_alone_and_the_bag_replays(
     assert {EMBEDDING, ACTIONS, EVENTS, SCORE_RND_OE, ALARM} <= topics and SCORE_ACE not in topics
     assert calibration_hash == load_calibration(observation_calibration).content_hash
     oracle = _oracle_agrees(bag, observation_calibration, entry["rollout_id"], steps)
-    assert any(s.state == "alarm" for s in oracle.values())  # the OOD rollout is alarmed within its 20 steps
+    assert any(s.state == "alarm" for s in oracle.values())  # the OOD rollout is alarmed within its 40 steps
     # the bag replays through the observation-only suite (observation_only:=true) as the offline oracle says
     report = tmp_path / "report.json"
     replay = subprocess.run([sys.executable, "-m", "fiper_ros.cli", "replay", str(bag), "--calibration",
