@@ -1,5 +1,5 @@
-"""Issue #24, start-up: a node process points Fast DDS at the suite's discovery profile unless the user has a
-profile of their own, says so and logs the seconds from its exec to ACTIVE; ``fiper launch`` starts its nodes
+"""Issue #24, start-up: a node process (and a tool's rclpy session) points Fast DDS at the suite's discovery
+profile unless the user has a profile of their own, says so and logs the seconds from its exec to ACTIVE; ``fiper launch`` starts its nodes
 without importing numpy or pinocchio. (How fast that is, is ``make bench-nodes``'s figure, not a test's.)"""
 from __future__ import annotations
 
@@ -62,6 +62,20 @@ def test_another_rmw_is_left_alone(clean_env: pytest.MonkeyPatch) -> None:
     clean_env.setenv("RMW_IMPLEMENTATION", "rmw_cyclonedds_cpp")
     assert use_discovery_profile() is None
     assert FASTDDS_PROFILES_ENV not in os.environ
+
+
+def test_a_tools_session_uses_the_profile(ros_domain: int) -> None:
+    """A tool's rclpy session (fiper record, replay, demo, ...: ``RosSession``), started without the profile
+    variable, points Fast DDS at the suite's profile as the nodes do (before, it stayed on Fast DDS's defaults and
+    saw a node start up to 3 s late)."""
+    env = {k: v for k, v in local_env(ros_domain).items() if k != FASTDDS_PROFILES_ENV}
+    code = ("import os; from fiper_ros.client.ros_session import RosSession\n"
+            "with RosSession('probe'):\n"
+            f"    print(os.environ.get({FASTDDS_PROFILES_ENV!r}))")
+    result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120,
+                            check=False)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert result.stdout.splitlines()[-1] == str(OURS), result.stdout + result.stderr
 
 
 def test_process_age_counts_from_the_exec() -> None:

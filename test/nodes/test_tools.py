@@ -19,8 +19,10 @@ import pytest
 
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.commands.echo import Printer
+from fiper_ros.data_paths import package_share
 from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.interface import qos
+from fiper_ros.nodes.main import DISCOVERY_PROFILE
 from helpers.dds import ros_env, spawn_python, stop
 from helpers.launch import node_entry, suite_config, write_launch
 from helpers.suite import Driver, Suite
@@ -169,6 +171,7 @@ def test_launch_in_process_runs_the_suite_and_stops_on_ctrl_c(tmp_path: Path, ca
         out = launch.communicate(timeout=30)[0]
     assert launch.returncode == 0, out
     assert out.count("running in-process") == 3
+    assert f"[launch] DDS discovery: Fast DDS profile {package_share() / DISCOVERY_PROFILE}" in out, out
 
 
 def _gone(pid: int) -> bool:

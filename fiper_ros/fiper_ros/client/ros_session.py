@@ -1,7 +1,9 @@
 """A private rclpy context for the bag tools: one node, one executor, the project's network rule.
 
 The process joins ``domain`` (default: ``ROS_DOMAIN_ID`` of the environment) with discovery kept on
-loopback (:func:`fiper_ros.dds.local_env`). rclpy's own signal handlers are off: SIGINT and SIGTERM set
+loopback (:func:`fiper_ros.dds.local_env`) and, unless the user has a Fast DDS profile of their own, the suite's
+discovery profile (:func:`fiper_ros.nodes.main.use_discovery_profile`: the tool and the suite see each other
+within about 0.5 s, not up to 3 s). rclpy's own signal handlers are off: SIGINT and SIGTERM set
 :attr:`RosSession.stop`, so a command can finish its bag cleanly instead of dying mid-write. With
 ``ROS_SECURITY_ENABLE=true`` the session runs in the SROS2 enclave named as its node (``/<name>``), as the launcher
 runs each node in its own (docs/security.md).
@@ -23,6 +25,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from fiper_ros.dds import local_env
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV
+from fiper_ros.nodes.main import use_discovery_profile
 
 
 def environment_domain() -> int:
@@ -57,6 +60,7 @@ class RosSession:
         os.environ.pop("ROS_STATIC_PEERS", None)
         if threading.current_thread() is threading.main_thread():
             self._previous = {s: signal.signal(s, lambda *_: self.stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+        use_discovery_profile()
         # No tool arguments: a tool's own (``fiper launch FILE name:=value``) are not ROS remap rules.
         rclpy.init(args=enclave_args(self.name) or [], context=self.context, domain_id=self.domain,
                    signal_handler_options=SignalHandlerOptions.NO)

@@ -133,6 +133,9 @@ def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TI
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
+    from fiper_ros.nodes.main import use_discovery_profile  # noqa: PLC0415
+
+    use_discovery_profile()  # as the nodes' own processes
     context = Context()
     rclpy.init(context=context, domain_id=domain)
     executor = SingleThreadedExecutor(context=context)

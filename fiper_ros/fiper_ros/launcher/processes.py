@@ -192,9 +192,11 @@ def run_in_process(config: LaunchConfig) -> int:
     import rclpy  # noqa: PLC0415 - only this mode needs rclpy in the launcher itself
     from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
 
-    from fiper_ros.nodes.main import spin_until_shutdown, use_discovery_profile  # noqa: PLC0415
+    from fiper_ros.nodes.main import discovery_note, spin_until_shutdown, use_discovery_profile  # noqa: PLC0415
 
-    use_discovery_profile()
+    profile = use_discovery_profile()
+    if profile is not None:
+        print(f"[launch] {discovery_note(profile)}", flush=True)
     rclpy.init()
     nodes = []
     try:

@@ -93,6 +93,12 @@ def use_discovery_profile() -> Path | None:
     return ours
 
 
+def discovery_note(profile: Path) -> str:
+    """What a process that applies the discovery profile says (a node logs it, ``fiper launch --in-process``
+    prints it)."""
+    return f"DDS discovery: Fast DDS profile {profile} (set {FASTDDS_PROFILES_ENV} to use your own)"
+
+
 def new_executor(threads: int = 1, default: str = EXECUTOR_SINGLE, context: Context | None = None) -> Any:
     """The executor of a node process (``threads`` > 1: a multi-threaded one); a single-threaded one is of the
     kind :data:`EXECUTOR_ENV` names, else ``default``."""
@@ -207,8 +213,7 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads
     try:
         node = factory()
         if profile is not None:
-            node.get_logger().info(f"DDS discovery: Fast DDS profile {profile} (set {FASTDDS_PROFILES_ENV} to use "
-                                   "your own)")
+            node.get_logger().info(discovery_note(profile))
         spinner = new_executor(threads, executor)
         spinner.add_node(node)
         gc.collect()
