@@ -6,7 +6,8 @@ and receives the FailureAlarm of that step; latency = alarm received - embedding
 monotonic clock, same process). Measured per task shape: p50 / p99 latency at 10 Hz, and the highest
 sustained rate (steps/s) at which every step's alarm arrives and the backlog stays below 0.5 s; for each rate
 tried, its p50 / p99 and the CPU milliseconds per step of each suite process and of the driver (``/proc``: all
-threads, DDS's included), which say where the time goes. Every figure is printed with its ratio to issue #24's
+threads, DDS's included), which say where the time goes; for the rate that is not sustained, where its steps went
+(the nodes' ``/diagnostics`` counters, :data:`LOSS_COUNTERS`). Every figure is printed with its ratio to issue #24's
 target. The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
 
 Start-up (issue #24), per shape before the latency runs, each start repeated (:data:`NODE_STARTS`,
@@ -98,6 +99,35 @@ class Shape:
 
 
 SHAPES = (Shape("pusht", 64, 256, 16, 2, 8, 1000.0), Shape("pretzel", 512, 30, 16, 5, 8, 600.0))
+#: The ``/diagnostics`` counters that say where a rate run's steps went, per node: the scores each scoring node
+#: published; the steps the fusion node fused (``matched``), dropped from its full buffer of unmatched steps
+#: (``evicted``: the other score of the step came later than ``buffer_size`` steps) and dropped as older than a fused
+#: step (``unmatched``: their other score never came, e.g. lost from a full reader history).
+LOSS_COUNTERS = {"rnd_oe_node": ("published",), "ace_node": ("published",),
+                 "fusion_node": ("matched", "evicted", "unmatched")}
+#: Longest wait for a fresh ``/diagnostics`` message of every suite node (they publish every second).
+DIAGNOSTICS_WAIT_S = 3.0
+
+
+def loss_counters(diagnostics: dict[str, dict[str, str]]) -> dict[str, int]:
+    """The :data:`LOSS_COUNTERS` of the suite's nodes, ``<node>.<key>``, from their latest ``/diagnostics`` values
+    (by status name, ``fiper: /fiper/<node>``)."""
+    counts = {}
+    for name, values in diagnostics.items():
+        node = name.rsplit("/", 1)[-1]
+        for key in LOSS_COUNTERS.get(node, ()):
+            if key in values:
+                counts[f"{node}.{key}"] = int(values[key])
+    return counts
+
+
+def where_lost(before: dict[str, int], after: dict[str, int], steps: int) -> str:
+    """Where the steps of a run of ``steps`` steps went, from the :func:`loss_counters` before and after it."""
+    delta = {key: after.get(key, 0) - before.get(key, 0) for key in after}
+    return (f"scores published: rnd_oe {delta.get('rnd_oe_node.published', 0)}, ace "
+            f"{delta.get('ace_node.published', 0)} of {steps}; the fusion node fused "
+            f"{delta.get('fusion_node.matched', 0)}, evicted {delta.get('fusion_node.evicted', 0)} (its buffer of "
+            f"unmatched steps full) and dropped {delta.get('fusion_node.unmatched', 0)} (the other score never came)")
 
 
 def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
@@ -234,9 +264,12 @@ class Driver:
         import rclpy  # noqa: PLC0415
         from rclpy.context import Context  # noqa: PLC0415
 
+        from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+
         from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent  # noqa: PLC0415
 
         from fiper_ros.interface import qos  # noqa: PLC0415
+        from fiper_ros.interface.topics import DIAGNOSTICS  # noqa: PLC0415
         from fiper_ros.nodes.main import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
 
         self.shape = shape
@@ -253,6 +286,10 @@ class Driver:
         self.waiting: set[tuple[int, int]] = set()
         self.clients: dict[str, Any] = {}
         self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM_EVERY)
+        #: The latest ``/diagnostics`` values of each status name, and when (``time.monotonic()``) they came.
+        self.diagnostics: dict[str, dict[str, str]] = {}
+        self.diagnostics_at: dict[str, float] = {}
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
         self.actions = rng.uniform(-1, 1, (shape.batch, shape.horizon, shape.action_dim)).astype(np.float32)
@@ -263,6 +300,23 @@ class Driver:
         if key not in self.received and not msg.heartbeat:  # type: ignore[attr-defined]
             self.received[key] = time.monotonic_ns()
             self.waiting.discard(key)
+
+    def _on_diagnostics(self, msg: object) -> None:
+        for status in msg.status:  # type: ignore[attr-defined]
+            self.diagnostics[status.name] = {value.key: value.value for value in status.values}
+            self.diagnostics_at[status.name] = time.monotonic()
+
+    def fresh_counters(self) -> dict[str, int]:
+        """The suite's :func:`loss_counters`, once every node that reports them has published ``/diagnostics``
+        after this call (at most :data:`DIAGNOSTICS_WAIT_S`)."""
+        asked = time.monotonic()
+        end = asked + DIAGNOSTICS_WAIT_S
+        while time.monotonic() < end:
+            reporting = [name for name in self.diagnostics if name.rsplit("/", 1)[-1] in LOSS_COUNTERS]
+            if len(reporting) == len(LOSS_COUNTERS) and all(self.diagnostics_at[n] > asked for n in reporting):
+                break
+            self.executor.spin_once(timeout_sec=0.05)
+        return loss_counters(self.diagnostics)
 
     def spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
@@ -416,12 +470,15 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
                                       "missing_at_10hz": float(missing), "sustained_hz": 0.0, "startup": startup,
                                       "suite_s": suite_s, "suite_own_s": suite_own_s, "plain_s": plain}
             for i, rate in enumerate(rates):
+                counted = driver.fresh_counters()
                 before = {name: cpu_seconds(pid) for name, pid in pids.items()}
                 n = max(100, int(rate * 2))
                 lat_r, missing_r, backlog = driver.run(10 + i, n, rate)
                 ok = missing_r == 0 and backlog < 0.5
                 print(rate_line(shape, rate, lat_r, missing_r, backlog, ok, cpu_per_step(pids, before, n)), flush=True)
                 if not ok:
+                    print(f"  {shape.name}: {rate:6.0f} steps/s, where the steps went: "
+                          f"{where_lost(counted, driver.fresh_counters(), n)}", flush=True)
                     break
                 result["sustained_hz"] = rate
             driver_profile.disable()
