@@ -26,5 +26,5 @@ def test_a_run_is_told_by_the_differences() -> None:
     before = loss_counters(diagnostics(100, 100, 100, 0, 0))
     after = loss_counters(diagnostics(2100, 2100, 1817, 183, 0))
     assert where_lost(before, after, 2000) == (
-        "scores published: rnd_oe 2000, ace 2000 of 2000; the fusion node fused 1717, evicted 183 (its buffer of "
-        "unmatched steps full) and dropped 0 (the other score never came)")
+        "scores published: rnd_oe 2000, ace 2000 of 2000; the fusion node fused 1717, evicted 183 (from its full "
+        "buffer of unmatched steps; a step counts once per score evicted) and dropped 0 (the other score never came)")

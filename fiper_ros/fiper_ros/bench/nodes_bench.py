@@ -101,8 +101,9 @@ class Shape:
 SHAPES = (Shape("pusht", 64, 256, 16, 2, 8, 1000.0), Shape("pretzel", 512, 30, 16, 5, 8, 600.0))
 #: The ``/diagnostics`` counters that say where a rate run's steps went, per node: the scores each scoring node
 #: published; the steps the fusion node fused (``matched``), dropped from its full buffer of unmatched steps
-#: (``evicted``: the other score of the step came later than ``buffer_size`` steps) and dropped as older than a fused
-#: step (``unmatched``: their other score never came, e.g. lost from a full reader history).
+#: (``evicted``: the other score of the step was more than ``buffer_size`` steps late; a step whose other score
+#: comes after the eviction waits, and may be evicted, again) and dropped as older than a fused step (``unmatched``:
+#: their other score never came, e.g. lost from a full reader history).
 LOSS_COUNTERS = {"rnd_oe_node": ("published",), "ace_node": ("published",),
                  "fusion_node": ("matched", "evicted", "unmatched")}
 #: Longest wait for a fresh ``/diagnostics`` message of every suite node (they publish every second).
@@ -126,8 +127,9 @@ def where_lost(before: dict[str, int], after: dict[str, int], steps: int) -> str
     delta = {key: after.get(key, 0) - before.get(key, 0) for key in after}
     return (f"scores published: rnd_oe {delta.get('rnd_oe_node.published', 0)}, ace "
             f"{delta.get('ace_node.published', 0)} of {steps}; the fusion node fused "
-            f"{delta.get('fusion_node.matched', 0)}, evicted {delta.get('fusion_node.evicted', 0)} (its buffer of "
-            f"unmatched steps full) and dropped {delta.get('fusion_node.unmatched', 0)} (the other score never came)")
+            f"{delta.get('fusion_node.matched', 0)}, evicted {delta.get('fusion_node.evicted', 0)} (from its full buffer of "
+            f"unmatched steps; a step counts once per score evicted) and dropped "
+            f"{delta.get('fusion_node.unmatched', 0)} (the other score never came)")
 
 
 def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
