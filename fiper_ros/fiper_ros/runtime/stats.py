@@ -32,9 +32,10 @@ class PeriodEstimator:
     policy that leaves them 0) say nothing about the period and are not counted.
 
     The median keeps one slow step (a GC pause, a busy core) from moving it; a step gap counts as that
-    many periods (the time is divided by the step difference). It is computed when an interval arrives, not at
-    each :meth:`period_ns`: the fusion node's staleness check asks for it at 50 Hz (issue #24, a numpy median
-    of the window cost some 25 us per call).
+    many periods (the time is divided by the step difference). It is computed at the first :meth:`period_ns`
+    after an interval arrived and kept until the next one: the fusion node's staleness check asks for it two or
+    three times per check at 50 Hz, and a step at 1000 steps/s need not pay for it either (issue #24, a numpy
+    median of the window cost some 25 us per call).
     """
 
     def __init__(self, window: int = 8) -> None:
@@ -42,25 +43,28 @@ class PeriodEstimator:
             raise ValueError(f"window must be >= 1, got {window}")
         self._intervals: deque[float] = deque(maxlen=window)
         self._last: tuple[int, int] | None = None
-        self._period_ns: int | None = None
+        #: The median of :attr:`_intervals`; None until asked for after the latest interval arrived.
+        self._median_ns: int | None = None
 
     def reset(self) -> None:
         """A new rollout: forget the previous one's steps."""
         self._intervals.clear()
         self._last = None
-        self._period_ns = None
+        self._median_ns = None
 
     def add(self, step: int, now_ns: int) -> None:
         """Policy step ``step`` stamped ``now_ns``."""
         if self._last is not None and step > self._last[0] and now_ns > self._last[1]:
             self._intervals.append((now_ns - self._last[1]) / (step - self._last[0]))
-            self._period_ns = int(np.median(self._intervals))
+            self._median_ns = None  # computed when next asked for
         if self._last is None or step > self._last[0]:
             self._last = (step, now_ns)
 
     def period_ns(self) -> int | None:
         """The median period in nanoseconds, or None before two steps arrived."""
-        return self._period_ns
+        if self._median_ns is None and self._intervals:
+            self._median_ns = int(np.median(self._intervals))
+        return self._median_ns
 
     def deadline_ns(self, periods: float, floor_ns: int, fallback_ns: int) -> int:
         """``periods`` measured periods, at least ``floor_ns``; ``fallback_ns`` while the period is unknown or
