@@ -31,6 +31,12 @@ def clean_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> pytest.MonkeyP
     return monkeypatch
 
 
+def env_without_profile(domain: int) -> dict[str, str]:
+    """A child's environment in ``domain`` without the profile variable (this test process has it set: conftest),
+    as a console script started by hand would have it."""
+    return {k: v for k, v in local_env(domain).items() if k != FASTDDS_PROFILES_ENV}
+
+
 def test_the_profile_is_installed_in_the_share() -> None:
     assert OURS.is_file()
     assert "<leaseAnnouncement>" in OURS.read_text()
@@ -68,7 +74,7 @@ def test_a_tools_session_uses_the_profile(ros_domain: int) -> None:
     """A tool's rclpy session (fiper record, replay, demo, ...: ``RosSession``), started without the profile
     variable, points Fast DDS at the suite's profile as the nodes do (before, it stayed on Fast DDS's defaults and
     saw a node start up to 3 s late)."""
-    env = {k: v for k, v in local_env(ros_domain).items() if k != FASTDDS_PROFILES_ENV}
+    env = env_without_profile(ros_domain)
     code = ("import os; from fiper_ros.client.ros_session import RosSession\n"
             "with RosSession('probe'):\n"
             f"    print(os.environ.get({FASTDDS_PROFILES_ENV!r}))")
@@ -91,7 +97,7 @@ def test_process_age_counts_from_the_exec() -> None:
 def test_a_node_process_uses_the_profile_and_logs_its_start_up(ros_domain: int) -> None:
     """The fusion node, started as a console script would be (no profile variable set): it names the profile,
     Fast DDS reads it without an error, and the node says ACTIVE with its seconds since exec."""
-    env = {k: v for k, v in local_env(ros_domain).items() if k != FASTDDS_PROFILES_ENV}
+    env = env_without_profile(ros_domain)
     process = subprocess.Popen(  # noqa: S603
         [sys.executable, "-m", "fiper_ros.nodes.fusion_node", "--ros-args", "-r", "__ns:=/fiper",
          "-p", f"calibration_dir:={CALIBRATION}"],

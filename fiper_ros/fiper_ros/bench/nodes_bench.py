@@ -110,12 +110,17 @@ LOSS_COUNTERS = {"rnd_oe_node": ("published",), "ace_node": ("published",),
 DIAGNOSTICS_WAIT_S = 3.0
 
 
+def status_node(name: str) -> str:
+    """The node a suite node's /diagnostics status name (``fiper: /fiper/<node>``) is of."""
+    return name.rsplit("/", 1)[-1]
+
+
 def loss_counters(diagnostics: dict[str, dict[str, str]]) -> dict[str, int]:
     """The :data:`LOSS_COUNTERS` of the suite's nodes, ``<node>.<key>``, from their latest ``/diagnostics`` values
     (by status name, ``fiper: /fiper/<node>``)."""
     counts = {}
     for name, values in diagnostics.items():
-        node = name.rsplit("/", 1)[-1]
+        node = status_node(name)
         for key in LOSS_COUNTERS.get(node, ()):
             if key in values:
                 counts[f"{node}.{key}"] = int(values[key])
@@ -314,7 +319,7 @@ class Driver:
         asked = time.monotonic()
         end = asked + DIAGNOSTICS_WAIT_S
         while time.monotonic() < end:
-            reporting = [name for name in self.diagnostics if name.rsplit("/", 1)[-1] in LOSS_COUNTERS]
+            reporting = [name for name in self.diagnostics if status_node(name) in LOSS_COUNTERS]
             if len(reporting) == len(LOSS_COUNTERS) and all(self.diagnostics_at[n] > asked for n in reporting):
                 break
             self.executor.spin_once(timeout_sec=0.05)
