@@ -82,6 +82,41 @@ class Driver(Node):
         return out
 
 
+class DriverSession:
+    """A :class:`Driver` on its own executor, in a private context of ``domain``: the test side of a suite that runs
+    in other processes (``fiper launch``)."""
+
+    def __init__(self, domain: int) -> None:
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.driver = Driver(self.context)
+        self.executor.add_node(self.driver)
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
+        return spin_until(self.executor, condition, timeout, step=0.02)
+
+    def wired(self) -> bool:
+        """Whether the driver's inputs are matched by the scoring nodes and its events by all three nodes."""
+        return (self.driver.embeddings.get_subscription_count() >= 1
+                and self.driver.batches.get_subscription_count() >= 1
+                and self.driver.events.get_subscription_count() >= 3)
+
+    def run(self, rollout: Rollout, rollout_id: int, why: Callable[[], object] = lambda: "") -> dict[int, FailureAlarm]:
+        """Start ``rollout_id`` and publish ``rollout`` step by step, each step's alarm awaited (10 s; ``why()`` says
+        what to show when one does not come); the alarms by step."""
+        self.driver.start(rollout_id)
+        for step in range(rollout.length):
+            self.driver.step(rollout_id, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
+            assert self.spin_until(lambda s=step: s in self.driver.alarms_of(rollout_id), timeout=10), (step, why())
+        return self.driver.alarms_of(rollout_id)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.driver.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
 class Suite:
     """The three FIPER nodes plus the driver on one executor, in their own context and domain."""
 

@@ -131,7 +131,8 @@ def test_an_include_shares_the_scope_and_its_arguments_are_declared(tmp_path: Pa
 @pytest.mark.parametrize(("entries", "message"), [
     ([{"group": {"scoped": True}}], "tag 'group' is not supported by fiper launch (it reads arg, let, include, node)"),
     ([{"executable": {"cmd": "ls"}}], "tag 'executable' is not supported"),
-    ([node(args="--verbose")], "attribute 'args' is not supported by fiper launch (node takes exec, if, name,"),
+    ([node(**{"launch-prefix": "gdb"})], "attribute 'launch-prefix' is not supported by fiper launch (node takes args, "
+                                       "exec, if, name,"),
     ([node(param=[{"name": "p", "value": "$(command ls)"}])], "substitution $(command ...) is not supported"),
     ([node(namespace="$(eval '1')")], "substitution $(eval ...) is not supported"),
     ([node(param=[{"name": "p", "value": "x", "type": "str"}])], "attribute 'type' is not supported"),
@@ -148,9 +149,11 @@ def test_an_include_shares_the_scope_and_its_arguments_are_declared(tmp_path: Pa
     ([node(param=[{"name": "p", "value": []}])], "an empty list has no type ROS can infer"),
     ([node(param=[{"name": "p", "value": [1, "a"]}])], "a list's items must all be bool, all int"),
     ([node(), node()], "node 'fusion_node': a second node of this name"),
-    ([node("no_such_node")], "package 'fiper_ros' has no executable 'no_such_node' (it has ace_node, fiper,"),
+    ([node("no_such_node")], "package 'fiper_ros' has no executable 'no_such_node' (it has ace_node, container, fiper,"),
     ([{"node": {"pkg": "rclpy", "exec": "x", "name": "x"}}], "package 'rclpy' has no Python executables installed"),
-    ([{"node": {"pkg": "fiper_ros", "exec": "fusion_node"}}], "needs 'name'"),
+    ([{"node": {"pkg": "fiper_ros", "name": "fusion_node"}}], "needs 'exec'"),
+    ([{"node": {"pkg": "fiper_ros", "exec": "container"}}, {"node": {"pkg": "fiper_ros", "exec": "container"}}],
+     "node 'container': a second node of this name"),
     ([node(param=[{"name": "p", "value": "$(find-pkg-share no_such_pkg)"}])],
      "$(find-pkg-share no_such_pkg): no package 'no_such_pkg' on the ament index"),
     ([{"arg": {"name": "combine", "default": "xor", "choice": [{"value": "and"}, {"value": "or"}]}}],
@@ -179,7 +182,7 @@ def test_files_that_are_not_launch_yaml_are_refused(tmp_path: Path) -> None:
 def test_an_unknown_argument_is_refused_with_the_declared_ones() -> None:
     assert refused(FIPER, {"calibraton_dir": "x"}) == (
         f"{FIPER}: unknown launch argument calibraton_dir (it declares: autostart, calibration_dir, combine, "
-        "log_level, namespace, observation_only, params_file, use_sim_time, view, view_host, view_port)")
+        "compose, log_level, namespace, observation_only, params_file, use_sim_time, view, view_host, view_port)")
     assert "is not one of and, or" in refused(FIPER, {"combine": "AND"})
 
 
@@ -224,6 +227,12 @@ def test_the_shipped_launch_files_read_with_their_defaults() -> None:
     alone = load_launch(FIPER, {"observation_only": "true", "calibration_dir": "my_calibration"})
     assert [spec.name for spec in alone.nodes] == ["rnd_oe_node", "fusion_node"]
     assert all(spec.parameters["calibration_dir"] == "my_calibration" for spec in alone.nodes)
+    composed = {spec.name: spec for spec in load_launch(FIPER, {"compose": "true", "combine": "or"}).nodes}
+    assert set(composed) == {"ace_node", "container"}
+    container = composed["container"]
+    assert not container.named and container.arguments == ("rnd_oe_node", "fusion_node") and container.respawn
+    assert container.module == "fiper_ros.nodes.container" and container.parameters["combine"] == "or"
+    assert container.parameters["calibration_dir"] == shipped
 
 
 def test_a_written_launch_file_reads_back_into_the_same_nodes(tmp_path: Path) -> None:
@@ -246,6 +255,34 @@ def test_overrides_select_nodes_and_set_parameters_after_their_own() -> None:
     assert policy.parameters["batch"] == 4 and ace.parameters["urdf_path"] == "/r.urdf"
     own = config.nodes[3]
     assert ace.params == (*own.parameter_files, own.parameters | {"urdf_path": "/r.urdf"})  # after the file's own
+
+
+def test_an_entry_without_a_name_leaves_the_names_to_its_process_and_passes_its_args(tmp_path: Path) -> None:
+    path = write(tmp_path / "c.launch.yaml", {"node": {
+        "pkg": "fiper_ros", "exec": "container", "args": "rnd_oe_node 'fusion_node'", "namespace": "/fiper",
+        "param": [{"name": "calibration_dir", "value": "/c"}], "respawn": "true"}})
+    (spec,) = load_launch(path).nodes
+    assert (spec.name, spec.named, spec.arguments, spec.fqn) == ("container", False, ("rnd_oe_node", "fusion_node"),
+                                                                   "/fiper/container")
+    command = spec.command(tmp_path)
+    assert command[1:6] == ["-m", "fiper_ros.nodes.container", "rnd_oe_node", "fusion_node", "--ros-args"]
+    assert "__node:=container" not in command and "__ns:=/fiper" in command  # each node keeps its own name
+    written = Path(command[command.index("--params-file") + 1])
+    assert yaml.safe_load(written.read_text()) == {"/**": {"ros__parameters": {"calibration_dir": "/c"}}}
+    reread = load_launch(dump_launch(load_launch(path), tmp_path / "out.launch.yaml"))
+    assert reread.nodes == (spec,)
+    with pytest.raises(LaunchError, match="without a name: under ROS_SECURITY_ENABLE=true each process runs in the "
+                                          "enclave of its one node"):
+        spec.command(tmp_path, enclave=True)
+
+
+def test_fiper_launch_refuses_a_container_under_security_before_any_node_starts(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("ROS_SECURITY_ENABLE", "true")
+    assert main(["launch", str(FIPER), "compose:=true"]) == 2
+    captured = capsys.readouterr()
+    assert "fiper launch: node entry 'container' without a name" in captured.err
+    assert "[launch] started" not in captured.out
 
 
 def test_a_node_runs_in_its_own_security_enclave_when_asked() -> None:

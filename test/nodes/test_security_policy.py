@@ -321,3 +321,13 @@ def test_relative_names_resolve_as_sros2_does() -> None:
     assert read_policy(text) == {"/a/n": Grants.of(publish={"/a/t"}, reply={"/a/n/s"})}
     with pytest.raises(ValueError, match="0.2.0"):
         read_policy('<policy version="0.1.0"/>')
+
+
+def test_a_composed_launch_has_no_enclave_and_fiper_security_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    composed = load_launch(ROOT / "fiper_ros" / "launch" / "fiper.launch.yaml", {"compose": "true"})
+    launch = dump_launch(composed, tmp_path / "composed.launch.yaml")
+    assert main(["security", str(launch), "-o", str(tmp_path / "policy.xml")]) == 2
+    assert "fiper security: node entry 'container' without a name: under ROS_SECURITY_ENABLE=true" \
+        in capsys.readouterr().err
+    assert not (tmp_path / "policy.xml").exists()

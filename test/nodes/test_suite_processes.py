@@ -7,16 +7,12 @@ import os
 import signal
 from pathlib import Path
 
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.interface import qos
 from helpers.launch import Launch, node_entry, write_launch
-from helpers.spin import spin_until as spin
-from helpers.suite import Driver
+from helpers.suite import DriverSession
 from helpers.synthetic import FAIL_FROM, make_rollout
 
 DEADLINE_S = 1.0
@@ -32,37 +28,23 @@ def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
                           node_entry("ace_node", scoring),
                           node_entry("fusion_node", {"deadline_s": DEADLINE_S, "heartbeat_s": HEARTBEAT_S}))
     launch = Launch(config, ros_domain)
-    context = Context()
-    rclpy.init(context=context, domain_id=ros_domain)
-    executor = SingleThreadedExecutor(context=context)
-    driver = Driver(context)
-    executor.add_node(driver)
-
-    def spin_until(condition, timeout: float = 30.0) -> bool:  # noqa: ANN001
-        return spin(executor, condition, timeout, step=0.02)
-
+    session = DriverSession(ros_domain)
+    driver, spin_until = session.driver, session.spin_until
     try:
-        assert spin_until(lambda: driver.embeddings.get_subscription_count() >= 1
-                          and driver.batches.get_subscription_count() >= 1
-                          and driver.events.get_subscription_count() >= 3, timeout=60), "\n".join(launch.lines)
+        assert spin_until(session.wired, timeout=60), "\n".join(launch.lines)
         assert spin_until(lambda: any("waiting" in m.reason or "no active" in m.reason for m in driver.alarms))
 
         # 1. a scripted failure raises ALARM exactly at the step where both windowed scores cross.
-        rollout = make_rollout(500, fail=True)
-        driver.start(1)
-        for step in range(rollout.length):
-            driver.step(1, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
-            assert spin_until(lambda s=step: s in driver.alarms_of(1), timeout=10), (step, "\n".join(launch.lines))
-        states = driver.alarms_of(1)
+        states = session.run(make_rollout(500, fail=True), 1, lambda: launch.lines)
         first = min(s for s, m in states.items() if m.state == FailureAlarm.STATE_ALARM)
         assert first == FAIL_FROM
         assert all(states[s].state == FailureAlarm.STATE_OK for s in range(FAIL_FROM))
 
         # 2. a supervisor that joins now still receives the latched ALARM (transient local).
         late: list[FailureAlarm] = []
-        supervisor = Node("late_supervisor", context=context)
+        supervisor = Node("late_supervisor", context=session.context)
         supervisor.create_subscription(FailureAlarm, "/fiper/alarm", late.append, qos.ALARM)
-        executor.add_node(supervisor)
+        session.executor.add_node(supervisor)
         assert spin_until(lambda: bool(late), timeout=10)
         assert late[0].state == FailureAlarm.STATE_ALARM and late[0].latched and late[0].rollout_id == 1
 
@@ -90,9 +72,7 @@ def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
         assert all(m.state != FailureAlarm.STATE_OK for m in driver.alarms[first_unknown:])
         assert spin_until(lambda: any("ace_node exited with code -9" in line for line in launch.lines), timeout=5)
     finally:
-        executor.shutdown()
-        driver.destroy_node()
-        rclpy.try_shutdown(context=context)
+        session.close()
         status = launch.interrupt()
     # Ctrl-C stopped the remaining nodes cleanly; the launcher reports the node that died.
     assert status == 1, "\n".join(launch.lines)

@@ -26,6 +26,9 @@ else runs.
 ``--profile DIR`` profiles the suite's nodes (``cProfile`` of their main thread's CPU time, ``FIPER_PROFILE_DIR``)
 and the driver's timed runs into ``DIR/<shape>/<process>.prof`` (``python -m pstats``); profiled figures are slower.
 
+``--compose`` runs RND-OE and the fusion node composed in one process (``fiper.launch.yaml compose:=true``,
+:mod:`fiper_ros.nodes.container`), ACE in its own: the start-up of that container alone stands for those two nodes'.
+
 ``--view`` runs the live view (``fiper view``, issue #22) beside the suite, with no client connected: the
 figures with and without it say what the view costs the suite when nobody watches.
 """
@@ -106,6 +109,8 @@ SHAPES = (Shape("pusht", 64, 256, 16, 2, 8, 1000.0), Shape("pretzel", 512, 30, 1
 #: their other score never came, e.g. lost from a full reader history).
 LOSS_COUNTERS = {"rnd_oe_node": ("published",), "ace_node": ("published",),
                  "fusion_node": ("matched", "evicted", "unmatched")}
+#: The launch entry of the composed RND-OE and fusion nodes (``compose:=true``), named by its executable.
+CONTAINER = "container"
 #: Longest wait for a fresh ``/diagnostics`` message of every suite node (they publish every second).
 DIAGNOSTICS_WAIT_S = 3.0
 
@@ -159,10 +164,22 @@ def shaped_calibration(shape: Shape, directory: Path, seed: int = 0) -> Path:
     return directory
 
 
-def _suite_config(calibration: Path, work: Path) -> Path:
-    """The installed suite (``fiper.launch.yaml``) on ``calibration``, its fusion node keeping every alarm."""
-    return rewrite(installed_launch(), Overrides(by_name={"fusion_node": EVERY_ALARM}), work / "suite.launch.yaml",
-                   {"calibration_dir": str(calibration)})
+def _suite_config(calibration: Path, work: Path, compose: bool = False) -> Path:
+    """The installed suite (``fiper.launch.yaml``) on ``calibration``, its fusion node keeping every alarm
+    (``compose``: RND-OE and the fusion node in one process, ``compose:=true``)."""
+    every = Overrides(by_name={"fusion_node": EVERY_ALARM, CONTAINER: EVERY_ALARM})
+    return rewrite(installed_launch(), every, work / "suite.launch.yaml",
+                   {"calibration_dir": str(calibration), "compose": str(compose).lower()})
+
+
+def spec_nodes(spec: NodeSpec) -> list[str]:
+    """The names of the nodes a launch entry's process runs: its one node, or a container's (its ``args``)."""
+    return [spec.name] if spec.named else list(spec.arguments)
+
+
+def spec_fqns(spec: NodeSpec) -> list[str]:
+    """The fully qualified names of the nodes a launch entry's process runs."""
+    return [f"{spec.namespace.rstrip('/')}/{name}" for name in spec_nodes(spec)]
 
 
 def _start(command: list[str], domain: int, env: dict[str, str] | None = None,
@@ -222,17 +239,19 @@ class Startup:
 
 
 def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
-    """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE."""
+    """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE (a container:
+    its last node)."""
     with tempfile.TemporaryDirectory() as work:  # its parameter files, read at its start, and its output
         command, output = spec.command(Path(work)), Path(work) / "output.log"
         started = time.monotonic()
         process = _start(command, domain, output=output)
         try:
-            active = driver.wait_active([spec.fqn])
+            active = driver.wait_active(spec_fqns(spec))
             peak = memory_mb(process.pid, "VmHWM")
         finally:
             _stop(process)
-        return Startup(own_active_s(output).get(spec.name, float("nan")), active - started, peak)
+        own = own_active_s(output)
+        return Startup(max(own.get(name, float("nan")) for name in spec_nodes(spec)), active - started, peak)
 
 
 def _created(output: IO[bytes]) -> float:
@@ -438,18 +457,18 @@ def rate_line(shape: Shape, rate: float, latencies: np.ndarray, missing: int, ba
 
 
 def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False,
-                profile: Path | None = None) -> dict[str, Any]:
+                profile: Path | None = None, compose: bool = False) -> dict[str, Any]:
     """Start-up, latency at 10 Hz, the highest sustained rate and the nodes' peak memory for one shape (``view``:
     with ``fiper view`` running beside the suite, no client connected; ``profile``: the suite's nodes and the
-    driver's timed runs profiled into that folder)."""
+    driver's timed runs profiled into that folder; ``compose``: RND-OE and the fusion node in one process)."""
     with tempfile.TemporaryDirectory() as tmp, allocate_domain() as domain:
         work = Path(tmp)
-        config = _suite_config(shaped_calibration(shape, work / "calibration"), work)
+        config = _suite_config(shaped_calibration(shape, work / "calibration"), work, compose)
         startup = bench_startup(shape, config, domain)
         driver = Driver(shape, domain)
         plain = plain_discovery(driver, domain, PLAIN_STARTS)
         env = local_env(domain) | ({PROFILE_ENV: str(profile / shape.name)} if profile else {})
-        fqns = [spec.fqn for spec in load_launch(config).nodes]
+        fqns = [fqn for spec in load_launch(config).nodes for fqn in spec_fqns(spec)]
         suite_s: list[float] = []
         suite_own_s: list[float] = []
         for start in range(SUITE_STARTS):  # the last start's suite stays up for the latency runs
@@ -559,12 +578,15 @@ def main() -> int:
     parser.add_argument("--default-dds", action="store_true",
                         help="the driver on Fast DDS's defaults, not the suite's discovery profile (as a supervisor "
                              "that does not set FASTRTPS_DEFAULT_PROFILES_FILE; the nodes use it either way)")
+    parser.add_argument("--compose", action="store_true",
+                        help="RND-OE and the fusion node in one process (fiper.launch.yaml compose:=true)")
     parser.add_argument("--profile", type=Path, metavar="DIR",
                         help="profile the suite's nodes (their main thread's CPU time) and the driver's timed runs "
                              "into DIR/<shape>/<node>.prof (python -m pstats); the figures are then not comparable")
     args = parser.parse_args()
     dds_profile = None if args.default_dds else use_discovery_profile()  # before the driver's rclpy.init
-    print(f"machine: {os.cpu_count()} cores; nodes as separate processes; loopback DDS; {args.steps} steps at 10 Hz; "
+    layout = "RND-OE and fusion composed in one process, ACE in its own" if args.compose else "separate processes"
+    print(f"machine: {os.cpu_count()} cores; nodes as {layout}; loopback DDS; {args.steps} steps at 10 Hz; "
           f"{'with' if args.view else 'without'} the live view; executor of the nodes and the driver: "
           f"{os.environ.get(EXECUTOR_ENV) or 'default'}; the driver's DDS profile: {dds_profile or 'Fast DDS defaults'}; "
           f"load average {load_average()}")
@@ -572,7 +594,7 @@ def main() -> int:
     for shape in SHAPES:
         if args.profile:
             (args.profile / shape.name).mkdir(parents=True, exist_ok=True)
-        r = bench_shape(shape, args.steps, args.rates, args.view, args.profile)
+        r = bench_shape(shape, args.steps, args.rates, args.view, args.profile, args.compose)
         for line in [*startup_lines(shape, r), latency_line(shape, r)]:
             print(line, flush=True)
     print(f"load average at the end {load_average()}")

@@ -119,7 +119,7 @@ def effective_parameters(spec: NodeSpec) -> dict[str, Any]:
     later). What the node declares by default is not here."""
     keys: dict[str, dict[str, Any]] = {}
     for entry in spec.params:
-        items = (yaml.safe_load(entry.read_text()) or {}).items() if isinstance(entry, Path) else [(spec.fqn, entry)]
+        items = (yaml.safe_load(entry.read_text()) or {}).items() if isinstance(entry, Path) else [(spec.parameter_key, entry)]
         for key, content in items:
             values = content if not isinstance(entry, Path) else (content or {}).get("ros__parameters") or {}
             keys.setdefault("/" + str(key).lstrip("/"), {}).update(values)
@@ -264,7 +264,7 @@ def nodes_policy(deployments: Iterable[Deployment]) -> dict[str, Grants]:
     policy: dict[str, Grants] = {}
     for deployment in deployments:
         for spec in deployment.config.nodes:
-            policy[spec.fqn] = policy.get(spec.fqn, Grants()) | node_grants(spec)
+            policy[spec.enclave] = policy.get(spec.enclave, Grants()) | node_grants(spec)
     return policy
 
 

@@ -60,6 +60,15 @@ def run(args: argparse.Namespace) -> int:
     if view:
         print(f"[launch] {options.view_banner(args.view_port)}", flush=True)
     print(f"[launch] {clean_stale().summary()}", flush=True)
+    try:
+        return _run(config, args)
+    except LaunchError as error:  # found as the nodes start (a container's arguments, an entry without enclave)
+        print(f"fiper launch: {error}", file=sys.stderr)
+        return 2
+
+
+def _run(config: LaunchConfig, args: argparse.Namespace) -> int:
+    """Run the suite of ``config`` as ``args`` say (in processes or in this one; with the summary or without)."""
     if not args.summary:
         return run_in_process(config) if args.in_process else run_processes(config, args.grace)
     from fiper_ros.client.verdicts import LiveVerdicts  # noqa: PLC0415 - rclpy only with --summary

@@ -9,9 +9,12 @@ A launch file is ``launch:``, a list of tags (docs/install.md, "Launch files", h
 - ``include`` (``file``, ``arg: [{name, value}]``): another launch file, read in the same scope (as
   ``IncludeLaunchDescription`` does): its arguments see the values set here and on the command line.
 - ``node`` (``pkg``, ``exec``, ``name``, ``namespace``, ``param``, ``remap``, ``respawn``, ``respawn_delay``,
-  ``respawn_max_retries``, ``output`` (``screen``, ``log``, ``both``), ``ros_args``, ``on_exit: shutdown``): one
-  node process. ``pkg`` + ``exec`` name a console
-  script of an installed ament_python package (what ``ros2 run`` starts); the launcher runs its module.
+  ``respawn_max_retries``, ``output`` (``screen``, ``log``, ``both``), ``args``, ``ros_args``,
+  ``on_exit: shutdown``): one node process. ``pkg`` + ``exec`` name a console
+  script of an installed ament_python package (what ``ros2 run`` starts); the launcher runs its module, with
+  ``args`` (split as a shell does) before its ``--ros-args``. ``name`` renames the process's node; an entry
+  without one leaves the names to the process (a ``container`` of several nodes, :mod:`fiper_ros.nodes.container`)
+  and is known to the launcher by its ``exec``, its name/value parameters keyed ``/**`` (every node of it).
   ``param`` entries are ``{from: FILE}`` or ``{name, value}`` (nested ``param`` lists give dotted names),
   applied in order, later ones winning, as ``launch_ros`` does; a value's text is read as YAML after its
   substitutions, so ``'true'`` is a bool and ``"'1.0'"`` a string. ``on_exit: shutdown`` makes the node
@@ -56,7 +59,7 @@ TAGS: dict[str, frozenset[str]] = {
     "let": frozenset({"name", "value"}),
     "include": frozenset({"file", "arg"}),
     "node": frozenset({"pkg", "exec", "name", "namespace", "param", "remap", "respawn", "respawn_delay",
-                       "respawn_max_retries", "output", "ros_args", "on_exit"}),
+                       "respawn_max_retries", "output", "args", "ros_args", "on_exit"}),
 }
 #: A node's ``output``, as ``launch_ros``: its lines on the launcher's screen, in its log file, or in both.
 OUTPUTS = ("screen", "log", "both")
@@ -82,6 +85,8 @@ class NodeSpec:
     """One node of a launch file, every substitution evaluated."""
 
     name: str
+    """The node's name; for an entry without one (:attr:`named` false), its executable: the launcher's name of the
+    process (its output's prefix, its log file, its respawns)."""
     package: str
     executable: str
     module: str
@@ -102,6 +107,10 @@ class NodeSpec:
     """Respawns at most (:data:`UNLIMITED_RESPAWNS`: no limit); after them an exit is final."""
     output: str = "screen"
     """Where the node's output goes (one of :data:`OUTPUTS`)."""
+    arguments: tuple[str, ...] = ()
+    """The ``args`` tokens: the process's own arguments, before ``--ros-args``."""
+    named: bool = True
+    """Whether the entry names the node (``-r __node:=NAME``); else the process names its nodes."""
 
     @property
     def to_screen(self) -> bool:
@@ -119,8 +128,18 @@ class NodeSpec:
 
     @property
     def fqn(self) -> str:
-        """The node's fully qualified name; also its SROS2 enclave (docs/security.md)."""
+        """The node's fully qualified name (for an entry without a name: its executable's under its namespace)."""
         return f"{self.namespace.rstrip('/')}/{self.name}"
+
+    @property
+    def enclave(self) -> str:
+        """The node process's SROS2 enclave: the node's fully qualified name (docs/security.md). An entry without a
+        name has none (:class:`LaunchError`): an enclave grants one node's topics and services."""
+        if not self.named:
+            raise LaunchError(f"node entry {self.executable!r} without a name: under ROS_SECURITY_ENABLE=true each "
+                              "process runs in the enclave of its one node (docs/security.md); launch its nodes as "
+                              "processes of their own (fiper.launch.yaml compose:=false)")
+        return self.fqn
 
     @property
     def parameter_files(self) -> tuple[Path, ...]:
@@ -145,18 +164,24 @@ class NodeSpec:
             return replace(self, params=(*self.params[:-1], {**self.params[-1], **values}))
         return replace(self, params=(*self.params, dict(values)))
 
+    @property
+    def parameter_key(self) -> str:
+        """The node key of the parameter file a name/value entry becomes: the node's name, or ``/**`` (every node
+        of the process) for an entry without one, as ``launch_ros``."""
+        return self.fqn if self.named else "/**"
+
     def ros_args(self, params_dir: Path, enclave: bool = False) -> list[str]:
         """The ``--ros-args`` of this node's command line (``enclave``: with its own security enclave). As
         ``launch_ros`` does, each name/value entry becomes a parameter file keyed by the node's fully qualified
         name (written into ``params_dir``), so that every entry is a ``--params-file`` in order and a later one
         wins: rcl ranks ``-p`` rules by their own rules, not by their place on the command line."""
-        args = ["--ros-args", "-r", f"__node:={self.name}", "-r", f"__ns:={self.namespace}"]
+        args = ["--ros-args", *(("-r", f"__node:={self.name}") if self.named else ()), "-r", f"__ns:={self.namespace}"]
         if enclave:
-            args += ["--enclave", self.fqn]
+            args += ["--enclave", self.enclave]
         for index, entry in enumerate(self.params):
             if not isinstance(entry, Path):
                 path = params_dir / f"{self.name}.{index}.yaml"
-                path.write_text(yaml.safe_dump({self.fqn: {"ros__parameters": dict(entry)}}))
+                path.write_text(yaml.safe_dump({self.parameter_key: {"ros__parameters": dict(entry)}}))
                 entry = path
             args += ["--params-file", str(entry)]
         for source, target in self.remaps:
@@ -165,7 +190,7 @@ class NodeSpec:
 
     def command(self, params_dir: Path, enclave: bool = False) -> list[str]:
         """The node process's command line (its name/value parameters written into ``params_dir``)."""
-        return [sys.executable, "-m", self.module, *self.ros_args(params_dir, enclave)]
+        return [sys.executable, "-m", self.module, *self.arguments, *self.ros_args(params_dir, enclave)]
 
 
 @dataclass(frozen=True)
@@ -227,8 +252,11 @@ def dump_launch(config: LaunchConfig, path: Path) -> Path:
     that :func:`load_launch` reads back into the same nodes; ``ros2 launch`` runs it too."""
     entries = []
     for spec in config.nodes:
-        node: dict[str, Any] = {"pkg": spec.package, "exec": spec.executable, "name": spec.name,
+        node: dict[str, Any] = {"pkg": spec.package, "exec": spec.executable,
+                                **({"name": spec.name} if spec.named else {}),
                                 "namespace": spec.namespace, "output": spec.output}
+        if spec.arguments:
+            node["args"] = shlex.join(spec.arguments)
         params = []
         for entry in spec.params:
             if isinstance(entry, Path):
@@ -375,7 +403,8 @@ class _Reader:
 
     def _node(self, entry: _Entry, depth: int) -> None:
         package, executable = entry.text("pkg"), entry.text("exec")
-        name = entry.text("name")
+        given = entry.text("name", default="")
+        name = given or executable
         entry.where = f"{entry.path}: node {name!r}"
         if any(spec.name == name for spec in self.nodes):
             raise LaunchError(f"{entry.where}: a second node of this name (fiper launch names processes by node)")
@@ -402,7 +431,8 @@ class _Reader:
         self.nodes.append(NodeSpec(
             name, package, executable, module, namespace, self._params(entry), remaps,
             tuple(shlex.split(entry.text("ros_args", default=""))), on_exit == "shutdown",
-            entry.flag("respawn"), respawn_delay, int(retries), output))
+            entry.flag("respawn"), respawn_delay, int(retries), output,
+            tuple(shlex.split(entry.text("args", default=""))), bool(given)))
 
     def _params(self, entry: _Entry) -> tuple[ParameterEntry, ...]:
         params: list[ParameterEntry] = []

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from fiper_ros.dds import PARENT_PID_ENV
-from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, NodeSpec
+from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, LaunchError, NodeSpec
 
 
 #: One line at a time on stdout, from the node relays and whatever else a launch prints (``--summary``).
@@ -42,6 +42,11 @@ def launch_log_directory(env: Mapping[str, str]) -> Path:
     return root.expanduser() / f"{datetime.now():%Y-%m-%d-%H-%M-%S-%f}-{socket.gethostname()}-{os.getpid()}"
 
 
+def secure_launch() -> bool:
+    """Whether SROS2 security is on (:data:`SECURITY_ENABLE_ENV`): each node process then runs in its own enclave."""
+    return os.environ.get(SECURITY_ENABLE_ENV, "").lower() == "true"
+
+
 class ProcessGroup:
     """The launched processes, their output, their respawns and their shutdown."""
 
@@ -61,7 +66,7 @@ class ProcessGroup:
 
     def start(self, spec: NodeSpec) -> None:
         """Start one node process and a thread relaying its output."""
-        secure = os.environ.get(SECURITY_ENABLE_ENV, "").lower() == "true"  # then each node in its own enclave
+        secure = secure_launch()  # then each node in its own enclave
         env = os.environ | {"PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid())}
         proc = subprocess.Popen(spec.command(self.params_dir, enclave=secure), stdout=subprocess.PIPE,  # noqa: S603
                                 stderr=subprocess.STDOUT, text=True, start_new_session=True, env=env)
@@ -144,6 +149,9 @@ class ProcessGroup:
 def run_processes(config: LaunchConfig, grace_s: float, before_stop: Callable[[], None] | None = None) -> int:
     """Run every node in its own process until Ctrl-C / SIGTERM or until one dies (``before_stop``: called then,
     before the nodes are stopped)."""
+    if secure_launch():
+        for spec in config.nodes:
+            _ = spec.enclave  # LaunchError before any node starts: an entry without a name has no enclave
     params_dir = tempfile.TemporaryDirectory(prefix="fiper-launch-")
     group = ProcessGroup(grace_s, Path(params_dir.name))
     stop_event = threading.Event()
@@ -164,26 +172,41 @@ def run_processes(config: LaunchConfig, grace_s: float, before_stop: Callable[[]
     return status
 
 
-def build_node(spec: NodeSpec, context: Any = None) -> Any:
-    """The node of ``spec`` built in this process (``context``: an rclpy context, default the global one), from
-    the ``--ros-args`` its process would get: rcl reads the same parameter files (wildcard entries included),
-    parameters and remaps. ``--log-level [NAME:=]LEVEL`` (which rcl takes only at init) sets the level of the
-    node's logger (or of NAME)."""
+def build_nodes(spec: NodeSpec, context: Any = None) -> list[Any]:
+    """The nodes of ``spec`` built in this process (``context``: an rclpy context, default the global one): its
+    module's ``NODE_CLASS``, or the classes its ``node_classes(args)`` names (a container,
+    :mod:`fiper_ros.nodes.container`), each from the ``--ros-args`` its process would get: rcl reads the same
+    parameter files (wildcard entries included), parameters and remaps. ``--log-level [NAME:=]LEVEL`` (which rcl
+    takes only at init) sets the level of each node's logger (or of NAME). :class:`LaunchError` for a container's
+    arguments it refuses."""
     import rclpy.logging  # noqa: PLC0415 - rclpy only in-process
 
-    with tempfile.TemporaryDirectory(prefix="fiper-launch-") as params_dir:  # read while the node is made
+    module = importlib.import_module(spec.module)
+    try:
+        classes = module.node_classes(list(spec.arguments)) if hasattr(module, "node_classes") else [module.NODE_CLASS]
+    except ValueError as error:
+        raise LaunchError(f"node {spec.name}: {error}") from None
+    nodes = []
+    with tempfile.TemporaryDirectory(prefix="fiper-launch-") as params_dir:  # read while the nodes are made
         args = spec.ros_args(Path(params_dir))
         level = ""
         if "--log-level" in args:
             i = args.index("--log-level")
             level = args[i + 1] if i + 1 < len(args) else ""
             del args[i:i + 2]
-        node = importlib.import_module(spec.module).NODE_CLASS(namespace=spec.namespace, cli_args=args,
-                                                               context=context)
+        for node_class in classes:
+            nodes.append(node_class(namespace=spec.namespace, cli_args=args, context=context))
     if level:
         name, _, severity = level.rpartition(":=")
-        rclpy.logging.set_logger_level(name or node.get_logger().name,
-                                       rclpy.logging.get_logging_severity_from_string(severity))
+        for node in nodes:
+            rclpy.logging.set_logger_level(name or node.get_logger().name,
+                                           rclpy.logging.get_logging_severity_from_string(severity))
+    return nodes
+
+
+def build_node(spec: NodeSpec, context: Any = None) -> Any:
+    """The one node of ``spec`` built in this process (:func:`build_nodes`)."""
+    (node,) = build_nodes(spec, context)
     return node
 
 
@@ -202,9 +225,9 @@ def run_in_process(config: LaunchConfig) -> int:
     try:
         executor = MultiThreadedExecutor()
         for spec in config.nodes:
-            node = build_node(spec)
-            nodes.append(node)
-            executor.add_node(node)
+            for node in build_nodes(spec):
+                nodes.append(node)
+                executor.add_node(node)
             print(f"[launch] {spec.name} running in-process ({spec.package}/{spec.executable})", flush=True)
         spin_until_shutdown(executor)
     except KeyboardInterrupt:  # while the nodes start

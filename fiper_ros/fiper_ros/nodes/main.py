@@ -27,7 +27,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -183,9 +183,9 @@ def _on_sigterm(*_: Any) -> None:
         shut_down()
 
 
-def spin_profiled(executor: Any, node: Any) -> None:
-    """:func:`spin_until_shutdown`, profiled into :data:`PROFILE_ENV`'s folder if that is set (the CPU time of
-    this thread: waiting is not counted)."""
+def spin_profiled(executor: Any, label: str) -> None:
+    """:func:`spin_until_shutdown`, profiled into :data:`PROFILE_ENV`'s folder as ``<label>.prof`` if that is set
+    (the CPU time of this thread: waiting is not counted)."""
     folder = os.environ.get(PROFILE_ENV)
     if not folder:
         spin_until_shutdown(executor)
@@ -196,7 +196,7 @@ def spin_profiled(executor: Any, node: Any) -> None:
         spin_until_shutdown(executor)
     finally:
         profile.disable()
-        profile.dump_stats(Path(folder) / f"{node.get_name()}.prof")
+        profile.dump_stats(Path(folder) / f"{label}.prof")
 
 
 def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1,
@@ -204,30 +204,40 @@ def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads
     """Create the node from ``factory`` and spin it (in ``threads`` threads: callback groups of its own run
     beside the default group; one thread: on the ``executor`` kind unless :data:`EXECUTOR_ENV` says otherwise)
     until interrupted; returns the exit status."""
+    return run_nodes([factory], args, threads, executor)
+
+
+def run_nodes(factories: Sequence[Callable[..., Any]], args: list[str] | None = None, threads: int = 1,
+              executor: str = EXECUTOR_SINGLE) -> int:
+    """:func:`run_node` for several nodes in this one process, created in order from ``factories`` and spun by
+    one executor (:mod:`fiper_ros.nodes.container`); the same ``--ros-args`` reach every one. Returns the exit
+    status."""
     faulthandler.enable()
     die_with_parent()
     profile = use_discovery_profile()
     rclpy.init(args=sys.argv if args is None else args)
     signal.signal(signal.SIGTERM, _on_sigterm)
-    node = None
+    nodes: list[Any] = []
     try:
-        node = factory()
+        for factory in factories:
+            nodes.append(factory())
         if profile is not None:
-            node.get_logger().info(discovery_note(profile))
+            nodes[0].get_logger().info(discovery_note(profile))
         spinner = new_executor(threads, executor)
-        spinner.add_node(node)
+        for node in nodes:
+            spinner.add_node(node)
         gc.collect()
         gc.freeze()
-        spin_profiled(spinner, node)
+        spin_profiled(spinner, "+".join(node.get_name() for node in nodes))
     except KeyboardInterrupt:  # during start-up
         pass
     except (RCLError, NotInitializedException):
-        # a signal shut the context down while the node was being built
+        # a signal shut the context down while a node was being built
         if rclpy.ok():
             raise
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # shutting down already: a SIGTERM now would re-enter it
-        if node is not None:
+        for node in reversed(nodes):
             node.destroy_node()
         shut_down()
     return 0

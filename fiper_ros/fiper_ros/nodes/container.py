@@ -1,0 +1,68 @@
+"""Several of the suite's nodes in one process: ``ros2 run fiper_ros container rnd_oe_node fusion_node --ros-args ...``.
+
+The nodes are created in the order given and spun by one EventsExecutor in the process's main thread
+(:func:`fiper_ros.nodes.main.run_nodes`), so a message between them costs no process wake-up: at PushT's shape the
+suite sustains 1000 steps/s only with RND-OE and the fusion node composed (docs/benchmarks.md, issue #24;
+``fiper.launch.yaml compose:=true``). The price is isolation: a crash of one node ends the others, and a callback
+that hangs stops them all (the alarm's liveliness then lapses, which a supervisor sees; docs/nodes.md
+"Composed nodes"). Every node keeps its own name, parameters (a parameter file's entries by node name, or
+``/**``), lifecycle and ``/diagnostics`` status; the ``--ros-args`` reach every node, so a remap of ``__node``
+without a node name before it (what a launch entry's ``name`` passes) is refused: it would give every node one
+name.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+from rclpy.utilities import remove_ros_args
+
+from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_nodes
+
+#: The nodes a container may hold: the suite's single-threaded nodes, each its executable's name.
+NODES = ("rnd_oe_node", "ace_node", "fusion_node")
+#: The exit status of a command line the container refuses (as argparse's).
+USAGE_ERROR = 2
+
+
+class ContainerUsageError(ValueError):
+    """The container's command line names no node, an unknown one, one twice, or renames every node."""
+
+
+def contained(argv: list[str]) -> list[str]:
+    """The node names of a container's command line (``argv`` without the program name), checked; the
+    :class:`ContainerUsageError` says what is wrong."""
+    names = remove_ros_args(["container", *argv])[1:]
+    if not names:
+        raise ContainerUsageError(f"name the nodes to run (any of {', '.join(NODES)})")
+    unknown = [name for name in names if name not in NODES]
+    if unknown:
+        raise ContainerUsageError(f"unknown node {unknown[0]!r} (a container holds {', '.join(NODES)})")
+    if len(set(names)) != len(names):
+        raise ContainerUsageError(f"a node named twice in {' '.join(names)}")
+    for flag, value in zip(argv, argv[1:]):
+        if flag in ("-r", "--remap") and value.startswith("__node:="):
+            raise ContainerUsageError(f"'-r {value}' would name every node of the container alike: its nodes keep "
+                                      "their own names (no 'name' on its launch entry)")
+    return names
+
+
+def node_classes(argv: list[str]) -> list[type]:
+    """The classes of the nodes a container's command line (``argv`` without the program name) names, in order
+    (:func:`contained`; also what ``fiper launch --in-process`` builds for a container's entry)."""
+    return [importlib.import_module(f"fiper_ros.nodes.{name}").NODE_CLASS for name in contained(argv)]
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point: ``python -m fiper_ros.nodes.container NODE... --ros-args ...``."""
+    argv = sys.argv if args is None else args
+    try:
+        classes = node_classes(argv[1:])
+    except ContainerUsageError as error:
+        print(f"container: {error}", file=sys.stderr)
+        return USAGE_ERROR
+    return run_nodes(classes, argv, executor=EXECUTOR_EVENTS)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
