@@ -9,6 +9,7 @@ import importlib
 import itertools
 import os
 import re
+import shlex
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from rclpy.context import Context
 from rclpy.exceptions import ParameterUninitializedException
 
 from fiper_ros.launcher.config import load_launch, node_module
+from fiper_ros.nodes import container
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 LAUNCH_FILES = sorted([*(ROOT / "fiper_ros" / "launch").glob("*.launch.yaml"),
@@ -81,23 +83,27 @@ def launch_problems(path: Path, defaults: Defaults) -> list[str]:
             continue
         node = entry["node"]
         module = node_module(node["pkg"], node["exec"])
+        # a container's parameters reach each of its nodes, and each takes those it declares
+        modules = container.node_modules(shlex.split(node["args"])) if module == container.__name__ else [module]
         for param in node.get("param", []):
             if "from" in param:
                 continue
             name, value = param["name"], param["value"]
-            declared, default = defaults.of(module, name)
-            where = f"{path.name}: {node['name']}: {name}"
-            if not declared:
-                problems.append(f"{where}: not a parameter of {module}")
-            elif isinstance(value, str) and value.startswith("$(var ") and value.endswith(")"):
-                argument = value[len("$(var "):-1]
-                if argument in arguments and argument not in DEPLOYMENT_ARGUMENTS:
-                    passed = yaml.safe_load(str(arguments[argument]))
-                    if not same(passed, default):
-                        problems.append(f"{where}: argument {argument}'s default {passed!r} is not the node's "
-                                        f"default {default!r}")
-            elif "$(" not in str(value) and same(yaml.safe_load(value) if isinstance(value, str) else value, default):
-                problems.append(f"{where}: repeats the node's default {default!r}")
+            where = f"{path.name}: {node.get('name', node['exec'])}: {name}"
+            declaring = [(m, default) for m in modules for declared, default in [defaults.of(m, name)] if declared]
+            if not declaring:
+                problems.append(f"{where}: not a parameter of {' or '.join(modules)}")
+            for _, default in declaring:
+                if isinstance(value, str) and value.startswith("$(var ") and value.endswith(")"):
+                    argument = value[len("$(var "):-1]
+                    if argument in arguments and argument not in DEPLOYMENT_ARGUMENTS:
+                        passed = yaml.safe_load(str(arguments[argument]))
+                        if not same(passed, default):
+                            problems.append(f"{where}: argument {argument}'s default {passed!r} is not the node's "
+                                            f"default {default!r}")
+                elif "$(" not in str(value) and same(yaml.safe_load(value) if isinstance(value, str) else value,
+                                                     default):
+                    problems.append(f"{where}: repeats the node's default {default!r}")
     return problems
 
 

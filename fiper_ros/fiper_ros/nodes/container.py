@@ -47,10 +47,16 @@ def contained(argv: list[str]) -> list[str]:
     return names
 
 
+def node_modules(argv: list[str]) -> list[str]:
+    """The modules of the nodes a container's command line (``argv`` without the program name) names, in order
+    (:func:`contained`)."""
+    return [f"{__package__}.{name}" for name in contained(argv)]
+
+
 def node_classes(argv: list[str]) -> list[type]:
-    """The classes of the nodes a container's command line (``argv`` without the program name) names, in order
-    (:func:`contained`; also what ``fiper launch --in-process`` builds for a container's entry)."""
-    return [importlib.import_module(f"fiper_ros.nodes.{name}").NODE_CLASS for name in contained(argv)]
+    """The classes of the nodes a container's command line names, in order (:func:`node_modules`; also what
+    ``fiper launch --in-process`` builds for a container's entry)."""
+    return [importlib.import_module(module).NODE_CLASS for module in node_modules(argv)]
 
 
 def main(args: list[str] | None = None) -> int:
