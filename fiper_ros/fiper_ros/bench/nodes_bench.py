@@ -58,8 +58,10 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import allocate_domain, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
+from fiper_ros.nodes import container
 from fiper_ros.nodes.base import ACTIVE_LOG, ACTIVE_LOG_END
 from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
+from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.shm import clean_stale
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
@@ -173,13 +175,13 @@ def _suite_config(calibration: Path, work: Path, compose: bool = False) -> Path:
 
 
 def spec_nodes(spec: NodeSpec) -> list[str]:
-    """The names of the nodes a launch entry's process runs: its one node, or a container's (its ``args``)."""
-    return [spec.name] if spec.named else list(spec.arguments)
+    """The names of the nodes a launch entry's process runs: its one node, or those its ``args`` give a container."""
+    return container.contained(list(spec.arguments)) if spec.module == container.__name__ else [spec.name]
 
 
 def spec_fqns(spec: NodeSpec) -> list[str]:
     """The fully qualified names of the nodes a launch entry's process runs."""
-    return [f"{spec.namespace.rstrip('/')}/{name}" for name in spec_nodes(spec)]
+    return [fully_qualified(spec.namespace, name) for name in spec_nodes(spec)]
 
 
 def _start(command: list[str], domain: int, env: dict[str, str] | None = None,
@@ -251,7 +253,9 @@ def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
         finally:
             _stop(process)
         own = own_active_s(output)
-        return Startup(max(own.get(name, float("nan")) for name in spec_nodes(spec)), active - started, peak)
+        nodes = spec_nodes(spec)  # a container's last node; NaN if any node's log line is missing
+        own_s = max(own[name] for name in nodes) if all(name in own for name in nodes) else float("nan")
+        return Startup(own_s, active - started, peak)
 
 
 def _created(output: IO[bytes]) -> float:

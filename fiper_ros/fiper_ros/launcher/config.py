@@ -50,6 +50,7 @@ from typing import Any, Union
 import yaml
 
 from fiper_ros.launcher.substitutions import Context, SubstitutionError, has_substitution, substitute
+from fiper_ros.runtime.publishers import fully_qualified
 
 #: ROS 2's switch for SROS2 security: when it is ``true``, every launched node runs in its own enclave.
 SECURITY_ENABLE_ENV = "ROS_SECURITY_ENABLE"
@@ -129,7 +130,7 @@ class NodeSpec:
     @property
     def fqn(self) -> str:
         """The node's fully qualified name (for an entry without a name: its executable's under its namespace)."""
-        return f"{self.namespace.rstrip('/')}/{self.name}"
+        return fully_qualified(self.namespace, self.name)
 
     @property
     def enclave(self) -> str:
@@ -172,8 +173,8 @@ class NodeSpec:
 
     def ros_args(self, params_dir: Path, enclave: bool = False) -> list[str]:
         """The ``--ros-args`` of this node's command line (``enclave``: with its own security enclave). As
-        ``launch_ros`` does, each name/value entry becomes a parameter file keyed by the node's fully qualified
-        name (written into ``params_dir``), so that every entry is a ``--params-file`` in order and a later one
+        ``launch_ros`` does, each name/value entry becomes a parameter file keyed by :attr:`parameter_key` (written
+        into ``params_dir``), so that every entry is a ``--params-file`` in order and a later one
         wins: rcl ranks ``-p`` rules by their own rules, not by their place on the command line."""
         args = ["--ros-args", *(("-r", f"__node:={self.name}") if self.named else ()), "-r", f"__ns:={self.namespace}"]
         if enclave:
