@@ -21,7 +21,8 @@ topic, the fusion node (the publisher of ``/fiper/alarm``) is ACTIVE, and every 
 (``fiper launch --summary``, ``fiper record``) has matched it; on timeout :class:`SuiteNotReady`
 names what is missing. A step's embedding and batch carry the same rollout id, step and stamp (the node clock's
 now, unless given). Messages are built by :mod:`fiper_ros.interface.conversions`, the code the suite's own policy
-node and bag tools use.
+node and bag tools use; a step's are published as their CDR bytes (``embedding_cdr``, ``action_batch_cdr``: the
+same messages, without the generated classes' per-field Python work).
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ from rclpy.node import Node
 from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent
 from fiper_ros.core.rollout import ACTION_SPACES
 from fiper_ros.interface import qos
-from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg
+from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rollout_event_msg
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
 from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EMBEDDING, EVENTS
 from fiper_ros.runtime.publishers import fully_qualified
@@ -242,9 +243,9 @@ class FiperPublisher:
             batch = np.asarray(chunks, dtype=np.float32)
             if batch.ndim != 3 or 0 in batch.shape:
                 raise ValueError(f"chunks must be [B, H, D] with B, H, D >= 1, got shape {batch.shape}")
-        self.embeddings.publish(embedding_msg(rollout_id, step, stamp, values))
+        self.embeddings.publish(embedding_cdr(rollout_id, step, stamp, values))
         if chunks is not None:
-            self.batches.publish(action_batch_msg(rollout_id, step, stamp, batch, self.exec_steps, self.action_space))
+            self.batches.publish(action_batch_cdr(rollout_id, step, stamp, batch, self.exec_steps, self.action_space))
         if rollout_id == self.rollout_id:
             self.next_step = step + 1
         return step

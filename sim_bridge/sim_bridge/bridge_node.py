@@ -218,7 +218,7 @@ class BridgeNode(FiperNode):
 
     def _on_action(self, msg: ActionCommand) -> None:
         started = self.timed()
-        self.tick("action")
+        self.tick("action", self.now_ns())
         assert self.session is not None
         try:
             self.session.accept(msg.rollout_id, msg.step, msg.action_space, msg.num_actions, msg.action_dim,
@@ -248,7 +248,7 @@ class BridgeNode(FiperNode):
             self.reject(InputRejected(INTERNAL, f"simulation step failed: {error!r}"))
             ended = self.session.end("error")
         self.sim_ns += self._period_ns
-        self.tick("control_step")
+        self.tick("control_step", self.now_ns())
         self._publish_clock()
         stamp = self._stamp_ns()
         self._publish_joint_state(stamp)
@@ -258,7 +258,7 @@ class BridgeNode(FiperNode):
         elif self.session.observation_due:
             for pub, msg in self._observation(stamp):
                 pub.publish(msg)
-            self.tick("history_observation")
+            self.tick("history_observation", self.now_ns())
 
     # publishing ---------------------------------------------------------------------------------------
     def _stamp_ns(self) -> int:
@@ -283,7 +283,7 @@ class BridgeNode(FiperNode):
         for pub, msg in parts:
             pub.publish(msg)
         self._unanswered, self._unanswered_since = parts, self.steady.now().nanoseconds
-        self.tick("observation")
+        self.tick("observation", self.now_ns())
 
     def _observation(self, stamp: int) -> list[tuple[Any, Any]]:
         """The current observation's messages (both images, proprioception), stamped ``stamp``, with their

@@ -6,7 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from fiper_ros.core import ace
 from fiper_ros.core.ace import action_ranges, ace_score, cell_size, step_entropies
 
 
@@ -143,3 +146,37 @@ def test_a_range_wider_than_float64_can_count_has_no_entropy() -> None:
     actions[::2, 0, 0], actions[1::2, 0, 0] = -3e38, 3e38
     entropies = step_entropies(actions, np.array([1e-300, 0.5]))
     assert np.isnan(entropies[0]) and entropies[1] == 0.0
+
+
+@st.composite
+def _bin_indices(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
+    """Bin indices ``[D, G, B]`` (exact float64 integers) and their ``n_bins[D, G]``."""
+    dims, groups, samples = draw(st.integers(1, 4)), draw(st.integers(1, 5)), draw(st.integers(1, 40))
+    n_bins = np.asarray(draw(st.lists(st.integers(1, 6), min_size=dims * groups, max_size=dims * groups)),
+                        dtype=np.float64).reshape(dims, groups)
+    seed = draw(st.integers(0, 2**32 - 1))
+    index = np.floor(np.random.default_rng(seed).random((dims, groups, samples)) * n_bins[:, :, None])
+    return index, n_bins
+
+
+@settings(max_examples=300, deadline=None, derandomize=True, database=None)
+@given(_bin_indices())
+def test_the_histogram_the_sorted_codes_and_the_tuples_give_the_same_entropies_to_the_bit(
+        indices: tuple[np.ndarray, np.ndarray]) -> None:
+    # Issue #24: the histogram counts most steps; the three ways must sum the same terms in the same order, or a
+    # step's score would depend on how many cells its batch spans.
+    index, n_bins = indices
+    cells = int(n_bins.prod(axis=0).max())
+    histogram = ace._histogram_entropies(index, n_bins, cells)  # noqa: SLF001
+    assert np.array_equal(histogram, ace._sorted_entropies(index, n_bins))  # noqa: SLF001
+    assert np.array_equal(histogram, ace._tuple_entropies(index))  # noqa: SLF001
+
+
+def test_a_step_spanning_more_cells_than_the_histogram_takes_is_sorted_to_the_same_entropy() -> None:
+    rng = np.random.default_rng(5)
+    actions = rng.normal(size=(64, 4, 3)) * np.array([1.0, 10.0, 100.0])  # some steps beyond 4 cells per sample
+    cell = np.full(3, 0.05)
+    x = np.moveaxis(np.moveaxis(actions, -1, 0), -2, -1).reshape(3, -1, 64)
+    sorted_always = ace._grouped_entropies(x, cell, 0.01, histogram_cells=0)  # noqa: SLF001
+    assert np.array_equal(step_entropies(actions, cell, 0.01), sorted_always)
+    assert step_entropies(actions, cell, 0.01).sum() == pytest.approx(_brute_force(actions, cell, 0.01), abs=1e-9)

@@ -30,6 +30,9 @@ from hypothesis import strategies as st
 from rclpy.context import Context
 from rclpy.lifecycle import TransitionCallbackReturn
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
+
+from fiper_ros.interface.cdr import codec
 
 UINT8_MAX = 2**8 - 1
 UINT32_MAX = 2**32 - 1
@@ -166,19 +169,33 @@ def private_context(domain: int) -> Iterator[Context]:
 
 
 def callbacks(node: Any) -> dict[str, Callable[[Any], None]]:
-    """The node's subscription callbacks by topic: what rclpy would call for a message on that topic."""
-    return {s.topic_name: s.callback for s in node.subscriptions}
+    """The node's subscription callbacks by topic: what rclpy would call for a message on that topic. A raw
+    subscription's (the wire codec's, issue #24) takes a message or a codec view and gets its bytes: rclpy's own
+    serialization of a message, the codec's of a view."""
+    def raw(subscription: Any) -> Callable[[Any], None]:
+        def call(msg: Any) -> None:
+            if isinstance(msg, subscription.msg_type):
+                msg = serialize_message(msg)
+            elif not isinstance(msg, bytes):
+                msg = codec(subscription.msg_type).encode(msg)
+            subscription.callback(msg)
+        return call
+
+    return {s.topic_name: raw(s) if s.raw else s.callback for s in node.subscriptions}
 
 
 def record(publisher: Any, *then: Callable[[Any], None]) -> list[Any]:
-    """Every message ``publisher`` publishes from now on, in order; each is also passed to ``then`` (another
-    node's callback, a checker) after the real publish ran."""
+    """Every message ``publisher`` publishes from now on, in order (what it publishes as bytes, as the wire
+    codec's view of them); each is also passed to ``then`` (another node's callback, a checker) after the real
+    publish ran."""
     sent: list[Any] = []
     publish: Callable[[Any], None] = publisher.publish
 
     def publish_and_pass_on(msg: Any) -> None:
-        sent.append(msg)
         publish(msg)
+        if isinstance(msg, bytes):
+            msg = codec(publisher.msg_type).decode(msg)
+        sent.append(msg)
         for call in then:
             call(msg)
 

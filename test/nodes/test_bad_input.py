@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 from rclpy.parameter import Parameter
+from rclpy.serialization import serialize_message
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg
@@ -78,6 +79,12 @@ def test_each_bad_input_class_is_rejected_and_the_node_keeps_scoring(ros_domain:
         _wait_rejected(suite, "rnd_oe_node", "duplicate_step")
         drv.batches.publish(batch(0, act[0]))
         _wait_rejected(suite, "ace_node", "out_of_order_step")
+        # Bytes that are no message of the topic's type: the nodes read the CDR bytes themselves (issue #24).
+        # No step can be read from them, so no step is marked missing.
+        drv.embeddings.publish(serialize_message(good_emb(7))[:-9])
+        drv.batches.publish(serialize_message(batch(7, act[7]))[:100])
+        _wait_rejected(suite, "rnd_oe_node", "malformed")
+        _wait_rejected(suite, "ace_node", "malformed")
 
         # The suite still scores good steps; the broken steps are never reported OK.
         for step in range(7, 11):

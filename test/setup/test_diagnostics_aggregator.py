@@ -7,12 +7,13 @@ from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_share_directory
-from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from helpers.aggregator import CONFIG, analyzers_of
 from helpers.fuzz import private_context
 from rclpy.context import Context
 from rclpy.node import Node
 
+from fiper_ros.interface.cdr import codec
 from fiper_ros.launcher.config import load_launch
 from fiper_ros.nodes.base import diagnostic_array
 
@@ -32,7 +33,7 @@ def status_name(context: Context, name: str, namespace: str) -> str:
     """The name of the status a node called ``name`` in ``namespace`` publishes (the nodes' own function)."""
     node = Node(name, namespace=namespace, context=context)
     try:
-        return diagnostic_array(node, DiagnosticStatus.OK, "running", {}).status[0].name
+        return codec(DiagnosticArray).decode(diagnostic_array(node, DiagnosticStatus.OK, "running", {})).status[0].name
     finally:
         node.destroy_node()
 

@@ -299,6 +299,7 @@ class Driver:
         from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent  # noqa: PLC0415
 
         from fiper_ros.interface import qos  # noqa: PLC0415
+        from fiper_ros.interface.cdr import codec  # noqa: PLC0415
         from fiper_ros.interface.topics import DIAGNOSTICS  # noqa: PLC0415
         from fiper_ros.nodes.main import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
 
@@ -315,26 +316,39 @@ class Driver:
         #: Steps published whose alarm has not arrived yet.
         self.waiting: set[tuple[int, int]] = set()
         self.clients: dict[str, Any] = {}
-        self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM_EVERY)
+        # As the suite's nodes take their inputs: the CDR bytes, read by the wire codec.
+        self._alarm = codec(FailureAlarm)
+        self.node.create_subscription(FailureAlarm, "alarm", self._on_alarm, qos.ALARM_EVERY, raw=True)
         #: The latest ``/diagnostics`` values of each status name, and when (``time.monotonic()``) they came.
         self.diagnostics: dict[str, dict[str, str]] = {}
         self.diagnostics_at: dict[str, float] = {}
-        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
+        #: ``/diagnostics`` messages not read yet (bytes, arrival): read when asked for, not while a run is timed.
+        self._unread: list[tuple[bytes, float]] = []
+        self._diagnostics = codec(DiagnosticArray)
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS, raw=True)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
         self.actions = rng.uniform(-1, 1, (shape.batch, shape.horizon, shape.action_dim)).astype(np.float32)
         self._rclpy = rclpy
 
-    def _on_alarm(self, msg: object) -> None:
-        key = (msg.rollout_id, msg.step)  # type: ignore[attr-defined]
-        if key not in self.received and not msg.heartbeat:  # type: ignore[attr-defined]
-            self.received[key] = time.monotonic_ns()
+    def _on_alarm(self, data: bytes) -> None:
+        now = time.monotonic_ns()
+        msg = self._alarm.decode(data)
+        key = (msg.rollout_id, msg.step)
+        if key not in self.received and not msg.heartbeat:
+            self.received[key] = now
             self.waiting.discard(key)
 
-    def _on_diagnostics(self, msg: object) -> None:
-        for status in msg.status:  # type: ignore[attr-defined]
-            self.diagnostics[status.name] = {value.key: value.value for value in status.values}
-            self.diagnostics_at[status.name] = time.monotonic()
+    def _on_diagnostics(self, data: bytes) -> None:
+        self._unread.append((data, time.monotonic()))
+
+    def read_diagnostics(self) -> None:
+        """Read the ``/diagnostics`` messages that came since the last call into :attr:`diagnostics`."""
+        unread, self._unread = self._unread, []
+        for data, arrived in unread:
+            for status in self._diagnostics.decode(data).status:
+                self.diagnostics[status.name] = {value.key: value.value for value in status.values}
+                self.diagnostics_at[status.name] = arrived
 
     def fresh_counters(self) -> dict[str, int]:
         """The suite's :func:`loss_counters`, once every node that reports them has published ``/diagnostics``
@@ -342,6 +356,7 @@ class Driver:
         asked = time.monotonic()
         end = asked + DIAGNOSTICS_WAIT_S
         while time.monotonic() < end:
+            self.read_diagnostics()
             reporting = [name for name in self.diagnostics if status_node(name) in LOSS_COUNTERS]
             if len(reporting) == len(LOSS_COUNTERS) and all(self.diagnostics_at[n] > asked for n in reporting):
                 break
@@ -399,7 +414,7 @@ class Driver:
     def run(self, rollout_id: int, steps: int, rate_hz: float) -> tuple[np.ndarray, int, float]:
         """Publish ``steps`` steps at ``rate_hz``; return latencies (ms), missing steps, final backlog (s)."""
         from fiper_msgs.msg import RolloutEvent  # noqa: PLC0415
-        from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg  # noqa: PLC0415
+        from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rollout_event_msg  # noqa: PLC0415
 
         self.event_pub.publish(rollout_event_msg(rollout_id, RolloutEvent.EVENT_START, 0))
         self.spin_for(0.3)
@@ -411,8 +426,9 @@ class Driver:
             while (wait_ns := start + step * period - time.monotonic_ns()) > 0:
                 self.executor.spin_once(timeout_sec=wait_ns / 1e9)
             stamp = (step + 1) * 100_000_000
-            emb = embedding_msg(rollout_id, step, stamp, self.embedding)
-            act = action_batch_msg(rollout_id, step, stamp, self.actions, self.shape.exec_steps, "ee_position")
+            # What FiperPublisher.step publishes, the suite's policy side (issue #25).
+            emb = embedding_cdr(rollout_id, step, stamp, self.embedding)
+            act = action_batch_cdr(rollout_id, step, stamp, self.actions, self.shape.exec_steps, "ee_position")
             sent[step] = time.monotonic_ns()
             self.waiting.add((rollout_id, step))
             self.emb_pub.publish(emb)

@@ -11,9 +11,14 @@ and a sample lying exactly on the step's maximum belongs to the last bin. A cell
 per-dimension bin indices. A dimension with ``R_d = 0`` (constant over calibration) is treated as a
 single bin: it carries no information about uncertainty.
 
-Everything is vectorised over samples and steps: the per-dimension bin indices are combined into one
-integer code per (step, sample), the codes are sorted along the sample axis, and the run lengths of
-equal codes are the histogram counts.
+Everything is vectorised over samples and steps, in a ``[D, steps, B]`` layout (each dimension's samples
+contiguous: the per-element arithmetic, hence every number, is that of any other layout). The per-dimension
+bin indices are combined into one integer code per (step, sample); where every step has few cells (at most
+:data:`HISTOGRAM_CELLS_PER_SAMPLE` per sample) the codes are counted in one histogram, else sorted along the
+sample axis, the run lengths of equal codes being the counts (codes beyond int64: the index tuples sorted). All
+visit a step's cells in ascending code order, so they sum the same terms in the same order: a step's entropy is
+the same to the bit whichever way its call counts it (a rollout scored at once counts every step the way its
+widest step needs; the streaming monitor one step at a time).
 """
 
 from __future__ import annotations
@@ -26,6 +31,9 @@ import numpy as np
 # tuples stay float64 (exact integers): a bin index beyond the int64 range would cast to INT64_MIN and
 # put every far-apart sample into one cell (entropy 0, an uncertain batch read as certain).
 _MAX_CODE_BITS = 62.0
+#: Steps whose cells number at most this many per sample are counted in a histogram (its memory at most this
+#: many counts per sample), others by sorting their codes.
+HISTOGRAM_CELLS_PER_SAMPLE = 4
 
 
 def check_alpha(alpha: float) -> None:
@@ -85,44 +93,78 @@ def _run_entropies(starts: np.ndarray, groups: int, samples: int) -> np.ndarray:
     return np.bincount(positions // samples, weights=-p * np.log2(p), minlength=groups)
 
 
-def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float) -> np.ndarray:
-    """Binned entropy (bits) of each group of samples ``x[G, B, D]``."""
-    groups, samples, dims = x.shape
-    low = x.min(axis=1)
-    span = x.max(axis=1) - low
+def _histogram_entropies(index: np.ndarray, n_bins: np.ndarray, cells: int) -> np.ndarray:
+    """Entropy per group of the bin indices ``index[D, G, B]`` (``n_bins[D, G]`` per dimension, at most ``cells``
+    cells per group): one histogram of the codes, group ``g`` at ``g * cells``; cells in ascending code order."""
+    dims, groups, samples = index.shape
+    codes = index[0].astype(np.int64) + (np.arange(groups, dtype=np.int64) * cells)[:, None]
+    stride = np.ones(groups, dtype=np.int64)
+    for d in range(1, dims):
+        stride = stride * n_bins[d - 1].astype(np.int64)
+        codes += index[d].astype(np.int64) * stride[:, None]
+    counts = np.bincount(codes.ravel(), minlength=groups * cells)
+    filled = np.flatnonzero(counts)
+    p = counts[filled] / samples
+    return np.bincount(filled // cells, weights=-p * np.log2(p), minlength=groups)
+
+
+def _sorted_entropies(index: np.ndarray, n_bins: np.ndarray) -> np.ndarray:
+    """Entropy per group of the bin indices ``index[D, G, B]`` by sorting each group's codes (which fit in int64);
+    cells in ascending code order, as :func:`_histogram_entropies`."""
+    dims, groups, samples = index.shape
+    strides = np.cumprod(np.concatenate([np.ones((1, groups)), n_bins[:-1]], axis=0), axis=0).astype(np.int64)
+    codes = np.einsum("dgb,dg->gb", index.astype(np.int64), strides)
+    codes.sort(axis=1)
+    starts = np.empty((groups, samples), dtype=bool)
+    starts[:, 0] = True
+    np.not_equal(codes[:, 1:], codes[:, :-1], out=starts[:, 1:])
+    return _run_entropies(starts.ravel(), groups, samples)
+
+
+def _tuple_entropies(index: np.ndarray) -> np.ndarray:
+    """Entropy per group of the bin indices ``index[D, G, B]`` whose codes would not fit in int64: the index
+    tuples (exact float64 integers) sorted, the last dimension first, which is ascending code order."""
+    dims, groups, samples = index.shape
+    rows = index.transpose(1, 2, 0).reshape(groups * samples, dims)
+    group_of_row = np.repeat(np.arange(groups), samples)
+    order = np.lexsort((*(rows[:, d] for d in range(dims)), group_of_row))  # the last key sorts first
+    rows = rows[order]
+    starts = np.ones(groups * samples, dtype=bool)
+    starts[1:] = np.any(rows[1:] != rows[:-1], axis=1) | (group_of_row[1:] != group_of_row[:-1])
+    return _run_entropies(starts, groups, samples)
+
+
+def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
+                       histogram_cells: float = HISTOGRAM_CELLS_PER_SAMPLE) -> np.ndarray:
+    """Binned entropy (bits) of each group of samples ``x[D, G, B]`` (``histogram_cells``: the histogram's bound,
+    :data:`HISTOGRAM_CELLS_PER_SAMPLE`; 0 sorts always)."""
+    dims, groups, samples = x.shape
+    low = x.min(axis=2)
+    span = x.max(axis=2) - low
     if range_buffer:
         pad = range_buffer * span
         low = low - pad
         span = span + 2.0 * pad
-    informative = cell > 0
-    safe_cell = np.where(informative, cell, 1.0)
+    informative = (cell > 0)[:, None]
+    safe_cell = np.where(informative, cell[:, None], 1.0)
     with np.errstate(over="ignore"):
         n_bins = np.where(informative, np.maximum(np.ceil(span / safe_cell), 1.0), 1.0)
-        scaled = np.floor((x - low[:, None, :]) / safe_cell)
+        index = np.floor((x - low[:, :, None]) / safe_cell[:, :, None])
     # A step whose range is more cells wide than float64 can count has no defined entropy: NaN, which
     # the score's finiteness check turns into a rejected step (fiper_ros.core.scores.NonFiniteScore).
-    undefined = ~np.isfinite(n_bins).all(axis=1)
+    undefined = ~np.isfinite(n_bins).all(axis=0)
     if undefined.any():
-        n_bins[undefined] = 1.0
-        scaled[undefined] = 0.0
-    index = np.minimum(scaled, (n_bins - 1)[:, None, :])
-    if float(np.log2(n_bins).sum(axis=1).max()) < _MAX_CODE_BITS:
-        index = index.astype(np.int64)  # every index < 2**62 here
-        strides = np.cumprod(np.concatenate([np.ones((groups, 1)), n_bins[:, :-1]], axis=1), axis=1)
-        codes = np.einsum("gbd,gd->gb", index, strides.astype(np.int64))
-        codes.sort(axis=1)
-        starts = np.empty((groups, samples), dtype=bool)
-        starts[:, 0] = True
-        np.not_equal(codes[:, 1:], codes[:, :-1], out=starts[:, 1:])
-        entropies = _run_entropies(starts.ravel(), groups, samples)
+        n_bins[:, undefined] = 1.0
+        index[:, undefined] = 0.0
+    np.minimum(index, (n_bins - 1)[:, :, None], out=index)
+    with np.errstate(over="ignore"):
+        cells = float(n_bins.prod(axis=0).max())
+    if cells <= histogram_cells * samples:
+        entropies = _histogram_entropies(index, n_bins, int(cells))
+    elif float(np.log2(n_bins).sum(axis=0).max()) < _MAX_CODE_BITS:
+        entropies = _sorted_entropies(index, n_bins)  # every index < 2**62 here
     else:
-        rows = index.reshape(groups * samples, dims)
-        group_of_row = np.repeat(np.arange(groups), samples)
-        order = np.lexsort((*(rows[:, d] for d in range(dims - 1, -1, -1)), group_of_row))
-        rows = rows[order]
-        starts = np.ones(groups * samples, dtype=bool)
-        starts[1:] = np.any(rows[1:] != rows[:-1], axis=1) | (group_of_row[1:] != group_of_row[:-1])
-        entropies = _run_entropies(starts, groups, samples)
+        entropies = _tuple_entropies(index)
     entropies[undefined] = np.nan
     return entropies
 
@@ -146,7 +188,7 @@ def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: flo
     if not np.all(np.isfinite(x)):
         raise ValueError("actions contain NaN/inf")
     cell = _validated_cell(cell_size, dims)
-    grouped = np.moveaxis(x, -3, -2).reshape(-1, samples, dims)
+    grouped = np.moveaxis(np.moveaxis(x, -1, 0), -2, -1).reshape(dims, -1, samples)  # [D, steps, B]
     return _grouped_entropies(grouped, cell, range_buffer).reshape(*lead, horizon)
 
 

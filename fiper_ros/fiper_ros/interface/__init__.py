@@ -9,7 +9,9 @@ rclpy (it builds the rclpy profiles from :mod:`.qos_spec`); the other modules ne
 - :mod:`.qos`: the same profiles as rclpy ``QoSProfile`` objects.
 - :mod:`.messages`: state and outcome names of the message codes, message classes by type name.
 - :mod:`.conversions`: message <-> numpy array conversions.
+- :mod:`.cdr`: the wire codec: messages as CDR bytes read and written without the generated classes (the nodes'
+  hot topics, issue #24).
 """
 from __future__ import annotations
 
-__all__ = ["conversions", "messages", "qos", "qos_spec", "topics"]
+__all__ = ["cdr", "conversions", "messages", "qos", "qos_spec", "topics"]

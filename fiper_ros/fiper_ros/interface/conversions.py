@@ -2,11 +2,19 @@
 from __future__ import annotations
 
 import array
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from std_msgs.msg import Header
 
 from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
+from fiper_ros.interface.cdr import codec
+
+_TIME_VIEW = codec(Time).view
+_HEADER_VIEW = codec(Header).view
+_EMBEDDING = codec(ObservationEmbedding)
+_BATCH = codec(ActionChunkBatch)
 
 
 def float_array(values: np.ndarray) -> array.array:
@@ -31,6 +39,17 @@ def to_stamp(ns: int) -> Time:
     return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
 
 
+#: The earliest and the latest time a ``builtin_interfaces/Time`` holds (``sec`` is an int32), in nanoseconds.
+STAMP_MIN_NS, STAMP_MAX_NS = -(2**31) * 1_000_000_000, (2**31 - 1) * 1_000_000_000 + 999_999_999
+
+
+def header_view(ns: int, frame_id: str = "") -> Any:
+    """A ``std_msgs/Header`` stamped ``ns`` as the wire codec writes it (:mod:`fiper_ros.interface.cdr`). A time
+    beyond what the stamp holds is the nearest it holds (a sum of stamps whose ``nanosec`` is beyond a second can
+    be): the generated classes would wrap it into a time of another century."""
+    ns = min(max(int(ns), STAMP_MIN_NS), STAMP_MAX_NS)
+    return _HEADER_VIEW(_TIME_VIEW(ns // 1_000_000_000, ns % 1_000_000_000), frame_id)
+
 
 def embedding_msg(rollout_id: int, step: int, stamp: int, embedding: np.ndarray) -> ObservationEmbedding:
     """An ObservationEmbedding of a flat or shaped embedding array."""
@@ -48,6 +67,24 @@ def action_batch_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray
                            exec_steps=exec_steps, data=float_array(actions), action_space=action_space)
     msg.header.stamp = to_stamp(stamp)
     return msg
+
+
+def embedding_cdr(rollout_id: int, step: int, stamp: int, embedding: np.ndarray) -> bytes:
+    """:func:`embedding_msg`'s message as the bytes a publisher takes (:mod:`fiper_ros.interface.cdr`): what a
+    policy publishes every step, without the generated class's per-field Python work (issue #24)."""
+    values = np.asarray(embedding, dtype=np.float32)
+    return _EMBEDDING.encode(_EMBEDDING.view(header=header_view(stamp), rollout_id=rollout_id, step=step,
+                                             data=values.ravel(), shape=values.shape))
+
+
+def action_batch_cdr(rollout_id: int, step: int, stamp: int, actions: np.ndarray, exec_steps: int,
+                     action_space: str) -> bytes:
+    """:func:`action_batch_msg`'s message as the bytes a publisher takes (see :func:`embedding_cdr`)."""
+    actions = np.asarray(actions, dtype=np.float32)
+    b, h, d = actions.shape
+    return _BATCH.encode(_BATCH.view(header=header_view(stamp), rollout_id=rollout_id, step=step, batch_size=b,
+                                     horizon=h, action_dim=d, exec_steps=exec_steps, action_space=action_space,
+                                     data=actions.ravel()))
 
 
 def action_command_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray, action_space: str,

@@ -19,14 +19,19 @@ from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallba
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message
+from rclpy.subscription import Subscription
 
 from fiper_ros.interface import qos
+from fiper_ros.interface.cdr import CdrError, EncapsulationError, codec
+from fiper_ros.interface.conversions import header_view
 from fiper_ros.interface.topics import DIAGNOSTICS
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import process_age_s
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
-from fiper_ros.runtime.validation import InputRejected
+from fiper_ros.runtime.validation import MALFORMED, InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
@@ -55,14 +60,20 @@ def describe(description: str, *, read_only: bool = False, low: float | None = N
     return descriptor
 
 
-def diagnostic_array(node: Node, level: int, message: str, values: dict[str, str]) -> DiagnosticArray:
-    """The one-status /diagnostics message of ``node`` (``name`` = ``fiper: <fully qualified name>``)."""
-    status = DiagnosticStatus(level=level, name=f"fiper: {node.get_fully_qualified_name()}", message=message,
-                              hardware_id=node.get_fully_qualified_name(),
-                              values=[KeyValue(key=k, value=v) for k, v in values.items()])
-    msg = DiagnosticArray(status=[status])
-    msg.header.stamp = node.get_clock().now().to_msg()
-    return msg
+_DIAGNOSTICS = codec(DiagnosticArray)
+_STATUS_VIEW = codec(DiagnosticStatus).view
+_KEY_VALUE_VIEW = codec(KeyValue).view
+
+
+def diagnostic_array(node: Node, level: bytes, message: str, values: dict[str, str]) -> bytes:
+    """The one-status /diagnostics message of ``node`` (``name`` = ``fiper: <fully qualified name>``), serialized by
+    the wire codec (a publisher takes the bytes): the generated classes cost a node about 1 ms per message of
+    some 40 values (issue #24)."""
+    name = node.get_fully_qualified_name()
+    status = _STATUS_VIEW(level=level, name=f"fiper: {name}", message=message, hardware_id=name,
+                          values=[_KEY_VALUE_VIEW(key, value) for key, value in values.items()])
+    return _DIAGNOSTICS.encode(_DIAGNOSTICS.view(header=header_view(node.get_clock().now().nanoseconds),
+                                                 status=[status]))
 
 
 class FiperNode(LifecycleNode):
@@ -160,9 +171,12 @@ class FiperNode(LifecycleNode):
         """The node clock (sim time under ``use_sim_time``)."""
         return self.get_clock().now().nanoseconds
 
-    def tick(self, stream: str) -> None:
-        """Count one message of ``stream`` for the rate diagnostics."""
-        self.rates.setdefault(stream, RateMeter()).tick(self.now_ns())
+    def tick(self, stream: str, now_ns: int) -> None:
+        """Count one message of ``stream``, arrived at ``now_ns`` (the node clock), for the rate diagnostics."""
+        meter = self.rates.get(stream)
+        if meter is None:
+            meter = self.rates[stream] = RateMeter()
+        meter.tick(now_ns)
 
     def reject(self, error: InputRejected) -> None:
         """Count a rejected message and log it, at most once per reason and log period."""
@@ -171,6 +185,27 @@ class FiperNode(LifecycleNode):
             suppressed = self._log_limit.suppressed.pop(error.reason, 0)
             more = f" ({suppressed} more since the last report)" if suppressed else ""
             self.get_logger().warning(f"rejected message: {error}{more}")
+
+    def create_wire_subscription(self, msg_type: Any, topic: str, handler: Callable[[Any], None],
+                                 qos_profile: QoSProfile, **kwargs: Any) -> Subscription:
+        """A subscription to ``topic`` that takes the CDR bytes (``raw=True``) and hands ``handler`` their view
+        (:mod:`fiper_ros.interface.cdr`), read like the message: rclpy's message objects cost a node more than
+        its own work per message at high rates (issue #24). Bytes of another encapsulation than plain
+        little-endian CDR are read by rclpy; bytes that are no message of the type are rejected as
+        ``malformed``."""
+        wire = codec(msg_type)
+
+        def on_bytes(data: bytes) -> None:
+            try:
+                msg = wire.decode(data)
+            except EncapsulationError:
+                msg = deserialize_message(data, msg_type)
+            except CdrError as error:
+                self.reject(InputRejected(MALFORMED, f"{topic}: {error}"))
+                return
+            handler(msg)
+
+        return self.create_subscription(msg_type, topic, on_bytes, qos_profile, raw=True, **kwargs)
 
     def subscription_events(self, topic: str, extra: Callable[[Any], None] | None = None) -> SubscriptionEventCallbacks:
         """Event callbacks that count QoS incompatibilities on ``topic`` (and optional liveliness)."""

@@ -15,6 +15,7 @@ from fiper_ros.core.monitor import StepScore
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
+from fiper_ros.interface.cdr import codec
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import EVENTS, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
@@ -23,6 +24,9 @@ from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
                                          DEFAULT_MAX_STEP_GAP, INTERNAL, NO_CALIBRATION, NON_FINITE_SCORE,
                                          TASK_MISMATCH, UNKNOWN_ROLLOUT, InputRejected)
+
+#: The Score on the wire: the nodes publish its bytes (issue #24).
+SCORE = codec(Score)
 
 
 class DetectorNode(FiperNode):
@@ -86,7 +90,7 @@ class DetectorNode(FiperNode):
         self.get_logger().info(f"calibration {directory} loaded (hash {self.calibration_hash[:12]})")
 
     def activate(self) -> None:
-        self._inputs.append(self.create_subscription(
+        self._inputs.append(self.create_wire_subscription(
             self.input_type, self.input_topic, self._on_input, qos.INPUT,
             event_callbacks=self.subscription_events(self.input_topic),
         ))
@@ -137,18 +141,19 @@ class DetectorNode(FiperNode):
                 self.get_logger().info(f"{self.detector}: {record.summary()}")
 
     def _on_input(self, msg: Any) -> None:
-        self.tick(self.input_topic)
-        self._expire_pending()
+        now = self.now_ns()
+        self.tick(self.input_topic, now)
+        self._expire_pending(now)
         active = self.rollouts.active
         if not self.rollouts.auto_start and (active is None or active.rollout_id != msg.rollout_id) \
                 and not self.pending.has_ended(msg.rollout_id):
-            for dropped in self.pending.add(msg.rollout_id, msg, self.now_ns(), len(msg.data)):
+            for dropped in self.pending.add(msg.rollout_id, msg, now, len(msg.data)):
                 self._reject_unknown(dropped, "dropped from the full START wait buffer")
             return
         self._score_input(msg)
 
-    def _expire_pending(self) -> None:
-        for expired in self.pending.expire(self.now_ns()):
+    def _expire_pending(self, now_ns: int) -> None:
+        for expired in self.pending.expire(now_ns):
             self._reject_unknown(expired, "no START within start_wait_s")
 
     def _reject_unknown(self, msg: Any, why: str) -> None:
@@ -180,16 +185,14 @@ class DetectorNode(FiperNode):
         latency_ms = self.record_latency(started)
         if result.exceeded and record.alarm_step is None:
             record.alarm_step = result.step
-        out = Score(rollout_id=msg.rollout_id, step=msg.step, detector=self.detector, score=result.score,
-                    windowed_score=result.windowed, threshold=result.threshold, exceeded=bool(result.exceeded),
-                    window=self.window(), latency_ms=latency_ms, complete=bool(result.complete))
-        out.header.stamp = msg.header.stamp
-        out.header.frame_id = msg.header.frame_id
-        self._score_pub.publish(out)
+        self._score_pub.publish(SCORE.encode(SCORE.view(
+            header=msg.header, rollout_id=msg.rollout_id, step=msg.step, detector=self.detector, score=result.score,
+            windowed_score=result.windowed, threshold=result.threshold, exceeded=bool(result.exceeded),
+            window=self.window(), complete=bool(result.complete), latency_ms=latency_ms)))
         self.published += 1
 
     def diagnostic_values(self) -> dict[str, str]:
-        self._expire_pending()
+        self._expire_pending(self.now_ns())
         values = {"published": str(self.published), "calibration_hash": self.calibration_hash or "none",
                   "waiting_for_start": str(len(self.pending)), "repeated_starts": str(self.repeated_starts)}
         active = self.rollouts.active

@@ -25,7 +25,8 @@ from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
-from fiper_ros.interface.conversions import stamp_ns, to_stamp
+from fiper_ros.interface.cdr import codec
+from fiper_ros.interface.conversions import header_view, stamp_ns
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
 from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
@@ -37,6 +38,8 @@ from fiper_ros.runtime.rollout_tracker import RolloutTracker
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
 STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
+#: The FailureAlarm on the wire: the node publishes its bytes (issue #24).
+ALARM_WIRE = codec(FailureAlarm)
 
 
 class FusionNode(FiperNode):
@@ -96,6 +99,8 @@ class FusionNode(FiperNode):
         #: Reset requests, by outcome ("accepted", "refused").
         self.resets: Counter[str] = Counter()
         self.score_topics = {d: self.resolve_topic_name(relative(score_topic(d))) for d in DETECTORS}
+        #: The rate-diagnostics stream of each detector's scores.
+        self.score_streams = {d: f"scores/{d}" for d in DETECTORS}
         self.watch_publishers(self._on_publishers)
 
     def configure(self) -> None:
@@ -115,7 +120,7 @@ class FusionNode(FiperNode):
     def activate(self) -> None:
         for detector in self.fuser.detectors:
             topic = relative(score_topic(detector))
-            self._inputs.append(self.create_subscription(
+            self._inputs.append(self.create_wire_subscription(
                 Score, topic, self._on_score, qos.SCORE_SUB,
                 event_callbacks=self.subscription_events(topic, lambda info, d=detector: self._on_liveliness(d, info)),
             ))
@@ -167,7 +172,7 @@ class FusionNode(FiperNode):
             self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
             self.fuser.start(msg.rollout_id, now)
             for early in self.pending.start(msg.rollout_id):
-                self._fuse(early)
+                self._fuse(early, now)
         elif msg.event == RolloutEvent.EVENT_END:
             self.pending.end(msg.rollout_id)
             record = self.rollouts.end(msg.rollout_id, outcome_name(msg.outcome))
@@ -181,10 +186,10 @@ class FusionNode(FiperNode):
         if msg.detector not in self.fuser.detectors:  # before any per-detector state: a name must not size memory
             self.reject(InputRejected(UNKNOWN_DETECTOR, f"score of unknown detector {msg.detector!r}"))
             return
-        self.tick(f"scores/{msg.detector}")
+        now = self.now_ns()
+        self.tick(self.score_streams[msg.detector], now)
         score = DetectorScore(msg.detector, msg.rollout_id, msg.step, msg.windowed_score, msg.threshold,
                               stamp_ns(msg.header.stamp), msg.complete, msg.exceeded, math.isfinite(msg.score))
-        now = self.now_ns()
         for expired in self.pending.expire(now):
             self._reject_unknown(expired, "no START within start_wait_s")
         if msg.rollout_id != self.fuser.rollout_id:
@@ -194,21 +199,21 @@ class FusionNode(FiperNode):
             for dropped in self.pending.add(msg.rollout_id, score, now):  # its START is still on the way
                 self._reject_unknown(dropped, "dropped from the full START wait buffer")
             return
-        self._fuse(score)
+        self._fuse(score, now)
         self.record_latency(started)
 
     def _reject_unknown(self, score: DetectorScore, why: str) -> None:
         self.reject(InputRejected(UNKNOWN_ROLLOUT, f"{score.detector} score of rollout {score.rollout_id} step "
                                                    f"{score.step}: {why}"))
 
-    def _fuse(self, score: DetectorScore) -> None:
-        state = self.fuser.add(score, self.now_ns())
+    def _fuse(self, score: DetectorScore, now_ns: int) -> None:
+        state = self.fuser.add(score, now_ns)
         if state is None:
             return
         active = self.rollouts.active
         if active is not None:
             active.steps += 1
-        self.publish(state)
+        self.publish(state, now_ns)
 
     def _on_timer(self) -> None:
         if self.fuser is None:
@@ -221,9 +226,9 @@ class FusionNode(FiperNode):
         if state is not None:
             state = self.fuser.doubted(state)
             if quiet or self._last_published != (state.rollout_id, state.state, state.reason):
-                self.publish(state, heartbeat=True)  # a stream just went stale, lost or in doubt: said at once
+                self.publish(state, now, heartbeat=True)  # a stream just went stale, lost or in doubt: at once
         elif quiet:
-            self.publish(self.fuser.current(now), heartbeat=True)
+            self.publish(self.fuser.current(now), now, heartbeat=True)
 
     def repeat_ns(self) -> int:
         """Silence after which the current state is published again: ``heartbeat_s``, or one measured policy
@@ -251,21 +256,20 @@ class FusionNode(FiperNode):
         self.get_logger().warning(f"~/reset by {request.requester!r}, reason {request.reason!r}: {response.message}")
         return response
 
-    def publish(self, state: AlarmState, heartbeat: bool = False) -> None:
-        """Publish one FailureAlarm (``heartbeat``: a repeat, not a new step's decision); never an OK while the
-        scores cannot be attributed (a publisher that appeared since the last look is judged first)."""
+    def publish(self, state: AlarmState, now_ns: int, heartbeat: bool = False) -> None:
+        """Publish one FailureAlarm at ``now_ns`` (the node clock; ``heartbeat``: a repeat, not a new step's
+        decision); never an OK while the scores cannot be attributed (a publisher that appeared
+        since the last look is judged first)."""
         if state.state == OK:
             self.publisher_check.check_if_matched()
         state = self.fuser.doubted(state)
-        msg = FailureAlarm(rollout_id=state.rollout_id, step=state.step, state=STATES[state.state],
-                           latched=state.latched, obs_exceeded=state.obs_exceeded, act_exceeded=state.act_exceeded,
-                           eta_obs=state.eta_obs, gamma_obs=state.gamma_obs, eta_act=state.eta_act,
-                           gamma_act=state.gamma_act, combine=state.combine, reason=state.reason,
-                           heartbeat=heartbeat)
-        msg.header.stamp = to_stamp(state.stamp_ns)
-        self._alarm_pub.publish(msg)
+        self._alarm_pub.publish(ALARM_WIRE.encode(ALARM_WIRE.view(
+            header=header_view(state.stamp_ns), rollout_id=state.rollout_id, step=state.step,
+            state=STATES[state.state], latched=state.latched, obs_exceeded=state.obs_exceeded,
+            act_exceeded=state.act_exceeded, eta_obs=state.eta_obs, gamma_obs=state.gamma_obs, eta_act=state.eta_act,
+            gamma_act=state.gamma_act, combine=state.combine, reason=state.reason, heartbeat=heartbeat)))
         self.states[state.state] += 1
-        self._last_publish_ns = self.now_ns()
+        self._last_publish_ns = now_ns
         self._last_published = (state.rollout_id, state.state, state.reason)
 
     def running_taint(self) -> str:

@@ -167,7 +167,7 @@ class PolicyNode(FiperNode):
             self._act(step)
 
     def _on_image(self, key: str, msg: Image) -> None:
-        self.tick(key)
+        self.tick(key, self.now_ns())
         try:
             image = validation.rgb8_image(msg.data, msg.height, msg.width, msg.encoding, msg.step,
                                           (RAW_IMAGE_SIZE, RAW_IMAGE_SIZE), key)
@@ -177,7 +177,7 @@ class PolicyNode(FiperNode):
         self._add(stamp_ns(msg.header.stamp), key, image)
 
     def _on_proprio(self, msg: JointState) -> None:
-        self.tick(PROPRIO)
+        self.tick(PROPRIO, self.now_ns())
         assert self.policy is not None
         try:
             proprio = validation.vector(msg.position, self.policy.config.proprio_dim, PROPRIO)

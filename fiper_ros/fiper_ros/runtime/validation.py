@@ -29,10 +29,12 @@ UNKNOWN_DETECTOR = "unknown_detector"
 STEP_GAP = "step_gap"
 BEYOND_MAX_STEPS = "beyond_max_steps"
 TASK_MISMATCH = "task_mismatch"
+#: Bytes on a topic that are not a message of its type (fiper_ros.interface.cdr could not read them).
+MALFORMED = "malformed"
 REASONS = (
     SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT, BUSY,
     DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
-    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS, TASK_MISMATCH,
+    OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS, TASK_MISMATCH, MALFORMED,
 )
 #: The one image encoding the policies take (sensor_msgs/Image ``encoding``).
 RGB8 = "rgb8"
