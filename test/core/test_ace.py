@@ -180,3 +180,15 @@ def test_a_step_spanning_more_cells_than_the_histogram_takes_is_sorted_to_the_sa
     sorted_always = ace._grouped_entropies(x, cell, 0.01, histogram_cells=0)  # noqa: SLF001
     assert np.array_equal(step_entropies(actions, cell, 0.01), sorted_always)
     assert step_entropies(actions, cell, 0.01).sum() == pytest.approx(_brute_force(actions, cell, 0.01), abs=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_the_callers_actions_are_left_as_they_were(dtype: type) -> None:
+    # The counting overwrites its float64 [D, steps, B] copy in place (issue #24): never the caller's array, also
+    # where the layouts would have let numpy hand out a view of it (one dimension, one step).
+    rng = np.random.default_rng(6)
+    for shape in [(64, 4, 3), (64, 1, 1), (3, 64, 1, 1)]:
+        actions = rng.normal(size=shape).astype(dtype)
+        before = actions.copy()
+        step_entropies(actions, np.full(shape[-1], 0.2), 0.01)
+        assert np.array_equal(actions, before)

@@ -1,8 +1,12 @@
 """Input validation and rollout tracking of the node shells (no DDS)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.rollout_tracker import RolloutTracker
@@ -148,3 +152,28 @@ def test_a_step_beyond_the_rollouts_max_steps_is_rejected() -> None:
     assert _reason(lambda: tracker.admit(1, 5)) == validation.BEYOND_MAX_STEPS
     tracker.start(2)  # max_steps 0: not known, no bound but the gap
     assert tracker.admit(2, 50)[0].last_step == 50
+
+
+def _two_checks(values: np.ndarray, max_abs: float) -> str:
+    """The verdict of the checks as they were before issue #24: finiteness, then the bound, each on its own."""
+    if not np.isfinite(values).all():
+        return validation.NON_FINITE
+    if values.size and float(np.max(np.abs(values))) > max_abs:
+        return validation.OUT_OF_RANGE
+    return "ok"
+
+
+_VALUES = st.lists(st.one_of(st.floats(width=32), st.sampled_from([math.nan, math.inf, -math.inf, 1e6, -1e6])),
+                   max_size=12)
+
+
+@settings(max_examples=400, deadline=None, derandomize=True, database=None)
+@given(_VALUES, st.sampled_from([1.0, 1e6, 3.4e38, math.inf]), st.sampled_from([np.float32, np.float64]))
+def test_the_one_pass_check_says_what_the_two_checks_said(values: list[float], max_abs: float, dtype: type) -> None:
+    array = np.asarray(values, dtype=dtype)
+    try:
+        validation._checked(array, max_abs, "values")  # noqa: SLF001
+        verdict = "ok"
+    except InputRejected as error:
+        verdict = error.reason
+    assert verdict == _two_checks(array, max_abs)

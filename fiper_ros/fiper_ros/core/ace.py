@@ -137,8 +137,8 @@ def _tuple_entropies(index: np.ndarray) -> np.ndarray:
 
 def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
                        histogram_cells: float = HISTOGRAM_CELLS_PER_SAMPLE) -> np.ndarray:
-    """Binned entropy (bits) of each group of samples ``x[D, G, B]`` (``histogram_cells``: the histogram's bound,
-    :data:`HISTOGRAM_CELLS_PER_SAMPLE`; 0 sorts always)."""
+    """Binned entropy (bits) of each group of samples ``x[D, G, B]``, a float64 array this function may overwrite
+    (``histogram_cells``: the histogram's bound, :data:`HISTOGRAM_CELLS_PER_SAMPLE`; 0 sorts always)."""
     dims, groups, samples = x.shape
     low = x.min(axis=2)
     span = x.max(axis=2) - low
@@ -150,7 +150,9 @@ def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
     safe_cell = np.where(informative, cell[:, None], 1.0)
     with np.errstate(over="ignore"):
         n_bins = np.where(informative, np.maximum(np.ceil(span / safe_cell), 1.0), 1.0)
-        index = np.floor((x - low[:, :, None]) / safe_cell[:, :, None])
+        index = np.subtract(x, low[:, :, None], out=x)  # in place: the batch is not needed after this
+        np.divide(index, safe_cell[:, :, None], out=index)
+        np.floor(index, out=index)
         # A step whose range is more cells wide than float64 can count has no defined entropy: NaN, which
         # the score's finiteness check turns into a rejected step (fiper_ros.core.scores.NonFiniteScore).
         undefined = ~np.isfinite(n_bins).all(axis=0)
@@ -179,17 +181,18 @@ def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: flo
             binning. ``0`` is the paper's definition; the reference profile uses ``0.01``
             (see :mod:`fiper_ros.core.profiles`).
     """
-    x = np.asarray(actions, dtype=np.float64)
+    x = np.asarray(actions)
     if x.ndim < 3:
         raise ValueError(f"actions must be [..., B, H, D], got shape {x.shape}")
     *lead, samples, horizon, dims = x.shape
     if samples < 1 or horizon < 1 or dims < 1:
         raise ValueError(f"actions have an empty axis: shape {x.shape}")
-    if not np.all(np.isfinite(x)):
+    if not np.all(np.isfinite(x)):  # in float64 as in float32 or any other dtype: the conversion keeps finiteness
         raise ValueError("actions contain NaN/inf")
     cell = _validated_cell(cell_size, dims)
-    grouped = np.moveaxis(np.moveaxis(x, -1, 0), -2, -1).reshape(dims, -1, samples)  # [D, steps, B]
-    return _grouped_entropies(grouped, cell, range_buffer).reshape(*lead, horizon)
+    # One copy, in float64 and the [D, steps, B] layout at once, which the counting may overwrite.
+    grouped = np.array(np.moveaxis(np.moveaxis(x, -1, 0), -2, -1), dtype=np.float64, order="C")
+    return _grouped_entropies(grouped.reshape(dims, -1, samples), cell, range_buffer).reshape(*lead, horizon)
 
 
 def ace_score(actions: np.ndarray, cell_size: np.ndarray) -> float:

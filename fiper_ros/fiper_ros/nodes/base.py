@@ -96,6 +96,8 @@ class FiperNode(LifecycleNode):
         self._log_limit = RateLimitedLog(self.get_parameter("log_period_s").value)
         #: Wall-clock (steady) time for what must not stall with a paused /clock: heartbeats, retries.
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        #: The node clock's handle (:meth:`now_ns`); the clock object is the node's for its life, sim time included.
+        self._clock_handle = self.get_clock().handle
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self.publish_diagnostics, clock=self.steady)
         self.publisher_check: PublisherCheck | None = None
@@ -168,8 +170,11 @@ class FiperNode(LifecycleNode):
         return self._state_machine.current_state[1]  # rclpy offers no public getter
 
     def now_ns(self) -> int:
-        """The node clock (sim time under ``use_sim_time``)."""
-        return self.get_clock().now().nanoseconds
+        """The node clock (sim time under ``use_sim_time``) in nanoseconds: what ``get_clock().now()`` reads, without
+        the ``Time`` object it builds (a quarter of the cost; every message reads the clock)."""
+        handle = self._clock_handle
+        with handle:
+            return handle.get_now().nanoseconds
 
     def tick(self, stream: str, now_ns: int) -> None:
         """Count one message of ``stream``, arrived at ``now_ns`` (the node clock), for the rate diagnostics."""
