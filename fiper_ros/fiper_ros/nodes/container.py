@@ -3,7 +3,8 @@
 The nodes are created in the order given and spun by one EventsExecutor in the process's main thread
 (:func:`fiper_ros.nodes.main.run_nodes`), so a message between them costs no process wake-up: with RND-OE and the
 fusion node composed (``fiper.launch.yaml compose:=true``) the suite reached 1000 steps/s at PushT's shape in 1 of 3
-runs, as separate processes in none (docs/benchmarks.md "Composed nodes", issue #24). The price is isolation: a crash of one node ends the others, and a callback
+runs, as separate processes in none; since the wire codec, composed in 2 of 2, separate in 1 of 3 (docs/benchmarks.md
+"Composed nodes" and "The session's final code", issue #24). The price is isolation: a crash of one node ends the others, and a callback
 that hangs stops them all (the alarm's liveliness then lapses, which a supervisor sees; docs/nodes.md
 "Composed nodes"). Every node keeps its own name, parameters (a parameter file's entries by node name, or
 ``/**``), lifecycle and ``/diagnostics`` status; the ``--ros-args`` reach every node, so a remap of ``__node``
