@@ -94,15 +94,22 @@ def _run_entropies(starts: np.ndarray, groups: int, samples: int) -> np.ndarray:
     return np.bincount(positions // samples, weights=-p * np.log2(p), minlength=groups)
 
 
+def _codes(index: np.ndarray, n_bins: np.ndarray) -> np.ndarray:
+    """The mixed-radix cell code ``[G, B]`` of the bin indices ``index[D, G, B]`` (``n_bins[D, G]`` per dimension,
+    the first dimension least significant); the caller makes sure every code fits in int64."""
+    codes = index[0].astype(np.int64)
+    stride = np.ones(index.shape[1], dtype=np.int64)
+    for d in range(1, index.shape[0]):
+        stride = stride * n_bins[d - 1].astype(np.int64)
+        codes += index[d].astype(np.int64) * stride[:, None]
+    return codes
+
+
 def _histogram_entropies(index: np.ndarray, n_bins: np.ndarray, cells: int) -> np.ndarray:
     """Entropy per group of the bin indices ``index[D, G, B]`` (``n_bins[D, G]`` per dimension, at most ``cells``
     cells per group): one histogram of the codes, group ``g`` at ``g * cells``; cells in ascending code order."""
     dims, groups, samples = index.shape
-    codes = index[0].astype(np.int64) + (np.arange(groups, dtype=np.int64) * cells)[:, None]
-    stride = np.ones(groups, dtype=np.int64)
-    for d in range(1, dims):
-        stride = stride * n_bins[d - 1].astype(np.int64)
-        codes += index[d].astype(np.int64) * stride[:, None]
+    codes = _codes(index, n_bins) + (np.arange(groups, dtype=np.int64) * cells)[:, None]
     counts = np.bincount(codes.ravel(), minlength=groups * cells)
     filled = np.flatnonzero(counts)
     p = counts[filled] / samples
@@ -113,8 +120,7 @@ def _sorted_entropies(index: np.ndarray, n_bins: np.ndarray) -> np.ndarray:
     """Entropy per group of the bin indices ``index[D, G, B]`` by sorting each group's codes (which fit in int64);
     cells in ascending code order, as :func:`_histogram_entropies`."""
     dims, groups, samples = index.shape
-    strides = np.cumprod(np.concatenate([np.ones((1, groups)), n_bins[:-1]], axis=0), axis=0).astype(np.int64)
-    codes = np.einsum("dgb,dg->gb", index.astype(np.int64), strides)
+    codes = _codes(index, n_bins)
     codes.sort(axis=1)
     starts = np.empty((groups, samples), dtype=bool)
     starts[:, 0] = True

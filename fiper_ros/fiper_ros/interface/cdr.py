@@ -2,8 +2,8 @@
 
 rclpy turns every message it takes into an object of the generated class (a Python ``__init__`` and one property
 setter per field, a nested object per header and stamp, an ``array.array`` copy of every ``float32[]``) and every
-message it publishes back into C. On two cores shared by the policy and the suite that conversion was a third of
-what a node spends outside its own callback (docs/benchmarks.md, "Wire codec"). The nodes therefore subscribe to
+message it publishes back into C. For a process that relays an embedding into a Score that was about a third of
+its CPU per message at 1000 messages/s (docs/benchmarks.md, "Wire codec"). The nodes therefore subscribe to
 their hot inputs raw (``raw=True``: the CDR bytes) and publish bytes, and this module reads and writes them.
 
 A :class:`Codec` is compiled once per message type from the generated class's own description
@@ -12,7 +12,8 @@ message definitions. :meth:`Codec.decode` gives a *view*: a named tuple per mess
 with the field names of the generated class, so code that reads ``msg.header.stamp.sec`` or ``msg.data`` reads a
 view and an rclpy message alike; numeric sequences and arrays are read-only numpy arrays over the received bytes
 (no copy). :meth:`Codec.encode` reads the fields by attribute from a view or an rclpy message and writes the
-bytes ``rclpy.serialization.serialize_message`` writes, padding zeroed (rclpy leaves it uninitialised).
+message ``rclpy.serialization.serialize_message`` writes (rclpy reads both back equal), padding zeroed and no
+bytes after the last field (rclpy leaves padding uninitialised and may add some).
 
 The wire format is plain CDR, little endian (encapsulation ``CDR_LE``, what the ROS 2 middlewares write for these
 types): each primitive aligned to its size (at most 8) from the start of the body after the 4-byte encapsulation
@@ -30,6 +31,7 @@ from __future__ import annotations
 import importlib
 import math
 import struct
+import textwrap
 from collections import namedtuple
 from collections.abc import Callable
 from typing import Any
@@ -71,6 +73,29 @@ def _float32(value: float) -> float:
     return value
 
 
+def _pad(size: int) -> str:
+    """Encoder lines: zero bytes up to the next multiple of ``size`` (a power of two) from the body's start."""
+    return f"p = -o & {size - 1}\nif p: parts.append(Z[:p]); o += p"
+
+
+def _read_string(target: str) -> str:
+    """Decoder lines: a string (uint32 length with its NUL, the bytes, the NUL) into ``target``."""
+    return ("o += -o & 3\nm, = U.unpack_from(b, o); o += 4\n"
+            "if m > len(b) - o: raise CdrError('string longer than the message')\n"
+            f"{target} = str(b[o:o + m - 1], 'utf-8', 'replace') if m else ''; o += m")
+
+
+def _write_string(value: str) -> str:
+    """Encoder lines: the string ``value`` (an expression)."""
+    return (f"{_pad(4)}\ne = {value}.encode()\n"
+            "parts.append(U.pack(len(e) + 1)); parts.append(e); parts.append(Z[:1]); o += 5 + len(e)")
+
+
+def _block(header: str, body: str) -> str:
+    """``body`` (lines) under the compound statement ``header``."""
+    return f"{header}\n{textwrap.indent(body, '    ')}"
+
+
 class _Source:
     """Python source of one message type's decode and encode functions, written field by field."""
 
@@ -79,7 +104,7 @@ class _Source:
         self.env = env  # the functions' globals: the compiled structs go there
         self.dec: list[str] = []
         self.enc: list[str] = []
-        self.run: list[tuple[str, str, int]] = []  # (field, rosidl type, size) of the pending fixed run
+        self.run: list[tuple[str, str]] = []  # (field, rosidl type) of the pending fixed run
         self.run_fmt = ""
         self.align = 1  # what is known of the offset here: a multiple of ``align`` plus ``rem``
         self.rem = 0
@@ -90,11 +115,11 @@ class _Source:
         if size > self.align:  # alignment not known statically: end the run, align at run time
             self.flush()
             self.dec.append(f"o += -o & {size - 1}")
-            self.enc.append(f"p = -o & {size - 1}\n    if p: parts.append(Z[:p]); o += p")
+            self.enc.append(_pad(size))
             self.align, self.rem = size, 0
         pad = -self.rem & (size - 1)
         self.run_fmt += "x" * pad + code
-        self.run.append((field, typename, size))
+        self.run.append((field, typename))
         self.rem = (self.rem + pad + size) % self.align
 
     def flush(self) -> None:
@@ -105,9 +130,9 @@ class _Source:
         const = f"S_{self.key}_{self.runs}"
         self.runs += 1
         self.env[const] = fmt
-        names = [f"v_{field}" for field, _, _ in self.run]
+        names = [f"v_{field}" for field, _ in self.run]
         self.dec.append(f"{', '.join(names)}, = {const}.unpack_from(b, o); o += {fmt.size}")
-        values = [f"F(v.{field})" if typename == "float" else f"v.{field}" for field, typename, _ in self.run]
+        values = [f"F(v.{field})" if typename == "float" else f"v.{field}" for field, typename in self.run]
         self.enc.append(f"parts.append({const}.pack({', '.join(values)})); o += {fmt.size}")
         self.run, self.run_fmt = [], ""
 
@@ -160,16 +185,14 @@ class Codec:
         env[f"V_{key}"] = namedtuple(msg_class.__name__, fields)  # noqa: PYI024 - a view class per message type
         src = _Source(key, env)
         for name, slot in zip(fields, msg_class.SLOT_TYPES):
-            self._field(src, name, slot, env)
+            self._field(src, name, slot)
         src.flush()
         values = ", ".join(f"v_{name}" for name in fields)
-        dec = "\n    ".join(src.dec) or "pass"
-        enc = "\n    ".join(src.enc) or "pass"
-        code = (f"def dec_{key}(b, o):\n    {dec}\n    return V_{key}({values}), o\n\n"
-                f"def enc_{key}(v, parts, o):\n    {enc}\n    return o\n")
+        code = (_block(f"def dec_{key}(b, o):", "\n".join([*src.dec, f"return V_{key}({values}), o"])) + "\n\n"
+                + _block(f"def enc_{key}(v, parts, o):", "\n".join([*src.enc, "return o"])) + "\n")
         exec(compile(code, f"<cdr {self.type_name if msg_class is self.msg_class else key}>", "exec"), env)  # noqa: S102
 
-    def _field(self, src: _Source, name: str, slot: Any, env: dict[str, Any]) -> None:
+    def _field(self, src: _Source, name: str, slot: Any) -> None:
         kind = type(slot).__name__
         if kind == "BasicType":
             if slot.typename not in _BASIC:
@@ -178,63 +201,54 @@ class Codec:
             return
         src.flush()
         if kind in ("UnboundedString", "BoundedString"):
-            src.dec.append(f"o += -o & 3\n    n, = U.unpack_from(b, o); o += 4\n    "
-                           f"if n > len(b) - o: raise CdrError('string longer than the message')\n    "
-                           f"v_{name} = str(b[o:o + n - 1], 'utf-8', 'replace') if n else ''; o += n")
-            src.enc.append(f"p = -o & 3\n    if p: parts.append(Z[:p]); o += p\n    e = v.{name}.encode()\n    "
-                           f"parts.append(U.pack(len(e) + 1)); parts.append(e); parts.append(Z[:1]); o += 5 + len(e)")
+            src.dec.append(_read_string(f"v_{name}"))
+            src.enc.append(_write_string(f"v.{name}"))
         elif kind == "NamespacedType":
             nested = _nested_class(slot)
-            self._compile(nested, env)
+            self._compile(nested, src.env)
             src.dec.append(f"v_{name}, o = dec_{_key(nested)}(b, o)")
             src.enc.append(f"o = enc_{_key(nested)}(v.{name}, parts, o)")
         elif kind in ("UnboundedSequence", "BoundedSequence", "Array"):
-            self._collection(src, name, slot, kind == "Array", env)
+            self._collection(src, name, slot, kind == "Array")
         else:
             raise TypeError(f"{self.type_name}.{name}: {kind} fields are not supported")
         src.unknown()
 
-    def _collection(self, src: _Source, name: str, slot: Any, fixed: bool, env: dict[str, Any]) -> None:
+    def _collection(self, src: _Source, name: str, slot: Any, fixed: bool) -> None:
         """A sequence (length first) or a fixed array of basic values, strings or messages."""
         item = slot.value_type
         item_kind = type(item).__name__
         if fixed:
             src.dec.append(f"n = {slot.size}")
-            src.enc.append(f"n = {slot.size}\n    if len(v.{name}) != n: raise CdrError('{name}: {slot.size} values "
-                           f"expected')")
+            src.enc.append(f"n = {slot.size}\nif len(v.{name}) != n: raise CdrError('{name}: {slot.size} values "
+                           "expected')")
         else:
-            src.dec.append("o += -o & 3\n    n, = U.unpack_from(b, o); o += 4")
-            src.enc.append(f"p = -o & 3\n    if p: parts.append(Z[:p]); o += p\n    n = len(v.{name})\n    "
-                           "parts.append(U.pack(n)); o += 4")
+            src.dec.append("o += -o & 3\nn, = U.unpack_from(b, o); o += 4")
+            src.enc.append(f"{_pad(4)}\nn = len(v.{name})\nparts.append(U.pack(n)); o += 4")
         if item_kind == "BasicType" and item.typename in _DTYPES:
             size = _BASIC[item.typename][1]
             dtype = f"D_{src.key}_{name}"
-            env[dtype] = np.dtype(_DTYPES[item.typename])
+            src.env[dtype] = np.dtype(_DTYPES[item.typename])
             # A sequence's elements follow its uint32 length: only 8-byte ones may need padding (arrays: any).
             realign = size > (1 if fixed else 4)
-            align = f"o += -o & {size - 1}\n        " if realign else ""
-            src.dec.append(f"if n:\n        {align}v_{name} = np.frombuffer(b, {dtype}, n, o); o += {size} * n\n    "
-                           f"else:\n        v_{name} = np.zeros(0, {dtype})")
-            enc_align = f"p = -o & {size - 1}\n        if p: parts.append(Z[:p]); o += p\n        " if realign else ""
-            src.enc.append(f"if n:\n        {enc_align}a = np.ascontiguousarray(v.{name}, {dtype})\n        "
-                           f"parts.append(a.tobytes()); o += {size} * n")
+            read = f"v_{name} = np.frombuffer(b, {dtype}, n, o); o += {size} * n"
+            write = f"a = np.ascontiguousarray(v.{name}, {dtype})\nparts.append(a.tobytes()); o += {size} * n"
+            src.dec.append(_block("if n:", f"o += -o & {size - 1}\n{read}" if realign else read)
+                           + "\n" + _block("else:", f"v_{name} = np.zeros(0, {dtype})"))
+            src.enc.append(_block("if n:", f"{_pad(size)}\n{write}" if realign else write))
             return
         if item_kind in ("UnboundedString", "BoundedString"):
-            src.dec.append(f"if n > len(b) - o: raise CdrError('more strings than bytes')\n    v_{name} = []\n    "
-                           f"for _ in range(n):\n        o += -o & 3\n        m, = U.unpack_from(b, o); o += 4\n        "
-                           f"if m > len(b) - o: raise CdrError('string longer than the message')\n        "
-                           f"v_{name}.append(str(b[o:o + m - 1], 'utf-8', 'replace') if m else ''); o += m")
-            src.enc.append(f"for s in v.{name}:\n        p = -o & 3\n        if p: parts.append(Z[:p]); o += p\n        "
-                           f"e = s.encode()\n        parts.append(U.pack(len(e) + 1)); parts.append(e); "
-                           f"parts.append(Z[:1]); o += 5 + len(e)")
+            src.dec.append(f"if n > len(b) - o: raise CdrError('more strings than bytes')\nv_{name} = []\n"
+                           + _block("for _ in range(n):", f"{_read_string('s')}\nv_{name}.append(s)"))
+            src.enc.append(_block(f"for s in v.{name}:", _write_string("s")))
             return
         if item_kind == "NamespacedType":
             nested = _nested_class(item)
-            self._compile(nested, env)
+            self._compile(nested, src.env)
             key = _key(nested)
-            src.dec.append(f"if n > len(b) - o: raise CdrError('more messages than bytes')\n    v_{name} = []\n    "
-                           f"for _ in range(n):\n        x, o = dec_{key}(b, o)\n        v_{name}.append(x)")
-            src.enc.append(f"for x in v.{name}:\n        o = enc_{key}(x, parts, o)")
+            src.dec.append(f"if n > len(b) - o: raise CdrError('more messages than bytes')\nv_{name} = []\n"
+                           + _block("for _ in range(n):", f"x, o = dec_{key}(b, o)\nv_{name}.append(x)"))
+            src.enc.append(_block(f"for x in v.{name}:", f"o = enc_{key}(x, parts, o)"))
             return
         raise TypeError(f"{self.type_name}.{name}: sequences of {getattr(item, 'typename', item_kind)} are not "
                         "supported")

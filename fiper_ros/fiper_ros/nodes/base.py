@@ -67,8 +67,7 @@ _KEY_VALUE_VIEW = codec(KeyValue).view
 
 def diagnostic_array(node: Node, level: bytes, message: str, values: dict[str, str]) -> bytes:
     """The one-status /diagnostics message of ``node`` (``name`` = ``fiper: <fully qualified name>``), serialized by
-    the wire codec (a publisher takes the bytes): the generated classes cost a node about 1 ms per message of
-    some 40 values (issue #24)."""
+    the wire codec (a publisher takes the bytes), as the suite's other messages are (issue #24)."""
     name = node.get_fully_qualified_name()
     status = _STATUS_VIEW(level=level, name=f"fiper: {name}", message=message, hardware_id=name,
                           values=[_KEY_VALUE_VIEW(key, value) for key, value in values.items()])

@@ -98,9 +98,10 @@ class FusionNode(FiperNode):
         self.create_service(ResetAlarm, RESET_ALARM, self._on_reset)
         #: Reset requests, by outcome ("accepted", "refused").
         self.resets: Counter[str] = Counter()
-        self.score_topics = {d: self.resolve_topic_name(relative(score_topic(d))) for d in DETECTORS}
-        #: The rate-diagnostics stream of each detector's scores.
-        self.score_streams = {d: f"scores/{d}" for d in DETECTORS}
+        #: Each detector's score topic relative to the namespace: what the node subscribes to, and the key of its
+        #: rate on /diagnostics.
+        self.score_streams = {d: relative(score_topic(d)) for d in DETECTORS}
+        self.score_topics = {d: self.resolve_topic_name(topic) for d, topic in self.score_streams.items()}
         self.watch_publishers(self._on_publishers)
 
     def configure(self) -> None:
@@ -119,7 +120,7 @@ class FusionNode(FiperNode):
 
     def activate(self) -> None:
         for detector in self.fuser.detectors:
-            topic = relative(score_topic(detector))
+            topic = self.score_streams[detector]
             self._inputs.append(self.create_wire_subscription(
                 Score, topic, self._on_score, qos.SCORE_SUB,
                 event_callbacks=self.subscription_events(topic, lambda info, d=detector: self._on_liveliness(d, info)),
