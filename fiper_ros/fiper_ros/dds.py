@@ -24,6 +24,9 @@ DOMAIN_RANGE = range(1, 102)
 #: A process started with this set to its parent's pid ends when that parent does (:func:`die_with_parent`):
 #: ``fiper launch`` sets it for each node, the test fixtures for each launcher they start.
 PARENT_PID_ENV = "FIPER_PARENT_PID"
+#: A node process prints every thread's Python stack on this signal and runs on (``faulthandler``); ``fiper launch``
+#: sends it to a node that did not stop within its grace period, before killing it.
+STACKS_SIGNAL = signal.SIGUSR1
 
 
 def domains_in_use(proc: Path = Path("/proc")) -> set[int]:

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.dds import PARENT_PID_ENV
 from fiper_ros.interface.topics import score_topic
 from fiper_ros.nodes.graph_watch import NOT_NAMED, PUBLISHERS_KEY
+from fiper_ros.nodes.main import TEARDOWN_S
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 from helpers.dds import ros_env
 from helpers.spin import spin_until
@@ -80,6 +82,25 @@ class Launch:
             return self.proc.returncode
         os.killpg(self.proc.pid, signal.SIGINT)
         return self.proc.wait(timeout=30)
+
+    def exit_statuses(self) -> dict[str, int]:
+        """Each node's exit status, from the launcher's last line (``[launch] name: exit N, ...``)."""
+        final = next((line for line in reversed(self.lines) if re.fullmatch(r"\[launch\] (\S+: exit -?\d+(, )?)+", line)),
+                     None)
+        if final is None:
+            raise AssertionError("no exit statuses:\n" + "\n".join(self.lines[-10:]))
+        return {m.group(1): int(m.group(2)) for m in re.finditer(r"(\S+): exit (-?\d+)", final)}
+
+    def stopped(self, name: str) -> bool:
+        """Whether Ctrl-C stopped node process ``name`` within its teardown bound: cleanly (status 0), or, where the
+        upstream DDS teardown race after a killed peer hung its teardown (docs/nodes.md), by its own watchdog after
+        ``TEARDOWN_S`` with its stacks printed (status 1; said as a warning, so the run shows it)."""
+        status = self.exit_statuses()[name]
+        if status == 1 and f"[{name}] Timeout (0:00:{TEARDOWN_S:02.0f})!" in self.lines:
+            warnings.warn(f"{name}'s teardown hung and its watchdog ended it:\n" + "\n".join(
+                line for line in self.lines if line.startswith(f"[{name}]"))[-3000:], stacklevel=2)
+            return True
+        return status == 0
 
     def kill(self) -> None:
         """SIGKILL the whole launch (a test's clean-up after a failure)."""

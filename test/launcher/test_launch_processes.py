@@ -1,15 +1,21 @@
 """``fiper launch`` runs real node processes as ``launch_ros`` would: ``respawn_max_retries`` bounds the respawns (the
 node is not started again after N, and the launcher says so), ``output: log`` sends a node's lines to its log file
 under the launch's log directory (``$ROS_LOG_DIR/<launch>/<node>.log``) instead of the screen, ``output: both`` to
-both."""
+both. A node process that does not stop within the grace period prints where it hangs before it is killed."""
 from __future__ import annotations
 
 import os
 import signal
+import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+from fiper_ros.launcher.config import NodeSpec
+from fiper_ros.launcher.processes import ProcessGroup
+from helpers.dds import ros_env
 from helpers.launch import Launch, node_entry, write_launch
 
 #: Seconds for a node process to start and log (rclpy imports on a loaded 2-core machine).
@@ -73,3 +79,53 @@ def test_output_log_writes_a_nodes_lines_to_its_log_file_and_both_to_the_screen_
     finally:
         status = launch.interrupt()
     assert status == 0, launch.lines[-20:]
+
+
+#: A node process (``run_node``) whose node never finishes its construction and ignores Ctrl-C meanwhile.
+STUCK_NODE = """
+import sys, time
+from fiper_ros.nodes.main import run_node
+
+def stuck_in_construction():
+    print("constructing", flush=True)
+    while True:
+        try:
+            time.sleep(60)
+        except KeyboardInterrupt:
+            pass
+
+sys.exit(run_node(stuck_in_construction, []))
+"""
+
+
+@dataclass(frozen=True)
+class StuckSpec(NodeSpec):
+    """A launch entry whose process is :data:`STUCK_NODE`."""
+
+    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:  # noqa: ARG002
+        return [sys.executable, "-c", STUCK_NODE]
+
+
+def test_a_node_that_does_not_stop_within_the_grace_period_prints_its_stacks_before_it_is_killed(
+        tmp_path: Path, ros_domain: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    for name, value in ros_env(ros_domain).items():
+        monkeypatch.setenv(name, value)
+    group = ProcessGroup(grace_s=1.0, params_dir=tmp_path, log_dir=tmp_path)
+    lines: list[str] = []
+    group.say = lines.append  # type: ignore[method-assign]
+    group.start(StuckSpec(name="stuck", package="fiper_ros", executable="stuck", module="stuck", namespace="/"))
+
+    def wait_for(text: str) -> bool:
+        deadline = time.monotonic() + START_S
+        while not any(text in line for line in list(lines)):
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+        return True
+
+    assert wait_for("[stuck] constructing"), lines
+    group.stop()
+    assert group.procs["stuck"].returncode == -signal.SIGKILL
+    assert "[launch] stuck did not stop within 1 s: its stacks, then killing it" in lines
+    # faulthandler's dump of the main thread, relayed with the node's other output
+    assert wait_for("in stuck_in_construction"), lines

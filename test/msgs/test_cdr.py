@@ -19,7 +19,7 @@ from std_msgs.msg import Header
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
 from fiper_ros.interface.cdr import CDR_LE, CdrError, EncapsulationError, codec
-from fiper_ros.interface.conversions import STAMP_MAX_NS, STAMP_MIN_NS, header_view
+from fiper_ros.interface.conversions import STAMP_MAX_NS, STAMP_MIN_NS, header_view, to_stamp
 from helpers.samples import as_plain, sample_messages
 
 PROPERTY = settings(max_examples=150, deadline=None, derandomize=True, database=None)
@@ -154,6 +154,9 @@ def test_another_encapsulation_is_named_so_that_rclpy_may_read_it() -> None:
 
 
 def test_a_header_holds_the_nearest_stamp_a_time_can_hold() -> None:
+    # the typed stamp follows the same rule (the generated class refused a time beyond int32 seconds)
+    assert (to_stamp(STAMP_MAX_NS + 10**12).sec, to_stamp(STAMP_MAX_NS + 10**12).nanosec) == (2**31 - 1, 999_999_999)
+    assert (to_stamp(STAMP_MIN_NS - 1).sec, to_stamp(STAMP_MIN_NS - 1).nanosec) == (-(2**31), 0)
     assert header_view(STAMP_MAX_NS + 10**12).stamp == (2**31 - 1, 999_999_999)
     assert header_view(STAMP_MIN_NS - 1).stamp == (-(2**31), 0)
     assert header_view(1_500_000_000).stamp == (1, 500_000_000)

@@ -81,6 +81,30 @@ def test_a_stopped_node_process_destroys_its_node_and_exits_0(ros_domain: int) -
     assert "destroy_node called" in out
 
 
+def test_a_node_process_whose_teardown_hangs_prints_its_stacks_and_exits_1(ros_domain: int) -> None:
+    """CI of cb728d1: after the test killed ACE, Ctrl-C left the RND-OE process running until the launcher killed it
+    5 s later (the upstream DDS teardown race after a peer died, docs/nodes.md). Past TEARDOWN_S the process now
+    says where it hangs and ends itself."""
+    body = textwrap.dedent("""\
+        import time, rclpy.node
+        class Hanging(rclpy.node.Node):
+            def destroy_node(self):
+                print("destroy_node called", flush=True)
+                while True:  # a teardown that never returns, whatever signal comes
+                    try:
+                        time.sleep(60)
+                    except KeyboardInterrupt:
+                        pass
+        node = Hanging("probe")
+        node.create_timer(0.05, lambda: print("spinning", flush=True))
+        return node""")
+    began = time.monotonic()
+    status, out = _run_node_process(body, ros_domain, interrupt_after="spinning")
+    assert status == 1, out
+    assert "destroy_node called" in out and "Timeout (0:00:03)!" in out and "in destroy_node" in out, out
+    assert time.monotonic() - began < 60
+
+
 def test_a_signal_while_the_node_is_built_ends_the_process_quietly(ros_domain: int) -> None:
     # rclpy's SIGINT handler shuts the context down; landing between or inside the constructor's rcl calls,
     # that fails the next one

@@ -34,21 +34,28 @@ def stamp_ns(stamp: Time) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
-def to_stamp(ns: int) -> Time:
-    """Nanoseconds as a message stamp."""
-    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
-
-
 #: The earliest and the latest time a ``builtin_interfaces/Time`` holds (``sec`` is an int32), in nanoseconds.
 STAMP_MIN_NS, STAMP_MAX_NS = -(2**31) * 1_000_000_000, (2**31 - 1) * 1_000_000_000 + 999_999_999
 
 
-def header_view(ns: int, frame_id: str = "") -> Any:
-    """A ``std_msgs/Header`` stamped ``ns`` as the wire codec writes it (:mod:`fiper_ros.interface.cdr`). A time
-    beyond what the stamp holds is the nearest it holds (a sum of stamps whose ``nanosec`` is beyond a second can
-    be): the generated classes would wrap it into a time of another century."""
+def stamp_fields(ns: int) -> tuple[int, int]:
+    """Nanoseconds as a stamp's ``(sec, nanosec)``. A time beyond what the stamp holds is the nearest it holds (a
+    sum of stamps whose ``nanosec`` is beyond a second can be): rclpy would wrap it into a time of another century,
+    or the generated class refuse it."""
     ns = min(max(int(ns), STAMP_MIN_NS), STAMP_MAX_NS)
-    return _HEADER_VIEW(_TIME_VIEW(ns // 1_000_000_000, ns % 1_000_000_000), frame_id)
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def to_stamp(ns: int) -> Time:
+    """Nanoseconds as a message stamp (:func:`stamp_fields`)."""
+    sec, nanosec = stamp_fields(ns)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def header_view(ns: int, frame_id: str = "") -> Any:
+    """A ``std_msgs/Header`` stamped ``ns`` (:func:`stamp_fields`) as the wire codec writes it
+    (:mod:`fiper_ros.interface.cdr`)."""
+    return _HEADER_VIEW(_TIME_VIEW(*stamp_fields(ns)), frame_id)
 
 
 def embedding_msg(rollout_id: int, step: int, stamp: int, embedding: np.ndarray) -> ObservationEmbedding:

@@ -15,10 +15,12 @@ from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
 
-from fiper_ros.dds import PARENT_PID_ENV
+from fiper_ros.dds import PARENT_PID_ENV, STACKS_SIGNAL
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, LaunchError, NodeSpec
 
 
+#: How long a node that did not stop gets to print its stacks before it is killed.
+STACKS_WAIT_S = 0.5
 #: One line at a time on stdout, from the node relays and whatever else a launch prints (``--summary``).
 _PRINT_LOCK = threading.Lock()
 
@@ -104,9 +106,20 @@ class ProcessGroup:
             try:
                 proc.wait(timeout=max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                self.say(f"[launch] {name} did not stop within {self.grace_s:g} s: killing it")
+                self.say(f"[launch] {name} did not stop within {self.grace_s:g} s: its stacks, then killing it")
+                self._print_stacks(proc)
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
+
+    @staticmethod
+    def _print_stacks(proc: subprocess.Popen[str]) -> None:
+        """Have a node that does not stop print where it hangs (:data:`STACKS_SIGNAL`: every thread's Python
+        stack, relayed like its other output), and give it :data:`STACKS_WAIT_S` to do so (it may exit meanwhile)."""
+        try:
+            os.kill(proc.pid, STACKS_SIGNAL)
+            proc.wait(timeout=STACKS_WAIT_S)
+        except (ProcessLookupError, subprocess.TimeoutExpired):
+            pass
 
     def watch(self, stop_event: threading.Event, required: set[str]) -> int:
         """Run until ``stop_event``, every node has exited for good, or a required node exited.

@@ -3,7 +3,9 @@
 After start-up every object that exists (rclpy, numpy, torch, the node) is moved out of the garbage
 collector's reach (``gc.freeze``): a full collection then only walks what the callbacks allocate, so it
 no longer stalls a callback for milliseconds (the tail of the node benchmark, docs/benchmarks.md).
-A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows.
+A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows; so does
+:data:`~fiper_ros.dds.STACKS_SIGNAL` (SIGUSR1), which the launcher sends a node that does not stop within its grace period
+before it kills it, and so does a teardown that outlasts :data:`TEARDOWN_S`, which then ends the process.
 A node started by ``fiper launch`` dies with it (``FIPER_PARENT_PID``: Linux's parent-death signal), so a
 killed launcher never leaves a stale suite speaking on the suite's topics.
 
@@ -39,10 +41,14 @@ from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedEx
 from rclpy.experimental import EventsExecutor
 
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import die_with_parent
+from fiper_ros.dds import STACKS_SIGNAL, die_with_parent
 
 CALLBACK_DRAIN_S = 30.0
 """Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
+TEARDOWN_S = 3.0
+"""Longest teardown once the callbacks have finished (destroying the nodes, shutting rclpy down): past it the process
+prints every thread's stack and exits with status 1 (``faulthandler``), its DDS entities not deleted. An upstream
+rmw_fastrtps race can hang that teardown when a peer was killed a few seconds before (docs/nodes.md)."""
 #: Environment variable that chooses the executor of every single-threaded node process: :data:`EXECUTOR_EVENTS` or
 #: :data:`EXECUTOR_SINGLE`.
 EXECUTOR_ENV = "FIPER_EXECUTOR"
@@ -213,6 +219,7 @@ def run_nodes(factories: Sequence[Callable[..., Any]], args: list[str] | None = 
     one executor (:mod:`fiper_ros.nodes.container`); the same ``--ros-args`` reach every one. Returns the exit
     status."""
     faulthandler.enable()
+    faulthandler.register(STACKS_SIGNAL, all_threads=True)
     die_with_parent()
     profile = use_discovery_profile()
     rclpy.init(args=sys.argv if args is None else args)
@@ -237,7 +244,9 @@ def run_nodes(factories: Sequence[Callable[..., Any]], args: list[str] | None = 
             raise
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # shutting down already: a SIGTERM now would re-enter it
+        faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
         for node in reversed(nodes):
             node.destroy_node()
         shut_down()
+        faulthandler.cancel_dump_traceback_later()
     return 0
