@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["EVERY_ALARM", "memory_mb", "core_bench", "eval_bench", "nodes_bench", "policy_bench", "soak_bench"]
+__all__ = ["EVERY_ALARM", "memory_mb", "core_bench", "eval_bench", "nodes_bench", "null_suite", "policy_bench",
+           "soak_bench"]
 
 
 #: The alarm contract keeps only the newest state (KEEP_LAST(1)); to count every step's alarm a benchmark

@@ -29,6 +29,11 @@ and the driver's timed runs into ``DIR/<shape>/<process>.prof`` (``python -m pst
 ``--compose`` runs RND-OE and the fusion node composed in one process (``fiper.launch.yaml compose:=true``,
 :mod:`fiper_ros.nodes.container`), ACE in its own: the start-up of that container alone stands for those two nodes'.
 
+After each shape, the platform's floor (unless ``--no-floor``): the same driver's 10 Hz run and a run at the shape's
+target rate through :mod:`fiper_ros.bench.null_suite`, the suite's topology with no work (three processes named as
+the suite's nodes, on its topics with its QoS, executor and wire codec, relaying). The suite's figures less the
+floor's are what the nodes' own work costs; a target below the floor cannot be met by the nodes on this machine.
+
 ``--view`` runs the live view (``fiper view``, issue #22) beside the suite, with no client connected: the
 figures with and without it say what the view costs the suite when nobody watches.
 """
@@ -50,7 +55,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from fiper_ros.bench import EVERY_ALARM, memory_mb
+from fiper_ros.bench import EVERY_ALARM, memory_mb, null_suite
 from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
@@ -575,6 +580,46 @@ def startup_lines(shape: Shape, result: dict[str, Any]) -> list[str]:
     return lines
 
 
+def bench_floor(shape: Shape, steps: int) -> dict[str, Any]:
+    """The platform's floor at ``shape``: the driver's runs through the suite's topology with no work
+    (:mod:`fiper_ros.bench.null_suite`): the latency at 10 Hz, and at the shape's target rate the lost steps, the
+    backlog and the CPU per step of each process."""
+    with allocate_domain() as domain:
+        driver = Driver(shape, domain)
+        procs = {f"{role} stand-in": _start([sys.executable, "-m", null_suite.__name__, role], domain)
+                 for role in null_suite.ROLES}
+        try:
+            end = time.monotonic() + STARTUP_TIMEOUT_S
+            while not driver.wired():
+                if time.monotonic() > end:
+                    raise RuntimeError("the null suite did not come up")
+                driver.executor.spin_once(timeout_sec=POLL_S)
+            driver.spin_for(1.0)
+            driver.run(1, 20, 10.0)  # warm-up, as the suite's
+            lat, missing, _ = driver.run(2, steps, 10.0)
+            pids = {name: proc.pid for name, proc in procs.items()} | {"driver": os.getpid()}
+            before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+            n = max(100, int(shape.target_rate * 2))
+            lat_r, missing_r, backlog = driver.run(3, n, shape.target_rate)
+            return {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)),
+                    "missing_at_10hz": missing, "missing_at_rate": missing_r, "backlog_s": backlog,
+                    "cpu": cpu_per_step(pids, before, n)}
+        finally:
+            driver.close()
+            for proc in procs.values():
+                _stop(proc)
+
+
+def floor_line(shape: Shape, floor: dict[str, Any], suite: dict[str, Any]) -> str:
+    """The platform's floor at ``shape`` (:func:`bench_floor`), and the suite's 10 Hz p99 as a multiple of it."""
+    where = ", ".join(f"{name} {ms:.2f}" for name, ms in sorted(floor["cpu"].items()))
+    return (f"{shape.name}: platform floor (the suite's topology, no work; fiper_ros.bench.null_suite): latency at "
+            f"10 Hz p50 {floor['p50_ms']:.2f} ms, p99 {floor['p99_ms']:.2f} ms, missing {floor['missing_at_10hz']}; "
+            f"at {shape.target_rate:.0f} steps/s missing {floor['missing_at_rate']}, backlog {floor['backlog_s']:.3f} s, "
+            f"CPU ms/step: {where}, total {sum(floor['cpu'].values()):.2f}; the suite's 10 Hz p50 / p99 are "
+            f"{suite['p50_ms'] / floor['p50_ms']:.2f}x / {suite['p99_ms'] / floor['p99_ms']:.2f}x the floor's")
+
+
 def latency_line(shape: Shape, result: dict[str, Any]) -> str:
     """The 10 Hz latency and the sustained rate of one shape, with their ratios to the targets."""
     return (f"{shape.name} (E {shape.embedding_dim}, B {shape.batch}, H {shape.horizon}, D {shape.action_dim}): "
@@ -600,6 +645,8 @@ def main() -> int:
                              "that does not set FASTRTPS_DEFAULT_PROFILES_FILE; the nodes use it either way)")
     parser.add_argument("--compose", action="store_true",
                         help="RND-OE and the fusion node in one process (fiper.launch.yaml compose:=true)")
+    parser.add_argument("--no-floor", action="store_true",
+                        help="skip the platform's floor (the suite's topology with no work) after each shape")
     parser.add_argument("--profile", type=Path, metavar="DIR",
                         help="profile the suite's nodes (their main thread's CPU time) and the driver's timed runs "
                              "into DIR/<shape>/<node>.prof (python -m pstats); the figures are then not comparable")
@@ -617,6 +664,8 @@ def main() -> int:
         r = bench_shape(shape, args.steps, args.rates, args.view, args.profile, args.compose)
         for line in [*startup_lines(shape, r), latency_line(shape, r)]:
             print(line, flush=True)
+        if not args.no_floor:
+            print(floor_line(shape, bench_floor(shape, args.steps), r), flush=True)
     print(f"load average at the end {load_average()}")
     return 0
 
