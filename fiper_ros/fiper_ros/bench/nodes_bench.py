@@ -90,6 +90,8 @@ PLAIN_NODE = ("import sys, time, rclpy; from std_msgs.msg import String; rclpy.i
               "time.sleep(60)")
 #: Lines the plain node may print before its ``created`` line (Fast DDS writes its own log to standard output).
 PLAIN_OUTPUT_LINES = 100
+#: Lines of the suite's output printed when it does not come up.
+FAILED_OUTPUT_LINES = 60
 #: A node's log line saying it reached ACTIVE, with the seconds since its process started.
 ACTIVE_LINE = re.compile(rf"\]: {ACTIVE_LOG} (\d+(?:\.\d+)?) {re.escape(ACTIVE_LOG_END)}")
 
@@ -504,6 +506,8 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
                 suite_s.append(driver.wait_ready(fqns) - started)
             except BaseException:
                 _stop(launch)
+                lines = output.read_text(errors="replace").splitlines()[-FAILED_OUTPUT_LINES:]
+                print(f"the suite's last {len(lines)} lines of output:", *lines, sep="\n", file=sys.stderr)
                 raise
             suite_own_s.append(max(own_active_s(output).values(), default=float("nan")))
             if start < SUITE_STARTS - 1:
