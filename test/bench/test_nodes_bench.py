@@ -1,5 +1,8 @@
-"""``make bench-nodes`` says where the steps of a rate it could not sustain went, from the nodes' /diagnostics."""
+"""``make bench-nodes`` says where the steps of a rate it could not sustain went, from the nodes' /diagnostics, and
+asks a node's lifecycle state again when a request goes unanswered."""
 from __future__ import annotations
+
+import time
 
 from fiper_ros.bench.nodes_bench import loss_counters, where_lost
 
@@ -28,3 +31,52 @@ def test_a_run_is_told_by_the_differences() -> None:
     assert where_lost(before, after, 2000) == (
         "scores published: rnd_oe 2000, ace 2000 of 2000; the fusion node fused 1717, evicted 183 (from its full "
         "buffer of unmatched steps; a step counts once per score evicted) and dropped 0 (the other score never came)")
+
+
+def test_a_get_state_request_left_unanswered_is_asked_again(ros_domain: int, monkeypatch) -> None:
+    """A benchmark run once waited 120 s for a reply that never came, every node ACTIVE (docs/benchmarks.md); the
+    driver now asks again after GET_STATE_TIMEOUT_S. Here the server sits on its first request past the start-up
+    timeout and answers the next at once: without the second request the driver would time out."""
+    import threading  # noqa: PLC0415
+
+    import rclpy  # noqa: PLC0415
+    from lifecycle_msgs.msg import State  # noqa: PLC0415
+    from lifecycle_msgs.srv import GetState  # noqa: PLC0415
+    from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: PLC0415
+    from rclpy.context import Context  # noqa: PLC0415
+    from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
+
+    from fiper_ros.bench import nodes_bench  # noqa: PLC0415
+
+    monkeypatch.setattr(nodes_bench, "STARTUP_TIMEOUT_S", 8.0)
+    context = Context()
+    rclpy.init(context=context, domain_id=ros_domain)
+    server = rclpy.create_node("slow_node", namespace="/fiper", context=context)
+    requests: list[float] = []
+    release = threading.Event()
+
+    def get_state(_: GetState.Request, response: GetState.Response) -> GetState.Response:
+        requests.append(time.monotonic())
+        if len(requests) == 1:
+            release.wait(30)  # the first request stays unanswered until the test ends
+        response.current_state.id = State.PRIMARY_STATE_ACTIVE
+        return response
+
+    server.create_service(GetState, "slow_node/get_state", get_state, callback_group=ReentrantCallbackGroup())
+    executor = MultiThreadedExecutor(num_threads=2, context=context)
+    executor.add_node(server)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    driver = nodes_bench.Driver(nodes_bench.SHAPES[0], ros_domain)
+    try:
+        began = time.monotonic()
+        driver.wait_active(["/fiper/slow_node"])
+        assert len(requests) >= 2
+        assert requests[1] - requests[0] >= nodes_bench.GET_STATE_TIMEOUT_S
+        assert time.monotonic() - began < nodes_bench.STARTUP_TIMEOUT_S
+    finally:
+        release.set()
+        driver.close()
+        executor.shutdown()
+        server.destroy_node()
+        rclpy.try_shutdown(context=context)
