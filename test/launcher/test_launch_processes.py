@@ -129,3 +129,38 @@ def test_a_node_that_does_not_stop_within_the_grace_period_prints_its_stacks_bef
     assert "[launch] stuck did not stop within 1 s: its stacks, then killing it" in lines
     # faulthandler's dump of the main thread, relayed with the node's other output
     assert wait_for("in stuck_in_construction"), lines
+
+
+#: A process that ignores Ctrl-C and ends on the stacks signal (a node whose teardown ends within the stacks' wait).
+ENDS_ON_STACKS = """
+import os, signal, time
+from fiper_ros.dds import STACKS_SIGNAL
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+signal.signal(STACKS_SIGNAL, lambda *_: os._exit(0))
+print("waiting", flush=True)
+time.sleep(60)
+"""
+
+
+@dataclass(frozen=True)
+class EndsOnStacksSpec(NodeSpec):
+    """A launch entry whose process is :data:`ENDS_ON_STACKS`."""
+
+    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:  # noqa: ARG002
+        return [sys.executable, "-c", ENDS_ON_STACKS]
+
+
+def test_a_node_that_ends_while_printing_its_stacks_is_not_killed_and_the_launcher_goes_on(tmp_path: Path) -> None:
+    """The demo's launcher crashed (ProcessLookupError) when the policy node ended in the stacks' wait: its
+    process group was gone by the kill."""
+    group = ProcessGroup(grace_s=0.5, params_dir=tmp_path, log_dir=tmp_path)
+    lines: list[str] = []
+    group.say = lines.append  # type: ignore[method-assign]
+    group.start(EndsOnStacksSpec(name="late", package="fiper_ros", executable="late", module="late", namespace="/"))
+    deadline = time.monotonic() + START_S
+    while "[late] waiting" not in lines and time.monotonic() < deadline:
+        time.sleep(0.05)
+    group.stop()
+    assert group.procs["late"].returncode == 0, lines
+    assert "[launch] late did not stop within 0.5 s: its stacks, then killing it" in lines
+

@@ -1,6 +1,7 @@
 """The launched suite: every node in its own OS process (:class:`ProcessGroup`) or all in this one."""
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
 import signal
@@ -108,7 +109,8 @@ class ProcessGroup:
             except subprocess.TimeoutExpired:
                 self.say(f"[launch] {name} did not stop within {self.grace_s:g} s: its stacks, then killing it")
                 self._print_stacks(proc)
-                os.killpg(proc.pid, signal.SIGKILL)
+                with contextlib.suppress(ProcessLookupError):  # it may have ended meanwhile, and its group with it
+                    os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
 
     @staticmethod
