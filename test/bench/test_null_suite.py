@@ -11,18 +11,13 @@ from fiper_ros.bench import null_suite
 from fiper_ros.bench.nodes_bench import SHAPES, Driver, _start, _stop
 from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr
 
-WIRED_S = 60.0
-
 
 def test_the_stand_ins_answer_every_step_once_both_scores_came(ros_domain: int) -> None:
     shape = SHAPES[0]
     driver = Driver(shape, ros_domain)
     procs = [_start([sys.executable, "-m", null_suite.__name__, role], ros_domain) for role in null_suite.ROLES]
     try:
-        end = time.monotonic() + WIRED_S
-        while not driver.wired():
-            assert time.monotonic() < end, "the stand-ins did not come up"
-            driver.executor.spin_once(timeout_sec=0.05)
+        driver.wait_wired("the stand-ins")
         latencies, missing, _ = driver.run(1, 20, 50.0)
         assert missing == 0 and len(latencies) == 20
         assert set(driver.received) == {(1, step) for step in range(20)}

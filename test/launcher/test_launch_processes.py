@@ -81,6 +81,36 @@ def test_output_log_writes_a_nodes_lines_to_its_log_file_and_both_to_the_screen_
     assert status == 0, launch.lines[-20:]
 
 
+@dataclass(frozen=True)
+class ScriptSpec(NodeSpec):
+    """A launch entry whose process is ``python -c SCRIPT``."""
+
+    script: str = ""
+
+    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:  # noqa: ARG002
+        return [sys.executable, "-c", self.script]
+
+
+def script_group(tmp_path: Path, grace_s: float, name: str, script: str) -> tuple[ProcessGroup, list[str]]:
+    """A launch of one :class:`ScriptSpec` named ``name``, its lines (the launcher's and the process's) collected."""
+    group = ProcessGroup(grace_s=grace_s, params_dir=tmp_path, log_dir=tmp_path)
+    lines: list[str] = []
+    group.say = lines.append  # type: ignore[method-assign]
+    group.start(ScriptSpec(name=name, package="fiper_ros", executable=name, module=name, namespace="/",
+                           script=script))
+    return group, lines
+
+
+def wait_for(lines: list[str], text: str) -> bool:
+    """Whether a line holding ``text`` comes within :data:`START_S`."""
+    deadline = time.monotonic() + START_S
+    while not any(text in line for line in list(lines)):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.05)
+    return True
+
+
 #: A node process (``run_node``) whose node never finishes its construction and ignores Ctrl-C meanwhile.
 STUCK_NODE = """
 import sys, time
@@ -98,37 +128,17 @@ sys.exit(run_node(stuck_in_construction, []))
 """
 
 
-@dataclass(frozen=True)
-class StuckSpec(NodeSpec):
-    """A launch entry whose process is :data:`STUCK_NODE`."""
-
-    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:  # noqa: ARG002
-        return [sys.executable, "-c", STUCK_NODE]
-
-
 def test_a_node_that_does_not_stop_within_the_grace_period_prints_its_stacks_before_it_is_killed(
         tmp_path: Path, ros_domain: int, monkeypatch: pytest.MonkeyPatch) -> None:
     for name, value in ros_env(ros_domain).items():
         monkeypatch.setenv(name, value)
-    group = ProcessGroup(grace_s=1.0, params_dir=tmp_path, log_dir=tmp_path)
-    lines: list[str] = []
-    group.say = lines.append  # type: ignore[method-assign]
-    group.start(StuckSpec(name="stuck", package="fiper_ros", executable="stuck", module="stuck", namespace="/"))
-
-    def wait_for(text: str) -> bool:
-        deadline = time.monotonic() + START_S
-        while not any(text in line for line in list(lines)):
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.05)
-        return True
-
-    assert wait_for("[stuck] constructing"), lines
+    group, lines = script_group(tmp_path, 1.0, "stuck", STUCK_NODE)
+    assert wait_for(lines, "[stuck] constructing"), lines
     group.stop()
     assert group.procs["stuck"].returncode == -signal.SIGKILL
     assert "[launch] stuck did not stop within 1 s: its stacks, then killing it" in lines
     # faulthandler's dump of the main thread, relayed with the node's other output
-    assert wait_for("in stuck_in_construction"), lines
+    assert wait_for(lines, "in stuck_in_construction"), lines
 
 
 #: A process that ignores Ctrl-C and ends on the stacks signal (a node whose teardown ends within the stacks' wait).
@@ -142,25 +152,11 @@ time.sleep(60)
 """
 
 
-@dataclass(frozen=True)
-class EndsOnStacksSpec(NodeSpec):
-    """A launch entry whose process is :data:`ENDS_ON_STACKS`."""
-
-    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:  # noqa: ARG002
-        return [sys.executable, "-c", ENDS_ON_STACKS]
-
-
 def test_a_node_that_ends_while_printing_its_stacks_is_not_killed_and_the_launcher_goes_on(tmp_path: Path) -> None:
     """The demo's launcher crashed (ProcessLookupError) when the policy node ended in the stacks' wait: its
     process group was gone by the kill."""
-    group = ProcessGroup(grace_s=0.5, params_dir=tmp_path, log_dir=tmp_path)
-    lines: list[str] = []
-    group.say = lines.append  # type: ignore[method-assign]
-    group.start(EndsOnStacksSpec(name="late", package="fiper_ros", executable="late", module="late", namespace="/"))
-    deadline = time.monotonic() + START_S
-    while "[late] waiting" not in lines and time.monotonic() < deadline:
-        time.sleep(0.05)
+    group, lines = script_group(tmp_path, 0.5, "late", ENDS_ON_STACKS)
+    assert wait_for(lines, "[late] waiting"), lines
     group.stop()
     assert group.procs["late"].returncode == 0, lines
     assert "[launch] late did not stop within 0.5 s: its stacks, then killing it" in lines
-

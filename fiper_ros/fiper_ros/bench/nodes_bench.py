@@ -394,20 +394,22 @@ class Driver:
         end = time.monotonic() + STARTUP_TIMEOUT_S
         while (now := time.monotonic()) < end:
             for node, asked in list(pending.items()):
-                if asked is not None and asked[0].done():
-                    if asked[0].result().current_state.id == State.PRIMARY_STATE_ACTIVE:
-                        del pending[node]
-                        if not pending:
-                            return time.monotonic()
-                        continue
-                    asked = None
-                elif asked is not None and now - asked[1] > GET_STATE_TIMEOUT_S:
-                    clients[node].remove_pending_request(asked[0])  # lost: ask again
-                    unanswered += 1
-                    asked = None
-                pending[node] = asked
+                if asked is not None:
+                    future, sent = asked
+                    if future.done():
+                        if future.result().current_state.id == State.PRIMARY_STATE_ACTIVE:
+                            del pending[node]
+                            if not pending:
+                                return time.monotonic()
+                            continue
+                        asked = None
+                    elif now - sent > GET_STATE_TIMEOUT_S:
+                        clients[node].remove_pending_request(future)  # lost: ask again
+                        unanswered += 1
+                        asked = None
                 if asked is None and clients[node].service_is_ready():
-                    pending[node] = (clients[node].call_async(GetState.Request()), now)
+                    asked = (clients[node].call_async(GetState.Request()), now)
+                pending[node] = asked
             self.executor.spin_once(timeout_sec=POLL_S)
         raise RuntimeError(f"not ACTIVE after {STARTUP_TIMEOUT_S:.0f} s: {', '.join(pending)} ({unanswered} "
                            f"get_state requests unanswered within {GET_STATE_TIMEOUT_S:g} s)")
@@ -420,15 +422,20 @@ class Driver:
                     and self.event_pub.get_subscription_count() >= 3 and count("scores/rnd_oe") and count("scores/ace")
                     and self.node.count_publishers("alarm"))
 
-    def wait_ready(self, nodes: Sequence[str]) -> float:
-        """Wait until the nodes are ACTIVE and :meth:`wired`; the ``time.monotonic()`` of that."""
-        self.wait_active(nodes)
+    def wait_wired(self, what: str = "the suite") -> float:
+        """Wait until :meth:`wired` (at most :data:`STARTUP_TIMEOUT_S`; ``what``: whose topics, for the error); the
+        ``time.monotonic()`` of that."""
         end = time.monotonic() + STARTUP_TIMEOUT_S
         while not self.wired():
             if time.monotonic() > end:
-                raise RuntimeError("the suite did not come up")
+                raise RuntimeError(f"{what} did not come up")
             self.executor.spin_once(timeout_sec=POLL_S)
         return time.monotonic()
+
+    def wait_ready(self, nodes: Sequence[str]) -> float:
+        """Wait until the nodes are ACTIVE and :meth:`wired`; the ``time.monotonic()`` of that."""
+        self.wait_active(nodes)
+        return self.wait_wired()
 
     def run(self, rollout_id: int, steps: int, rate_hz: float) -> tuple[np.ndarray, int, float]:
         """Publish ``steps`` steps at ``rate_hz``; return latencies (ms), missing steps, final backlog (s)."""
@@ -485,6 +492,21 @@ def cpu_per_step(pids: dict[str, int], before: dict[str, float], steps: int) -> 
     return {name: (cpu_seconds(pid) - before[name]) / steps * 1e3 for name, pid in pids.items()}
 
 
+def steps_at(rate: float) -> int:
+    """The steps of a run at ``rate`` steps/s: two seconds' worth, at least 100."""
+    return max(100, int(rate * 2))
+
+
+def rate_run(driver: Driver, pids: dict[str, int], rollout_id: int,
+             rate: float) -> tuple[np.ndarray, int, float, dict[str, float]]:
+    """One run of :func:`steps_at` steps at ``rate``: :meth:`Driver.run`'s latencies, missing steps and backlog, and
+    the CPU milliseconds per step of each process of ``pids``."""
+    before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    steps = steps_at(rate)
+    latencies, missing, backlog = driver.run(rollout_id, steps, rate)
+    return latencies, missing, backlog, cpu_per_step(pids, before, steps)
+
+
 def rate_line(shape: Shape, rate: float, latencies: np.ndarray, missing: int, backlog: float, ok: bool,
               cpu: dict[str, float]) -> str:
     """One sustained-rate run: lost steps, backlog, latency, and where the CPU went (ms per step per process)."""
@@ -538,14 +560,12 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
                                       "suite_s": suite_s, "suite_own_s": suite_own_s, "plain_s": plain}
             for i, rate in enumerate(rates):
                 counted = driver.fresh_counters()
-                before = {name: cpu_seconds(pid) for name, pid in pids.items()}
-                n = max(100, int(rate * 2))
-                lat_r, missing_r, backlog = driver.run(10 + i, n, rate)
+                lat_r, missing_r, backlog, cpu = rate_run(driver, pids, 10 + i, rate)
                 ok = missing_r == 0 and backlog < 0.5
-                print(rate_line(shape, rate, lat_r, missing_r, backlog, ok, cpu_per_step(pids, before, n)), flush=True)
+                print(rate_line(shape, rate, lat_r, missing_r, backlog, ok, cpu), flush=True)
                 if not ok:
                     print(f"  {shape.name}: {rate:6.0f} steps/s, where the steps went: "
-                          f"{where_lost(counted, driver.fresh_counters(), n)}", flush=True)
+                          f"{where_lost(counted, driver.fresh_counters(), steps_at(rate))}", flush=True)
                     break
                 result["sustained_hz"] = rate
             driver_profile.disable()
@@ -605,21 +625,14 @@ def bench_floor(shape: Shape, steps: int) -> dict[str, Any]:
         procs = {f"{role} stand-in": _start([sys.executable, "-m", null_suite.__name__, role], domain)
                  for role in null_suite.ROLES}
         try:
-            end = time.monotonic() + STARTUP_TIMEOUT_S
-            while not driver.wired():
-                if time.monotonic() > end:
-                    raise RuntimeError("the null suite did not come up")
-                driver.executor.spin_once(timeout_sec=POLL_S)
+            driver.wait_wired("the null suite")
             driver.spin_for(1.0)
             driver.run(1, 20, 10.0)  # warm-up, as the suite's
             lat, missing, _ = driver.run(2, steps, 10.0)
             pids = {name: proc.pid for name, proc in procs.items()} | {"driver": os.getpid()}
-            before = {name: cpu_seconds(pid) for name, pid in pids.items()}
-            n = max(100, int(shape.target_rate * 2))
-            lat_r, missing_r, backlog = driver.run(3, n, shape.target_rate)
+            _, missing_r, backlog, cpu = rate_run(driver, pids, 3, shape.target_rate)
             return {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)),
-                    "missing_at_10hz": missing, "missing_at_rate": missing_r, "backlog_s": backlog,
-                    "cpu": cpu_per_step(pids, before, n)}
+                    "missing_at_10hz": missing, "missing_at_rate": missing_r, "backlog_s": backlog, "cpu": cpu}
         finally:
             driver.close()
             for proc in procs.values():
