@@ -81,15 +81,17 @@ def _validated_cell(cell: np.ndarray, dims: int) -> np.ndarray:
     cell = np.asarray(cell, dtype=np.float64)
     if cell.shape != (dims,):
         raise ValueError(f"cell_size must have shape ({dims},), got {cell.shape}")
-    if np.any(~np.isfinite(cell)) or np.any(cell < 0):
+    if not (np.isfinite(cell).all() and (cell >= 0).all()):
         raise ValueError(f"cell_size must be finite and >= 0, got {cell}")
     return cell
 
 
 def _run_entropies(starts: np.ndarray, groups: int, samples: int) -> np.ndarray:
     """Entropy per group from a flat mask marking the first element of each run of equal cells."""
-    positions = np.flatnonzero(starts)
-    counts = np.diff(np.append(positions, groups * samples))
+    positions = starts.nonzero()[0]
+    counts = np.empty_like(positions)  # each run's length: up to the next run's start, the last to the end
+    np.subtract(positions[1:], positions[:-1], out=counts[:-1])
+    counts[-1] = groups * samples - positions[-1]
     p = counts / samples
     return np.bincount(positions // samples, weights=-p * np.log2(p), minlength=groups)
 
@@ -111,7 +113,7 @@ def _histogram_entropies(index: np.ndarray, n_bins: np.ndarray, cells: int) -> n
     dims, groups, samples = index.shape
     codes = _codes(index, n_bins) + (np.arange(groups, dtype=np.int64) * cells)[:, None]
     counts = np.bincount(codes.ravel(), minlength=groups * cells)
-    filled = np.flatnonzero(counts)
+    filled = counts.nonzero()[0]
     p = counts[filled] / samples
     return np.bincount(filled // cells, weights=-p * np.log2(p), minlength=groups)
 
@@ -193,11 +195,12 @@ def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: flo
     *lead, samples, horizon, dims = x.shape
     if samples < 1 or horizon < 1 or dims < 1:
         raise ValueError(f"actions have an empty axis: shape {x.shape}")
-    if not np.all(np.isfinite(x)):  # in float64 as in float32 or any other dtype: the conversion keeps finiteness
+    if not np.isfinite(x).all():  # in float64 as in float32 or any other dtype: the conversion keeps finiteness
         raise ValueError("actions contain NaN/inf")
     cell = _validated_cell(cell_size, dims)
     # One copy, in float64 and the [D, steps, B] layout at once, which the counting may overwrite.
-    grouped = np.array(np.moveaxis(np.moveaxis(x, -1, 0), -2, -1), dtype=np.float64, order="C")
+    last = x.ndim - 1
+    grouped = np.array(x.transpose(last, *range(last - 2), last - 1, last - 2), dtype=np.float64, order="C")
     return _grouped_entropies(grouped.reshape(dims, -1, samples), cell, range_buffer).reshape(*lead, horizon)
 
 

@@ -25,8 +25,9 @@ class NonFiniteScore(ValueError):
 
 def finite(scores: np.ndarray, what: str) -> np.ndarray:
     """``scores`` unchanged if every entry is finite, else :class:`NonFiniteScore` naming the first bad index."""
-    bad = np.flatnonzero(~np.isfinite(scores))
-    if bad.size:
+    finite_entries = np.isfinite(scores)
+    if not finite_entries.all():
+        bad = np.flatnonzero(~finite_entries)
         first = np.unravel_index(int(bad[0]), np.shape(scores)) if np.ndim(scores) else ()
         where = f" at index {tuple(int(i) for i in first)}" if first else ""
         raise NonFiniteScore(f"{what} is {np.ravel(scores)[bad[0]]}{where} ({bad.size} non-finite)")
