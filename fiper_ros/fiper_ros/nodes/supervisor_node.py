@@ -3,6 +3,10 @@
 lasts longer than its own ``deadline_s``. While the alarm topic has a publisher other than
 ``alarm_publishers``, or more than one live publisher, the stream cannot be attributed to the suite: an OK
 counts as UNKNOWN (reported as an ERROR on /diagnostics).
+
+A halt is done when the service's reply says ``success`` (:mod:`fiper_ros.runtime.halt_delivery`): a service
+that is not available, refuses or does not answer within ``halt_timeout_s`` is asked again every
+``halt_retry_s`` until it confirms, and meanwhile the supervisor reports an ERROR on /diagnostics saying why.
 """
 from __future__ import annotations
 
@@ -23,8 +27,14 @@ from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, DIAGNOSTICS, EVENTS
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.main import run_node
+from fiper_ros.runtime.halt_delivery import HaltDelivery
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
+
+#: How often the supervisor looks at its pending halt (a reply, the reply timeout, the retry time), steady clock.
+HALT_POLL_S = 0.02
+#: The shortest interval between two error lines about one pending halt (every failure is counted on /diagnostics).
+HALT_LOG_PERIOD_S = 5.0
 
 
 
@@ -51,12 +61,21 @@ class SupervisorNode(Node):
             read_only=True))
         self.declare_parameter("diagnostics_period_s", 1.0,
                                describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
+        self.declare_parameter("halt_timeout_s", 1.0,
+                               describe("longest wait for the halt service's reply; then the halt counts as unanswered",
+                                        read_only=True, low=0.01, high=60.0))
+        self.declare_parameter("halt_retry_s", 0.5,
+                               describe("wait before asking again for a halt the service did not confirm (not available, "
+                                        "refused, unanswered)", read_only=True, low=0.01, high=60.0))
         self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),
                                      self.get_parameter("silence_periods").value,
                                      int(self.get_parameter("silence_floor_s").value * 1e9))
         self.halts: list[HaltDecision] = []
         #: Halts decided since the start (``halts`` keeps only the recent ones).
         self.halted = 0
+        self.delivery = HaltDelivery(int(self.get_parameter("halt_timeout_s").value * 1e9),
+                                     int(self.get_parameter("halt_retry_s").value * 1e9))
+        self._halt_future: Any = None
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state; with the
@@ -69,6 +88,7 @@ class SupervisorNode(Node):
                                          self.alarm_topic, info.not_alive_count)))
         self.create_subscription(RolloutEvent, self.get_parameter("events_topic").value, self._on_event, qos.EVENT)
         self.create_timer(0.02, self._on_clock)
+        self.create_timer(HALT_POLL_S, self._deliver, clock=self._steady)
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics,
                           clock=self._steady)
@@ -95,8 +115,9 @@ class SupervisorNode(Node):
                                      self._steady.now().nanoseconds))
 
     def _publish_diagnostics(self) -> None:
-        error = self.publisher_check.error()
-        values = {"halts": str(self.halted)} | self.publisher_check.diagnostic_values()
+        error = "; ".join(e for e in (self.delivery.error(), self.publisher_check.error()) if e)
+        values = ({"halts": str(self.halted)} | self.delivery.diagnostic_values()
+                  | self.publisher_check.diagnostic_values())
         self._diagnostics.publish(diagnostic_array(self, DiagnosticStatus.ERROR if error else DiagnosticStatus.OK,
                                                    error or "watching", values))
 
@@ -113,10 +134,35 @@ class SupervisorNode(Node):
         self.halted += 1
         del self.halts[:-HALTED_MEMORY]  # the recent ones: one per new rollout id would grow without end
         self.get_logger().warning(f"halting the robot (rollout {decision.rollout_id}): {decision.reason}")
+        self.delivery.decide(decision, self._steady.now().nanoseconds)
+        self._deliver()
+
+    def _deliver(self) -> None:
+        """Take the reply to the halt request in flight, give up waiting for it past ``halt_timeout_s``, and send
+        the pending halt when it is due."""
+        delivery, now = self.delivery, self._steady.now().nanoseconds
+        future = self._halt_future
+        if future is not None and future.done():
+            self._halt_future = None
+            response = future.result()
+            confirmed = delivery.replied(response.success, response.message, now)
+            if confirmed is not None:
+                self.get_logger().info(f"halt of rollout {confirmed.decision.rollout_id} confirmed after "
+                                       f"{confirmed.attempts} request(s): {response.message}")
+            else:
+                self.get_logger().error(delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
+        elif future is not None and delivery.timed_out(now):
+            self._halt.remove_pending_request(future)  # a late reply is not taken: the halt is asked again
+            self._halt_future = None
+            self.get_logger().error(delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
+        if not delivery.due(now):
+            return
         if self._halt.service_is_ready():
-            self._halt.call_async(Trigger.Request())
+            self._halt_future = self._halt.call_async(Trigger.Request())
+            delivery.sent(now)
         else:
-            self.get_logger().error(f"halt service {self._halt.srv_name} is not available")
+            delivery.unavailable(self._halt.srv_name, now)
+            self.get_logger().error(delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
 
 
 #: The node class, for in-process launching.
