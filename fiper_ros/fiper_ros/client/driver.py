@@ -31,6 +31,7 @@ from fiper_ros.core.detectors import LABELS, SIDES
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EVENTS, SIM_RESET
+from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
@@ -60,11 +61,6 @@ class SuiteFailed(RuntimeError):
     def __init__(self, message: str, output: str = "") -> None:
         super().__init__(message)
         self.output = output
-
-
-def node_path(namespace: str, name: str) -> str:
-    """``/namespace/name`` of a node."""
-    return f"{namespace.rstrip('/')}/{name}"
 
 
 def state_name(msg: FailureAlarm) -> str:
@@ -189,7 +185,7 @@ class Driver:
         deadline = time.monotonic() + timeout_s
 
         def missing() -> list[str]:
-            names = {node_path(namespace, name) for name, namespace in self.node.get_node_names_and_namespaces()}
+            names = {fully_qualified(namespace, name) for name, namespace in self.node.get_node_names_and_namespaces()}
             waiting = [n for n in managed if self.lifecycle_state(n) != "active"]
             own = Counter(s.topic_name for s in self.node.subscriptions)
             waiting += missing_matches(self.diagnostics, managed, own) if not waiting else []

@@ -35,7 +35,7 @@ from sim_bridge.tasks import TASKS
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.collect_index import RanEpisode
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, node_path
+from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import (DETECTOR_TOPICS, SuiteProcess, installed_launch, scoring_modules,
@@ -166,7 +166,7 @@ class RosRunner:
         judged = f"; judged by {judged_by(self.settings.detectors)}" if self.scored else ""
         print(f"starting {names} in ROS domain {domain} (loopback only){judged} ...", file=sys.stderr, flush=True)
         with self._reported():
-            driver.wait_ready([node_path(spec.namespace, spec.name) for spec in config.nodes], READY_TIMEOUT_S)
+            driver.wait_ready([spec.fqn for spec in config.nodes], READY_TIMEOUT_S)
         print(f"all nodes active after {time.monotonic() - started:.1f} s", file=sys.stderr, flush=True)
         self._driver, self._recorder = driver, recorder
 

@@ -29,7 +29,7 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError, fail
-from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, node_path, state_name
+from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, state_name
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -133,12 +133,12 @@ def demo_config(source: Path, model: Path, calibration: Path, detectors: tuple[s
 
 def managed_nodes(config: LaunchConfig) -> list[str]:
     """The nodes of ``config`` (``/ns/name``) that must report ``active``: all but the plain ones (:data:`PLAIN`)."""
-    return [path for spec in config.nodes if (path := node_path(spec.namespace, spec.name)) not in PLAIN]
+    return [path for spec in config.nodes if (path := spec.fqn) not in PLAIN]
 
 
 def plain_nodes(config: LaunchConfig) -> list[str]:
     """The plain nodes of ``config`` (``/ns/name``), which only have to be in the graph."""
-    return [path for spec in config.nodes if (path := node_path(spec.namespace, spec.name)) in PLAIN]
+    return [path for spec in config.nodes if (path := spec.fqn) in PLAIN]
 
 
 def check_calibration(model: Path, calibration: Path) -> None:
