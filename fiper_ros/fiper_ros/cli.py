@@ -11,6 +11,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from fiper_ros import __version__
+from fiper_ros.dds import interruptible
 
 #: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``; one whose
 #: ``INTERMIXED`` is true has its options parsed anywhere among its positional arguments.
@@ -57,6 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``fiper COMMAND ...``; return the process exit status."""
+    interruptible()  # first: a Ctrl-C during the imports below stops the command
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
         build_parser().parse_args(argv)  # prints help, version or the usage error, and exits

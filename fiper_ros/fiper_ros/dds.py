@@ -13,6 +13,8 @@ import os
 import random
 import signal
 import sys
+import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -24,6 +26,8 @@ DOMAIN_RANGE = range(1, 102)
 #: A process started with this set to its parent's pid ends when that parent does (:func:`die_with_parent`):
 #: ``fiper launch`` sets it for each node, the test fixtures for each launcher they start.
 PARENT_PID_ENV = "FIPER_PARENT_PID"
+#: How long :func:`interrupt_group` waits for a process to stop ignoring SIGINT before it sends it anyway.
+INTERRUPTIBLE_WAIT_S = 2.0
 #: A node process prints every thread's Python stack on this signal and runs on (``faulthandler``); ``fiper launch``
 #: sends it to a node that did not stop within its grace period, before killing it.
 STACKS_SIGNAL = signal.SIGUSR1
@@ -98,6 +102,41 @@ def die_with(parent: int) -> None:
         raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG) failed")
     if os.getppid() != parent:  # the parent died before the request was in place
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def interruptible() -> None:
+    """Take SIGINT as this process's stop request (Python's ``KeyboardInterrupt``) also when it started with SIGINT
+    ignored, as it inherits from a parent started that way (a background job of a shell without job control, a
+    test run in the background). The project's tools stop what they start with SIGINT: ``fiper launch`` under a
+    demo, a replay or a test fixture would otherwise miss a Ctrl-C sent before it installs its own handler, go on
+    starting the suite, and be killed only after its starter's timeout (measured: a refused replay took 25 s
+    instead of 1 s). In the main thread only, where Python handles signals."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def ignores_sigint(pid: int) -> bool:
+    """Whether live process ``pid`` ignores SIGINT now (Linux: ``SigIgn`` of its ``/proc`` status; False for a process
+    that is gone or a zombie, and where it cannot be read)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
+    if fields.get("State", "").strip().startswith("Z") or "SigIgn" not in fields:
+        return False
+    return bool(int(fields["SigIgn"], 16) >> (signal.SIGINT - 1) & 1)
+
+
+def interrupt_group(pid: int, wait_s: float = INTERRUPTIBLE_WAIT_S) -> None:
+    """Ctrl-C the process group of ``pid``, a process we started in a session of its own. While ``pid`` still ignores
+    SIGINT (inherited, and not yet restored by :func:`interruptible` or its rclpy's handler, in its first
+    milliseconds) wait, at most ``wait_s``: a SIGINT sent then would be lost. ``ProcessLookupError`` when the group
+    is gone."""
+    end = time.monotonic() + wait_s
+    while ignores_sigint(pid) and time.monotonic() < end:
+        time.sleep(0.005)
+    os.killpg(pid, signal.SIGINT)
 
 
 def die_with_parent() -> None:

@@ -22,7 +22,7 @@ from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.dds import PARENT_PID_ENV
+from fiper_ros.dds import PARENT_PID_ENV, interrupt_group
 from fiper_ros.interface.topics import score_topic
 from fiper_ros.nodes.graph_watch import NOT_NAMED, PUBLISHERS_KEY
 from fiper_ros.nodes.main import TEARDOWN_S
@@ -80,7 +80,7 @@ class Launch:
         """Ctrl-C the launch (unless it has exited already); its exit status."""
         if self.proc.poll() is not None:
             return self.proc.returncode
-        os.killpg(self.proc.pid, signal.SIGINT)
+        interrupt_group(self.proc.pid)
         return self.proc.wait(timeout=30)
 
     def exit_statuses(self) -> dict[str, int]:

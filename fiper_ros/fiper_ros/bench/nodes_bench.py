@@ -43,7 +43,6 @@ import argparse
 import cProfile
 import os
 import re
-import signal
 import subprocess
 import sys
 import tempfile
@@ -60,7 +59,7 @@ from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.dds import allocate_domain, local_env
+from fiper_ros.dds import allocate_domain, interrupt_group, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.nodes import container
@@ -216,7 +215,7 @@ def own_active_s(output: Path) -> dict[str, float]:
 
 def _stop(process: subprocess.Popen[bytes]) -> None:
     """SIGINT to the process group (the launcher passes it on to its nodes), then wait."""
-    os.killpg(process.pid, signal.SIGINT)
+    interrupt_group(process.pid)
     process.wait(timeout=30)
 
 

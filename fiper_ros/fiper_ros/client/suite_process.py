@@ -25,7 +25,7 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
 from fiper_ros.core.kinematics import RobotModel
-from fiper_ros.dds import PARENT_PID_ENV, local_env
+from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
 from fiper_ros.interface.topics import ACTIONS, EMBEDDING, JOINT_STATES, SCORE_ACE, SCORE_RND_OE, TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
@@ -153,7 +153,7 @@ class SuiteProcess:
     def stop(self, timeout_s: float = 20.0) -> int:
         """Ctrl-C the launcher (it stops its nodes), SIGKILL the group if it hangs; its exit status."""
         if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGINT)
+            interrupt_group(self.proc.pid)
             try:
                 self.proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
