@@ -16,13 +16,22 @@ def delivery() -> HaltDelivery:
     return HaltDelivery(TIMEOUT, RETRY)
 
 
+def test_timeout_and_retry_must_be_positive() -> None:
+    for timeout, retry in ((0, 1), (1, 0), (-1, 1), (1, -1)):
+        with pytest.raises(ValueError, match=r"^reply_timeout_ns and retry_ns must be > 0$"):
+            HaltDelivery(timeout, retry)
+    assert HaltDelivery(1, 1).pending is None  # one nanosecond each is allowed
+
+
 def test_nothing_is_due_before_a_decision() -> None:
     d = delivery()
     assert not d.due(0) and not d.timed_out(10**12) and d.error() == ""
     assert d.diagnostic_values() == {"halts_confirmed": "0", "halt_pending": "none", "halt_unavailable": "0",
                                      "halt_refused": "0", "halt_unanswered": "0"}
-    with pytest.raises(RuntimeError, match="no halt is pending"):
-        d.sent(0)
+    for report, name in ((lambda: d.sent(0), "sent"), (lambda: d.replied(True, "", 0), "replied"),
+                         (lambda: d.unavailable("/halt", 0), "unavailable")):
+        with pytest.raises(RuntimeError, match=rf"^{name}: no halt is pending$"):
+            report()
 
 
 def test_a_confirmed_halt_is_no_longer_pending() -> None:
@@ -33,8 +42,11 @@ def test_a_confirmed_halt_is_no_longer_pending() -> None:
     assert not d.due(11 * MS) and d.error() == ""  # the first request in flight is no failure yet
     confirmed = d.replied(True, "rollout 3 halted", 12 * MS)
     assert confirmed is not None and confirmed.decision.rollout_id == 3 and confirmed.attempts == 1
-    assert d.pending is None and d.confirmed == 1 and d.last_confirmation == "rollout 3 halted"
+    assert d.pending is None and d.confirmed == 1
     assert not d.due(10**12) and d.error() == ""
+    d.decide(HaltDecision(4, "silence"), 20 * MS)  # the next rollout's halt: counted on
+    d.sent(20 * MS)
+    assert d.replied(True, "rollout 4 halted", 21 * MS) is not None and d.confirmed == 2
 
 
 def test_a_refused_halt_is_asked_again_after_the_retry_interval_and_reported_until_confirmed() -> None:
@@ -47,20 +59,23 @@ def test_a_refused_halt_is_asked_again_after_the_retry_interval_and_reported_unt
     assert not d.due(5 * MS + RETRY - 1) and d.due(5 * MS + RETRY)
     d.sent(5 * MS + RETRY)
     assert d.error()  # still not confirmed while the second request is in flight
-    assert d.replied(True, "ok", 60 * MS) is not None and d.error() == "" and d.confirmed == 1
+    assert d.replied(False, "still busy", 60 * MS) is None and d.failures[REFUSED] == 2
+    assert d.error() == "halt of rollout 3 not confirmed after 2 request(s): the halt service refused: 'still busy'"
+    d.sent(60 * MS + RETRY)
+    assert d.replied(True, "ok", 120 * MS) is not None and d.error() == "" and d.confirmed == 1
 
 
 def test_an_unanswered_halt_times_out_and_is_asked_again() -> None:
-    d = delivery()
-    d.decide(HaltDecision(4, "silence"), 0)
-    d.sent(0)
-    assert not d.timed_out(TIMEOUT)  # at the timeout exactly it still waits
-    assert d.timed_out(TIMEOUT + 1) and d.failures[UNANSWERED] == 1
-    assert "no reply within 0.1 s" in d.error()
-    assert not d.timed_out(TIMEOUT + 2)  # counted once
-    with pytest.raises(RuntimeError, match="no request in flight"):
-        d.replied(True, "late", TIMEOUT + 3)  # the caller forgets the request: a late reply is a caller's bug
-    assert not d.due(TIMEOUT + RETRY) and d.due(TIMEOUT + 1 + RETRY)
+    d, sent = delivery(), 10**12  # times far from 0: an elapsed time is a difference
+    d.decide(HaltDecision(4, "silence"), sent)
+    d.sent(sent)
+    assert not d.timed_out(sent + TIMEOUT)  # at the timeout exactly it still waits
+    assert d.timed_out(sent + TIMEOUT + 1) and d.failures[UNANSWERED] == 1
+    assert d.error() == "halt of rollout 4 not confirmed after 1 request(s): no reply within 0.1 s"
+    assert not d.timed_out(sent + TIMEOUT + 2)  # counted once
+    with pytest.raises(RuntimeError, match=r"^a reply with no request in flight$"):
+        d.replied(True, "late", sent + TIMEOUT + 3)  # the caller forgets the request: a late reply is a caller's bug
+    assert not d.due(sent + TIMEOUT + RETRY) and d.due(sent + TIMEOUT + 1 + RETRY)
 
 
 def test_an_unavailable_service_is_counted_and_retried_without_a_request() -> None:

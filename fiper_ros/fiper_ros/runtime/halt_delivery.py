@@ -27,13 +27,12 @@ class PendingHalt:
     """A decided halt that the halt service has not confirmed yet."""
 
     decision: HaltDecision
-    decided_ns: int
+    retry_ns: int
+    """The earliest time of the next attempt."""
     attempts: int = 0
     """Requests sent for it (an unavailable service takes none)."""
     sent_ns: int | None = None
     """When the request in flight was sent; None: none in flight."""
-    retry_ns: int = 0
-    """The earliest time of the next attempt."""
     failure: str = ""
     """Why the last attempt did not confirm it (``""``: no attempt has failed)."""
 
@@ -49,13 +48,11 @@ class HaltDelivery:
         self.pending: PendingHalt | None = None
         self.confirmed = 0
         self.failures = dict.fromkeys(FAILURES, 0)
-        self.last_confirmation = ""
-        """The halt service's message of the latest confirmed halt."""
 
     def decide(self, decision: HaltDecision, now_ns: int) -> None:
         """A new halt decision: pending from now, due at once unless a request for the pending one is in flight."""
         if self.pending is None:
-            self.pending = PendingHalt(decision, now_ns, retry_ns=now_ns)
+            self.pending = PendingHalt(decision, now_ns)
         else:
             self.pending.decision = decision
             self.pending.retry_ns = min(self.pending.retry_ns, now_ns)
@@ -86,7 +83,6 @@ class HaltDelivery:
             return None
         self.pending = None
         self.confirmed += 1
-        self.last_confirmation = message
         return pending
 
     def timed_out(self, now_ns: int) -> bool:
