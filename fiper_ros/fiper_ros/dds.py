@@ -128,14 +128,18 @@ def ignores_sigint(pid: int) -> bool:
     return bool(int(fields["SigIgn"], 16) >> (signal.SIGINT - 1) & 1)
 
 
-def interrupt_group(pid: int, wait_s: float = INTERRUPTIBLE_WAIT_S) -> None:
-    """Ctrl-C the process group of ``pid``, a process we started in a session of its own. While ``pid`` still ignores
-    SIGINT (inherited, and not yet restored by :func:`interruptible` or its rclpy's handler, in its first
-    milliseconds) wait, at most ``wait_s``: a SIGINT sent then would be lost. ``ProcessLookupError`` when the group
-    is gone."""
+def wait_interruptible(pid: int, wait_s: float = INTERRUPTIBLE_WAIT_S) -> None:
+    """Wait, at most ``wait_s``, while process ``pid`` (one we started) still ignores SIGINT: inherited, and not yet
+    restored by :func:`interruptible` or rclpy's handler in its first milliseconds. A SIGINT sent then is lost."""
     end = time.monotonic() + wait_s
     while ignores_sigint(pid) and time.monotonic() < end:
         time.sleep(0.005)
+
+
+def interrupt_group(pid: int, wait_s: float = INTERRUPTIBLE_WAIT_S) -> None:
+    """Ctrl-C the process group of ``pid``, a process we started in a session of its own, once it takes SIGINT
+    (:func:`wait_interruptible`). ``ProcessLookupError`` when the group is gone."""
+    wait_interruptible(pid, wait_s)
     os.killpg(pid, signal.SIGINT)
 
 

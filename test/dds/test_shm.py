@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from fiper_ros.dds import interrupt_group
 from fiper_ros.shm import SHM_DIR, clean_stale, group_files, maps_inodes
 from helpers.dds import ros_env, spawn_python, stop
 from helpers.launch import node_entry, write_launch
@@ -173,7 +174,7 @@ def test_the_launcher_reports_and_removes_stale_files_before_starting_nodes(tmp_
             assert launch.poll() is None and time.monotonic() < deadline, "\n".join(lines)
             time.sleep(0.1)
     finally:
-        os.killpg(launch.pid, signal.SIGINT)
+        interrupt_group(launch.pid)
         launch.wait(timeout=60)
         reader.join(timeout=10)
     assert re.fullmatch(r"\[launch\] removed \d+ stale Fast DDS shared-memory files .*", lines[0]), lines

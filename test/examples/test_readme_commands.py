@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Union
 
 import pytest
+
+from fiper_ros.dds import interrupt_group
 from helpers.dds import ros_env
 
 ROOT = Path(os.environ["FIPER_ROOT"])
@@ -296,7 +298,7 @@ class Scratch:
         for beside in entry.meanwhile:
             self.run(beside)
         assert proc.poll() is None, (command, "".join(lines)[-4000:])  # it was still serving
-        os.killpg(proc.pid, signal.SIGINT)
+        interrupt_group(proc.pid)
 
 
 @pytest.mark.slow

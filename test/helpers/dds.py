@@ -3,12 +3,13 @@ processes removed (fiper_ros.shm)."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from fiper_ros.dds import allocate_domain, local_env
+from fiper_ros.dds import allocate_domain, local_env, wait_interruptible
 from fiper_ros.shm import clean_stale
 
 __all__ = ["allocate_domain", "clean_stale", "ros_env", "run_python", "spawn_python", "stop"]
@@ -38,7 +39,8 @@ def spawn_python(args: Sequence[str], domain: int, **kwargs: object) -> subproce
 def stop(proc: subprocess.Popen[str], timeout: float = 10.0) -> str:
     """Interrupt ``proc`` (SIGINT, then SIGKILL after ``timeout``) and return its output."""
     if proc.poll() is None:
-        proc.send_signal(2)
+        wait_interruptible(proc.pid)  # a SIGINT before the helper takes it would be lost
+        proc.send_signal(signal.SIGINT)
         try:
             out, _ = proc.communicate(timeout=timeout)
             return out or ""

@@ -4,7 +4,6 @@ without importing numpy or pinocchio. (How fast that is, is ``make bench-nodes``
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -13,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import local_env
+from fiper_ros.dds import interrupt_group, local_env
 from fiper_ros.nodes import main
 from fiper_ros.nodes.main import DISCOVERY_PROFILE, FASTDDS_PROFILES_ENV, process_age_s, use_discovery_profile
 
@@ -113,7 +112,7 @@ def test_a_node_process_uses_the_profile_and_logs_its_start_up(ros_domain: int) 
             lines.append(line)
     finally:
         started = "".join(lines)  # up to ACTIVE: a Ctrl-C in the transition's last step may print an error after it
-        os.killpg(process.pid, signal.SIGINT)
+        interrupt_group(process.pid)
         lines += process.communicate(timeout=30)[0].splitlines(keepends=True)
     output = "".join(lines)
     assert f"DDS discovery: Fast DDS profile {OURS}" in started, output

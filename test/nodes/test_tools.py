@@ -20,7 +20,7 @@ import pytest
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.commands.echo import Printer
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import PARENT_PID_ENV
+from fiper_ros.dds import PARENT_PID_ENV, interrupt_group
 from fiper_ros.interface import qos
 from fiper_ros.nodes.main import DISCOVERY_PROFILE
 from helpers.dds import ros_env, spawn_python, stop
@@ -167,7 +167,7 @@ def test_launch_in_process_runs_the_suite_and_stops_on_ctrl_c(tmp_path: Path, ca
         executor.shutdown()
         driver.destroy_node()
         rclpy.try_shutdown(context=context)
-        os.killpg(launch.pid, signal.SIGINT)
+        interrupt_group(launch.pid)
         out = launch.communicate(timeout=30)[0]
     assert launch.returncode == 0, out
     assert out.count("running in-process") == 3
