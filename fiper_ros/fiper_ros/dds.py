@@ -26,7 +26,7 @@ DOMAIN_RANGE = range(1, 102)
 #: A process started with this set to its parent's pid ends when that parent does (:func:`die_with_parent`):
 #: ``fiper launch`` sets it for each node, the test fixtures for each launcher they start.
 PARENT_PID_ENV = "FIPER_PARENT_PID"
-#: How long :func:`interrupt_group` waits for a process to stop ignoring SIGINT before it sends it anyway.
+#: How long :func:`wait_interruptible` waits for a process to stop ignoring SIGINT (then it is sent anyway).
 INTERRUPTIBLE_WAIT_S = 2.0
 #: A node process prints every thread's Python stack on this signal and runs on (``faulthandler``); ``fiper launch``
 #: sends it to a node that did not stop within its grace period, before killing it.

@@ -150,11 +150,11 @@ class SupervisorNode(Node):
                 self.get_logger().info(f"halt of rollout {confirmed.decision.rollout_id} confirmed after "
                                        f"{confirmed.attempts} request(s): {response.message}")
             else:
-                self.get_logger().error(delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
+                self._report_unconfirmed()
         elif future is not None and delivery.timed_out(now):
             self._halt.remove_pending_request(future)  # a late reply is not taken: the halt is asked again
             self._halt_future = None
-            self.get_logger().error(delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
+            self._report_unconfirmed()
         if not delivery.due(now):
             return
         if self._halt.service_is_ready():
@@ -162,7 +162,11 @@ class SupervisorNode(Node):
             delivery.sent(now)
         else:
             delivery.unavailable(self._halt.srv_name, now)
-            self.get_logger().error(delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
+            self._report_unconfirmed()
+
+    def _report_unconfirmed(self) -> None:
+        """Log why the pending halt is not confirmed: one call site, so one throttle for every kind of failure."""
+        self.get_logger().error(self.delivery.error(), throttle_duration_sec=HALT_LOG_PERIOD_S)
 
 
 #: The node class, for in-process launching.
