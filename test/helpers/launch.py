@@ -94,8 +94,12 @@ class Launch:
     def stopped(self, name: str) -> bool:
         """Whether Ctrl-C stopped node process ``name`` within its teardown bound: cleanly (status 0), or, where the
         upstream DDS teardown race after a killed peer hung its teardown (docs/nodes.md), by its own watchdog after
-        ``TEARDOWN_S`` with its stacks printed (status 1; said as a warning, so the run shows it)."""
+        ``TEARDOWN_S`` with its stacks printed (status 1), or, where its exit hung after the teardown, by SIGALRM
+        past ``EXIT_S`` (both said as a warning, so the run shows it)."""
         status = self.exit_statuses()[name]
+        if status == -signal.SIGALRM:  # its exit hung after the teardown (the same race at exit): EXIT_S ended it
+            warnings.warn(f"{name}'s exit hung after its teardown and SIGALRM ended it past EXIT_S", stacklevel=2)
+            return True
         if status == 1 and f"[{name}] Timeout (0:00:{TEARDOWN_S:02.0f})!" in self.lines:
             warnings.warn(f"{name}'s teardown hung and its watchdog ended it:\n" + "\n".join(
                 line for line in self.lines if line.startswith(f"[{name}]"))[-3000:], stacklevel=2)

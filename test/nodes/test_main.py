@@ -10,7 +10,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 
-from fiper_ros.nodes.main import spin_until_shutdown
+from fiper_ros.nodes.main import EXIT_S, spin_until_shutdown
 from helpers.dds import spawn_python
 
 
@@ -103,6 +103,33 @@ def test_a_node_process_whose_teardown_hangs_prints_its_stacks_and_exits_1(ros_d
     assert status == 1, out
     assert "destroy_node called" in out and "Timeout (0:00:03)!" in out and "in destroy_node" in out, out
     assert time.monotonic() - began < 60
+
+
+def test_a_node_process_whose_exit_hangs_after_its_teardown_is_ended_within_exit_s(ros_domain: int) -> None:
+    """2026-12-03, a test run of the whole suite: after test_faults' respawn test an RND-OE process had finished its
+    teardown and hung in its exit. Among the C++ static destructors, Fast DDS's participant factory busy-waited for a
+    discovery callback that waited for a lock the exiting thread held. Orphaned, SIGTERM already ignored, the
+    process spun 85% of a core for 30 minutes. An exit that hangs (here in an atexit handler) now ends past
+    EXIT_S."""
+    body = textwrap.dedent("""\
+        import atexit, time, rclpy.node
+        def hang():
+            print("exit hangs", flush=True)
+            while True:  # an exit that never returns, whatever signal comes
+                try:
+                    time.sleep(60)
+                except KeyboardInterrupt:
+                    pass
+        atexit.register(hang)
+        node = rclpy.node.Node("probe")
+        node.create_timer(0.05, lambda: print("spinning", flush=True))
+        return node""")
+    began = time.monotonic()
+    status, out = _run_node_process(body, ros_domain, interrupt_after="spinning")
+    took = time.monotonic() - began
+    assert status == -signal.SIGALRM, out
+    assert "exit hangs" in out, out
+    assert EXIT_S <= took < 30, took
 
 
 def test_a_signal_while_the_node_is_built_ends_the_process_quietly(ros_domain: int) -> None:

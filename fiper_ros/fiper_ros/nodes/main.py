@@ -5,7 +5,9 @@ collector's reach (``gc.freeze``): a full collection then only walks what the ca
 no longer stalls a callback for milliseconds (the tail of the node benchmark, docs/benchmarks.md).
 A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows; so does
 :data:`~fiper_ros.dds.STACKS_SIGNAL` (SIGUSR1), which the launcher sends a node that does not stop within its grace period
-before it kills it, and so does a teardown that outlasts :data:`TEARDOWN_S`, which then ends the process.
+before it kills it, and so does a teardown that outlasts :data:`TEARDOWN_S`, which then ends the process. The exit
+after the teardown (Python's finalization, then the C++ static destructors) is bounded by :data:`EXIT_S`: SIGALRM,
+whose default action ends the process.
 A node started by ``fiper launch`` dies with it (``FIPER_PARENT_PID``: Linux's parent-death signal), so a
 killed launcher never leaves a stale suite speaking on the suite's topics.
 
@@ -49,6 +51,11 @@ TEARDOWN_S = 3.0
 """Longest teardown once the callbacks have finished (destroying the nodes, shutting rclpy down): past it the process
 prints every thread's stack and exits with status 1 (``faulthandler``), its DDS entities not deleted. An upstream
 rmw_fastrtps race can hang that teardown when a peer was killed a few seconds before (docs/nodes.md)."""
+EXIT_S = 3
+"""Longest exit of a node process after its teardown: Python's finalization, then the C++ static destructors, where
+Fast DDS 2.14 can deadlock deleting a participant still left to its factory (a discovery thread waits for a lock
+that the exiting thread holds while it busy-waits for that thread's callback to end; 2026-12-03, docs/nodes.md).
+Past it SIGALRM ends the process (the signal's default action)."""
 #: Environment variable that chooses the executor of every single-threaded node process: :data:`EXECUTOR_EVENTS` or
 #: :data:`EXECUTOR_SINGLE`.
 EXECUTOR_ENV = "FIPER_EXECUTOR"
@@ -245,8 +252,11 @@ def run_nodes(factories: Sequence[Callable[..., Any]], args: list[str] | None = 
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # shutting down already: a SIGTERM now would re-enter it
         faulthandler.dump_traceback_later(TEARDOWN_S, exit=True)
-        for node in reversed(nodes):
-            node.destroy_node()
-        shut_down()
-        faulthandler.cancel_dump_traceback_later()
+        try:
+            for node in reversed(nodes):
+                node.destroy_node()
+            shut_down()
+            faulthandler.cancel_dump_traceback_later()
+        finally:
+            signal.alarm(EXIT_S)  # no handler: past EXIT_S the kernel ends the process, wherever its exit hangs
     return 0
