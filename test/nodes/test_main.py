@@ -70,12 +70,24 @@ def _run_node_process(factory_body: str, domain: int, interrupt_after: str | Non
     return child.returncode, "".join(lines) + out
 
 
+#: The end of a child's factory body: its node prints "spinning" every 50 ms; the factory returns it.
+SPINNING = 'node.create_timer(0.05, lambda: print("spinning", flush=True))\nreturn node'
+
+
+def _hang(said: str) -> str:
+    """Child code that prints ``said`` and then never returns, whatever signal comes (a hung teardown or exit)."""
+    return textwrap.dedent(f"""\
+        print({said!r}, flush=True)
+        while True:
+            try:
+                time.sleep(60)
+            except KeyboardInterrupt:
+                pass""")
+
+
 def test_a_stopped_node_process_destroys_its_node_and_exits_0(ros_domain: int) -> None:
     # destroying the node deletes its DDS entities and their shared-memory segments (docs/nodes.md)
-    body = PROBE + textwrap.dedent("""\
-        node = Probe("probe")
-        node.create_timer(0.05, lambda: print("spinning", flush=True))
-        return node""")
+    body = PROBE + 'node = Probe("probe")\n' + SPINNING
     status, out = _run_node_process("import rclpy.node\n" + body, ros_domain, interrupt_after="spinning")
     assert status == 0, out
     assert "destroy_node called" in out
@@ -85,19 +97,8 @@ def test_a_node_process_whose_teardown_hangs_prints_its_stacks_and_exits_1(ros_d
     """CI of cb728d1: after the test killed ACE, Ctrl-C left the RND-OE process running until the launcher killed it
     5 s later (the upstream DDS teardown race after a peer died, docs/nodes.md). Past TEARDOWN_S the process now
     says where it hangs and ends itself."""
-    body = textwrap.dedent("""\
-        import time, rclpy.node
-        class Hanging(rclpy.node.Node):
-            def destroy_node(self):
-                print("destroy_node called", flush=True)
-                while True:  # a teardown that never returns, whatever signal comes
-                    try:
-                        time.sleep(60)
-                    except KeyboardInterrupt:
-                        pass
-        node = Hanging("probe")
-        node.create_timer(0.05, lambda: print("spinning", flush=True))
-        return node""")
+    body = ("import time, rclpy.node\nclass Hanging(rclpy.node.Node):\n    def destroy_node(self):\n"
+            + textwrap.indent(_hang("destroy_node called"), " " * 8) + '\nnode = Hanging("probe")\n' + SPINNING)
     began = time.monotonic()
     status, out = _run_node_process(body, ros_domain, interrupt_after="spinning")
     assert status == 1, out
@@ -111,19 +112,8 @@ def test_a_node_process_whose_exit_hangs_after_its_teardown_is_ended_within_exit
     discovery callback that waited for a lock the exiting thread held. Orphaned, SIGTERM already ignored, the
     process spun 85% of a core for 30 minutes. An exit that hangs (here in an atexit handler) now ends past
     EXIT_S."""
-    body = textwrap.dedent("""\
-        import atexit, time, rclpy.node
-        def hang():
-            print("exit hangs", flush=True)
-            while True:  # an exit that never returns, whatever signal comes
-                try:
-                    time.sleep(60)
-                except KeyboardInterrupt:
-                    pass
-        atexit.register(hang)
-        node = rclpy.node.Node("probe")
-        node.create_timer(0.05, lambda: print("spinning", flush=True))
-        return node""")
+    body = ("import atexit, time, rclpy.node\ndef hang():\n" + textwrap.indent(_hang("exit hangs"), " " * 4)
+            + '\natexit.register(hang)\nnode = rclpy.node.Node("probe")\n' + SPINNING)
     began = time.monotonic()
     status, out = _run_node_process(body, ros_domain, interrupt_after="spinning")
     took = time.monotonic() - began
