@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fiper_ros.core.window import MODES, WindowAccumulator, aggregate, cumulative, windowed
+from fiper_ros.core.window import MODES, WindowAccumulator, aggregate, cumulative, max_pooled, windowed
 
 
 def test_hand_computed_window() -> None:
@@ -13,6 +13,15 @@ def test_hand_computed_window() -> None:
     assert np.array_equal(windowed(scores, 2), [1.0, 3.0, 5.0, 7.0, 9.0])
     assert np.array_equal(windowed(scores, 3), [1.0, 3.0, 6.0, 9.0, 12.0])
     assert np.array_equal(windowed(scores, 1), scores)
+
+
+def test_hand_computed_max_pooling() -> None:
+    scores = np.array([1.0, 5.0, 2.0, 0.0, 3.0, 1.0])
+    assert max_pooled(scores, 2).tolist() == [1.0, 5.0, 5.0, 2.0, 3.0, 3.0]
+    assert max_pooled(scores, 3).tolist() == [1.0, 5.0, 5.0, 5.0, 3.0, 3.0]
+    assert max_pooled(scores, 1).tolist() == scores.tolist()
+    assert max_pooled(scores, 50).tolist() == [1.0, 5.0, 5.0, 5.0, 5.0, 5.0]  # longer than the rollout: running max
+    assert aggregate(scores, "max", 2).tolist() == max_pooled(scores, 2).tolist()
 
 
 def test_window_longer_than_rollout_is_the_cumulative_sum() -> None:
@@ -33,7 +42,8 @@ def test_aggregate_modes() -> None:
 
 
 @pytest.mark.parametrize(
-    ("mode", "w"), [("window", 1), ("window", 4), ("window", 40), ("cumulative", 1), ("single", 1)]
+    ("mode", "w"), [("window", 1), ("window", 4), ("window", 40), ("cumulative", 1), ("single", 1), ("max", 1),
+                    ("max", 4), ("max", 40)]
 )
 def test_streaming_equals_vectorised_bit_for_bit(mode: str, w: int) -> None:
     rng = np.random.default_rng(w)
@@ -52,17 +62,26 @@ def test_a_non_finite_score_never_enters_the_window(mode: str) -> None:
     for bad in (np.nan, np.inf, -np.inf):
         with pytest.raises(ValueError, match="non-finite"):
             window.push(bad)
-    assert window.push(2.0) == (2.0 if mode == "single" else 3.0)  # 1 + 2: nothing of the bad ones stayed
+    assert window.push(2.0) == {"single": 2.0, "max": 2.0}.get(mode, 3.0)  # 1 + 2 (max 2): none of the bad ones stayed
     with pytest.raises(ValueError, match="finite"):
         aggregate(np.array([1.0, np.nan]), mode, 3)
 
 
-@pytest.mark.parametrize(("mode", "expected"), [("window", 4.0), ("cumulative", 7.0), ("single", 4.0)])
+@pytest.mark.parametrize(("mode", "expected"), [("window", 4.0), ("cumulative", 7.0), ("single", 4.0), ("max", 4.0)])
 def test_skip_enters_zeros_without_one_push_per_step(mode: str, expected: float) -> None:
     window = WindowAccumulator(3, mode)
     window.push(3.0)
     window.skip(10**15)  # O(w): a loop per skipped step would never return
-    assert window.push(4.0) == expected  # the window holds 0, 0, 4; the cumulative sum 3 + 4
+    assert window.push(4.0) == expected  # the window holds 0, 0, 4 (max 4); the cumulative sum 3 + 4
+
+
+def test_a_skipped_step_is_a_lower_bound_of_the_max() -> None:
+    window = WindowAccumulator(3, "max")
+    window.push(2.0)
+    window.skip(1)
+    assert window.push(1.0) == 2.0  # 2, 0, 1: the 3 still inside the window
+    window.skip(2)
+    assert window.push(0.5) == 0.5  # 0, 0, 0.5: the 2 left the window
     with pytest.raises(ValueError):
         window.skip(-1)
 
@@ -89,7 +108,7 @@ def test_skipping_no_step_changes_nothing(mode: str) -> None:
     window = WindowAccumulator(2, mode)
     window.push(3.0)
     window.skip(0)
-    assert window.push(4.0) == (4.0 if mode == "single" else 7.0)
+    assert window.push(4.0) == {"single": 4.0, "max": 4.0}.get(mode, 7.0)
 
 
 def test_rejections_say_what_was_wrong() -> None:

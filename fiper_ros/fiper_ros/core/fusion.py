@@ -1,26 +1,71 @@
-"""Combining the observation- and action-based predictors, eq. (7) and App. A.4.
+"""Combining the detectors' decisions, eq. (7) and App. A.4, generalised to N detectors.
 
-``F = 1(eta_O > gamma_O,t AND eta_A > gamma_A,t)`` (default) or the OR variant; the comparisons are
-strict. A calibration that declares one detector alone (observation-only, :mod:`fiper_ros.core.detectors`)
-has no second decision to combine: its alarm is that detector's exceedance and the AND/OR does not
-apply (:func:`fuse_declared`). A rollout is flagged as failing at its first alarm (:func:`first_alarm`); the
-latch that keeps that state for the rest of the rollout is the fusion node's (:class:`fiper_ros.runtime.alarm.AlarmFuser`)
-and, over a recorded rollout, the offline oracle's running OR of the alarms.
+Every combination is a vote: a step alarms when at least ``votes`` of the N declared detectors exceed their
+thresholds (the comparisons are strict). The paper's ``F = 1(eta_O > gamma_O,t AND eta_A > gamma_A,t)`` needs
+every vote; its OR one. A *joint* combination (``max``, ``kth:K``; :mod:`fiper_ros.core.combination`) votes the
+same way, but its per-detector thresholds share one conformal factor, so its promise is ``delta`` however many
+detectors vote (the OR's is ``N x delta``): ``max`` needs one vote, ``kth:K`` K. One detector alone is its own
+decision, whatever the combine. A rollout is flagged as failing at its first alarm (:func:`first_alarm`); the
+latch that keeps that state for the rest of the rollout is the fusion node's
+(:class:`fiper_ros.runtime.alarm.AlarmFuser`) and, over a recorded rollout, the offline oracle's running OR.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
+#: Combines with a threshold per detector, each calibrated at delta on its own (AND: delta, OR: N x delta).
 COMBINES = ("and", "or")
+#: Combines with one conformal factor over the normalised detectors (:mod:`fiper_ros.core.combination`).
+JOINT_COMBINES = ("max", "kth")
+#: Every combine mode (``kth`` is written ``kth:K``).
+COMBINE_MODES = COMBINES + JOINT_COMBINES
 
 
-def _check_combine(combine: str) -> str:
-    if combine not in COMBINES:
-        raise ValueError(f"unknown combine {combine!r}; expected one of {COMBINES}")
-    return combine
+@dataclass(frozen=True)
+class Combine:
+    """How the declared detectors' decisions make the alarm: ``and``, ``or``, ``max`` or ``kth:K``."""
+
+    mode: str
+    k: int = 0
+    """The votes ``kth`` needs (0 for the other modes)."""
+
+    def __post_init__(self) -> None:
+        if self.mode not in COMBINE_MODES:
+            raise ValueError(f"unknown combine {self.mode!r}; expected one of and, or, max, kth:K")
+        if (self.mode == "kth") != (self.k >= 1):
+            raise ValueError("kth:K needs K >= 1" if self.mode == "kth" else f"{self.mode} takes no K")
+
+    @classmethod
+    def parse(cls, text: str) -> Combine:
+        """``"and"``, ``"or"``, ``"max"`` or ``"kth:K"``; ``ValueError`` in one line otherwise."""
+        mode, _, count = str(text).partition(":")
+        if mode == "kth":
+            if not count.isdigit() or int(count) < 1:
+                raise ValueError(f"combine {text!r}: kth:K needs an integer K >= 1 (e.g. kth:2)")
+            return cls("kth", int(count))
+        if count:
+            raise ValueError(f"combine {text!r}: only kth takes a count (kth:K)")
+        return cls(mode)
+
+    @property
+    def joint(self) -> bool:
+        """Whether the detectors share one conformal factor (``max``, ``kth``)."""
+        return self.mode in JOINT_COMBINES
+
+    def votes(self, detectors: int) -> int:
+        """How many of ``detectors`` must exceed for an alarm (one detector alone: 1, whatever the mode)."""
+        if detectors < 1:
+            raise ValueError(f"at least one detector's decision is needed, got {detectors}")
+        if self.mode == "kth" and self.k > detectors:
+            raise ValueError(f"combine kth:{self.k} needs at least {self.k} detectors, got {detectors}")
+        return {"and": detectors, "or": 1, "max": 1}.get(self.mode, self.k)
+
+    def __str__(self) -> str:
+        return f"kth:{self.k}" if self.mode == "kth" else self.mode
 
 
 def exceeds(eta: np.ndarray | float, gamma: np.ndarray | float) -> np.ndarray | bool:
@@ -30,20 +75,22 @@ def exceeds(eta: np.ndarray | float, gamma: np.ndarray | float) -> np.ndarray | 
 
 def fuse(exceeded_obs: np.ndarray | bool, exceeded_act: np.ndarray | bool, combine: str = "and") -> np.ndarray | bool:
     """``F_O AND F_A`` (eq. 7) or ``F_O OR F_A``, element-wise."""
-    if _check_combine(combine) == "and":
-        return np.logical_and(exceeded_obs, exceeded_act)
-    return np.logical_or(exceeded_obs, exceeded_act)
+    return fuse_declared([exceeded_obs, exceeded_act], combine)
 
 
-def fuse_declared(exceeded: Sequence[np.ndarray | bool], combine: str = "and") -> np.ndarray | bool:
-    """FIPER's decision over the declared detectors' decisions, in :data:`~fiper_ros.core.detectors.DETECTORS`
-    order: two are fused by :func:`fuse`; one alone is its own decision (``combine`` does not apply)."""
-    _check_combine(combine)
-    if len(exceeded) == 2:
-        return fuse(exceeded[0], exceeded[1], combine)
-    if len(exceeded) == 1:
-        return np.asarray(exceeded[0], dtype=bool)
-    raise ValueError(f"one or two detectors' decisions expected, got {len(exceeded)}")
+def fuse_votes(exceeded: Sequence[np.ndarray | bool], votes: int) -> np.ndarray | bool:
+    """Element-wise: at least ``votes`` of the decisions are True."""
+    stacked = np.asarray(exceeded, dtype=bool)
+    return np.count_nonzero(stacked, axis=0) >= votes if stacked.ndim > 1 else bool(np.count_nonzero(stacked) >= votes)
+
+
+def fuse_declared(exceeded: Sequence[np.ndarray | bool], combine: str | Combine = "and") -> np.ndarray | bool:
+    """The alarm over the declared detectors' decisions: at least :meth:`Combine.votes` of them exceed
+    (two with ``and``: eq. 7; one alone: its own decision)."""
+    rule = combine if isinstance(combine, Combine) else Combine.parse(combine)
+    votes = rule.votes(len(exceeded))
+    fused = fuse_votes(exceeded, votes)
+    return np.asarray(fused, dtype=bool) if np.ndim(exceeded[0]) else fused
 
 
 def first_alarm(alarms: np.ndarray) -> int | None:

@@ -63,7 +63,7 @@ class _StreamingPredictor:
         self._threshold = threshold
         self._window = WindowAccumulator(window, mode)
         # How many later steps a missing step stays inside the aggregation window.
-        self._span = {"window": self._window.w, "single": 1}.get(mode, np.inf)
+        self._span = {"window": self._window.w, "max": self._window.w, "single": 1}.get(mode, np.inf)
         self._next = 0
         self._complete_from: float = 0
 

@@ -3,10 +3,11 @@
 ``eta(t) = sum_{k=0}^{min(w-1, t/h)} s(t - kh)``: a trailing sum over the last ``w`` policy steps,
 with partial sums while fewer than ``w`` steps exist. Scores here are indexed by policy step, so the
 stride ``h`` is implicit. The paper's ablations also use the cumulative sum (``w = inf``) and the
-single-step score (``w = 1``).
+single-step score (``w = 1``). Max-pooling (``"max"``) takes the largest of the last ``w`` scores instead of
+their sum: one high step counts as much as a run of them, so a short burst is not diluted by the window.
 
 The vectorised functions and :class:`WindowAccumulator` add the same float64 numbers in the same
-order (newest score first), so they agree bit for bit; the monitor relies on that. A window never
+order (newest score first), so they agree bit for bit; the monitor relies on that (a maximum has no rounding). A window never
 holds a non-finite score (one NaN would spoil the next ``w`` sums, or all later cumulative ones): both
 refuse it with ``ValueError``. A step whose score is missing enters as 0 (:meth:`WindowAccumulator.skip`).
 """
@@ -18,7 +19,7 @@ from collections import deque
 
 import numpy as np
 
-MODES = ("window", "cumulative", "single")
+MODES = ("window", "cumulative", "single", "max")
 
 
 def _scores(scores: np.ndarray) -> np.ndarray:
@@ -46,15 +47,28 @@ def windowed(scores: np.ndarray, w: int) -> np.ndarray:
     return out
 
 
+def max_pooled(scores: np.ndarray, w: int) -> np.ndarray:
+    """Trailing maxima of ``scores[T]`` over the last ``w`` steps; same length, fewer steps while ``t < w``."""
+    s = _scores(scores)
+    w = _check_window(w)
+    out = s.copy()
+    for k in range(1, min(w, s.shape[0])):
+        np.maximum(out[k:], s[:-k], out=out[k:])
+    return out
+
+
 def cumulative(scores: np.ndarray) -> np.ndarray:
     """Cumulative sums of ``scores[T]`` (the window ``w = inf``)."""
     return np.cumsum(_scores(scores))
 
 
 def aggregate(scores: np.ndarray, mode: str = "window", w: int = 1) -> np.ndarray:
-    """``windowed`` (mode ``"window"``), ``cumulative`` or the raw scores (``"single"``) as float64."""
+    """``windowed`` (mode ``"window"``), ``max_pooled`` (``"max"``), ``cumulative`` or the raw scores
+    (``"single"``) as float64."""
     if mode == "window":
         return windowed(scores, w)
+    if mode == "max":
+        return max_pooled(scores, w)
     if mode == "cumulative":
         return cumulative(scores)
     if mode == "single":
@@ -69,7 +83,7 @@ class WindowAccumulator:
         if mode not in MODES:
             raise ValueError(f"unknown aggregation mode {mode!r}; expected one of {MODES}")
         self.mode = mode
-        self.w = _check_window(w) if mode == "window" else 1
+        self.w = _check_window(w) if mode in ("window", "max") else 1
         self._recent: deque[float] = deque(maxlen=self.w)
         self._total = 0.0
 
@@ -94,6 +108,8 @@ class WindowAccumulator:
             self._total += score
             return self._total
         self._recent.append(score)
+        if self.mode == "max":
+            return max(self._recent)
         total = self._recent[-1]
         for k in range(2, len(self._recent) + 1):
             total += self._recent[-k]

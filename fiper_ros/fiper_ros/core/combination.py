@@ -1,0 +1,181 @@
+"""One conformal threshold over a combination of detectors (Sec. 4.3 and App. A.3-A.4, generalised to N).
+
+FIPER fuses two detectors with AND or OR, each against its own threshold (eq. 7). AND alarms only when the
+later detector does; OR keeps Proposition 1 only at ``N x delta`` (the union bound), so each threshold needs
+``delta / N`` and N times the successes. A *joint* combination instead normalises every detector's windowed
+curve by its per-step shape and sets ONE conformal factor over the combined statistic:
+
+1. Per detector ``d`` a shape from the shape curves ``I1`` (the fit part's curves, never the conformal ones):
+   ``"cp_band"``: ``z_d(t) = (eta_d(t) - mu_d(t)) / s_d(t)`` with the CP band's mean and floored standard
+   deviation; ``"cp_scaled"``: ``z_d(t) = eta_d(t) / q_d(t)`` with CP scaled's floored per-step
+   ``1 - delta`` quantile (:mod:`fiper_ros.core.thresholds`: the same statistics, support rule and floor).
+2. The combined statistic ``c(t)`` = the ``votes``-th largest of ``z_1(t) .. z_N(t)``: ``votes = 1`` is the
+   maximum (alarms as early as the earliest detector), ``votes = K`` needs K detectors to agree.
+3. The conformal score of a rollout is ``R = max_t c(t)``; ``k`` is the conformal quantile of the conformal
+   rollouts' scores at ``delta`` (App. A.3's ``ceil((M+1)(1-delta))``-th smallest).
+4. Detector ``d``'s threshold is ``gamma_d(t) = mu_d(t) + k s_d(t)`` (band) or ``k q_d(t)`` (scaled), and a
+   step alarms when at least ``votes`` detectors exceed theirs: ``c(t) > k`` exactly when that holds.
+
+Guarantee (Proposition 1 at ``delta``, not ``N x delta``): the shapes depend on the shape curves only, so the
+scores ``R`` of the conformal rollouts and of a new successful rollout are exchangeable; a new success alarms at
+some step exactly when its ``R`` exceeds ``k``, which has probability at most ``delta``. With one detector the
+combination is that detector's CP band (or CP scaled) threshold, value for value.
+
+Pooled over groups (tasks of a many-task policy): each group has its own shapes, the conformal scores of all
+groups are pooled into one ``k``. The promise then holds for a new success drawn like the conformal rollouts
+(the groups in their proportions), not for each group: a group's own rate may be above ``delta``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fiper_ros.core.thresholds import (
+    Threshold,
+    ThresholdError,
+    ThresholdSettings,
+    _floored,
+    _padded,
+    _per_step,
+    _quantile,
+    _supported_length,
+    _validated,
+)
+
+#: Normalisations a joint combination accepts: the shapes of the two guaranteed kinds that have one.
+SHAPE_KINDS = ("cp_band", "cp_scaled")
+
+
+@dataclass(frozen=True)
+class Shape:
+    """One detector's per-step shape in one group: ``z(t) = (eta(t) - offset(t)) / scale(t)``."""
+
+    kind: str
+    offset: np.ndarray
+    """``mu(t)`` (band) or 0 (scaled)."""
+    scale: np.ndarray
+    """``s(t)`` (band) or ``q(t)`` (scaled), floored, > 0."""
+    floor: float
+
+    def normalised(self, curve: np.ndarray) -> np.ndarray:
+        """``z(t)`` of a curve no longer than the shape (the core's band-score formula)."""
+        n = curve.shape[0]
+        return (curve - self.offset[:n]) / self.scale[:n]
+
+    def values(self, k: float) -> np.ndarray:
+        """``gamma(t) = offset(t) + k scale(t)``, ``+inf`` everywhere for an infinite ``k``."""
+        return self.offset + k * self.scale if np.isfinite(k) else np.full(self.offset.shape[0], np.inf)
+
+
+def fit_shape(shape_curves: Sequence[np.ndarray], length: int, kind: str, settings: ThresholdSettings) -> Shape:
+    """The shape of ``kind`` from ``shape_curves`` over ``length`` steps, with the support rule and floor of
+    :func:`fiper_ros.core.thresholds.band_statistics` (band) and ``scaled_statistics`` (scaled)."""
+    if kind not in SHAPE_KINDS:
+        raise ThresholdError(f"a joint combination normalises with {' or '.join(SHAPE_KINDS)}, not {kind!r}")
+    padded = _padded(_validated(shape_curves), length)
+    supported = _supported_length(padded, settings.min_support)
+    if kind == "cp_band":
+        mu = _per_step(padded, settings.min_support, "mean")
+        scale, floor = _floored(_per_step(padded, settings.min_support, "std"), supported, settings, mu)
+        return Shape(kind, mu, scale, floor)
+    q = _per_step(padded, settings.min_support, "quantile", 1.0 - settings.delta)
+    scale, floor = _floored(q, supported, settings, q)
+    return Shape(kind, np.zeros(length), scale, floor)
+
+
+def combined(z: np.ndarray, votes: int) -> np.ndarray:
+    """The ``votes``-th largest of ``z[N, T]`` per step (``votes = 1``: the maximum)."""
+    if not 1 <= votes <= z.shape[0]:
+        raise ThresholdError(f"votes must be in 1..{z.shape[0]} (the detectors combined), got {votes}")
+    return np.sort(z, axis=0)[z.shape[0] - votes]
+
+
+@dataclass(frozen=True)
+class GroupCurves:
+    """The windowed curves of one group (a task): per detector, the shape curves (``I1``) and the conformal
+    curves (``I2``), the latter in the same rollout order for every detector."""
+
+    shape: Mapping[str, Sequence[np.ndarray]]
+    conformal: Mapping[str, Sequence[np.ndarray]]
+
+
+@dataclass(frozen=True)
+class JointThreshold:
+    """A fitted joint combination: ``k``, and per group and detector its shape and threshold ``gamma_d(t)``."""
+
+    k: float
+    votes: int
+    detectors: tuple[str, ...]
+    shapes: dict[str, dict[str, Shape]]
+    """``shapes[group][detector]``."""
+    thresholds: dict[str, dict[str, Threshold]]
+    """``thresholds[group][detector]``: ``gamma_d(t)`` with the settings' extension."""
+    scores: np.ndarray
+    """``R_i`` of the conformal rollouts, all groups in order."""
+    conformal: dict[str, int] = field(default_factory=dict)
+    """Conformal rollouts per group."""
+
+    @property
+    def m(self) -> int:
+        """The number of conformal scores ``k`` is the quantile of."""
+        return int(self.scores.shape[0])
+
+    def params(self) -> dict[str, Any]:
+        """Plain-data summary for a calibration file."""
+        return {"k": float(self.k), "votes": self.votes, "m": self.m, "conformal": dict(self.conformal)}
+
+
+def _group_length(curves: GroupCurves, detectors: Sequence[str]) -> int:
+    lengths = [np.asarray(c).shape[0] for d in detectors for part in (curves.shape, curves.conformal) for c in part[d]]
+    return max(lengths)
+
+
+def group_scores(curves: GroupCurves, shapes: Mapping[str, Shape], detectors: Sequence[str], votes: int
+                 ) -> np.ndarray:
+    """``R_i = max_t c_i(t)`` of a group's conformal rollouts."""
+    counts = {len(curves.conformal[d]) for d in detectors}
+    if len(counts) != 1:
+        raise ThresholdError(f"every detector needs the same conformal rollouts, got counts {sorted(counts)}")
+    out = np.empty(counts.pop())
+    for i in range(out.shape[0]):
+        z = np.stack([shapes[d].normalised(np.asarray(curves.conformal[d][i], dtype=np.float64)) for d in detectors])
+        out[i] = np.max(combined(z, votes))
+    return out
+
+
+def fit_joint(groups: Mapping[str, GroupCurves], detectors: Sequence[str], kinds: Mapping[str, str], votes: int,
+              settings: ThresholdSettings) -> JointThreshold:
+    """One conformal factor ``k`` over the ``votes``-th largest normalised score of ``detectors``, pooled over
+    ``groups`` (one group: a single task), and every group's per-detector thresholds (module docstring).
+
+    ``kinds[d]`` is detector ``d``'s normalisation (:data:`SHAPE_KINDS`); ``settings`` gives delta, the support
+    rule, the floor, the extension and whether the quantile is conformal.
+    """
+    detectors = tuple(detectors)
+    if not detectors:
+        raise ThresholdError("a joint combination needs at least one detector")
+    if not groups:
+        raise ThresholdError("a joint combination needs the curves of at least one group")
+    combined(np.zeros((len(detectors), 1)), votes)  # refuse impossible votes before any work
+    shapes: dict[str, dict[str, Shape]] = {}
+    scores: list[np.ndarray] = []
+    for name, curves in groups.items():
+        for d in detectors:
+            if not curves.shape[d] or not curves.conformal[d]:
+                raise ThresholdError(f"group {name!r}, detector {d!r}: no shape or no conformal curves")
+        length = _group_length(curves, detectors)
+        shapes[name] = {d: fit_shape(curves.shape[d], length, kinds[d], settings) for d in detectors}
+        scores.append(group_scores(curves, shapes[name], detectors, votes))
+    pooled = np.concatenate(scores)
+    k = _quantile(pooled, settings.delta, settings.conformal)
+    thresholds = {name: {d: Threshold(kinds[d], settings.delta, shape.values(k), settings.extension,
+                                      {"k": float(k), "m": int(pooled.shape[0]), "votes": votes,
+                                       "floor": shape.floor})
+                         for d, shape in group.items()}
+                  for name, group in shapes.items()}
+    return JointThreshold(float(k), votes, detectors, shapes, thresholds, pooled,
+                          {name: int(s.shape[0]) for name, s in zip(groups, scores)})

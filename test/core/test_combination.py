@@ -1,0 +1,187 @@
+"""One conformal threshold over a combination of detectors (core/combination.py): by hand, against the single
+detector's thresholds, and the promise (Proposition 1 at delta) over many seeded trials."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fiper_ros.core.combination import GroupCurves, combined, fit_joint, fit_shape
+from fiper_ros.core.fusion import exceeds, fuse_votes
+from fiper_ros.core.thresholds import ThresholdError, ThresholdSettings, conformal_quantile, fit_threshold
+
+
+def test_combined_is_the_kth_largest_per_step() -> None:
+    z = np.array([[1.0, 5.0, -1.0], [3.0, 2.0, 0.0], [2.0, 4.0, 7.0]])
+    assert combined(z, 1).tolist() == [3.0, 5.0, 7.0]  # the maximum
+    assert combined(z, 2).tolist() == [2.0, 4.0, 0.0]
+    assert combined(z, 3).tolist() == [1.0, 2.0, -1.0]  # every detector must agree: the minimum
+    with pytest.raises(ThresholdError, match=r"^votes must be in 1\.\.3 \(the detectors combined\), got 4$"):
+        combined(z, 4)
+
+
+def test_two_detectors_by_hand() -> None:
+    """Band shapes, normalised conformal curves, the pooled maximum and k, computed by hand."""
+    settings = ThresholdSettings(kind="cp_band", delta=0.25, min_support=1, std_floor=0.0)
+    # Shape curves: a's mean (2, 4), std (1, 1); b's mean (10, 10), std (2, 4).
+    shape = {"a": [np.array([1.0, 3.0]), np.array([3.0, 5.0])], "b": [np.array([8.0, 6.0]), np.array([12.0, 14.0])]}
+    conformal = {"a": [np.array([2.0, 6.0]), np.array([4.0, 4.0]), np.array([1.0, 4.5])],
+                 "b": [np.array([10.0, 10.0]), np.array([11.0, 22.0]), np.array([14.0, 10.0])]}
+    # z_a: (0, 2), (2, 0), (-1, 0.5); z_b: (0, 0), (0.5, 3), (2, 0); max per step: (0, 2), (2, 3), (2, 0.5)
+    # R = 2, 3, 2; M = 3, delta 0.25: rank ceil(4 * 0.75) = 3 -> k = 3
+    joint = fit_joint({"task": GroupCurves(shape, conformal)}, ("a", "b"), {"a": "cp_band", "b": "cp_band"}, 1,
+                      settings)
+    assert joint.scores.tolist() == [2.0, 3.0, 2.0] and joint.k == 3.0 and joint.m == 3
+    assert joint.thresholds["task"]["a"].values.tolist() == [5.0, 7.0]  # mu + 3 s
+    assert joint.thresholds["task"]["b"].values.tolist() == [16.0, 22.0]
+    # Two votes: the second largest per step: (0, 0), (0.5, 0), (-1, 0) -> R = 0, 0.5, 0 -> k = 0.5
+    agree = fit_joint({"task": GroupCurves(shape, conformal)}, ("a", "b"), {"a": "cp_band", "b": "cp_band"}, 2,
+                      settings)
+    assert agree.scores.tolist() == [0.0, 0.5, 0.0] and agree.k == 0.5
+    assert agree.thresholds["task"]["b"].values.tolist() == [11.0, 12.0]
+
+
+def test_scaled_shape_by_hand() -> None:
+    settings = ThresholdSettings(kind="cp_scaled", delta=0.5, min_support=1, std_floor=0.0)
+    shape = fit_shape([np.array([1.0, 2.0]), np.array([3.0, 6.0])], 3, "cp_scaled", settings)
+    # per-step median (level 1 - delta = 0.5) of (1, 3) and (2, 6): 2 and 4, the last carried forward
+    assert shape.scale.tolist() == [2.0, 4.0, 4.0] and shape.offset.tolist() == [0.0, 0.0, 0.0]
+    assert shape.normalised(np.array([3.0, 2.0])).tolist() == [1.5, 0.5]
+
+
+@pytest.mark.parametrize("kind", ["cp_band", "cp_scaled"])
+def test_one_detector_is_its_own_threshold_value_for_value(kind: str) -> None:
+    rng = np.random.default_rng(3)
+    settings = ThresholdSettings(kind=kind, delta=0.1)
+    shape = [rng.random(int(rng.integers(5, 20))).cumsum() for _ in range(15)]
+    conformal = [rng.random(int(rng.integers(5, 25))).cumsum() for _ in range(30)]
+    joint = fit_joint({"g": GroupCurves({"d": shape}, {"d": conformal})}, ("d",), {"d": kind}, 1, settings)
+    alone = fit_threshold(conformal, settings, shape)
+    assert np.array_equal(joint.thresholds["g"]["d"].values, alone.values)
+    assert joint.k == alone.params["k"]
+
+
+def test_groups_share_one_k_and_keep_their_own_shapes() -> None:
+    rng = np.random.default_rng(4)
+    settings = ThresholdSettings(kind="cp_band", delta=0.05)
+    groups = {}
+    for name, scale in (("slow", 1.0), ("fast", 50.0)):
+        shape = {d: [scale * rng.random(12).cumsum() for _ in range(10)] for d in "ab"}
+        conformal = {d: [scale * rng.random(12).cumsum() for _ in range(12)] for d in "ab"}
+        groups[name] = GroupCurves(shape, conformal)
+    joint = fit_joint(groups, ("a", "b"), {"a": "cp_band", "b": "cp_band"}, 1, settings)
+    assert joint.m == 24 and joint.conformal == {"slow": 12, "fast": 12}
+    assert joint.k == conformal_quantile(joint.scores, 0.05)  # pooled: 24 scores, finite at 0.05 (12 alone: not)
+    for name, group in groups.items():
+        alone = fit_joint({name: group}, ("a", "b"), {"a": "cp_band", "b": "cp_band"}, 1, settings)
+        assert np.array_equal(joint.shapes[name]["a"].scale, alone.shapes[name]["a"].scale)
+        assert math.isinf(alone.k)  # 12 conformal rollouts cannot serve delta 0.05 alone (19 needed)
+        assert np.array_equal(joint.thresholds[name]["b"].values, joint.shapes[name]["b"].values(joint.k))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 3))
+def test_combined_exceedance_is_the_vote_over_per_detector_thresholds(seed: int, votes: int) -> None:
+    """``c(t) > k`` (the calibration's statistic) and "at least ``votes`` detectors exceed ``gamma_d(t)``"
+    (what the nodes and the evaluation decide) agree on new curves away from rounding ties."""
+    rng = np.random.default_rng(seed)
+    settings = ThresholdSettings(kind="cp_band", delta=0.2)
+    names = ("a", "b", "c")
+    group = GroupCurves({d: [rng.gamma(2.0, size=10).cumsum() for _ in range(8)] for d in names},
+                        {d: [rng.gamma(2.0, size=10).cumsum() for _ in range(9)] for d in names})
+    joint = fit_joint({"g": group}, names, dict.fromkeys(names, "cp_band"), votes, settings)
+    new = {d: rng.gamma(2.0, size=10).cumsum() for d in names}
+    z = np.stack([joint.shapes["g"][d].normalised(new[d]) for d in names])
+    statistic = combined(z, votes)
+    far = np.abs(statistic - joint.k) > 1e-9 * max(1.0, abs(joint.k))
+    voted = fuse_votes([exceeds(new[d], joint.thresholds["g"][d].values) for d in names], votes)
+    assert np.array_equal((statistic > joint.k)[far], voted[far])
+
+
+def test_refusals_name_what_is_wrong() -> None:
+    settings = ThresholdSettings(kind="cp_band", delta=0.2)
+    group = GroupCurves({"a": [np.ones(3)]}, {"a": [np.ones(3)]})
+    with pytest.raises(ThresholdError, match=r"^a joint combination normalises with cp_band or cp_scaled, not "
+                                             r"'cp_constant'$"):
+        fit_joint({"g": group}, ("a",), {"a": "cp_constant"}, 1, settings)
+    with pytest.raises(ThresholdError, match=r"^votes must be in 1\.\.1"):
+        fit_joint({"g": group}, ("a",), {"a": "cp_band"}, 2, settings)
+    with pytest.raises(ThresholdError, match=r"^group 'g', detector 'a': no shape or no conformal curves$"):
+        fit_joint({"g": GroupCurves({"a": []}, {"a": [np.ones(2)]})}, ("a",), {"a": "cp_band"}, 1, settings)
+    mismatched = GroupCurves({"a": [np.ones(3)], "b": [np.ones(3)]}, {"a": [np.ones(3)] * 2, "b": [np.ones(3)]})
+    with pytest.raises(ThresholdError, match=r"^every detector needs the same conformal rollouts, got counts \[1, 2\]$"):
+        fit_joint({"g": mismatched}, ("a", "b"), {"a": "cp_band", "b": "cp_band"}, 1, settings)
+
+
+# -- the promise ----------------------------------------------------------------------------------------------------
+DETECTORS = ("a", "b", "c")
+
+
+def _successes(rng: np.random.Generator, count: int) -> dict[str, list[np.ndarray]]:
+    """Windowed curves (w = 3) of three correlated detectors over ``count`` successful rollouts of 15-30 steps:
+    each detector's log-score is a mix of a per-rollout level and a per-step disturbance both shared by the
+    detectors (correlation about 0.5), its own noise, and its own trend."""
+    curves: dict[str, list[np.ndarray]] = {d: [] for d in DETECTORS}
+    for _ in range(count):
+        length = int(rng.integers(15, 31))
+        level, shared = rng.normal(), rng.normal(size=length)
+        for i, d in enumerate(DETECTORS):
+            log_score = 0.5 * level + 0.5 * shared + 0.7 * rng.normal(size=length) + 0.03 * (i + 1) * np.arange(length)
+            curves[d].append(np.convolve(np.exp(log_score), np.ones(3))[:length])
+    return curves
+
+
+def _alarmed(thresholds: dict[str, np.ndarray], new: dict[str, list[np.ndarray]], votes: int) -> np.ndarray:
+    """Per new rollout: whether some step has at least ``votes`` detectors above their thresholds."""
+    out = []
+    for i in range(len(new[DETECTORS[0]])):
+        length = new[DETECTORS[0]][i].shape[0]
+        decisions = [exceeds(new[d][i], _over(thresholds[d], length)) for d in DETECTORS]
+        out.append(bool(np.any(fuse_votes(decisions, votes))))
+    return np.array(out)
+
+
+def _over(values: np.ndarray, length: int) -> np.ndarray:
+    out = np.full(length, values[-1])
+    out[: min(length, values.shape[0])] = values[:length]
+    return out
+
+
+def _trials(rule: str, trials: int = 200, delta: float = 0.1) -> tuple[float, float]:
+    """Mean false-alarm rate on new successes over seeded trials (each: 40 shape rollouts, 39 conformal, 60 new)
+    and its standard error."""
+    rng = np.random.default_rng(2024)
+    settings = ThresholdSettings(kind="cp_band", delta=delta)
+    rates = []
+    for _ in range(trials):
+        shape, conformal, new = _successes(rng, 40), _successes(rng, 39), _successes(rng, 60)
+        if rule in ("max", "kth:2"):
+            votes = 1 if rule == "max" else 2
+            joint = fit_joint({"g": GroupCurves(shape, conformal)}, DETECTORS, dict.fromkeys(DETECTORS, "cp_band"),
+                              votes, settings)
+            thresholds = {d: joint.thresholds["g"][d].values for d in DETECTORS}
+        else:  # "or": each detector's own CP band at delta, any one alarms
+            votes = 1
+            thresholds = {d: fit_threshold(conformal[d], settings, shape[d]).values for d in DETECTORS}
+        rates.append(_alarmed(thresholds, new, votes).mean())
+    rates_array = np.array(rates)
+    return float(rates_array.mean()), float(rates_array.std(ddof=1) / math.sqrt(trials))
+
+
+@pytest.mark.parametrize("rule", ["max", "kth:2"])
+def test_one_conformal_threshold_keeps_delta(rule: str) -> None:
+    """Proposition 1 at delta for the combination of three correlated detectors (12 000 new successes)."""
+    rate, sigma = _trials(rule)
+    assert rate <= 0.1 + 2 * sigma
+    assert rate >= 0.1 - 1 / 40 - 2 * sigma  # the conformal rank is also tight: not an empty promise
+
+
+def test_or_of_per_detector_thresholds_at_delta_breaks_it() -> None:
+    """The same detectors OR-ed with a CP band each at delta alarm on far more than delta of new successes (the
+    union bound promises 3 delta), which the test above would catch."""
+    rate, sigma = _trials("or")
+    assert rate > 0.1 + 2 * sigma
