@@ -1,5 +1,6 @@
 """The sweep reproduces the single-configuration path (core.calibration + core.monitor + core.metrics),
-for the default split conformal calibration, the cross-fitted one and the paper's same-data one."""
+for the default split conformal calibration (with in-sample and with cross-fitted shapes), the cross-fitted
+calibration and the paper's same-data one."""
 
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def _single_path(dataset: Dataset, settings: MethodSettings, group: Group, delta
     calibration = calibrate(dataset.calibration, CalibrationSettings(
         window_obs=w_obs or 1, window_act=(w_act or w_obs or 1), aggregation=group.aggregation, threshold=group.kind,
         delta=delta, combine=group.combine or "and", rnd=settings.rnd, seed=SEED, profile=settings.profile,
-        split=settings.split), refuse_infinite=False)
+        split=settings.split, shape_folds=settings.shape_folds), refuse_infinite=False)
     out: list[int | None] = []
     for rollout in dataset.test:
         prediction = predict_rollout(rollout, calibration)
@@ -54,10 +55,12 @@ def _single_path(dataset: Dataset, settings: MethodSettings, group: Group, delta
     return out
 
 
-@pytest.mark.parametrize(("profile", "split"), [("paper", "split"), ("reference", "split"), ("paper", "same"),
-                                               ("reference", "same"), ("paper", "cross")])
-def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: str, split: str) -> None:
-    settings = replace(MethodSettings.tiny(profile), split=split)
+@pytest.mark.parametrize(("profile", "split", "shape_folds"), [
+    ("paper", "split", 0), ("reference", "split", 0), ("paper", "same", 0), ("reference", "same", 0),
+    ("paper", "cross", 0), ("paper", "split", 3)])
+def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: str, split: str,
+                                                shape_folds: int) -> None:
+    settings = replace(MethodSettings.tiny(profile), split=split, shape_folds=shape_folds)
     assert CalibrationSettings().split == "split"  # the default calibration is the first case
     streams, _ = compute_streams(tiny_dataset, ["rnd_oe", "ace"], settings, SEED)
     assert (streams["ace"].fit is None) == (split != "split")
@@ -68,7 +71,7 @@ def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: 
     t_max = horizons(tiny_dataset, profile)
     metrics = alarm_metrics(alarms, tiny_dataset.failed, t_max, dt_mode)
     raised = infinite = 0
-    cases = CASES[profile][:2] if split == "cross" else CASES[profile]  # K + 1 model fits per calibration
+    cases = CASES[profile][:2] if split == "cross" or shape_folds else CASES[profile]  # K + 1 fits per calibration
     for group in cases:
         g = groups.index(group)
         for d, delta in enumerate(SWEEP.deltas):

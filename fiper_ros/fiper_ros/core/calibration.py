@@ -113,6 +113,10 @@ class CalibrationSettings:
         folds: With ``"cross"``: the number of folds K.
         detectors: The detectors calibrated and fused (:data:`fiper_ros.core.detectors.DETECTOR_SETS`):
             FIPER's pair (default) or ``("rnd_oe",)``, observation-only.
+        shape_folds: With ``"split"``: 0 fits the thresholds' per-step shape on the fit part's curves as scored
+            by the models fitted on them (in-sample); K >= 2 on cross-fitted curves, each of K folds of the fit
+            part scored by models fitted on the other folds, so the shape is that of rollouts the models did
+            not see, as the conformal and new rollouts are (see :func:`split_successes`).
     """
 
     alpha: float | None = None
@@ -135,6 +139,7 @@ class CalibrationSettings:
     conformal_fraction: float = 0.5
     folds: int = 5
     detectors: tuple[str, ...] = DETECTORS
+    shape_folds: int = 0
 
     def __post_init__(self) -> None:
         try:
@@ -147,6 +152,11 @@ class CalibrationSettings:
             raise CalibrationError(f"conformal_fraction must be in (0, 1), got {self.conformal_fraction}")
         if self.folds < 2:
             raise CalibrationError(f"folds must be >= 2, got {self.folds}")
+        if self.shape_folds == 1 or self.shape_folds < 0:
+            raise CalibrationError(f"shape_folds must be 0 (in-sample shapes) or >= 2, got {self.shape_folds}")
+        if self.shape_folds and self.split != "split":
+            raise CalibrationError(f"shape_folds applies to the split conformal calibration (split 'split'), not to "
+                                   f"{self.split!r}")
         get_profile(self.profile)
         if self.aggregation not in MODES:
             raise CalibrationError(f"unknown aggregation {self.aggregation!r}; expected one of {MODES}")
@@ -203,8 +213,9 @@ class CalibrationSettings:
         data["rnd"] = self.rnd.to_dict()
         data["action_dims"] = None if self.action_dims is None else list(self.action_dims)
         data["detectors"] = list(self.detectors)
-        unused = {"split": ("folds",), "cross": ("conformal_fraction",),
-                  "same": ("split", "conformal_fraction", "folds")}[self.split]
+        unused = {"split": ("folds",), "cross": ("conformal_fraction", "shape_folds"),
+                  "same": ("split", "conformal_fraction", "folds", "shape_folds")}[self.split]
+        unused += ("shape_folds",) if not self.shape_folds else ()  # written before it existed: the hash stays
         unused += ("detectors",) if self.has_ace else ACE_SETTINGS
         return {k: v for k, v in data.items() if k not in unused}
 
@@ -495,6 +506,9 @@ class CalibrationSplit:
     """Fitted the thresholds (their conformal quantiles)."""
     folds: tuple[tuple[int, ...], ...] = ()
     """With ``"cross"``: the K folds; fold ``k``'s curves come from models fitted without it."""
+    shape_folds: tuple[tuple[int, ...], ...] = ()
+    """With ``"split"`` and ``shape_folds`` K >= 2: K folds of :attr:`fit`; the shape curves of a fold's
+    rollouts come from models fitted on the rest of the fit part (empty: in-sample shape curves)."""
 
 
 def split_successes(count: int, settings: CalibrationSettings) -> CalibrationSplit:
@@ -510,8 +524,16 @@ def split_successes(count: int, settings: CalibrationSettings) -> CalibrationSpl
         folds = tuple(tuple(sorted(int(i) for i in fold)) for fold in np.array_split(order, settings.folds))
         return CalibrationSplit("cross", everything, everything, folds)
     conformal = min(max(round(settings.conformal_fraction * count), 1), count - 1)
-    return CalibrationSplit("split", tuple(sorted(int(i) for i in order[conformal:])),
-                            tuple(sorted(int(i) for i in order[:conformal])))
+    fit = tuple(sorted(int(i) for i in order[conformal:]))
+    shape_folds: tuple[tuple[int, ...], ...] = ()
+    if settings.shape_folds:
+        if len(fit) < settings.shape_folds:
+            raise CalibrationError(f"{settings.shape_folds}-fold cross-fitted shapes need at least "
+                                   f"{settings.shape_folds} successes in the fit part, got {len(fit)}")
+        shuffled = np.random.default_rng([settings.seed, 29]).permutation(np.array(fit))
+        shape_folds = tuple(tuple(sorted(int(i) for i in fold))
+                            for fold in np.array_split(shuffled, settings.shape_folds))
+    return CalibrationSplit("split", fit, tuple(sorted(int(i) for i in order[:conformal])), shape_folds=shape_folds)
 
 
 @dataclass(frozen=True)
@@ -548,6 +570,24 @@ def _curves(models: _Fitted, rollouts: Sequence[Rollout], settings: CalibrationS
         curves[ACE] = [aggregate(act_scores(rollout_positions(r, projection), models.cell, profile), mode,
                                  settings.window_act) for r in rollouts]
     return curves
+
+
+def _shape_curves(models: _Fitted, good: Sequence[Rollout], split: CalibrationSplit, failed: Sequence[Rollout],
+                  settings: CalibrationSettings, projection: ActionProjection | None) -> Curves:
+    """The fit part's curves for the thresholds' shape, in the order of ``split.fit``: scored by ``models`` (fitted
+    on them, in-sample) or, with shape folds, each fold by models fitted on the rest of the fit part."""
+    if not split.shape_folds:
+        return _curves(models, [good[i] for i in split.fit], settings, projection)
+    position = {index: n for n, index in enumerate(split.fit)}
+    shape: Curves = {name: [np.empty(0)] * len(split.fit) for name in settings.detectors}
+    for fold in split.shape_folds:
+        rest = [good[i] for i in split.fit if i not in fold]
+        fold_curves = _curves(_fit_models(rest, failed, settings, projection, None), [good[i] for i in fold], settings,
+                              projection)
+        for name, own in fold_curves.items():
+            for i, curve in zip(fold, own):
+                shape[name][position[i]] = curve
+    return shape
 
 
 def _check_finite(threshold: Threshold, name: str, split: CalibrationSplit, settings: CalibrationSettings,
@@ -670,7 +710,7 @@ def calibrate(
     if split.mode == "same":
         curves = _curves(models, good, settings, projection)
     elif split.mode == "split":
-        shape = _curves(models, fit, settings, projection)
+        shape = _shape_curves(models, good, split, failed, settings, projection)
         curves = _curves(models, [good[i] for i in split.conformal], settings, projection)
     else:  # cross: each fold scored by models fitted without it, in the order of the successes
         curves = {name: [np.empty(0)] * len(good) for name in settings.detectors}
@@ -689,6 +729,7 @@ def calibrate(
     record = {"mode": split.mode, "seed": settings.seed, "successes": len(good),
               "fit": [ids[i] for i in split.fit], "conformal": [ids[i] for i in split.conformal],
               **({"folds": [[ids[i] for i in fold] for fold in split.folds]} if split.folds else {}),
+              **({"shape_folds": [[ids[i] for i in fold] for fold in split.shape_folds]} if split.shape_folds else {}),
               "behind_thresholds": {SIDES[name]: _behind(t) for name, t in thresholds.items()},
               "guarantee": guarantee(settings)}
     return Calibration(

@@ -39,11 +39,13 @@ class RolloutScores:
     A calibration success's scores come from the model that the split lets see it: with ``"split"`` the
     model fitted on the fit part (which saw the fit part and not the conformal part), with ``"cross"``
     the model of the other folds, with ``"same"`` the model fitted on all. Test scores come from the
-    deployed model (fitted on the fit part with ``"split"``, on all successes otherwise).
+    deployed model (fitted on the fit part with ``"split"``, on all successes otherwise). ``shape``: with
+    cross-fitted shapes, the fit part's curves (in the split's order), each from the model of the other folds.
     """
 
     calibration: list[np.ndarray]
     test: list[np.ndarray]
+    shape: list[np.ndarray] | None = None
 
 
 @dataclass
@@ -51,7 +53,8 @@ class StreamScores:
     """Per-step scores of one stream, the calibration successes separated by the split.
 
     ``fit``: the fit part's curves, which give the thresholds' per-step shape (``I1`` of ``cp_band``,
-    ``cp_scaled``, ``gaussian``: ``shape_curves`` of :func:`fiper_ros.core.thresholds.fit_threshold`);
+    ``cp_scaled``, ``gaussian``: ``shape_curves`` of :func:`fiper_ros.core.thresholds.fit_threshold`), the
+    cross-fitted ones where the scores have them;
     ``None`` where the fit part is not disjoint from the conformal part (``"same"``, ``"cross"``): the
     core then splits ``I1`` off the conformal curves, as :func:`fiper_ros.core.calibration.calibrate`
     does. ``conformal``: the curves the thresholds' conformal quantiles are taken over. ``test``: the
@@ -69,7 +72,9 @@ class StreamScores:
         if len(scores.calibration) != count:
             raise ValueError(f"a split of {count} successes for {len(scores.calibration)} scored ones")
         conformal = [scores.calibration[i] for i in split.conformal]
-        fit = [scores.calibration[i] for i in split.fit] if split.mode == "split" else None
+        fit = None
+        if split.mode == "split":
+            fit = scores.shape if scores.shape is not None else [scores.calibration[i] for i in split.fit]
         return cls(fit, conformal, scores.test)
 
 
@@ -121,8 +126,9 @@ class ScoreCache:
             return None
         try:
             with np.load(path, allow_pickle=False) as data:
+                shape = _unpack(data["shape"], data["shape_lengths"]) if "shape" in data else None
                 scores = RolloutScores(_unpack(data["calibration"], data["calibration_lengths"]),
-                                      _unpack(data["test"], data["test_lengths"]))
+                                      _unpack(data["test"], data["test_lengths"]), shape)
         except (OSError, KeyError, ValueError) as error:
             LOG.warning("ignoring unreadable score cache file %s: %s", path, error)
             self.misses += 1
@@ -135,7 +141,8 @@ class ScoreCache:
         self.directory.mkdir(parents=True, exist_ok=True)
         calibration, calibration_lengths = _pack(scores.calibration)
         test, test_lengths = _pack(scores.test)
+        shape = {} if scores.shape is None else dict(zip(("shape", "shape_lengths"), _pack(scores.shape)))
         temporary = self._path(key).with_suffix(".tmp.npz")
         np.savez(temporary, calibration=calibration, calibration_lengths=calibration_lengths, test=test,
-                 test_lengths=test_lengths)
+                 test_lengths=test_lengths, **shape)
         temporary.replace(self._path(key))

@@ -79,6 +79,8 @@ class MethodSettings:
             end-effector actions.
         split: Which calibration successes fit the score models and which the thresholds' conformal
             quantiles (:data:`fiper_ros.core.calibration.SPLITS`; ``"split"``, split conformal, by default).
+        shape_folds: With ``"split"``: 0 takes the thresholds' per-step shape from the fit part's in-sample curves,
+            K >= 2 from cross-fitted ones (:class:`fiper_ros.core.calibration.CalibrationSettings`).
     """
 
     profile: str = "paper"
@@ -89,20 +91,24 @@ class MethodSettings:
     rnd_a: RNDAConfig = field(default_factory=RNDAConfig)
     robot: RobotModel | None = None
     split: str = "split"
+    shape_folds: int = 0
 
     def __post_init__(self) -> None:
         get_profile(self.profile)
         if self.split not in SPLITS:
             raise ValueError(f"unknown split {self.split!r}; expected one of {SPLITS}")
+        self.calibration_settings(0)  # shape_folds: refused now, in the core's words
 
     def calibration_settings(self, seed: int) -> CalibrationSettings:
-        """The core calibration settings of ``seed``: profile, split and the seed of the split and CP band."""
-        return CalibrationSettings(profile=self.profile, seed=seed, split=self.split)
+        """The core calibration settings of ``seed``: profile, split (with its shape folds) and the seed of the
+        split and CP band."""
+        return CalibrationSettings(profile=self.profile, seed=seed, split=self.split, shape_folds=self.shape_folds)
 
     def split_settings(self) -> dict[str, Any]:
         """The split and its own settings, as the core writes them (part of a fitted stream's cache key)."""
         data = self.calibration_settings(0).to_dict()
-        return {key: data[key] for key in ("split", "conformal_fraction", "folds") if key in data} or {"split": "same"}
+        return ({key: data[key] for key in ("split", "conformal_fraction", "folds", "shape_folds") if key in data}
+                or {"split": "same"})
 
     def stream_seed(self, stream: str, seed: int) -> int | None:
         """The seed ``stream``'s scores depend on (``None``: none): through training and through the split."""

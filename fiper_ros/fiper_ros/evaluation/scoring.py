@@ -138,7 +138,8 @@ def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int, with_ace
     """
     robot = robot_for(dataset, settings) if with_ace else None
     calibration_settings = replace(settings.calibration_settings(seed), alpha=settings.alpha, rnd=settings.rnd,
-                                   split="same", control_dt=None if robot is None else robot.control_dt,
+                                   split="same", shape_folds=0,
+                                   control_dt=None if robot is None else robot.control_dt,
                                    detectors=DETECTORS if with_ace else OBSERVATION_ONLY)
     fk = None if robot is None else robot.forward_kinematics()
     failed = [r for r in dataset.calibration if r.success is not True]
@@ -175,22 +176,37 @@ def baseline_fitter(stream: str, settings: MethodSettings, seed: int) -> Fitter:
     return fit
 
 
-def split_scores(fit: Fitter, dataset: Dataset, split: CalibrationSplit) -> dict[str, RolloutScores]:
+def _out_of_fold(fit: Fitter, good: Sequence[Rollout], members: Sequence[int], folds: Sequence[Sequence[int]]
+                 ) -> dict[int, dict[str, np.ndarray]]:
+    """Scores of ``good[i]`` for every ``i`` of the folds, each by the models fitted on the other members."""
+    out: dict[int, dict[str, np.ndarray]] = {}
+    for fold in folds:
+        scorers = fit([good[i] for i in members if i not in fold])
+        for i in fold:
+            out[i] = {name: score(good[i]) for name, score in scorers.items()}
+    return out
+
+
+def split_scores(fit: Fitter, dataset: Dataset, split: CalibrationSplit, fitted: bool = True
+                 ) -> dict[str, RolloutScores]:
     """Scores of the calibration successes and the test rollouts with models fitted as ``split`` says
-    (see the module docstring), for every stream ``fit`` serves."""
+    (see the module docstring), for every stream ``fit`` serves; with shape folds (and a ``fitted`` stream:
+    one that learns from the successes) also the fit part's cross-fitted shape curves."""
     good = dataset.calibration_successes
+    shape: dict[int, dict[str, np.ndarray]] | None = None
     if split.mode == "cross":
-        calibration: list[dict[str, np.ndarray]] = [{} for _ in good]
-        for fold in split.folds:
-            scorers = fit([good[i] for i in range(len(good)) if i not in fold])
-            for i in fold:
-                calibration[i] = {name: score(good[i]) for name, score in scorers.items()}
+        folded = _out_of_fold(fit, good, range(len(good)), split.folds)
+        calibration = [folded[i] for i in range(len(good))]
         deployed = fit(good)
     else:
         deployed = fit([good[i] for i in split.fit])
         calibration = [{name: score(r) for name, score in deployed.items()} for r in good]
+        if split.shape_folds and fitted:
+            shape = _out_of_fold(fit, good, split.fit, split.shape_folds)
     return {name: RolloutScores([np.asarray(c[name], dtype=np.float64) for c in calibration],
-                                [np.asarray(score(r), dtype=np.float64) for r in dataset.test])
+                                [np.asarray(score(r), dtype=np.float64) for r in dataset.test],
+                                None if shape is None else [np.asarray(shape[i][name], dtype=np.float64)
+                                                            for i in split.fit])
             for name, score in deployed.items()}
 
 
@@ -233,9 +249,10 @@ def compute_streams(
             if stream not in raw:
                 start = time.perf_counter()
                 # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
-                own = calibration_split(dataset, replace(settings, split="same"), seed) \
+                own = calibration_split(dataset, replace(settings, split="same", shape_folds=0), seed) \
                     if stream in UNFITTED_STREAMS else split
-                raw[stream] = split_scores(baseline_fitter(stream, settings, seed), dataset, own)[stream]
+                raw[stream] = split_scores(baseline_fitter(stream, settings, seed), dataset, own,
+                                           stream not in UNFITTED_STREAMS)[stream]
                 seconds[stream] = time.perf_counter() - start
     if cache is not None:
         for stream in missing:
