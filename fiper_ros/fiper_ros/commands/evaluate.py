@@ -41,11 +41,15 @@ from fiper_ros.bagio.atomic import atomic_files, check_directory  # noqa: E402
 from fiper_ros.bagio.errors import BagError, fail  # noqa: E402
 from fiper_ros.commands import options  # noqa: E402
 from fiper_ros.core.calibration import SPLITS  # noqa: E402
+from fiper_ros.core.combination import SHAPE_KINDS  # noqa: E402
+from fiper_ros.core.fusion import Combine  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
-from fiper_ros.evaluation.methods import METHODS, MethodSettings, observation_methods  # noqa: E402
+from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS  # noqa: E402
+from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, default_combinations,  # noqa: E402
+                                          observation_methods, parse_combination)
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
 from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
@@ -93,6 +97,19 @@ def name_list(choices: tuple[str, ...]) -> Callable[[str], tuple[str, ...]]:
     return parse
 
 
+def combine_list(text: str) -> tuple[str, ...]:
+    """``"max,kth:2,and"`` -> combines (each checked by :meth:`Combine.parse`)."""
+    combines = tuple(part.strip() for part in text.split(",") if part.strip())
+    if not combines:
+        raise argparse.ArgumentTypeError(f"no combines in {text!r}")
+    for combine in combines:
+        try:
+            Combine.parse(combine)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from error
+    return combines
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper evaluate``."""
     data = parser.add_argument_group("data")
@@ -109,10 +126,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
     sweep.add_argument("--no-cumulative", action="store_true", help="do not sweep the cumulative sum")
     sweep.add_argument("--deltas", type=delta_list, default=DELTAS, help="comma list or 'paper' (0.01..0.10)")
-    sweep.add_argument("--thresholds", type=name_list(GRID_KINDS), default=SweepSettings().kinds,
-                       help=f"comma list of {', '.join(GRID_KINDS)} (default: all)")
+    sweep.add_argument("--thresholds", type=name_list(GRID_KINDS), default=None,
+                       help=f"comma list of {', '.join(GRID_KINDS)} (default: all; with --pool: "
+                            f"{', '.join(SHAPE_KINDS)})")
     sweep.add_argument("--combines", type=name_list(("and", "or")), default=("and", "or"))
     sweep.add_argument("--pairs", choices=PAIR_GRIDS, default="coarse", help="FIPER (w_O, w_A) grid")
+    sweep.add_argument("--combo", action="append", default=[], metavar="NAME=DETECTOR+DETECTOR...",
+                       help="a combination of detectors (streams) to evaluate besides the default ones (repeatable; "
+                            "e.g. obs=rnd_oe+logpzo+elapsed)")
+    sweep.add_argument("--no-default-combos", action="store_true",
+                       help="evaluate no combination but those of --combo (default: FIPER's pair under one "
+                            "threshold and every evaluated stream combined)")
+    sweep.add_argument("--combo-combines", type=combine_list, default=JOINT_COMBINE_DEFAULTS,
+                       help="how a combination of several detectors votes: comma list of max, kth:K, and, or "
+                            f"(default {','.join(JOINT_COMBINE_DEFAULTS)})")
+    sweep.add_argument("--pool", action="store_true",
+                       help="one threshold per configuration pooled over the tasks (each task normalised by its own "
+                            "shapes): for many tasks with few successes each; the promise is then over all tasks")
     protocol = parser.add_argument_group("protocol")
     protocol.add_argument("--protocol", type=name_list(PROTOCOLS), default=("paper",))
     protocol.add_argument("--seeds", type=int_list, default=(0,), help="e.g. 0-4")
@@ -126,6 +156,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          help="calibration successes for the score models and for the thresholds: split conformal "
                               "(default), cross-fitted, or the paper's same data (not covered by Prop. 1)")
     methods.add_argument("--profile", choices=("paper", "reference"), default="paper")
+    methods.add_argument("--shape-folds", type=int, default=0, metavar="K",
+                         help="with --split split: thresholds' per-step shapes from K-fold cross-fitted fit-part "
+                              "scores (0: in-sample, the default)")
     methods.add_argument("--tiny", action="store_true", help="tiny networks and budgets (smoke tests only)")
     options.add_robot_arguments(methods)
     output = parser.add_argument_group("output")
@@ -176,14 +209,26 @@ def settings_from(args: argparse.Namespace) -> EngineSettings:
     if args.default_window not in args.windows:
         raise ValueError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
-    method_settings = replace(method_settings, robot=options.robot_from(args), split=args.split)
+    method_settings = replace(method_settings, robot=options.robot_from(args), split=args.split,
+                              shape_folds=args.shape_folds)
+    kinds = args.thresholds or (SHAPE_KINDS if args.pool else SweepSettings().kinds)
     sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
-                          kinds=args.thresholds, combines=args.combines, pairs=args.pairs)
+                          kinds=kinds, combines=args.combines, pairs=args.pairs)
     return EngineSettings(methods=args.methods, seeds=args.seeds, sweep=sweep, method_settings=method_settings,
                           protocols=args.protocol, split_seed=args.split_seed, default_window=args.default_window,
                           default_kind=args.default_threshold,
                           select_aggregations=("window", "cumulative") if args.select_cumulative else ("window",),
-                          progress=not args.quiet)
+                          progress=not args.quiet, combinations=combinations_from(args),
+                          combines=args.combo_combines, pooled=args.pool)
+
+
+def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:
+    """The default combinations of the evaluated methods (unless ``--no-default-combos``, or a split without a fit
+    part) and ``--combo``'s."""
+    defaults = not args.no_default_combos and args.split == "split"  # the shapes need a fit part
+    chosen = list(default_combinations(args.methods)) if defaults else []
+    chosen += [parse_combination(text) for text in args.combo]
+    return tuple(chosen)
 
 
 def summary(result: EvaluationResult, markdown: Path) -> str:
@@ -191,7 +236,8 @@ def summary(result: EvaluationResult, markdown: Path) -> str:
     elapsed-time baseline)."""
     protocol = next(iter(result.protocols.values()))
     ranked = sorted(protocol.selected.values(), key=lambda r: -np.nan_to_num(r.average()[0][0], nan=-np.inf))
-    best = f"best TWA {METHODS[ranked[0].method].label} {ranked[0].average()[0][0]:.3f} ({config_text(ranked[0].group)}"
+    label = result.settings.catalogue()[ranked[0].method].label
+    best = f"best TWA {label} {ranked[0].average()[0][0]:.3f} ({config_text(ranked[0].group)}"
     floor = protocol.selected.get(ELAPSED)
     best += f", {gain(ranked[0], floor, None)[0]:+.3f} over the elapsed time)" if floor is not None else ")"
     t = result.timings

@@ -1,17 +1,88 @@
-"""Which detectors a calibration declares: FIPER's pair, or RND-OE alone (issue #19).
+"""The detectors: their names, what each reads, and which sets a calibration declares.
 
 FIPER fuses two detectors (eq. 7): RND-OE on the observation embeddings and ACE on the sampled action
 chunks. A policy that publishes no action batches (or data recorded without them) can still be watched
 by RND-OE alone: an *observation-only* calibration declares ``("rnd_oe",)``, and every part of the suite
 (calibration, the nodes, replay, evaluation) then judges with RND-OE's exceedance alone. Only these two
-sets are supported: ACE alone would need no RND-OE, which the calibration format always holds.
+sets are supported by the calibration file: ACE alone would need no RND-OE, which it always holds.
+
+:data:`INFO` describes every per-step score stream the project computes (FIPER's two, the baselines, the
+elapsed time, progress, action consistency and a user's logged signals, ``signal_<name>``): what it reads,
+whether it learns from the successes, and where its aggregation or normalisation is fixed by what it is.
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 RND_OE = "rnd_oe"
 ACE = "ace"
+#: What a detector reads at each policy step.
+READS = ("embedding", "actions", "signal", "step")
+ELAPSED = "elapsed"
+PROGRESS = "progress"
+CONSISTENCY = "consistency"
+#: A logged per-step signal ``name`` is the stream ``signal_<name>``.
+SIGNAL_PREFIX = "signal_"
+_SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+@dataclass(frozen=True)
+class DetectorInfo:
+    """What a per-step score stream is.
+
+    Attributes:
+        name: The stream's name (also its score topic's last part).
+        label: Its name for people.
+        reads: One of :data:`READS`.
+        fitted: Whether it learns from the successes (a score model, a range, a centroid); an unfitted stream
+            scores every rollout alike whatever the split.
+        aggregation: Its aggregation when fixed by what it is (``None``: the configured window).
+        shape: Its normalisation in a joint combination when fixed (``None``: the configured kind).
+    """
+
+    name: str
+    label: str
+    reads: str
+    fitted: bool = True
+    aggregation: str | None = None
+    shape: str | None = None
+
+
+#: Every built-in stream. The elapsed time scores 1 per step, so only its cumulative sum (the steps elapsed)
+#: means anything, and its curves do not spread across successes at a step: its shape is CP scaled's per-step
+#: quantile (a CP band's spread would be 0 there).
+INFO: dict[str, DetectorInfo] = {d.name: d for d in (
+    DetectorInfo(RND_OE, "RND-OE", "embedding"),
+    DetectorInfo(ACE, "ACE", "actions"),
+    DetectorInfo("logpzo", "logpZO", "embedding"),
+    DetectorInfo("pca_kmeans", "PCA-kmeans", "embedding"),
+    DetectorInfo("rnd_a", "RND-A", "actions"),
+    DetectorInfo("stac", "STAC", "actions", fitted=False),
+    DetectorInfo(PROGRESS, "progress", "embedding"),
+    DetectorInfo(CONSISTENCY, "consistency", "actions"),
+    DetectorInfo(ELAPSED, "elapsed time", "step", fitted=False, aggregation="cumulative", shape="cp_scaled"),
+)}
+
+
+def signal_stream(signal: str) -> str:
+    """The stream of a logged per-step signal: ``signal_<signal>``; ``ValueError`` for a name that cannot be one."""
+    if not _SIGNAL_NAME.match(signal):
+        raise ValueError(f"signal name {signal!r} must match [a-z][a-z0-9_]* (it becomes a topic and a stream name)")
+    return SIGNAL_PREFIX + signal
+
+
+def info(name: str) -> DetectorInfo:
+    """The :class:`DetectorInfo` of a stream name (``signal_<name>`` for a logged signal); ``ValueError`` naming
+    the known ones otherwise."""
+    if name in INFO:
+        return INFO[name]
+    if name.startswith(SIGNAL_PREFIX) and _SIGNAL_NAME.match(name[len(SIGNAL_PREFIX):]):
+        return DetectorInfo(name, f"signal {name[len(SIGNAL_PREFIX):]}", "signal", fitted=False)
+    raise ValueError(f"unknown detector {name!r}; expected one of {', '.join(INFO)} or signal_<name>")
+
+
 #: FIPER's detectors, in the order the fusion reports them (observation first).
 DETECTORS: tuple[str, ...] = (RND_OE, ACE)
 #: An observation-only calibration: RND-OE alone, no action batches needed.
@@ -19,7 +90,7 @@ OBSERVATION_ONLY: tuple[str, ...] = (RND_OE,)
 #: The detector sets a calibration may declare.
 DETECTOR_SETS: tuple[tuple[str, ...], ...] = (DETECTORS, OBSERVATION_ONLY)
 #: How a detector is named in messages to people.
-LABELS = {RND_OE: "RND-OE", ACE: "ACE"}
+LABELS = {name: detector.label for name, detector in INFO.items()}
 #: A detector's side, as the calibration file (``thresholds.obs``, ``windows.act``) and FailureAlarm
 #: (``eta_obs``, ``gamma_act``) name it.
 SIDES = {RND_OE: "obs", ACE: "act"}

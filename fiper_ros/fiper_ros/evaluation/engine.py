@@ -10,15 +10,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fiper_ros.core.calibration import CalibrationSettings
+from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
-from fiper_ros.evaluation.methods import METHODS, MethodSettings, streams_of
+from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
+from fiper_ros.evaluation.methods import METHODS, Combination, Method, MethodSettings, pooled_methods, streams_of
 from fiper_ros.evaluation.progress import Progress
 from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, ProtocolResult, alarm_metrics, run_protocol,
                                            validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
-from fiper_ros.evaluation.sweep import Group, SweepSettings, sweep_task
+from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
 
 LOG = logging.getLogger(__name__)
 
@@ -38,6 +40,11 @@ class EngineSettings:
         select_aggregations: Aggregations a method's configuration may be selected from.
         threads: torch threads while scores are computed.
         progress: Draw progress lines on stderr.
+        combinations: Combinations evaluated beside the methods (:mod:`fiper_ros.evaluation.joint_sweep`).
+        combines: The combines a combination of several detectors is swept with.
+        pooled: Thresholds pooled over the tasks (each task normalised by its own shapes, one conformal factor
+            over every task's conformal rollouts) for every method, instead of per task; normalisation kinds
+            only (CP band, CP scaled).
     """
 
     methods: tuple[str, ...] = tuple(METHODS)
@@ -51,9 +58,21 @@ class EngineSettings:
     select_aggregations: tuple[str, ...] = ("window",)
     threads: int = 1
     progress: bool = True
+    combinations: tuple[Combination, ...] = ()
+    combines: tuple[str, ...] = JOINT_COMBINE_DEFAULTS
+    pooled: bool = False
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
+        names = [*self.methods, *(c.name for c in self.combinations)]
+        if len(set(names)) != len(names):
+            raise ValueError(f"method and combination names must be distinct, got {names}")
+        if (self.combinations or self.pooled) and self.method_settings.split != "split":
+            raise ValueError("combinations and pooled thresholds take their shapes from the fit part of a split "
+                             f"conformal calibration (--split split), not from --split {self.method_settings.split}")
+        if self.pooled and any(k not in SHAPE_KINDS for k in self.sweep.kinds):
+            raise ValueError(f"pooled thresholds normalise each task by its shapes: kinds among {SHAPE_KINDS}, got "
+                             f"{self.sweep.kinds}")
         if any(p not in PROTOCOLS for p in self.protocols):
             raise ValueError(f"protocols must be among {PROTOCOLS}, got {self.protocols}")
         if not self.seeds:
@@ -65,6 +84,19 @@ class EngineSettings:
     def calibration_settings(self, seed: int) -> CalibrationSettings:
         """The core calibration settings whose threshold rules and split the sweep uses (profile, split, seed)."""
         return self.method_settings.calibration_settings(seed)
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Every evaluated method and combination, in table order."""
+        return (*self.methods, *(c.name for c in self.combinations))
+
+    def catalogue(self) -> dict[str, Method]:
+        """The table column of every method and combination name."""
+        return {**METHODS, **{c.name: c.method() for c in self.combinations}}
+
+    def streams(self) -> list[str]:
+        """Every stream the methods and combinations read."""
+        return list(dict.fromkeys([*streams_of(list(self.methods)), *(d for c in self.combinations for d in c.detectors)]))
 
 
 @dataclass
@@ -129,7 +161,7 @@ def check_evaluation(datasets: Sequence[Dataset], settings: EngineSettings) -> N
     tasks = [d.task for d in datasets]
     if len(set(tasks)) != len(tasks):
         raise DatasetError(f"task names must be distinct, got {tasks}")
-    streams = streams_of(list(settings.methods))
+    streams = settings.streams()
     for dataset in datasets:
         check_dataset(dataset, settings.method_settings, streams)
 
@@ -138,7 +170,7 @@ def score_all(
     datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None
 ) -> tuple[dict[tuple[str, int], dict[str, StreamScores]], float]:
     """Scores of every (task, seed); returns them and the seconds spent computing (not reading) them."""
-    streams = streams_of(list(settings.methods))
+    streams = settings.streams()
     progress = Progress("scores", len(datasets) * len(settings.seeds), settings.progress)
     out: dict[tuple[str, int], dict[str, StreamScores]] = {}
     computing = 0.0
@@ -151,6 +183,38 @@ def score_all(
             progress.advance(note=f"{dataset.task} seed {seed}")
     progress.close()
     return out, computing
+
+
+def sweep_seed(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+               settings: EngineSettings, seed: int) -> dict[str, TaskSweep]:
+    """Every configuration of one seed, per task: per task (:func:`sweep_task`) and the combinations
+    (:func:`joint_sweep`), or everything pooled over the tasks."""
+    base = settings.calibration_settings(seed).threshold_settings()
+    streams = {d.task: scores[(d.task, seed)] for d in datasets}
+    bases = {d.task: base for d in datasets}
+    # a combination normalises its detectors: the swept kinds that have a shape (all of them when pooled)
+    kinds = tuple(k for k in settings.sweep.kinds if k in SHAPE_KINDS) or SHAPE_KINDS
+    joint = dict(settings=settings.sweep, bases=bases, pooled=settings.pooled, kinds=kinds)
+    parts: list[dict[str, TaskSweep]] = []
+    if settings.pooled:
+        singles = [c for c in pooled_methods(settings.methods) if c.name != FIPER]
+        parts.append(joint_sweep(streams, singles, combines=(), **joint))
+        if FIPER in settings.methods:
+            fiper = [c for c in pooled_methods(settings.methods) if c.name == FIPER]
+            parts.append(joint_sweep(streams, fiper, combines=settings.sweep.combines, **joint))
+    else:
+        parts.append({task: sweep_task(own, list(settings.methods), settings.sweep, base)
+                      for task, own in streams.items()})
+    if settings.combinations:
+        parts.append(joint_sweep(streams, settings.combinations, combines=settings.combines, **joint))
+    return {d.task: _joined([part[d.task] for part in parts]) for d in datasets}
+
+
+def _joined(parts: Sequence[TaskSweep]) -> TaskSweep:
+    """One task's configurations of several sweeps, in order."""
+    return TaskSweep([g for part in parts for g in part.groups], np.concatenate([part.alarms for part in parts]),
+                     np.concatenate([part.infinite for part in parts]),
+                     np.concatenate([part.conformal for part in parts]))
 
 
 def sweep_all(
@@ -174,11 +238,11 @@ def sweep_all(
     infinite: list[list[np.ndarray]] = [[] for _ in datasets]
     conformal: list[list[np.ndarray]] = [[] for _ in datasets]
     tnr = METRICS.index("tnr")
-    for t, dataset in enumerate(datasets):
-        t_max = horizons(dataset, settings.method_settings.profile)
-        for seed in settings.seeds:
-            base = settings.calibration_settings(seed).threshold_settings()
-            swept = sweep_task(scores[(dataset.task, seed)], list(settings.methods), settings.sweep, base)
+    for seed in settings.seeds:
+        swept_tasks = sweep_seed(datasets, scores, settings, seed)
+        for t, dataset in enumerate(datasets):
+            t_max = horizons(dataset, settings.method_settings.profile)
+            swept = swept_tasks[dataset.task]
             groups = swept.groups
             for name, per_task in subsets.items():
                 values = alarm_metrics(swept.alarms, dataset.failed, t_max, dt_mode, per_task[t])
@@ -214,7 +278,7 @@ def run_evaluation(
     for protocol in settings.protocols:
         selection, report = ("all", "all") if protocol == "paper" else ("validation", "report")
         protocols[protocol] = run_protocol(protocol, outcome.groups, outcome.metrics[selection],
-                                           outcome.metrics[report], settings.methods, settings.default_window,
+                                           outcome.metrics[report], settings.columns, settings.default_window,
                                            settings.default_kind, settings.select_aggregations, outcome.infinite,
                                            outcome.held_out[report])
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,

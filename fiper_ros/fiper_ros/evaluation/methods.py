@@ -11,8 +11,12 @@ threshold it alarms at step ``k`` of every rollout longer than ``k``, ``k`` the 
 the calibration successes' lengths (calibrated as every other method, on the same conformal part). It
 has this one configuration (:attr:`Method.fixed`): nothing is selected for it.
 
-Observation-only data (rollouts without action batches, issue #19) can be evaluated by the methods that
+Observation-only data (rollouts without action batches) can be evaluated by the methods that
 read observations alone (:func:`observation_methods`): the elapsed time, PCA-kmeans, logpZO and RND-OE.
+
+A :class:`Combination` is a method too: named detectors (streams) voting under the thresholds of
+:mod:`fiper_ros.evaluation.joint_sweep` (one conformal factor for ``max`` / ``kth:K``, one per detector for
+``and`` / ``or``). :func:`default_combinations` names the ones every run evaluates.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from fiper_ros.baselines.logpzo import LogpZOConfig
 from fiper_ros.baselines.pca_kmeans import PCAKMeansConfig
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
+from fiper_ros.core.detectors import ACE, RND_OE, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.rnd_oe import RNDConfig
@@ -56,7 +61,7 @@ METHODS: dict[str, Method] = {
 }
 
 #: Streams fitted on nothing: their scores depend neither on the calibration split nor on the seed.
-UNFITTED_STREAMS = frozenset({"stac", ELAPSED})
+UNFITTED_STREAMS = frozenset(name for name in ("stac", ELAPSED) if not info(name).fitted)
 #: Streams fitted without randomness (ACE's ``R_d``): they depend on the seed only through the split.
 DETERMINISTIC_FITS = frozenset({"ace"})
 
@@ -150,6 +155,56 @@ class MethodSettings:
         if stream == "rnd_a":
             return {**common, **self.rnd_a.to_dict()}
         raise ValueError(f"unknown stream {stream!r}")
+
+
+@dataclass(frozen=True)
+class Combination:
+    """A named set of detectors (score streams), combined; its name is the method's in the tables."""
+
+    name: str
+    detectors: tuple[str, ...]
+    label: str = ""
+    """Its name for people (default: the name)."""
+
+    def __post_init__(self) -> None:
+        if not self.detectors or len(set(self.detectors)) != len(self.detectors):
+            raise ValueError(f"combination {self.name!r}: distinct detectors needed, got {self.detectors}")
+        for detector in self.detectors:
+            info(detector)
+
+    def method(self) -> Method:
+        """The combination as a table column."""
+        return Method(self.label or self.name, self.detectors,
+                      needs_actions=any(info(d).reads == "actions" for d in self.detectors))
+
+
+def parse_combination(text: str) -> Combination:
+    """``NAME=a+b+c`` (streams) as a :class:`Combination`; ``ValueError`` in one line otherwise."""
+    name, _, members = text.partition("=")
+    if not name or not members:
+        raise ValueError(f"combination {text!r}: expected NAME=DETECTOR+DETECTOR+... (e.g. obs=rnd_oe+logpzo+elapsed)")
+    if name.strip() in METHODS:
+        raise ValueError(f"combination {text!r}: {name.strip()!r} is the name of a built-in method")
+    return Combination(name.strip(), tuple(m.strip() for m in members.split("+") if m.strip()))
+
+
+def pooled_methods(methods: tuple[str, ...]) -> tuple[Combination, ...]:
+    """``methods`` as combinations, for thresholds pooled over tasks: each single method its stream alone, FIPER
+    its pair (it votes with AND / OR), the elapsed time its cumulative count."""
+    return tuple(Combination(m, METHODS[m].streams, METHODS[m].label) for m in methods)
+
+
+def default_combinations(methods: tuple[str, ...], extra_streams: tuple[str, ...] = ()) -> tuple[Combination, ...]:
+    """The combinations evaluated beside ``methods``: FIPER's pair under one threshold (``fiper_joint``) when
+    FIPER is evaluated, and every stream of the evaluated methods (and ``extra_streams``, e.g. logged signals)
+    together (``combined``)."""
+    out = []
+    if "fiper" in methods:
+        out.append(Combination("fiper_joint", (RND_OE, ACE), "FIPER (joint)"))
+    members = tuple(dict.fromkeys([*streams_of([m for m in methods if m != "fiper"]), *extra_streams]))
+    if len(members) > 1:
+        out.append(Combination("combined", members, "Combined"))
+    return tuple(out)
 
 
 def observation_methods(methods: tuple[str, ...]) -> tuple[str, ...]:

@@ -108,7 +108,8 @@ def _series(result: EvaluationResult, method: str, kind: str, labels: list[str])
 
 def _swept(result: EvaluationResult) -> list[str]:
     """The methods with a window and threshold grid (not the elapsed-time baseline's single configuration)."""
-    return [m for m in result.settings.methods if METHODS[m].fixed is None]
+    catalogue = result.settings.catalogue()
+    return [m for m in result.settings.methods if catalogue[m].fixed is None]
 
 
 def window_impact(result: EvaluationResult, path: Path) -> None:

@@ -177,10 +177,12 @@ def run_protocol(
         best = best_group(groups, twa, members)
         selected[method] = result(method, best)
         scores[method] = float(twa[best])
-        label = f"{default_window}/{default_window}" if method == FIPER else str(default_window)
-        wanted = groups[members[0]] if fixed is not None else Group(method, label, default_kind,
-                                                                     "and" if method == FIPER else "")
-        if wanted in groups:
+        # FIPER's default is AND at w/w; swept as a combination (pooled) its window is written once
+        candidates = [groups[members[0]]] if fixed is not None else [
+            Group(method, f"{default_window}/{default_window}", default_kind, "and"),
+            Group(method, str(default_window), default_kind, "and" if method == FIPER else "")]
+        wanted = next((g for g in candidates if g in groups), None)
+        if wanted is not None:
             default[method] = result(method, list(groups).index(wanted))
     combine_kind: dict[tuple[str, str], MethodResult] = {}
     fiper_groups = [(i, g) for i, g in enumerate(groups) if g.method == FIPER and g.aggregation in select_aggregations]

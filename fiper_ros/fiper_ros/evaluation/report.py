@@ -24,7 +24,8 @@ import numpy as np
 
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
 from fiper_ros.evaluation.engine import EvaluationResult
-from fiper_ros.evaluation.methods import ELAPSED, METHODS, UNFITTED_STREAMS
+from fiper_ros.core.detectors import info
+from fiper_ros.evaluation.methods import ELAPSED, METHODS
 from fiper_ros.evaluation.protocol import METRICS, MethodResult, ProtocolResult, nanmean, nanstd
 from fiper_ros.evaluation.sweep import CUMULATIVE, FIPER, Group
 
@@ -177,10 +178,11 @@ def table1(result: EvaluationResult, chosen: dict[str, MethodResult]) -> str:
     """Table 1 / Table 5 layout: tasks x metrics rows, methods as columns, the gain over the elapsed-time
     baseline under each task, notes on infinite thresholds below."""
     cells = Cells(result)
-    methods = [m for m in result.settings.methods if m in chosen]
+    methods = [m for m in result.settings.columns if m in chosen]
+    catalogue = result.settings.catalogue()
     seeds = len(result.settings.seeds)
     floor = chosen.get(ELAPSED)
-    header = ["Task", "Metric", *(METHODS[m].label for m in methods)]
+    header = ["Task", "Metric", *(catalogue[m].label for m in methods)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines.append("| Best w | | " + " | ".join(window_text(chosen[m].group) for m in methods) + " |")
     lines.append("| Best threshold | | " + " | ".join(
@@ -200,7 +202,7 @@ def table1(result: EvaluationResult, chosen: dict[str, MethodResult]) -> str:
             stds = np.stack([per_task[m][1][t] for m in methods])
             replaced = [cells.inf_text(chosen[m], t) for m in methods]
         cell_notes = [cells.notes(chosen[m], t) for m in methods]
-        notes += [(n, METHODS[m].label) for m, ns in zip(methods, cell_notes) for n in ns]
+        notes += [(n, catalogue[m].label) for m, ns in zip(methods, cell_notes) for n in ns]
         marks = [PARTIAL if ns and r is None else "" for ns, r in zip(cell_notes, replaced)]
         for i, (metric, (row, bold)) in enumerate(_metric_row(means, stds, seeds, marks, replaced).items()):
             lines.append(f"| {name if i == 0 else ''} | {LABELS[metric]} | " + " | ".join(_emphasise(row, bold)) + " |")
@@ -236,13 +238,14 @@ def table2(result: EvaluationResult, protocol: ProtocolResult) -> str:
     return "\n".join(lines + _legend(notes))
 
 
-def guarantee_text(chosen: MethodResult, split: str) -> str:
+def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], pooled: bool = False) -> str:
     """What a configuration promises about false alarms on new successes (docs/method.md, "What each
-    threshold guarantees"): the bound, or why there is none."""
+    threshold guarantees"): the bound, or why there is none; ``streams`` are the configuration's detectors."""
     if chosen.group.kind not in GUARANTEED_KINDS:
         return "none (per-step quantile)"
-    bound = "2δ (OR)" if chosen.group.combine == "or" else "δ"
-    if all(s in UNFITTED_STREAMS for s in METHODS[chosen.method].streams) or split == "split":
+    bound = f"{len(streams)}δ (OR)" if chosen.group.combine == "or" else "δ"
+    bound += " over all tasks (pooled)" if pooled else ""
+    if all(not info(s).fitted for s in streams) or split == "split":
         return f"≤ {bound}"  # nothing fitted on the conformal rollouts
     return f"≈ {bound} (cross-fitted)" if split == "cross" else "not covered (same data)"
 
@@ -280,6 +283,7 @@ def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     split = result.settings.method_settings.split
     seeds = len(result.settings.seeds)
+    catalogue = result.settings.catalogue()
     for method, chosen in protocol.selected.items():
         for t, task in enumerate(result.tasks):
             rows = promise_rows(result, chosen, t, held_out)
@@ -297,8 +301,9 @@ def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
             above = [row["delta"] for row in rows if row["above"]]
             first = t == 0
             lines.append("| " + " | ".join([
-                METHODS[method].label if first else "", config_text(chosen.group) if first else "",
-                guarantee_text(chosen, split) if first else "", task, str(rows[0]["n"]), *values,
+                catalogue[method].label if first else "", config_text(chosen.group) if first else "",
+                guarantee_text(chosen, split, catalogue[method].streams, result.settings.pooled) if first else "",
+                task, str(rows[0]["n"]), *values,
                 _deltas_text(above) if above else "none",
                 *([_signed(*gain(chosen, floor, t), seeds)] if floor is not None else [])]) + " |")
     return "\n".join(lines)
@@ -401,7 +406,8 @@ def _method_json(result: EvaluationResult, chosen: MethodResult, held_out: str, 
     split = result.settings.method_settings.split
     return {
         "config": {"window": chosen.group.window, "threshold": chosen.group.kind, "combine": chosen.group.combine},
-        "guarantee": guarantee_text(chosen, split),
+        "guarantee": guarantee_text(chosen, split, result.settings.catalogue()[chosen.method].streams,
+                                    result.settings.pooled),
         "tasks": {task: {**{m: {"mean": mean[t, i], "std": std[t, i], "seeds": chosen.values[t, :, i]}
                             for i, m in enumerate(METRICS)},
                          "conformal_rollouts": cells.behind(chosen.group, t),
@@ -447,6 +453,8 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
                            "test_failures": int(d.failed.sum()),
                            "held_out_id_successes": len(d.held_out_id_successes)} for d in result.datasets},
         "settings": {"methods": list(s.methods), "seeds": list(s.seeds), "profile": s.method_settings.profile,
+                     "combinations": {c.name: list(c.detectors) for c in s.combinations},
+                     "combination_combines": list(s.combines), "pooled": s.pooled,
                      "windows": list(s.sweep.windows), "cumulative": s.sweep.cumulative, "deltas": list(s.sweep.deltas),
                      "thresholds": list(s.sweep.kinds), "combines": list(s.sweep.combines), "pairs": s.sweep.pairs,
                      "protocols": list(s.protocols), "split_seed": s.split_seed,

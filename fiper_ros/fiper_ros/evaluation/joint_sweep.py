@@ -1,0 +1,185 @@
+"""The sweep of combinations: any detectors under one conformal threshold, or voting with one threshold each,
+per task or pooled over tasks (:mod:`fiper_ros.core.combination`).
+
+A :class:`Combination` names detectors (score streams). For every window label, normalisation kind
+(:data:`~fiper_ros.core.combination.SHAPE_KINDS`), combine and delta it gets, per task, the first alarm of
+every test rollout, exactly as a calibration of that configuration would decide:
+
+- every detector's curves are aggregated as the sweep does (:func:`~fiper_ros.evaluation.sweep.aggregated`,
+  bit-identical to the core's windows); a detector whose aggregation is fixed (the elapsed time: cumulative)
+  keeps it, and a detector whose normalisation is fixed (the elapsed time: CP scaled) keeps it
+  (:data:`fiper_ros.core.detectors.INFO`);
+- per task and detector the shape is :func:`~fiper_ros.core.combination.fit_shape` of the fit part's curves
+  (cross-fitted where the scores have them);
+- joint combines (``max``, ``kth:K``): the conformal score of a conformal rollout is the maximum over its steps of
+  the ``votes``-th largest normalised score (the core's formula, vectorised over rollouts), ``k`` the conformal
+  quantile of the task's scores, or of every task's scores pooled; ``and`` / ``or``: each detector its own ``k``
+  over its own scores (one vote each), AND needing all votes, OR one;
+- detector ``d``'s threshold is ``shape.values(k)`` extended with :meth:`~fiper_ros.core.thresholds.Threshold.over`,
+  and a step alarms when at least the combine's votes of ``eta_d > gamma_d`` hold (the core's strict comparison).
+
+A ``k`` that is ``+inf`` (too few conformal rollouts for delta) is recorded, as in the per-task sweep.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from fiper_ros.core.combination import SHAPE_KINDS, Shape, fit_shape
+from fiper_ros.core.detectors import info
+from fiper_ros.core.fusion import Combine
+from fiper_ros.core.thresholds import Threshold, ThresholdSettings, _quantile
+from fiper_ros.evaluation.cache import StreamScores
+from fiper_ros.evaluation.methods import Combination
+from fiper_ros.evaluation.sweep import CUMULATIVE, Group, SweepSettings, TaskSweep, aggregated, first_alarms, padded
+
+#: Combines the joint sweep covers by default: the two joint ones and N-detector AND / OR.
+JOINT_COMBINE_DEFAULTS = ("max", "kth:2", "and", "or")
+
+
+def _combines(combination: Combination, wanted: Sequence[str]) -> list[Combine]:
+    """The combines of ``wanted`` a combination takes (one detector: its own threshold, the ``max`` of one)."""
+    if len(combination.detectors) == 1:
+        return [Combine.parse("max")]
+    combines = [Combine.parse(text) for text in wanted]
+    return [c for c in combines if c.mode != "kth" or c.k <= len(combination.detectors)]
+
+
+def _kinds(combination: Combination, wanted: Sequence[str]) -> list[str]:
+    """The normalisation kinds a combination is swept with: ``wanted``, or the one its detectors all fix."""
+    fixed = {info(d).shape for d in combination.detectors}
+    return [fixed.pop()] if len(fixed) == 1 and None not in fixed else list(wanted)
+
+
+@dataclass(frozen=True)
+class _Curves:
+    """One detector's aggregated curves of one task under one label: padded arrays and the lengths."""
+
+    fit: list[np.ndarray]
+    conformal: np.ndarray
+    conformal_lengths: np.ndarray
+    test: np.ndarray
+
+
+def _labelled(stream: StreamScores, settings: SweepSettings) -> Iterator[tuple[str, _Curves]]:
+    """``(label, curves)`` for every label of ``settings``, the fit, conformal and test parts aggregated alike."""
+    if stream.fit is None:
+        raise ValueError("a combination needs a split with a fit part (split conformal)")
+    fit_lengths = [c.shape[0] for c in stream.fit]
+    conformal = padded(stream.conformal)
+    lengths = np.array([c.shape[0] for c in stream.conformal])
+    parts = zip(aggregated(padded(stream.fit), settings), aggregated(conformal, settings),
+                aggregated(padded(stream.test), settings))
+    for (label, fit), (_, conf), (_, test) in parts:
+        yield label, _Curves([fit[i, :n] for i, n in enumerate(fit_lengths)], conf, lengths, test)
+
+
+def _normalised(curves: _Curves, shape: Shape) -> np.ndarray:
+    """``z`` of the padded conformal curves ``[M, L]`` (NaN after each end), the core's formula."""
+    width = curves.conformal.shape[1]  # the longest conformal curve, never longer than the shape
+    return (curves.conformal - shape.offset[None, :width]) / shape.scale[None, :width]
+
+
+def _scores(z: np.ndarray, votes: int) -> np.ndarray:
+    """``max_t`` of the ``votes``-th largest of ``z[N, M, L]`` (NaN padding ignored): ``R`` per conformal rollout."""
+    ranked = np.sort(z, axis=0)[z.shape[0] - votes]
+    return np.nanmax(ranked, axis=1)
+
+
+def _alarms(test: Sequence[np.ndarray], thresholds: Sequence[np.ndarray], votes: int) -> np.ndarray:
+    """First alarm per test rollout (-1: none): at least ``votes`` detectors above their thresholds at a step."""
+    counts = np.zeros(test[0].shape, dtype=np.int32)
+    for eta, gamma in zip(test, thresholds):
+        counts += np.greater(eta, gamma[None, :])
+    return first_alarms(counts >= votes)
+
+
+def _length(curves: Mapping[str, _Curves]) -> int:
+    """The shape length of a task: its longest fit or conformal curve."""
+    any_curves = next(iter(curves.values()))
+    return max(max(c.shape[0] for c in any_curves.fit), int(any_curves.conformal_lengths.max()))
+
+
+def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations: Sequence[Combination],
+                settings: SweepSettings, bases: Mapping[str, ThresholdSettings], pooled: bool,
+                combines: Sequence[str] = JOINT_COMBINE_DEFAULTS,
+                kinds: Sequence[str] = SHAPE_KINDS) -> dict[str, TaskSweep]:
+    """Every configuration of ``combinations`` on one seed's ``streams[task][stream]``: per task its groups,
+    first alarms ``[groups, deltas, test rollouts]``, infinite thresholds and conformal counts.
+
+    ``bases[task]`` carries the threshold rules (support, floor, extension, conformal quantile); ``pooled``:
+    ``k`` over every task's conformal rollouts (each task normalised by its own shapes), else per task.
+    """
+    tasks = list(streams)
+    for kind in kinds:
+        if kind not in SHAPE_KINDS:
+            raise ValueError(f"a combination normalises with {' or '.join(SHAPE_KINDS)}, not {kind!r}")
+    needed = sorted({d for c in combinations for d in c.detectors})
+    swept = [d for d in needed if info(d).aggregation is None]
+    # A detector with a fixed aggregation has one set of curves whatever the label.
+    fixed_settings = SweepSettings(windows=(1,), cumulative=True, deltas=settings.deltas)
+    fixed = {(t, d): dict(_labelled(streams[t][d], fixed_settings))[CUMULATIVE]
+             for t in tasks for d in needed if d not in swept}
+    generators = {(t, d): _labelled(streams[t][d], settings) for t in tasks for d in swept}
+    out: dict[str, dict[str, list]] = {t: {"groups": [], "alarms": [], "infinite": [], "conformal": []} for t in tasks}
+    for position, label in enumerate(settings.labels()):
+        current = {key: next(generator)[1] for key, generator in generators.items()}
+        for combination in combinations:
+            windowed = any(d in swept for d in combination.detectors)
+            if not windowed and position > 0:
+                continue  # every detector's aggregation is fixed: one configuration, swept once
+            chosen = {t: {d: current[(t, d)] if d in swept else fixed[(t, d)] for d in combination.detectors}
+                      for t in tasks}
+            for kind in _kinds(combination, kinds):
+                _configurations(combination, label if windowed else CUMULATIVE, kind, chosen, settings.deltas, bases,
+                                pooled, _combines(combination, combines), out)
+    return {t: TaskSweep(parts["groups"], np.stack(parts["alarms"]), np.stack(parts["infinite"]),
+                         np.array(parts["conformal"], dtype=int)) for t, parts in out.items()}
+
+
+def _configurations(combination: Combination, label: str, kind: str, chosen: Mapping[str, Mapping[str, _Curves]],
+                    deltas: Sequence[float], bases: Mapping[str, ThresholdSettings], pooled: bool,
+                    combines: Sequence[Combine], out: dict[str, dict[str, list]]) -> None:
+    """Append every combine's group of one (combination, label, kind) to ``out``, per task."""
+    tasks = list(chosen)
+    detectors = combination.detectors
+    kinds = {d: info(d).shape or kind for d in detectors}
+    band = {(t, d): fit_shape(chosen[t][d].fit, _length(chosen[t]), "cp_band", bases[t])
+            for t in tasks for d in detectors if kinds[d] == "cp_band"}  # its shape does not depend on delta
+    alarms: dict[tuple[str, str], list[np.ndarray]] = {(t, str(c)): [] for t in tasks for c in combines}
+    infinite: dict[tuple[str, str], list[bool]] = {(t, str(c)): [] for t in tasks for c in combines}
+    behind: dict[tuple[str, str], int] = {}
+    for delta in deltas:
+        shapes = {t: {d: band.get((t, d)) or fit_shape(chosen[t][d].fit, _length(chosen[t]), kinds[d],
+                                                      replace(bases[t], delta=delta))
+                      for d in detectors} for t in tasks}
+        z = {t: np.stack([_normalised(chosen[t][d], shapes[t][d]) for d in detectors]) for t in tasks}
+        for combine in combines:
+            votes = combine.votes(len(detectors))
+            # joint: one k over the votes-th largest; and / or: one k per detector over its own scores
+            members = [slice(None)] if combine.joint else [slice(i, i + 1) for i in range(len(detectors))]
+            ks: dict[str, list[float]] = {t: [] for t in tasks}
+            for member in members:
+                scores = {t: _scores(z[t][member], votes if combine.joint else 1) for t in tasks}
+                for t in tasks:
+                    own = np.concatenate(list(scores.values())) if pooled else scores[t]
+                    ks[t].append(_quantile(own, delta, bases[t].conformal))
+                    behind[(t, str(combine))] = int(own.shape[0])
+            for t in tasks:
+                per_detector = ks[t] * len(detectors) if combine.joint else ks[t]
+                test_length = chosen[t][detectors[0]].test.shape[1]
+                gammas = [Threshold(kinds[d], delta, shapes[t][d].values(k), bases[t].extension).over(test_length)
+                          for d, k in zip(detectors, per_detector)]
+                alarms[(t, str(combine))].append(_alarms([chosen[t][d].test for d in detectors], gammas, votes))
+                infinite[(t, str(combine))].append(not all(np.isfinite(k) for k in per_detector))
+    for t in tasks:
+        for combine in combines:
+            key = (t, str(combine))
+            shown = str(combine) if len(detectors) > 1 else ""  # one detector: its own threshold, no combine
+            out[t]["groups"].append(Group(combination.name, label, kind, shown))
+            out[t]["alarms"].append(np.stack(alarms[key]))
+            out[t]["infinite"].append(np.array(infinite[key]))
+            out[t]["conformal"].append(behind[key])
