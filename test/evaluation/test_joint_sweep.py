@@ -16,7 +16,7 @@ from fiper_ros.evaluation.joint_sweep import joint_sweep
 from fiper_ros.evaluation.methods import Combination
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 
-SWEEP = SweepSettings(windows=(1, 3), cumulative=True, deltas=(0.1, 0.2, 0.3))
+SWEEP = SweepSettings(windows=(1, 3), cumulative=True, deltas=(0.1, 0.2, 0.3), max_pool=(2,))
 BASE = ThresholdSettings(kind="cp_band", delta=0.1)
 COMBINATIONS = (Combination("trio", ("rnd_oe", "logpzo", "elapsed")), Combination("alone", ("logpzo",)),
                 Combination("clock", ("elapsed",)))
@@ -40,6 +40,8 @@ def _streams(rng: np.random.Generator, scale: float) -> dict[str, StreamScores]:
 def _aggregated(curves: list[np.ndarray], name: str, label: str) -> list[np.ndarray]:
     if info(name).aggregation == "cumulative" or label == "cum":
         return [aggregate(c, "cumulative") for c in curves]
+    if label.startswith("max"):
+        return [aggregate(c, "max", int(label.removeprefix("max"))) for c in curves]
     return [aggregate(c, "window", int(label)) for c in curves]
 
 
@@ -89,8 +91,8 @@ def test_the_sweep_decides_as_the_core(pooled: bool) -> None:
                 expected = _expected(streams, combination, group.window, group.kind, combine, delta, pooled)[task]
                 assert [None if a < 0 else int(a) for a in result.alarms[g, d]] == expected, (task, group, delta)
                 compared += 1
-    # trio: 3 labels x 2 kinds x 4 combines; alone: 3 x 2; clock: its one configuration (cumulative, CP scaled)
-    assert compared == 2 * (3 * 2 * 4 + 3 * 2 + 1) * len(SWEEP.deltas)
+    # trio: 4 labels x 2 kinds x 4 combines; alone: 4 x 2; clock: its one configuration (cumulative, CP scaled)
+    assert compared == 2 * (4 * 2 * 4 + 4 * 2 + 1) * len(SWEEP.deltas)
 
 
 def test_groups_name_the_configuration() -> None:
@@ -107,7 +109,7 @@ def test_pooled_conformal_counts_and_infinite_thresholds() -> None:
     """Per task 11 conformal rollouts cannot serve delta 0.05 (19 needed); pooled over two tasks (22) they can."""
     rng = np.random.default_rng(7)
     streams = {"a": _streams(rng, 1.0), "b": _streams(rng, 2.0)}
-    settings = SweepSettings(windows=(2,), cumulative=False, deltas=(0.05, 0.1))
+    settings = SweepSettings(windows=(2,), cumulative=False, deltas=(0.05, 0.1), max_pool=())
     alone = joint_sweep(streams, COMBINATIONS[:1], settings, dict.fromkeys(streams, BASE), False, combines=("max",))
     pooled = joint_sweep(streams, COMBINATIONS[:1], settings, dict.fromkeys(streams, BASE), True, combines=("max",))
     assert alone["a"].infinite[:, 0].all() and not alone["a"].infinite[:, 1].any()

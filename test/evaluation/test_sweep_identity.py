@@ -22,7 +22,7 @@ from fiper_ros.evaluation.scoring import compute_streams
 from fiper_ros.evaluation.sweep import Group, SweepSettings, sweep_task
 
 SEED = 2
-SWEEP = SweepSettings(windows=(1, 2, 3, 5), cumulative=True, deltas=(0.1, 0.2, 0.3), pairs="full")
+SWEEP = SweepSettings(windows=(1, 2, 3, 5), cumulative=True, deltas=(0.1, 0.2, 0.3), pairs="full", max_pool=(2, 3))
 CASES = {
     "paper": [
         Group("fiper", "3/3", "cp_band", "and"),
@@ -32,6 +32,8 @@ CASES = {
         Group("rnd_oe", "5", "time_varying"),
         Group("rnd_oe", "2", "cp_scaled"),
         Group("ace", "1", "cp_band"),
+        Group("rnd_oe", "max3", "cp_band"),
+        Group("fiper", "max2/max2", "cp_scaled", "or"),
     ],
     "reference": [Group("fiper", "3/2", "cp_band", "and"), Group("ace", "cum", "time_varying"),
                   Group("rnd_oe", "3", "cp_scaled")],

@@ -53,7 +53,7 @@ from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, 
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
 from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
-from fiper_ros.evaluation.sweep import DELTAS, PAIR_GRIDS, SweepSettings  # noqa: E402
+from fiper_ros.evaluation.sweep import DELTAS, MAX_POOL_WINDOWS, PAIR_GRIDS, SweepSettings  # noqa: E402
 from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
 from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
 
@@ -72,6 +72,11 @@ def int_list(text: str) -> tuple[int, ...]:
     if not values:
         raise argparse.ArgumentTypeError(f"no integers in {text!r}")
     return tuple(sorted(values))
+
+
+def window_list(text: str) -> tuple[int, ...]:
+    """:func:`int_list`, or ``"none"`` for no windows."""
+    return () if text == "none" else int_list(text)
 
 
 def delta_list(text: str) -> tuple[float, ...]:
@@ -125,6 +130,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="comma list (default: all; on observation-only data those that need no action batches)")
     sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
     sweep.add_argument("--no-cumulative", action="store_true", help="do not sweep the cumulative sum")
+    sweep.add_argument("--max-pool", type=window_list, default=MAX_POOL_WINDOWS,
+                       help="max-pooled windows, e.g. 2-10 or none (default: "
+                            f"{','.join(map(str, MAX_POOL_WINDOWS))})")
     sweep.add_argument("--deltas", type=delta_list, default=DELTAS, help="comma list or 'paper' (0.01..0.10)")
     sweep.add_argument("--thresholds", type=name_list(GRID_KINDS), default=None,
                        help=f"comma list of {', '.join(GRID_KINDS)} (default: all; with --pool: "
@@ -213,11 +221,12 @@ def settings_from(args: argparse.Namespace) -> EngineSettings:
                               shape_folds=args.shape_folds)
     kinds = args.thresholds or (SHAPE_KINDS if args.pool else SweepSettings().kinds)
     sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
-                          kinds=kinds, combines=args.combines, pairs=args.pairs)
+                          kinds=kinds, combines=args.combines, pairs=args.pairs, max_pool=args.max_pool)
     return EngineSettings(methods=args.methods, seeds=args.seeds, sweep=sweep, method_settings=method_settings,
                           protocols=args.protocol, split_seed=args.split_seed, default_window=args.default_window,
                           default_kind=args.default_threshold,
-                          select_aggregations=("window", "cumulative") if args.select_cumulative else ("window",),
+                          select_aggregations=("window", "max", "cumulative") if args.select_cumulative
+                          else ("window", "max"),
                           progress=not args.quiet, combinations=combinations_from(args),
                           combines=args.combo_combines, pooled=args.pool)
 

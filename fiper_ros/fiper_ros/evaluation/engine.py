@@ -55,7 +55,7 @@ class EngineSettings:
     split_seed: int = 0
     default_window: int = 5
     default_kind: str = "cp_band"
-    select_aggregations: tuple[str, ...] = ("window",)
+    select_aggregations: tuple[str, ...] = ("window", "max")
     threads: int = 1
     progress: bool = True
     combinations: tuple[Combination, ...] = ()

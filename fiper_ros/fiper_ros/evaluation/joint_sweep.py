@@ -120,7 +120,7 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
     needed = sorted({d for c in combinations for d in c.detectors})
     swept = [d for d in needed if info(d).aggregation is None]
     # A detector with a fixed aggregation has one set of curves whatever the label.
-    fixed_settings = SweepSettings(windows=(1,), cumulative=True, deltas=settings.deltas)
+    fixed_settings = SweepSettings(windows=(1,), cumulative=True, deltas=settings.deltas, max_pool=())
     fixed = {(t, d): dict(_labelled(streams[t][d], fixed_settings))[CUMULATIVE]
              for t in tasks for d in needed if d not in swept}
     generators = {(t, d): _labelled(streams[t][d], settings) for t in tasks for d in swept}

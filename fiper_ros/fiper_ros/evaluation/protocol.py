@@ -145,7 +145,7 @@ def run_protocol(
     methods: Sequence[str],
     default_window: int,
     default_kind: str,
-    select_aggregations: Sequence[str] = ("window",),
+    select_aggregations: Sequence[str] = ("window", "max"),
     infinite: np.ndarray | None = None,
     held_out: np.ndarray | None = None,
 ) -> ProtocolResult:

@@ -5,7 +5,8 @@ exceeds a threshold, so padding raises no alarm) and aggregated for all windows 
 ``w`` sum is the ``w - 1`` sum plus the scores shifted by ``w - 1`` steps, which adds the same float64
 numbers in the same order as :func:`fiper_ros.core.window.windowed`, so every curve is bit-identical
 to the core's. The cumulative sum (``w = inf``, label ``"cum"``) is ``np.cumsum`` as in the core.
-Single-step aggregation is ``w = 1``.
+Single-step aggregation is ``w = 1``. Max-pooling over ``w`` steps (label ``"max<w>"``, the core's mode
+``"max"``) is the running maximum of the same shifted scores (a maximum has no rounding).
 
 Thresholds are fitted with the core's rules (:mod:`.threshold_grid`, all deltas at once) on the
 conformal part's curves, with the fit part's curves as the shape (``shape_curves``) where the split has
@@ -39,6 +40,10 @@ from fiper_ros.evaluation.threshold_grid import GRID_KINDS, fit_threshold_grid
 
 DELTAS: tuple[float, ...] = tuple(round(0.01 * i, 2) for i in range(1, 11))
 CUMULATIVE = "cum"
+#: The label prefix of a max-pooled window (``"max5"``).
+MAX_POOL = "max"
+#: The max-pooled windows swept by default.
+MAX_POOL_WINDOWS = (2, 3, 5, 8, 10, 15, 20, 30)
 COARSE_WINDOWS = (1, 2, 3, 5, 8, 10, 15, 20, 25, 30, 40, 50)
 PAIR_GRIDS = ("diagonal", "coarse", "full")
 FIPER = "fiper"
@@ -55,10 +60,13 @@ class SweepSettings:
     kinds: tuple[str, ...] = ("cp_band", "cp_constant", "time_varying", "cp_scaled")
     combines: tuple[str, ...] = COMBINES
     pairs: str = "coarse"
+    max_pool: tuple[int, ...] = MAX_POOL_WINDOWS
 
     def __post_init__(self) -> None:
         if not self.windows or min(self.windows) < 1:
             raise ValueError(f"windows must be integers >= 1, got {self.windows}")
+        if self.max_pool and min(self.max_pool) < 2:
+            raise ValueError(f"max-pooled windows must be integers >= 2 (1 is the single step), got {self.max_pool}")
         if any(kind not in GRID_KINDS for kind in self.kinds):
             raise ValueError(f"threshold kinds must be among {GRID_KINDS}, got {self.kinds}")
         if any(combine not in COMBINES for combine in self.combines):
@@ -69,13 +77,14 @@ class SweepSettings:
             raise ValueError(f"deltas must be in (0, 1), at least one, got {self.deltas}")
 
     def labels(self) -> list[str]:
-        """Window labels in sweep order: ``"1"``, ``"2"``, ... and ``"cum"``."""
-        return [str(w) for w in sorted(set(self.windows))] + ([CUMULATIVE] if self.cumulative else [])
+        """Window labels in sweep order: ``"1"``, ``"2"``, ..., ``"cum"``, then ``"max2"``, ``"max3"``, ..."""
+        sums = [str(w) for w in sorted(set(self.windows))] + ([CUMULATIVE] if self.cumulative else [])
+        return sums + [f"{MAX_POOL}{w}" for w in sorted(set(self.max_pool))]
 
     def fiper_pairs(self) -> list[tuple[str, str]]:
-        """FIPER's ``(w_O, w_A)`` label pairs."""
-        labels = self.labels()
-        diagonal = [(label, label) for label in labels]
+        """FIPER's ``(w_O, w_A)`` label pairs (max-pooled windows only on the diagonal)."""
+        diagonal = [(label, label) for label in self.labels()]
+        labels = [label for label in self.labels() if not label.startswith(MAX_POOL)]
         if self.pairs == "diagonal":
             return diagonal
         grid = labels if self.pairs == "full" else [lb for lb in labels if lb == CUMULATIVE or int(lb) in COARSE_WINDOWS]
@@ -94,12 +103,14 @@ class Group:
 
     @property
     def aggregation(self) -> str:
-        """``"cumulative"`` or ``"window"``."""
-        return "cumulative" if CUMULATIVE in self.window else "window"
+        """``"cumulative"``, ``"max"`` (max-pooled) or ``"window"``: the core's aggregation mode."""
+        if CUMULATIVE in self.window:
+            return "cumulative"
+        return "max" if self.window.startswith(MAX_POOL) else "window"
 
     def windows(self) -> tuple[int | None, int | None]:
         """``(w_O, w_A)`` for FIPER, ``(w, None)`` otherwise; ``None`` for the cumulative sum."""
-        parts = [None if part == CUMULATIVE else int(part) for part in self.window.split("/")]
+        parts = [None if part == CUMULATIVE else int(part.removeprefix(MAX_POOL)) for part in self.window.split("/")]
         return (parts[0], parts[1]) if len(parts) == 2 else (parts[0], None)
 
 
@@ -122,6 +133,13 @@ def aggregated(scores: np.ndarray, settings: SweepSettings) -> Iterator[tuple[st
             yield str(w), eta
     if settings.cumulative:
         yield CUMULATIVE, np.cumsum(scores, axis=1)
+    if settings.max_pool:
+        pooled = scores.copy()
+        for w in range(2, max(settings.max_pool) + 1):
+            if w - 1 < scores.shape[1]:
+                np.maximum(pooled[:, w - 1:], scores[:, : -(w - 1)], out=pooled[:, w - 1:])
+            if w in settings.max_pool:
+                yield f"{MAX_POOL}{w}", pooled
 
 
 def first_alarms(exceeded: np.ndarray) -> np.ndarray:
@@ -185,7 +203,8 @@ def _fixed_settings(settings: SweepSettings, label: str, kind: str) -> SweepSett
     """A grid that holds the single configuration ``(label, kind)`` (the sweep's deltas)."""
     cumulative = label == CUMULATIVE
     return SweepSettings(windows=(1,) if cumulative else (int(label),), cumulative=cumulative,
-                         deltas=settings.deltas, kinds=(kind,), combines=settings.combines, pairs="diagonal")
+                         deltas=settings.deltas, kinds=(kind,), combines=settings.combines, pairs="diagonal",
+                         max_pool=())
 
 
 def sweep_task(
