@@ -10,6 +10,11 @@ Modules, one concept each:
 - :mod:`.kinematics`: joint-space actions to end-effector positions (App. A.1, last paragraph).
 - :mod:`.mlp`: MLP builder and numpy forward pass shared by RND-OE and the RND-A baseline.
 - :mod:`.rnd_oe`: random network distillation on observation embeddings, eq. (1) and App. A.2.
+- :mod:`.pca`: mean-centred principal components of embeddings.
+- :mod:`.progress`: the progress detector (elapsed time ahead of the estimated task progress).
+- :mod:`.consistency`: single-sample action consistency (overlap of consecutive executed chunks).
+- :mod:`.model_files`: a detector model's JSON description and npz arrays, with a content digest.
+- :mod:`.step_stream`: the step order of a detector's streaming form.
 - :mod:`.window`: score aggregation, eqs. (2) and (5).
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
 - :mod:`.fusion`: the AND/OR combination, eq. (7) and App. A.4.
@@ -22,5 +27,6 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "detectors", "fusion", "kinematics", "metrics", "mlp", "monitor",
-           "profiles", "rnd_oe", "rollout", "scores", "thresholds", "window"]
+__all__ = ["ace", "calibration", "calibration_file", "consistency", "detectors", "fusion", "kinematics", "metrics", "mlp",
+           "model_files", "monitor", "pca", "profiles", "progress", "rnd_oe", "rollout", "scores", "step_stream",
+           "thresholds", "window"]
