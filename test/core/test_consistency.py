@@ -166,8 +166,8 @@ def test_a_rejected_batch_leaves_the_stream_as_it_was(detector: ActionConsistenc
 
 
 @pytest.mark.parametrize(("actions", "message"), [
-    (np.zeros((2, 3)), r"shape \(B, 3, 2\) with B >= 1, got \(2, 3\)"),
-    (np.zeros((0, 3, 2)), r"with B >= 1, got \(0, 3, 2\)"),
+    (np.zeros((2, 3)), r"^actions must have shape \(B, 3, 2\) with no empty axis, got \(2, 3\)$"),
+    (np.zeros((0, 3, 2)), r"no empty axis, got \(0, 3, 2\)"),
     (np.zeros((2, 4, 2)), r"got \(2, 4, 2\)"),
     (np.zeros((2, 3, 3)), r"got \(2, 3, 3\)"),
     (np.full((1, 3, 2), np.inf), "NaN/inf"),
@@ -178,7 +178,7 @@ def test_malformed_batches_are_refused_in_one_line(detector: ActionConsistency, 
     with pytest.raises(ConsistencyError, match=message) as error:
         detector.stream().update(0, actions)
     assert "\n" not in str(error.value)
-    with pytest.raises(ConsistencyError, match=r"shape \(T, B, 3, 2\) with B >= 1 and T >= 1"):
+    with pytest.raises(ConsistencyError, match=r"shape \(T, B, 3, 2\) with no empty axis"):
         detector.scores(np.zeros((0, 1, 3, 2)))
 
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fiper_ros.core.model_files import write_model
+from fiper_ros.core.detector_model import write_model
 from fiper_ros.core.progress import (ProgressDetector, ProgressError, ProgressSettings, nearest_mean,
                                      step_progress)
 from fiper_ros.core.rollout import Rollout
@@ -180,7 +180,7 @@ def test_malformed_embeddings_are_refused_in_one_line(toy: ProgressDetector, emb
 
 
 def test_malformed_rollouts_settings_and_fits_are_refused(toy: ProgressDetector) -> None:
-    with pytest.raises(ProgressError, match=r"shape \(T, 2\) with T >= 1"):
+    with pytest.raises(ProgressError, match=r"^embeddings must have shape \(T, 2\) with no empty axis, got \(0, 2\)$"):
         toy.scores(np.zeros((0, 2)))
     with pytest.raises(ProgressError, match="NaN/inf"):
         toy.scores(np.array([[0.0, 0.0], [np.nan, 0.0]]))

@@ -13,7 +13,7 @@ Modules, one concept each:
 - :mod:`.pca`: mean-centred principal components of embeddings.
 - :mod:`.progress`: the progress detector (elapsed time ahead of the estimated task progress).
 - :mod:`.consistency`: single-sample action consistency (overlap of consecutive executed chunks).
-- :mod:`.model_files`: a detector model's JSON description and npz arrays, with a content digest.
+- :mod:`.detector_model`: what those detectors share: the input check, the JSON + npz files with a digest.
 - :mod:`.step_stream`: the step order of a detector's streaming form.
 - :mod:`.window`: score aggregation, eqs. (2) and (5).
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
@@ -27,6 +27,6 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "consistency", "detectors", "fusion", "kinematics", "metrics", "mlp",
-           "model_files", "monitor", "pca", "profiles", "progress", "rnd_oe", "rollout", "scores", "step_stream",
-           "thresholds", "window"]
+__all__ = ["ace", "calibration", "calibration_file", "consistency", "detector_model", "detectors", "fusion",
+           "kinematics", "metrics", "mlp", "monitor", "pca", "profiles", "progress", "rnd_oe",
+           "rollout", "scores", "step_stream", "thresholds", "window"]

@@ -23,7 +23,7 @@ The whole-rollout form (:meth:`ActionConsistency.scores`) and the streaming form
 score with the same function, bit for bit. The streaming form reads one previous step (:attr:`history` 1):
 after a lost step (``skip_to``) or a ``reset`` it has no previous chunk and its next score is 0, which the caller
 marks incomplete. Per-step cost ``O(H D)`` (plus the finiteness check of the ``B H D`` batch). Stored as
-``consistency.json`` + ``consistency.npz`` (:mod:`fiper_ros.core.model_files`), read with numpy only.
+``consistency.json`` + ``consistency.npz`` (:mod:`fiper_ros.core.detector_model`), read with numpy only.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fiper_ros.core.model_files import StoredModel
+from fiper_ros.core.detector_model import StoredModel, check_input
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.step_stream import StepStream
 
@@ -79,12 +79,6 @@ def check_overlap(exec_steps: int, horizon: int) -> None:
     """Refuse a layout in which consecutive executed chunks do not overlap: the detector needs ``1 <= h < H``."""
     if not 1 <= exec_steps < horizon:
         raise ConsistencyError(f"action consistency needs 1 <= h < H for an overlap, got h={exec_steps}, H={horizon}")
-
-
-def _numbers(x: np.ndarray, what: str) -> np.ndarray:
-    if x.dtype.kind not in "fiu" or not np.isfinite(x).all():
-        raise ConsistencyError(f"{what} contain NaN/inf or are not numbers")
-    return x
 
 
 class ActionConsistency(StoredModel):
@@ -156,12 +150,7 @@ class ActionConsistency(StoredModel):
         return score
 
     def _check(self, actions: np.ndarray, lead: tuple[str, ...]) -> np.ndarray:
-        actions = np.asarray(actions)
-        shape = (*lead, "B", str(self.horizon), str(self.action_dim))
-        if actions.ndim != len(shape) or actions.shape[-2:] != (self.horizon, self.action_dim) or 0 in actions.shape:
-            raise ConsistencyError(f"actions must have shape ({', '.join(shape)}) with B >= 1"
-                                   f"{' and T >= 1' if lead else ''}, got {actions.shape}")
-        return _numbers(actions, "actions")
+        return check_input(actions, (*lead, "B", self.horizon, self.action_dim), "actions", ConsistencyError)
 
     def scores(self, actions: np.ndarray) -> np.ndarray:
         """``s(t)`` ``[T]`` (float64; ``s(0) = 0``) of a whole rollout's action batches ``[T, B, H, D]``."""

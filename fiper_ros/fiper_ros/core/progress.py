@@ -22,7 +22,7 @@ Per-step cost: ``O(E k)`` for the projection and ``O(N k)`` for the distances, `
 ``N <= max_reference``: bounded by the settings, not by the calibration's size. The whole-rollout form
 (:meth:`ProgressDetector.scores`) and the streaming form (:class:`ProgressStream`) score every step with the same
 function, so they agree bit for bit. The model is stored as ``progress.json`` + ``progress.npz``
-(:mod:`fiper_ros.core.model_files`) and read with numpy only.
+(:mod:`fiper_ros.core.detector_model`) and read with numpy only.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from fiper_ros.core.model_files import StoredModel
+from fiper_ros.core.detector_model import StoredModel, check_input
 from fiper_ros.core.pca import PCA
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.step_stream import StepStream
@@ -84,17 +84,6 @@ def nearest_mean(reference: np.ndarray, progress: np.ndarray, point: np.ndarray,
     closer = np.flatnonzero(squared < last)
     tied = np.flatnonzero(squared == last)[: neighbours - closer.size]
     return float(progress[np.sort(np.concatenate([closer, tied]))].mean())
-
-
-def _embeddings(x: np.ndarray, shape: tuple[int | None, ...], what: str) -> np.ndarray:
-    x = np.asarray(x)
-    if x.ndim != len(shape) or any(want is not None and got != want for got, want in zip(x.shape, shape)) \
-            or 0 in x.shape:
-        expected = ", ".join("T" if want is None else str(want) for want in shape)
-        raise ProgressError(f"{what} must have shape ({expected}) with T >= 1, got {x.shape}")
-    if x.dtype.kind not in "fiu" or not np.isfinite(x).all():
-        raise ProgressError(f"{what} contain NaN/inf or are not numbers")
-    return x
 
 
 class ProgressDetector(StoredModel):
@@ -159,7 +148,7 @@ class ProgressDetector(StoredModel):
 
     def estimate(self, embedding: np.ndarray) -> float:
         """Estimated progress ``p_hat`` in [0, 1] of one embedding ``[E]``."""
-        x = _embeddings(embedding, (self.embedding_dim,), "an embedding")
+        x = check_input(embedding, (self.embedding_dim,), "an embedding", ProgressError)
         return self._estimate(x, self.workspace())
 
     def workspace(self) -> np.ndarray:
@@ -182,7 +171,7 @@ class ProgressDetector(StoredModel):
     def scores(self, embeddings: np.ndarray) -> np.ndarray:
         """``s(t)`` ``[T]`` (float64) of a whole rollout's embeddings ``[T, E]``, step by step with the streaming
         form's function."""
-        x = _embeddings(embeddings, (None, self.embedding_dim), "embeddings")
+        x = check_input(embeddings, ("T", self.embedding_dim), "embeddings", ProgressError)
         work = self.workspace()
         return np.array([self._score(t, row, work) for t, row in enumerate(x)], dtype=np.float64)
 
@@ -226,7 +215,7 @@ class ProgressStream(StepStream):
 
     def update(self, step: int, embedding: np.ndarray) -> float:
         """``s(step)`` of the embedding ``[E]`` of policy step ``step`` (the expected one)."""
-        x = _embeddings(embedding, (self.detector.embedding_dim,), "an embedding")
+        x = check_input(embedding, (self.detector.embedding_dim,), "an embedding", ProgressError)
         self._expect(step)
         score = self.detector._score(step, x, self._work)  # noqa: SLF001 - the one scoring function of both forms
         self._advance()

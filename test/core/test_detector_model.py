@@ -1,4 +1,4 @@
-"""Detector model files (core/model_files.py): JSON + npz written and read back exactly; a damaged, modified,
+"""Detector model files (core/detector_model.py): JSON + npz written and read back exactly; a damaged, modified,
 swapped or foreign file is refused in one line naming it; nothing is unpickled."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fiper_ros.core.model_files import ModelFileError, model_digest, read_model, write_model
+from fiper_ros.core.detector_model import ModelFileError, model_digest, read_model, write_model
 
 ARRAYS = {"scale": np.array([1.0, 2.5]), "index": np.arange(6, dtype=np.int64).reshape(2, 3)}
 DESCRIPTION = {"settings": {"floor": 0.1, "dims": [0, 2]}, "seed": 3}

@@ -1,8 +1,9 @@
-"""A fitted detector model on disk: ``<stem>.json`` (readable: kind, format version, settings and fitted scalars,
-the arrays' shapes and dtypes, the content digest) beside ``<stem>.npz`` (the arrays, read without pickles).
+"""What the detectors of :mod:`fiper_ros.core` whose fitted state is a few numpy arrays (progress, action
+consistency, PCA-kmeans, logpZO) share: the check of their input (:func:`check_input`) and their files.
 
-The detectors of :mod:`fiper_ros.core` whose fitted state is a few numpy arrays (progress, action consistency,
-PCA-kmeans, logpZO) are :class:`StoredModel` subclasses, written and read here with numpy only. The digest is SHA-256 over the description
+On disk a model is ``<stem>.json`` (readable: kind, format version, settings and fitted scalars, the arrays'
+shapes and dtypes, the content digest) beside ``<stem>.npz`` (the arrays, read without pickles); the detectors are
+:class:`StoredModel` subclasses, written and read here with numpy only. The digest is SHA-256 over the description
 (everything in the JSON but the digest itself, keys sorted) and every array's name, dtype, shape and bytes; it
 is stored in the JSON and checked on load, so a modified, swapped or foreign file is refused with one line
 naming it, and it is what a calibration's content hash covers of the model.
@@ -26,6 +27,19 @@ NPY_HEADER_BYTES = 4096
 
 class ModelFileError(ValueError):
     """A detector model file is missing, unreadable or not the model its description names."""
+
+
+def check_input(x: np.ndarray, shape: tuple[int | str, ...], what: str, error: type[ValueError]) -> np.ndarray:
+    """``x`` as an array if it has ``shape`` (an ``int`` is a required size, a ``str`` names a free one) with no
+    empty axis and holds finite numbers; else ``error`` with one line: ``what`` and the shape expected and got,
+    or that it holds NaN/inf or no numbers. Cost: one pass over ``x``."""
+    x = np.asarray(x)
+    if x.ndim != len(shape) or 0 in x.shape or any(isinstance(want, int) and got != want
+                                                   for got, want in zip(x.shape, shape)):
+        raise error(f"{what} must have shape ({', '.join(map(str, shape))}) with no empty axis, got {x.shape}")
+    if x.dtype.kind not in "fiu" or not np.isfinite(x).all():
+        raise error(f"{what} contain NaN/inf or are not numbers")
+    return x
 
 
 def _sha256(content: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> str:
@@ -175,3 +189,4 @@ class StoredModel:
         except (ValueError, KeyError, TypeError) as error:
             path = Path(directory) / f"{cls.name}.json"
             raise cls.error(f"{path}: not a {cls.name} model ({type(error).__name__}: {error})") from error
+
