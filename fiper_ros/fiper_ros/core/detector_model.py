@@ -20,6 +20,8 @@ from typing import Any, ClassVar, Self
 
 import numpy as np
 
+from fiper_ros.core.rollout import Rollout
+
 #: Bytes a ``.npy`` member may hold beyond its data: the magic string and the header (numpy pads it to 64-byte
 #: multiples; 4 KiB is far more than a header of a few arrays needs).
 NPY_HEADER_BYTES = 4096
@@ -190,3 +192,38 @@ class StoredModel:
             path = Path(directory) / f"{cls.name}.json"
             raise cls.error(f"{path}: not a {cls.name} model ({type(error).__name__}: {error})") from error
 
+
+class EmbeddingDetector(StoredModel):
+    """A stored detector whose score of a policy step reads that step's observation embedding alone
+    (:attr:`history` 0): :meth:`score_one` per step, :meth:`score_embeddings` / :meth:`scores` for a whole rollout
+    with the same function, so both agree bit for bit. A subclass gives :attr:`embedding_dim`, :meth:`_input`
+    (the checked, perhaps transformed, embeddings) and :meth:`_score` (one embedding)."""
+
+    #: A score reads the step's own embedding only.
+    history: ClassVar[int] = 0
+
+    @property
+    def embedding_dim(self) -> int:
+        """``E``, the embedding size the model was fitted on."""
+        raise NotImplementedError
+
+    def _input(self, embeddings: np.ndarray, shape: tuple[int | str, ...]) -> np.ndarray:
+        """``embeddings`` checked to have ``shape`` (:func:`check_input`) and ready for :meth:`_score`."""
+        raise NotImplementedError
+
+    def _score(self, x: np.ndarray) -> float:
+        """The score of one embedding as :meth:`_input` made it."""
+        raise NotImplementedError
+
+    def score_one(self, embedding: np.ndarray) -> float:
+        """The score of one embedding ``[E]``."""
+        return self._score(self._input(embedding, (self.embedding_dim,)))
+
+    def score_embeddings(self, embeddings: np.ndarray) -> np.ndarray:
+        """Scores ``[T]`` (float64) of embeddings ``[T, E]``, step by step as :meth:`score_one`."""
+        x = self._input(embeddings, ("T", self.embedding_dim))
+        return np.array([self._score(row) for row in x], dtype=np.float64)
+
+    def scores(self, rollout: Rollout) -> np.ndarray:
+        """Per-step scores ``[T]`` of ``rollout``'s embeddings."""
+        return self.score_embeddings(rollout.embeddings)
