@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fiper_ros.baselines.pca_kmeans import PCAKMeansConfig
+from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.evaluation.cache import ScoreCache
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.methods import MethodSettings

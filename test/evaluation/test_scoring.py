@@ -7,9 +7,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fiper_ros.baselines.logpzo import LogpZO
-from fiper_ros.baselines.pca_kmeans import PCAKMeans
 from fiper_ros.core.calibration import split_successes
+from fiper_ros.core.logpzo import LogpZO
+from fiper_ros.core.pca_kmeans import PCAKMeans
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.methods import MethodSettings
 from fiper_ros.evaluation.scoring import calibration_split, check_split, compute_streams, torch_threads

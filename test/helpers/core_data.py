@@ -34,6 +34,15 @@ def make_rollout(
     )
 
 
+def cluster_rollout(rng: np.random.Generator, index: int, center: tuple[float, float], steps: int = 30,
+                    success: bool = True) -> Rollout:
+    """Embeddings from a tight 2-D Gaussian cluster at ``center`` (standard deviation 0.1); small random action
+    chunks ``[T, 8, 8, 2]``, ``h = 4``."""
+    embeddings = np.asarray(center) + 0.1 * rng.normal(size=(steps, 2))
+    actions = 0.01 * rng.normal(size=(steps, 8, 8, 2))
+    return Rollout(f"cluster-{index}", "test", "id", embeddings, actions, 4, success)
+
+
 def filled_rnd(embedding_dim: int, config: RNDConfig, target: float, predictor: float) -> RNDOE:
     """A real RND-OE model of ``config`` whose every target weight is ``target``, every predictor weight
     ``predictor``, every bias 0."""

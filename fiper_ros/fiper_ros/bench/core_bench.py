@@ -1,5 +1,6 @@
 """Latency of the FIPER core per policy step: ACE, RND-OE (batch 1), fusion, and all together (the two
-streaming monitors and the fusion node's fuser, as the nodes run them, without DDS).
+streaming monitors and the fusion node's fuser, as the nodes run them, without DDS); the streaming forms of the
+progress and action-consistency detectors.
 
 Run: ``python -m fiper_ros.bench.core_bench`` (or ``make bench-core``). Prints p50/p99 in ms and the
 ratio of each p50 to its target (ACE <= 1 ms, RND-OE small <= 2 ms, all together <= 3 ms).
@@ -16,9 +17,12 @@ import numpy as np
 
 from fiper_ros.core.ace import ace_score
 from fiper_ros.core.calibration import Calibration, CalibrationSettings
+from fiper_ros.core.consistency import ActionConsistency
 from fiper_ros.core.monitor import ActionMonitor, ObservationMonitor
+from fiper_ros.core.progress import ProgressDetector, ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rnd_train import untrained_rnd
+from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.thresholds import Threshold
 from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore
 
@@ -27,6 +31,11 @@ EMBEDDING_DIMS = (64, 128, 512)
 TARGET_ACE_MS = 1.0
 TARGET_RND_MS = 2.0
 TARGET_TOTAL_MS = 3.0
+#: The PushT layout: embedding size, then ``(B, H, D)`` and ``h``.
+PUSHT_EMBEDDING = 64
+PUSHT_CHUNKS, PUSHT_EXEC = (256, 16, 2), 8
+#: Embedding sizes of the progress detector's rows (the default settings: 32 components, 4096 references).
+PROGRESS_DIMS = (PUSHT_EMBEDDING, 1024)
 
 
 def measure(function: Callable[[int], object], iterations: int, warmup: int) -> tuple[float, float]:
@@ -60,6 +69,31 @@ def _calibration(embedding_dim: int, ace_shape: tuple[int, int, int]) -> Calibra
         num_rollouts=0,
     )
     return calibration
+
+
+def _fit_rollouts(rng: np.random.Generator, embedding_dim: int, steps: int = 5000) -> list[Rollout]:
+    """Successes of 250 random steps each, ``steps`` in all (more than the 4096 references progress keeps), with
+    PushT-shaped action batches of a single sample (only sample 0 is fitted on)."""
+    return [Rollout(f"fit-{i}", "bench", "id", rng.normal(size=(250, embedding_dim)),
+                    rng.normal(size=(250, 1, *PUSHT_CHUNKS[1:])), PUSHT_EXEC, True) for i in range(steps // 250)]
+
+
+def detector_rows(rng: np.random.Generator, iterations: int,
+                  warmup: int) -> list[tuple[str, float, float, float | None]]:
+    """The streaming ``update`` of progress (default settings, a full reference set) and action consistency."""
+    rows: list[tuple[str, float, float, float | None]] = []
+    for dim in PROGRESS_DIMS:
+        detector = ProgressDetector.fit(_fit_rollouts(rng, dim), ProgressSettings())
+        stream, inputs = detector.stream(), rng.normal(size=(8, dim)).astype(np.float32)
+        p50, p99 = measure(lambda i, s=stream, x=inputs: s.update(s.next_step, x[i % 8]), iterations, warmup)
+        rows.append((f"progress update E={dim} (k {detector.pca.basis.shape[0]}, {detector.reference.shape[0]} "
+                     "references)", p50, p99, None))
+    consistency = ActionConsistency.fit(_fit_rollouts(rng, 1, 2000))
+    stream = consistency.stream()
+    batches = [rng.normal(size=PUSHT_CHUNKS).astype(np.float32) for _ in range(8)]
+    p50, p99 = measure(lambda i: stream.update(stream.next_step, batches[i % 8]), iterations, warmup)
+    rows.append((f"consistency update (B,H,D)={PUSHT_CHUNKS} h={PUSHT_EXEC}", p50, p99, None))
+    return rows
 
 
 def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | None]]:
@@ -103,7 +137,7 @@ def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | N
     p50, p99 = measure(together, iterations, warmup)
     name = "together: both monitors' update and AlarmFuser.add (ACE 256x16x3, RND-OE small E=512, windows, fusion)"
     rows.append((name, p50, p99, TARGET_TOTAL_MS))
-    return rows
+    return rows + detector_rows(rng, iterations, warmup)
 
 
 def main(argv: list[str] | None = None) -> int:

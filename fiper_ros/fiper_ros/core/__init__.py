@@ -1,6 +1,7 @@
 """FIPER core: failure prediction scores, thresholds and metrics (Römer et al., NeurIPS 2025).
 
-Pure Python (numpy, optional pinocchio; torch only to train: :mod:`.rnd_train`, :mod:`.torch_mlp`); never imports rclpy. The ROS nodes, the bag replay
+Pure Python (numpy, optional pinocchio; torch only to train: :mod:`.rnd_train`, :mod:`.logpzo_train`,
+:mod:`.torch_mlp`); never imports rclpy. The ROS nodes, the bag replay
 and the offline evaluation all call :mod:`fiper_ros.core.monitor`, so their results are identical.
 
 Modules, one concept each:
@@ -10,6 +11,13 @@ Modules, one concept each:
 - :mod:`.kinematics`: joint-space actions to end-effector positions (App. A.1, last paragraph).
 - :mod:`.mlp`: MLP builder and numpy forward pass shared by RND-OE and the RND-A baseline.
 - :mod:`.rnd_oe`: random network distillation on observation embeddings, eq. (1) and App. A.2.
+- :mod:`.pca`: mean-centred principal components of embeddings.
+- :mod:`.progress`: the progress detector (elapsed time ahead of the estimated task progress).
+- :mod:`.consistency`: single-sample action consistency (overlap of consecutive executed chunks).
+- :mod:`.pca_kmeans`: the PCA-kmeans detector (distance to the nearest centroid; a baseline of App. B.5).
+- :mod:`.logpzo`: the logpZO detector (flow matching on embeddings; a baseline of App. B.5), scored in numpy.
+- :mod:`.detector_model`: what those detectors share: the input check, the JSON + npz files with a digest.
+- :mod:`.step_stream`: the step order of a detector's streaming form.
 - :mod:`.window`: score aggregation, eqs. (2) and (5).
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
 - :mod:`.fusion`: the AND/OR combination, eq. (7) and App. A.4.
@@ -22,5 +30,6 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "detectors", "fusion", "kinematics", "metrics", "mlp", "monitor",
-           "profiles", "rnd_oe", "rollout", "scores", "thresholds", "window"]
+__all__ = ["ace", "calibration", "calibration_file", "consistency", "detector_model", "detectors", "fusion",
+           "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles", "progress", "rnd_oe",
+           "rollout", "scores", "step_stream", "thresholds", "window"]

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import logging
 import pickle
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -21,19 +19,9 @@ import torch
 
 from fiper_ros.core.rnd_oe import (LEGACY_WEIGHTS_FILE, NETWORKS, RNDOE, ProgressCallback, RNDConfig, RNDError,
                                    TrainProgress, check_embeddings)
-from fiper_ros.core.torch_mlp import build_mlp, parameters_of
+from fiper_ros.core.torch_mlp import build_mlp, deterministic, parameters_of, train_epoch
 
 LOG = logging.getLogger(__name__)
-
-
-@contextmanager
-def _deterministic() -> Iterator[None]:
-    previous = torch.are_deterministic_algorithms_enabled()
-    torch.use_deterministic_algorithms(True, warn_only=True)
-    try:
-        yield
-    finally:
-        torch.use_deterministic_algorithms(previous)
 
 
 def _adamw(params: Any, config: RNDConfig) -> torch.optim.AdamW:
@@ -75,7 +63,7 @@ class TorchRND:
             raise RNDError(f"RND-OE training needs at least 2 samples, got {x.shape[0]}")
         config = self.config
         generator = torch.Generator().manual_seed(self.seed + 1)
-        with _deterministic(), torch.no_grad():
+        with deterministic(), torch.no_grad():
             y = self.target(x)
         order = torch.randperm(x.shape[0], generator=generator)
         n_val = min(max(1, round(config.val_fraction * x.shape[0])), x.shape[0] - 1)
@@ -83,18 +71,12 @@ class TorchRND:
         optimizer = _adamw(self.predictor.parameters(), config)
         schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.max_epochs, eta_min=config.lr_min)
         best_loss, best_state, stale = float("inf"), None, 0
-        with _deterministic():
+        with deterministic():
             for epoch in range(config.max_epochs):
                 self.predictor.train()
                 shuffled = train_idx[torch.randperm(train_idx.shape[0], generator=generator)]
-                total = 0.0
-                for start in range(0, shuffled.shape[0], config.batch_size):
-                    batch = shuffled[start : start + config.batch_size]
-                    loss = _mean_distance(self.predictor, x[batch], y[batch])
-                    optimizer.zero_grad(set_to_none=True)
-                    loss.backward()
-                    optimizer.step()
-                    total += float(loss.detach()) * batch.shape[0]
+                train_loss = train_epoch(optimizer, shuffled, config.batch_size,
+                                         lambda batch: _mean_distance(self.predictor, x[batch], y[batch]))
                 schedule.step()
                 self.predictor.eval()
                 with torch.no_grad():
@@ -104,7 +86,7 @@ class TorchRND:
                     best_state = {k: v.detach().clone() for k, v in self.predictor.state_dict().items()}
                 else:
                     stale += 1
-                report = TrainProgress(epoch + 1, config.max_epochs, total / train_idx.shape[0], val_loss, best_loss)
+                report = TrainProgress(epoch + 1, config.max_epochs, train_loss, val_loss, best_loss)
                 LOG.debug("RND-OE epoch %d train %.5f val %.5f", epoch + 1, report.train_loss, val_loss)
                 if progress is not None:
                     progress(report)

@@ -1,14 +1,17 @@
-"""The torch side of :mod:`fiper_ros.core.mlp`: the builder with the paper's initialisation, which trains.
+"""The torch side of :mod:`fiper_ros.core.mlp`: the builder with the paper's initialisation, and the pieces of a
+training loop shared by RND-OE, logpZO and RND-A.
 
-RND-OE's training (:mod:`fiper_ros.core.rnd_train`), the RND-A and logpZO baselines build their networks
-here; :func:`parameters_of` hands a trained network to the numpy forward pass
-(:class:`fiper_ros.core.mlp.NumpyMLP`) the scoring code uses.
+RND-OE's training (:mod:`fiper_ros.core.rnd_train`), logpZO's (:mod:`fiper_ros.core.logpzo_train`) and the RND-A
+baseline build their networks here and train them epoch by epoch with :func:`train_epoch`;
+:func:`parameters_of` hands a trained network to the numpy forward pass (:class:`fiper_ros.core.mlp.NumpyMLP`)
+the scoring code uses.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 import torch
@@ -40,3 +43,30 @@ def parameters_of(network: nn.Module) -> dict[str, np.ndarray]:
     """The network's state dict as float32 numpy arrays (copies), named as torch names them."""
     return {name: tensor.detach().cpu().numpy().astype(np.float32, copy=True)
             for name, tensor in network.state_dict().items()}
+
+
+@contextmanager
+def deterministic() -> Iterator[None]:
+    """Run the enclosed torch code with ``torch.use_deterministic_algorithms`` (warnings only where an operation
+    has no deterministic form), restoring the previous setting."""
+    previous = torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(previous)
+
+
+def train_epoch(optimizer: torch.optim.Optimizer, order: torch.Tensor, batch_size: int,
+                loss_of: Callable[[torch.Tensor], torch.Tensor]) -> float:
+    """One epoch: the sample indices ``order`` in batches of ``batch_size`` (the last one shorter), each a step of
+    ``optimizer`` on ``loss_of(batch_indices)`` (a mean over the batch); returns the mean loss over the samples."""
+    total = 0.0
+    for start in range(0, order.shape[0], batch_size):
+        batch = order[start : start + batch_size]
+        loss = loss_of(batch)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        total += float(loss.detach()) * batch.shape[0]
+    return total / order.shape[0]

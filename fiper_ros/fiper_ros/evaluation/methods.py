@@ -24,12 +24,12 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from fiper_ros.baselines.logpzo import LogpZOConfig
-from fiper_ros.baselines.pca_kmeans import PCAKMeansConfig
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
 from fiper_ros.core.detectors import ACE, RND_OE, info
 from fiper_ros.core.kinematics import RobotModel
+from fiper_ros.core.logpzo import LogpZOConfig
+from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.rnd_oe import RNDConfig
 

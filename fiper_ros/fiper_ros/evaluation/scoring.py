@@ -30,13 +30,13 @@ import numpy as np
 import torch
 
 from fiper_ros.baselines.base import Baseline, BaselineError
-from fiper_ros.baselines.logpzo import LogpZO
-from fiper_ros.baselines.pca_kmeans import PCAKMeans
 from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC, check_overlap
 from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY
 from fiper_ros.core.kinematics import RobotModel
+from fiper_ros.core.logpzo import LogpZO
+from fiper_ros.core.pca_kmeans import PCAKMeans
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
