@@ -123,6 +123,8 @@ class ProtocolResult:
     default: dict[str, MethodResult]
     combine_kind: dict[tuple[str, str], MethodResult]
     selection_twa: dict[str, float] = field(default_factory=dict)
+    combinations: dict[tuple[str, str, str], MethodResult] = field(default_factory=dict)
+    """Each combination's best window per (combine, kind): ``(name, combine, kind)``."""
 
 
 def delta_mean(metrics: np.ndarray) -> np.ndarray:
@@ -185,9 +187,17 @@ def run_protocol(
         if wanted is not None:
             default[method] = result(method, list(groups).index(wanted))
     combine_kind: dict[tuple[str, str], MethodResult] = {}
-    fiper_groups = [(i, g) for i, g in enumerate(groups) if g.method == FIPER and g.aggregation in select_aggregations]
-    for combine in dict.fromkeys(g.combine for _, g in fiper_groups):
-        for kind in dict.fromkeys(g.kind for _, g in fiper_groups):
-            members = [i for i, g in fiper_groups if g.combine == combine and g.kind == kind]
-            combine_kind[(combine, kind)] = result(FIPER, best_group(groups, twa, members))
-    return ProtocolResult(protocol, selected, default, combine_kind, scores)
+    combined: dict[tuple[str, str, str], MethodResult] = {}
+    for method in methods:
+        voting = [(i, g) for i, g in enumerate(groups)
+                  if g.method == method and g.combine and g.aggregation in select_aggregations]
+        for combine in dict.fromkeys(g.combine for _, g in voting):
+            for kind in dict.fromkeys(g.kind for _, g in voting):
+                members = [i for i, g in voting if g.combine == combine and g.kind == kind]
+                if members:
+                    best = result(method, best_group(groups, twa, members))
+                    if method == FIPER:
+                        combine_kind[(combine, kind)] = best
+                    else:
+                        combined[(method, combine, kind)] = best
+    return ProtocolResult(protocol, selected, default, combine_kind, scores, combined)

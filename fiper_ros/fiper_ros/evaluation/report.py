@@ -214,27 +214,45 @@ def table1(result: EvaluationResult, chosen: dict[str, MethodResult]) -> str:
 
 def table2(result: EvaluationResult, protocol: ProtocolResult) -> str:
     """Table 2 layout: FIPER's operator x threshold type, task averages (and the gain over the elapsed time)."""
-    keys = list(protocol.combine_kind)
-    if not keys:
+    if not protocol.combine_kind:
         return "_FIPER was not evaluated._"
+    return _voting_table(result, protocol, {("", *key): chosen for key, chosen in protocol.combine_kind.items()})
+
+
+def table3(result: EvaluationResult, protocol: ProtocolResult) -> str:
+    """Every combination of several detectors: its best window per combine and normalisation, task averages."""
+    if not protocol.combinations:
+        return "_No combination of several detectors was evaluated._"
+    return _voting_table(result, protocol, protocol.combinations)
+
+
+def _voting_table(result: EvaluationResult, protocol: ProtocolResult,
+                  chosen_by: dict[tuple[str, str, str], MethodResult]) -> str:
+    """Rows ``(method, combine, kind)`` (method "" for FIPER's own table): best window, task-average metrics and
+    the gain over the elapsed time."""
+    keys = list(chosen_by)
     cells = Cells(result)
+    catalogue = result.settings.catalogue()
     seeds = len(result.settings.seeds)
     floor = protocol.selected.get(ELAPSED)
-    chosen = [protocol.combine_kind[k] for k in keys]
+    chosen = [chosen_by[k] for k in keys]
     means = np.stack([c.average()[0] for c in chosen])
     stds = np.stack([c.average()[1] for c in chosen])
     cell_notes = [cells.notes(c, None) for c in chosen]
-    notes = [(n, f"{c.group.combine.upper()} {KIND_LABELS[c.group.kind]}") for c, ns in zip(chosen, cell_notes)
-             for n in ns]
+    named = any(method for method, _, _ in keys)
+    notes = [(n, f"{catalogue[m].label + ' ' if m else ''}{combine.upper()} {KIND_LABELS[kind]}")
+             for (m, combine, kind), ns in zip(keys, cell_notes) for n in ns]
     columns = _metric_row(means, stds, seeds, [PARTIAL if ns else "" for ns in cell_notes])
     extra = [f"TWA − {METHODS[ELAPSED].label}"] if floor is not None else []
-    header = ["Operator", "Threshold", "Best w", *(LABELS[m] for m in METRICS), *extra]
+    header = [*(["Combination"] if named else []), "Operator", "Threshold", "Best w", *(LABELS[m] for m in METRICS),
+              *extra]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row, ((combine, kind), c) in enumerate(zip(keys, chosen)):
+    for row, ((method, combine, kind), c) in enumerate(zip(keys, chosen)):
         values = [f"**{columns[m][0][row]}**" if columns[m][1] == row else columns[m][0][row] for m in METRICS]
         if floor is not None:
             values.append(_signed(*gain(c, floor, None), seeds))
-        lines.append(f"| {combine.upper()} | {KIND_LABELS[kind]} | {window_text(c.group)} | " + " | ".join(values) + " |")
+        lead = [catalogue[method].label] if named else []
+        lines.append("| " + " | ".join([*lead, combine.upper(), KIND_LABELS[kind], window_text(c.group), *values]) + " |")
     return "\n".join(lines + _legend(notes))
 
 
@@ -373,6 +391,10 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   table1(result, protocol.selected), "",
                   f"## Table 2: FIPER operator and threshold type, {name} protocol (task average)", "",
                   table2(result, protocol), "",
+                  f"## Table 3: combinations of detectors, {name} protocol (task average)", "",
+                  "MAX and KTH:K share one conformal factor over the normalised detectors (the promise is δ); AND and "
+                  "OR give each detector its own (OR of N: N δ).", "",
+                  table3(result, protocol), "",
                   f"## The promise: false alarms on held-out ID successes, {name} protocol", "",
                   f"FA: the fraction of {held} ID-scenario successes alarmed (mean over seeds) ± its binomial "
                   f"standard error; {FLAG}: above δ + 2σ. TPR: over all failures, at the same δ. Guarantee: "
@@ -436,7 +458,8 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
 
         protocols[name] = {"selected": entries(protocol.selected), "selection_twa": protocol.selection_twa,
                            "default": entries(protocol.default),
-                           "fiper_combine_threshold": entries(protocol.combine_kind)}
+                           "fiper_combine_threshold": entries(protocol.combine_kind),
+                           "combinations": entries(protocol.combinations)}
     seed_mean = nanmean(result.metrics["all"], axis=1)
     deltas = list(s.sweep.deltas)
     infinite = result.sweep.infinite.any(axis=1)  # [tasks, groups, deltas], over seeds
