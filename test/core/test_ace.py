@@ -192,3 +192,87 @@ def test_the_callers_actions_are_left_as_they_were(dtype: type) -> None:
         before = actions.copy()
         step_entropies(actions, np.full(shape[-1], 0.2), 0.01)
         assert np.array_equal(actions, before)
+
+
+# The authors' binning (binning="reference"): float32 np.arange edges and np.digitize.
+def test_a_sample_on_a_float32_edge_takes_the_upper_cell_where_float64_takes_the_lower() -> None:
+    # Samples 0, e, 1 with cell 0.25 and the 1 % buffer. float32: low = 0 - float32(0.01) * 1 = -0.0099999998,
+    # edge 1 = float32(low + 0.25) = 0.23999999463558197 = e, so np.digitize puts e in cell 1: three cells.
+    # float64: low = -0.01 and (e + 0.01) / 0.25 = 0.99999998 floors to cell 0, with the sample 0: two cells.
+    edge = float(np.float32(np.float32(0.0) - np.float32(0.01)) + np.float32(0.25))
+    assert edge == 0.23999999463558197
+    actions = np.array([0.0, edge, 1.0])[:, None, None]
+    assert step_entropies(actions, np.array([0.25]), 0.01)[0] == pytest.approx(-(2 / 3) * math.log2(2 / 3)
+                                                                               - (1 / 3) * math.log2(1 / 3))
+    assert step_entropies(actions, np.array([0.25]), 0.01, "reference")[0] == pytest.approx(math.log2(3))
+
+
+def test_the_reference_cell_is_the_float32_product() -> None:
+    # float32(0.03) = 0.029999999329447746; float32(0.03) * 2 in float32 is twice that
+    np.testing.assert_array_equal(cell_size(np.array([1.0, 2.0]), 0.03, "reference"),
+                                  [0.029999999329447746, 0.05999999865889549])
+    np.testing.assert_array_equal(cell_size(np.array([1.0, 2.0]), 0.03), [0.03, 0.06])
+    with pytest.raises(ValueError, match="binning"):
+        cell_size(np.array([1.0]), 0.03, "float32")
+    with pytest.raises(ValueError, match="binning"):
+        step_entropies(np.zeros((2, 1, 1)), np.array([0.1]), 0.0, "float32")
+
+
+def test_reference_binning_keeps_a_zero_cell_one_bin_and_refuses_an_uncountable_range() -> None:
+    rng = np.random.default_rng(7)
+    actions = rng.normal(size=(32, 4, 2)).astype(np.float32)
+    only_first = step_entropies(actions[:, :, :1], np.array([0.2]), 0.01, "reference")
+    np.testing.assert_array_equal(step_entropies(actions, np.array([0.2, 0.0]), 0.01, "reference"), only_first)
+    wide = np.zeros((4, 2, 1))
+    wide[::2, 0, 0], wide[1::2, 0, 0] = -3e38, 3e38  # (high + cell - low) / cell overflows float32
+    entropies = step_entropies(wide, np.array([1e-30]), 0.0, "reference")
+    assert np.isnan(entropies[0]) and entropies[1] == 0.0
+
+
+def _edges(samples: np.ndarray, cell: np.float32, buffer: float) -> np.ndarray:
+    """The authors' cell edges of one dimension's float32 samples, literally with np.arange (none for cell 0)."""
+    low, high = samples.min(), samples.max()
+    pad = np.float32(buffer) * (high - low)
+    return np.arange(low - pad, high + pad + cell, cell, dtype=np.float32) if cell else np.zeros(0, np.float32)
+
+
+def _digitized(samples: np.ndarray, cell: np.float32, buffer: float) -> np.ndarray:
+    """The authors' cells of one dimension's float32 samples: np.digitize over :func:`_edges`, minus 1; an
+    empty np.arange (zero width, or the single bin of cell 0) puts every sample in one cell."""
+    edges = _edges(samples, cell, buffer)
+    return np.digitize(samples, edges) - 1 if edges.shape[0] else np.zeros(samples.shape[0], dtype=np.int64)
+
+
+@st.composite
+def _float32_steps(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, float]:
+    """Samples ``[D, G, B]`` (float32 values), cells (float32 values, some 0) and a range buffer."""
+    dims, groups, samples = draw(st.integers(1, 3)), draw(st.integers(1, 4)), draw(st.integers(1, 40))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    scale, offset = 10.0 ** rng.uniform(-3, 2), rng.normal() * 10.0 ** rng.uniform(-2, 4)
+    x = rng.normal(size=(dims, groups, samples)) * scale + offset
+    if draw(st.booleans()):  # values on a coarse grid: repeated samples and samples on edges
+        x = np.round(x / scale * 4) * scale / 4
+    cell = (np.abs(rng.normal(size=dims)) * scale * 10.0 ** rng.uniform(-2, 0.5, size=dims)).astype(np.float32)
+    cell[rng.random(dims) < 0.2] = 0.0
+    x, buffer = x.astype(np.float32), draw(st.sampled_from([0.0, 0.01]))
+    if draw(st.booleans()):  # samples on an edge or one float32 step beside it (the smallest and largest stay)
+        for d, g in np.ndindex(dims, groups):
+            edges = _edges(x[d, g], np.float32(cell[d]), buffer)
+            inner = np.setdiff1d(np.arange(samples), [x[d, g].argmin(), x[d, g].argmax()])
+            inside = edges[(edges > x[d, g].min()) & (edges < x[d, g].max())]
+            if inner.size and inside.size:
+                moved = rng.choice(inside, size=inner.size)
+                x[d, g, inner] = np.nextafter(moved, moved + rng.integers(-1, 2, size=inner.size).astype(np.float32))
+    return x.astype(np.float64), cell.astype(np.float64), buffer
+
+
+@settings(max_examples=300, deadline=None, derandomize=True, database=None)
+@given(_float32_steps())
+def test_reference_bins_are_np_arange_and_np_digitize_in_float32(steps: tuple[np.ndarray, np.ndarray, float]) -> None:
+    x, cell, buffer = steps
+    index, _, undefined, _ = ace._authors_bins(x.copy(), cell, buffer)  # noqa: SLF001
+    assert not undefined.any()
+    for d in range(x.shape[0]):
+        for g in range(x.shape[1]):
+            literal = _digitized(x[d, g].astype(np.float32), np.float32(cell[d]), buffer)
+            np.testing.assert_array_equal(index[d, g], literal, err_msg=f"dimension {d}, group {g}")

@@ -26,8 +26,10 @@ from fiper_ros.core.calibration import (
 )
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import DETECTORS
-from fiper_ros.core.rollout import Rollout
-from fiper_ros.core.thresholds import GUARANTEED_KINDS
+from fiper_ros.core.rollout import Rollout, successful
+from fiper_ros.core.scores import act_scores, rollout_positions
+from fiper_ros.core.thresholds import GUARANTEED_KINDS, fit_threshold
+from fiper_ros.core.window import aggregate
 
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = sorted([*ROOT.glob("models/*/calibration"), *ROOT.glob("bags/*/calibration")])
@@ -241,3 +243,16 @@ def test_or_promises_twice_delta_and_says_how_to_get_delta() -> None:
     text = guarantee(CalibrationSettings(delta=0.05, combine="or"))
     assert text.startswith("at most 0.1 of new successful rollouts") and "--delta 0.025 for 0.05" in text
     assert guarantee(CalibrationSettings(delta=0.05, combine="and")).startswith("at most 0.05 of new")
+
+
+def test_reference_profile_calibrates_the_authors_band_on_float32_cells(calibration_rollouts: list[Rollout]) -> None:
+    quick = dataclasses.replace(TINY_RND, max_epochs=2)
+    settings = CalibrationSettings(rnd=quick, profile="reference", threshold="cp_band", split="same", window_act=3)
+    reference = calibrate(calibration_rollouts, settings)
+    np.testing.assert_array_equal(reference.cell, np.float32(0.03) * reference.ranges.astype(np.float32))
+    successes = successful(calibration_rollouts)  # in the order given: the authors' split takes them so
+    curves = [aggregate(act_scores(rollout_positions(r, reference.projection()), reference.cell, reference.profile),
+                        "window", 3) for r in successes]
+    expected = fit_threshold(curves, settings.threshold_settings())
+    np.testing.assert_array_equal(reference.threshold_act.values, expected.values)
+    assert (reference.threshold_act.params["m1"], reference.threshold_act.params["m2"]) == (12, 12)  # 1 + 23 // 2

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from fiper_ros.core.ace import ace_score, step_entropies
+from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.profiles import PAPER, REFERENCE, get_profile
 from fiper_ros.core.scores import act_score
 
@@ -37,3 +40,19 @@ def test_profile_fields() -> None:
     assert get_profile("reference") is REFERENCE
     with pytest.raises(ValueError, match="profile"):
         get_profile("fast")
+
+
+def test_new_profile_fields() -> None:
+    assert (PAPER.band_rule, PAPER.ace_binning, PAPER.metrics_rule) == ("paper", "paper", "paper")
+    assert (REFERENCE.band_rule, REFERENCE.ace_binning, REFERENCE.metrics_rule) == ("reference",) * 3
+    assert CalibrationSettings(profile="reference").threshold_settings().band_rule == "reference"
+    assert CalibrationSettings().threshold_settings().band_rule == "paper"
+
+
+def test_reference_ace_bins_in_float32() -> None:
+    # the float32 edge sample of test_ace: three cells in the reference profile, two in float64
+    edge = 0.23999999463558197
+    actions = np.array([0.0, edge, 1.0])[:, None, None]
+    assert act_score(actions, np.array([0.25]), REFERENCE) == pytest.approx(np.log2(3) + 1e-6, abs=1e-15)
+    buffered = replace(PAPER, range_buffer=0.01)
+    assert act_score(actions, np.array([0.25]), buffered) == pytest.approx(0.9182958340544896, abs=1e-15)

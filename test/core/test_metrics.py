@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
-from fiper_ros.core.metrics import evaluate
+from fiper_ros.core.metrics import authors_rounding, evaluate
 
 
 def test_hand_computed_metrics() -> None:
@@ -74,3 +75,44 @@ def test_rejections_say_what_was_wrong() -> None:
         evaluate([0], [True], t_max=0)
     with pytest.raises(ValueError, match=r"^2 t_max values but 1 outcomes$"):
         evaluate([0], [True], t_max=[3, 4])
+
+
+# metrics_rule="reference": the authors' empty classes, TWA sum and rounding.
+def _float32(value: float) -> float:
+    return float(np.float32(value))
+
+
+def test_reference_rule_with_an_empty_positive_class() -> None:
+    # three successes, one false alarm: no positives, so TPR 0 and DT 1.0 (ours: NaN); TNR 2/3 -> 0.666667
+    result = evaluate([None, 2, None], [False, False, False], t_max=5, dt_mode="reference", metrics_rule="reference")
+    assert (result["tpr"], result["dt"], result["twa_pos"]) == (0.0, 1.0, 0.0)
+    assert result["tnr"] == _float32(0.666667) == result["twa_neg"]
+    assert result["acc"] == _float32(0.333333)  # (0 + 2/3) / 2, rounded
+    assert result["twa"] == _float32(0.333333)  # (1/3 + 1/3) * 0.5: the empty class adds nothing
+    paper = evaluate([None, 2, None], [False, False, False], t_max=5, dt_mode="reference")
+    assert math.isnan(paper["tpr"]) and math.isnan(paper["dt"]) and math.isnan(paper["twa"])
+
+
+def test_reference_rule_with_an_empty_negative_class_and_no_true_positive() -> None:
+    result = evaluate([None, None], [True, True], t_max=5, dt_mode="reference", metrics_rule="reference")
+    assert (result["tpr"], result["tnr"], result["acc"], result["dt"], result["twa"]) == (0.0, 0.0, 0.0, 1.0, 0.0)
+
+
+def test_reference_rule_by_hand() -> None:
+    # failures alarmed at 1 and 4 of T_max = 7 (DT 1/6, 4/6), one missed; successes: one quiet, one false alarm
+    result = evaluate([1, None, 4, 3, None], [True, True, True, False, False], t_max=7, dt_mode="reference",
+                      metrics_rule="reference")
+    assert result["tpr"] == _float32(0.666667) and result["tnr"] == 0.5
+    assert result["dt"] == _float32(np.round(np.mean([1 / 6, 4 / 6]), 6))  # 0.416667
+    # TWA = 0.5 [(1 - 1/6) / 3 + (1 - 4/6) / 3 + 1 / 2] = 0.5 (0.277778 + 0.111111 + 0.5) = 0.444444
+    assert result["twa"] == _float32(0.444444)
+    assert result["acc"] == _float32(0.583333)  # (2/3 + 1/2) / 2 = 0.58333333
+
+
+def test_authors_rounding_rounds_as_numpy_to_six_decimals_then_float32() -> None:
+    # numpy's round (x 1e6, rint, / 1e6) takes 3.5e-6 to 4e-6; Python's round of the float gives 3e-6
+    assert authors_rounding(3.5e-6) == _float32(4e-6)
+    assert round(3.5e-6, 6) == 3e-6
+    assert authors_rounding(1 / 3) == _float32(0.333333) == 0.33333298563957214
+    with pytest.raises(ValueError, match="metrics_rule"):
+        evaluate([1], [True], t_max=10, metrics_rule="authors")

@@ -9,10 +9,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fiper_ros.core.thresholds import (
+    AuthorsBand,
     Threshold,
     ThresholdError,
     ThresholdSettings,
@@ -349,3 +350,113 @@ def test_the_conformal_factor_is_the_conformal_rank_not_the_plain_quantile(kind:
         assert conformal.params["k"] == pytest.approx(1e12) and plain.params["k"] == pytest.approx(0.8e12)
     assert set(conformal.params) == {"m", "k", "m1", "m2", floor_key}
     assert (conformal.params["m"], conformal.params["m1"], conformal.params["m2"]) == (4, 2, 4)
+
+
+# The authors' CP band (band_rule="reference"): hand cases from their formulas, then a step-by-step oracle.
+AUTHORS = ThresholdSettings(kind="cp_band", band_rule="reference", band_sign="lower", conformal=False,
+                            extension="mean", min_support=1)
+
+
+def test_authors_split_takes_the_first_longest_curve_and_the_first_half_of_the_others_in_order() -> None:
+    c0, c1, c2, c3, c4 = (np.array([3.0, 4.0]), np.array([1.0, 2.0, 3.0]), np.array([2.0]),
+                          np.array([2.0, 5.0, 2.5]), np.array([0.0, 3.0]))
+    band = AuthorsBand.of([c0, c1, c2, c3, c4])
+    # c1 and c3 are both longest: the first, c1, leads I1; of [c0, c2, c3, c4] the first floor(4 / 2) join it
+    assert [id(c) for c in band.set1] == [id(c1), id(c0), id(c2)]
+    assert [id(c) for c in band.set2] == [id(c3), id(c4)]
+    np.testing.assert_array_equal(band.mu, [2.0, 3.0, 3.0])  # (1 + 3 + 2) / 3, (2 + 4) / 2, 3
+    np.testing.assert_array_equal(band.deviations, [1.0, 1.0, 0.0])
+    # in another order c3 is the first longest one, and the split changes with it
+    assert [id(c) for c in AuthorsBand.of([c3, c0, c1, c2, c4]).set1] == [id(c3), id(c0), id(c1)]
+
+
+def test_authors_band_by_hand_with_the_1_over_t_max_fill_in() -> None:
+    curves = [np.array([3.0, 4.0]), np.array([1.0, 2.0, 3.0]), np.array([2.0]), np.array([2.0, 5.0, 2.5]),
+              np.array([0.0, 3.0])]
+    # delta 0.2: N1 = 3, (3 + 1) 0.8 = 3.2 > 3 keeps every I1 curve. s(t) = max |eta - mu| over them:
+    # t = 0: max(1, 1, 0) = 1; t = 1: max(1, 1) = 1; t = 2: |3 - 3| = 0 < 1e-7 -> 1 / T_1 = 1 / 3.
+    # Band scores (mu - eta) / s: c3 max(0, -2, 0.5 * 3) = 1.5; c4 max(2, 0) = 2 -> k = np.quantile(0.8) = 1.9
+    fitted = fit_threshold(curves, replace(AUTHORS, delta=0.2))
+    assert (fitted.params["m1"], fitted.params["m2"]) == (3, 2)
+    assert fitted.params["s_floor"] == pytest.approx(1 / 3)
+    assert fitted.params["k"] == pytest.approx(1.9)
+    np.testing.assert_allclose(fitted.values, [2.0 + 1.9, 3.0 + 1.9, 3.0 + 1.9 / 3])
+    # the upper sign (eta - mu) / s: c3 max(0, 2, -1.5) = 2, c4 max(-2, 0) = 0 -> k = 1.6
+    assert fit_threshold(curves, replace(AUTHORS, delta=0.2, band_sign="upper")).params["k"] == pytest.approx(1.6)
+
+
+def test_authors_filter_both_branches_and_the_1_over_t_fill_in() -> None:
+    longest, a, b = np.array([6.0, 0.0, 0.0, 0.0]), np.array([0.0, 2.0]), np.array([0.0, 4.0, 3.0])
+    x, y = np.array([1.0, 1.0, 1.0, 1.0]), np.array([3.0, 3.0])
+    curves = [longest, a, b, x, y]  # I1 = [longest, a, b], I2 = [x, y]
+    band = AuthorsBand.of(curves)
+    np.testing.assert_array_equal(band.mu, [2.0, 2.0, 1.5, 0.0])
+    np.testing.assert_array_equal(band.deviations, [4.0, 2.0, 2.0])  # |6 - 2|; |0 - 2|; |0 - 2| = |4 - 2|
+    # delta 0.2: (3 + 1) 0.8 = 3.2 > 3: no filter. s = [max(4, 2, 2), max(2, 0, 2), max(1.5, 1.5), |0 - 0| -> 1/4]
+    assert band.kept(0.2) == (0, 1, 2)
+    np.testing.assert_array_equal(band.statistics((0, 1, 2), "lower").scale, [4.0, 2.0, 1.5, 0.25])
+    # delta 0.4: (3 + 1) 0.6 = 2.4 <= 3: gamma = np.quantile([4, 2, 2], 0.6) = 2.4 keeps a and b only; no kept
+    # curve reaches t = 3: s = 1 / 3 there
+    assert band.kept(0.4) == (1, 2)
+    filtered = band.statistics((1, 2), "lower")
+    np.testing.assert_allclose(filtered.scale, [2.0, 2.0, 1.5, 1.0 / 3.0])
+    # band scores (mu - eta) / s: x max(0.5, 0.5, 1/3, -3) = 0.5; y max(-0.5, -0.5) = -0.5 -> k = np.quantile(0.6)
+    np.testing.assert_allclose(filtered.band_scores, [0.5, -0.5])
+    fitted = fit_threshold(curves, replace(AUTHORS, delta=0.4))
+    assert fitted.params["k"] == pytest.approx(0.1)
+    np.testing.assert_allclose(fitted.values, [2.2, 2.2, 1.65, 0.1 / 3.0])
+
+
+def test_authors_band_with_shape_curves_is_as_long_as_the_longest_shape_curve() -> None:
+    shape = [np.array([1.0, 3.0]), np.array([3.0, 5.0])]  # mu = [2, 4], s = [1, 1]
+    curves = [np.array([2.5, 4.0, 9.0]), np.array([1.0])]  # I2; the third step of the first is past mu
+    fitted = fit_threshold(curves, replace(AUTHORS, delta=0.5), shape_curves=shape)
+    # scores (mu - eta) / s: max(-0.5, 0) = 0, max(1) = 1 -> k = np.quantile([0, 1], 0.5) = 0.5
+    assert (fitted.params["m1"], fitted.params["m2"], fitted.params["k"]) == (2, 2, 0.5)
+    np.testing.assert_array_equal(fitted.values, [2.5, 4.5])
+    np.testing.assert_array_equal(fitted.over(4), [2.5, 4.5, 3.5, 3.5])  # the extension: their mean
+
+
+def test_authors_band_needs_two_curves_and_a_known_rule() -> None:
+    with pytest.raises(ThresholdError, match="at least 2"):
+        fit_threshold([np.ones(3)], AUTHORS)
+    with pytest.raises(ThresholdError, match="band_rule"):
+        ThresholdSettings(band_rule="authors")
+
+
+def _authors_oracle(curves: list[np.ndarray], delta: float, sign: float) -> np.ndarray:
+    """The authors' CP band step by step from its description: Python lists, one ``np.mean`` per step."""
+    pool = [list(map(float, c)) for c in curves]
+    first = max(range(len(pool)), key=lambda i: len(pool[i]))
+    longest = pool.pop(first)
+    n1 = len(pool) // 2
+    set1, set2 = [longest, *pool[:n1]], pool[n1:]
+    mean = [float(np.mean([c[t] for c in set1 if len(c) > t])) for t in range(len(longest))]
+    q = 1.0 - delta
+    if (len(set1) + 1) * q > len(set1):
+        kept = set1
+    else:
+        worst = [max(abs(c[t] - mean[t]) for t in range(len(c))) for c in set1]
+        gamma = np.quantile(worst, q)
+        kept = [c for c, w in zip(set1, worst) if w <= gamma]
+    scale = []
+    for t in range(len(mean)):
+        reached = [abs(c[t] - mean[t]) for c in kept if len(c) > t]
+        value = max(reached) if reached else 1 / t
+        scale.append(1 / len(longest) if value < 1e-7 else value)
+    scores = [max(sign * (c[t] - mean[t]) / scale[t] for t in range(min(len(c), len(mean)))) for c in set2]
+    h = np.quantile(scores, q)
+    return np.array([mean[t] + h * scale[t] for t in range(len(mean))])
+
+
+@settings(max_examples=150, deadline=None, derandomize=True, database=None)
+@given(st.integers(2, 40), st.sampled_from([0.01, 0.05, 0.1, 0.3, 0.5]), st.sampled_from(["lower", "upper"]),
+       st.integers(0, 2**32 - 1), st.booleans())
+def test_authors_band_equals_the_step_by_step_oracle_to_the_bit(m: int, delta: float, sign: str, seed: int,
+                                                                ties: bool) -> None:
+    rng = np.random.default_rng(seed)
+    curves = [np.cumsum(rng.lognormal(size=int(rng.integers(1, 30)))) * 10.0 ** rng.uniform(-3, 3) for _ in range(m)]
+    if ties:  # equal lengths, repeated values: ties in the split, zero deviations, the 1e-7 fill-in
+        curves = [np.round(c[:5] if c.shape[0] >= 5 else np.resize(c, 5), 0) for c in curves]
+    fitted = fit_threshold(curves, replace(AUTHORS, delta=delta, band_sign=sign))
+    np.testing.assert_array_equal(fitted.values, _authors_oracle(curves, delta, 1.0 if sign == "upper" else -1.0))

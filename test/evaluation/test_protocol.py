@@ -38,6 +38,15 @@ def test_alarm_metrics_of_an_empty_subset_are_nan() -> None:
     assert empty.shape == (2, 1, len(METRICS)) and np.isnan(empty[..., METRICS.index("tnr")]).all()
 
 
+def test_alarm_metrics_with_the_reference_rule_give_the_authors_values_for_a_subset_without_failures() -> None:
+    alarms = np.array([[[2, -1, 0, -1]]])
+    failed = np.array([True, True, False, False])
+    only_successes = np.array([2, 3])  # one false alarm, one quiet: TNR 0.5, no positives
+    twa, acc, dt, tpr, tnr = alarm_metrics(alarms, failed, 10, "reference", only_successes, "reference")[0, 0]
+    assert (twa, acc, dt, tpr, tnr) == (0.25, 0.25, 1.0, 0.0, 0.5)
+    assert np.isnan(alarm_metrics(alarms, failed, 10, "reference", only_successes)[0, 0, METRICS.index("tpr")])
+
+
 def _rollout(name: str, length: int, success: bool) -> Rollout:
     return Rollout(rollout_id=name, task="hand", scenario="id", embeddings=np.zeros((length, 2)),
                    actions=np.zeros((length, 2, 2, 2)), exec_steps=1, success=success)

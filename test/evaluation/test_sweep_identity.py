@@ -69,9 +69,9 @@ def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: 
     base = settings.calibration_settings(SEED).threshold_settings()
     task_sweep = sweep_task(streams, ["rnd_oe", "ace", "fiper"], SWEEP, base)
     groups, alarms = task_sweep.groups, task_sweep.alarms
-    dt_mode = get_profile(profile).dt_mode
+    dt_mode, metrics_rule = get_profile(profile).dt_mode, get_profile(profile).metrics_rule
     t_max = horizons(tiny_dataset, profile)
-    metrics = alarm_metrics(alarms, tiny_dataset.failed, t_max, dt_mode)
+    metrics = alarm_metrics(alarms, tiny_dataset.failed, t_max, dt_mode, metrics_rule=metrics_rule)
     raised = infinite = 0
     cases = CASES[profile][:2] if split == "cross" or shape_folds else CASES[profile]  # K + 1 fits per calibration
     for group in cases:
@@ -83,7 +83,7 @@ def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: 
             raised += sum(a is not None for a in expected)
             infinite += bool(task_sweep.infinite[g, d])
             reference = evaluate(expected, list(tiny_dataset.failed),
-                                 t_max if isinstance(t_max, int) else t_max.tolist(), dt_mode)
+                                 t_max if isinstance(t_max, int) else t_max.tolist(), dt_mode, metrics_rule)
             np.testing.assert_array_equal(metrics[g, d], [reference[m] for m in METRICS])
     total = len(cases) * len(SWEEP.deltas) * len(tiny_dataset.test)
     assert 0 < raised < total  # the comparison covers both alarms and silent rollouts

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fiper_ros.core.calibration import CalibrationSettings
-from fiper_ros.core.thresholds import GUARANTEED_KINDS, fit_threshold
+from fiper_ros.core.thresholds import GUARANTEED_KINDS, AuthorsBand, ThresholdSettings, fit_threshold
 from fiper_ros.evaluation.sweep import DELTAS
 from fiper_ros.evaluation.threshold_grid import GRID_KINDS, fit_threshold_grid
 
@@ -49,3 +49,19 @@ def test_grid_equals_fit_threshold(profile: str, shaped: bool, trial: int) -> No
 def test_unknown_kind_is_refused() -> None:
     with pytest.raises(ValueError, match="not swept"):
         fit_threshold_grid([np.ones(3)] * 3, ["gaussian"], [0.1], CalibrationSettings().threshold_settings())
+
+
+def test_reference_band_grid_follows_the_filter_per_delta() -> None:
+    # 43 curves: N1 = 22 and (N1 + 1)(1 - delta) > N1 for delta < 1/23 only, so the authors' filter keeps every
+    # I1 curve at delta 0.01..0.04 and filters at 0.05..0.1: the modulation differs between the deltas
+    rng = np.random.default_rng(9)
+    curves = _curves(rng, 1.0, 43)
+    base = ThresholdSettings(kind="cp_band", band_rule="reference", band_sign="lower", conformal=False,
+                             extension="mean", min_support=1)
+    band = AuthorsBand.of([np.asarray(c, dtype=np.float64) for c in curves])
+    assert len({band.kept(delta) for delta in DELTAS}) >= 2
+    grid = fit_threshold_grid(curves, ["cp_band"], DELTAS, base)
+    for threshold in grid["cp_band"]:
+        expected = fit_threshold(curves, replace(base, kind="cp_band", delta=threshold.delta))
+        np.testing.assert_array_equal(threshold.values, expected.values)
+        assert threshold.params == expected.params

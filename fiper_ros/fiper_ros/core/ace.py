@@ -19,6 +19,20 @@ sample axis, the run lengths of equal codes being the counts (codes beyond int64
 visit a step's cells in ascending code order, so they sum the same terms in the same order: a step's entropy is
 the same to the bit whichever way its call counts it (a rollout scored at once counts every step the way its
 widest step needs; the streaming monitor one step at a time).
+
+Binning (``binning``, :data:`BINNINGS`): the above is ``"paper"``. ``"reference"`` assigns cells as the authors'
+code does, in float32 (the dtype of their stored action predictions): per step and dimension the samples are
+rounded to float32, ``low = min - b (max - min)`` and ``high = max + b (max - min)`` (``b`` the range buffer),
+the edges are ``np.arange(low, high + cell, cell, dtype=float32)`` with the float32 cell
+``float32(alpha) * float32(R_d)`` (:func:`cell_size`), and a sample's bin is ``np.digitize(x, edges) - 1``, the
+last edge at or below it. A sample exactly on a float32 edge therefore takes the bin above it, where the float64
+``floor`` may put it in the bin below. The edges are not built: the last edge at or below each sample is found
+from the float64 estimate ``floor((x - low) / delta)``, checked against ``np.arange``'s float32 arithmetic
+for the edge at an index (``low + float32(i) * delta`` with ``delta = (low + cell) - low``) and, where float32
+rounded an edge across the sample, by a binary search over the edge index: the work is ``O(B)``, at most
+``O(B log N_d)``, whatever the range. As in the paper rule, a dimension with ``R_d = 0`` is one bin; a step
+whose edge count overflows (float32, or beyond ``2**62``) has no entropy (NaN; the authors' code raises
+there).
 """
 
 from __future__ import annotations
@@ -35,6 +49,11 @@ _MAX_CODE_BITS = 62.0
 #: many counts per sample), others by sorting their codes: the two cost the same at about one cell per sample
 #: (16 steps of B 256, D 2, hot: 52 against 50 us; at 16 cells per sample 268 against 66 us, at 0.25 35 against 65).
 HISTOGRAM_CELLS_PER_SAMPLE = 1
+#: How samples are assigned to cells: the paper's float64 ``floor((x - low) / cell)`` or the authors' float32
+#: ``np.arange`` edges and ``np.digitize`` (module docstring).
+BINNINGS = ("paper", "reference")
+# Edge counts at or beyond this cannot be indexed in int64: such a step has no entropy in the reference binning.
+_MAX_EDGES = 2.0**62
 
 
 def check_alpha(alpha: float) -> None:
@@ -43,12 +62,26 @@ def check_alpha(alpha: float) -> None:
         raise ValueError(f"cell size factor alpha must be in (0, 1), got {alpha}")
 
 
-def cell_size(ranges: np.ndarray, alpha: float) -> np.ndarray:
-    """Cell size ``alpha * R_d`` per action dimension (App. A.1); ``alpha`` in (0, 1)."""
+def check_binning(binning: str) -> None:
+    """Refuse a binning rule that is not one of :data:`BINNINGS`."""
+    if binning not in BINNINGS:
+        raise ValueError(f"unknown ACE binning {binning!r}; expected one of {BINNINGS}")
+
+
+def cell_size(ranges: np.ndarray, alpha: float, binning: str = "paper") -> np.ndarray:
+    """Cell size ``alpha * R_d`` per action dimension (App. A.1); ``alpha`` in (0, 1).
+
+    ``binning="reference"``: the authors' float32 product ``float32(alpha) * float32(R_d)`` (held exactly in
+    the float64 result); ``R_d`` of float32 samples, ``max - min`` in float64, is exact, so its float32 rounding
+    is their float32 ``max - min``.
+    """
     check_alpha(alpha)
+    check_binning(binning)
     ranges = np.asarray(ranges, dtype=np.float64)
     if ranges.ndim != 1 or np.any(~np.isfinite(ranges)) or np.any(ranges < 0):
         raise ValueError(f"ranges must be a finite non-negative vector, got {ranges}")
+    if binning == "reference":
+        return (np.float32(alpha) * ranges.astype(np.float32)).astype(np.float64)
     return alpha * ranges
 
 
@@ -143,11 +176,60 @@ def _tuple_entropies(index: np.ndarray) -> np.ndarray:
     return _run_entropies(starts, groups, samples)
 
 
-def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
-                       histogram_cells: float = HISTOGRAM_CELLS_PER_SAMPLE) -> np.ndarray:
-    """Binned entropy (bits) of each group of samples ``x[D, G, B]``, a float64 array this function may overwrite
-    (``histogram_cells``: the histogram's bound, :data:`HISTOGRAM_CELLS_PER_SAMPLE`; 0 sorts always)."""
-    dims, groups, samples = x.shape
+def _authors_edge(k: np.ndarray, low: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Edge ``k`` of ``np.arange(low, stop, cell, dtype=float32)``: ``low + float32(k) * delta`` in float32, with
+    ``delta = (low + cell) - low`` (numpy's fill of a float32 range; its edge 1, ``low + cell``, is the same
+    number: ``test_reference_bins_are_np_arange_and_np_digitize_in_float32``)."""
+    return low + k.astype(np.float32) * delta
+
+
+#: Bin indices ``[D, G, B]`` (exact float64 integers), ``n_bins[D, G]``, the groups without a defined entropy and
+#: the most cells of a group.
+Bins = tuple[np.ndarray, np.ndarray, np.ndarray, float]
+
+
+def _authors_bins(x: np.ndarray, cell: np.ndarray, range_buffer: float) -> Bins:
+    """The reference binning (module docstring) of ``x[D, G, B]``."""
+    informative = (cell > 0)[:, None]
+    step = np.where(informative, cell.astype(np.float32)[:, None], np.float32(1.0))
+    with np.errstate(over="ignore", invalid="ignore"):
+        x32 = x.astype(np.float32)
+        low, high = x32.min(axis=2), x32.max(axis=2)
+        pad = np.float32(range_buffer) * (high - low)
+        low, high = low - pad, high + pad
+        edges = np.ceil(((high + step) - low) / step, dtype=np.float64)  # np.arange's length: float32, then ceil
+        undefined = ~((edges < _MAX_EDGES) | ~informative).all(axis=0)
+        edges = np.where(informative & ~undefined, np.maximum(edges, 1.0), 1.0)
+        delta = (low + step) - low
+    low3, delta3, last = low[:, :, None], delta[:, :, None], (edges - 1).astype(np.int64)[:, :, None]
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero delta (every edge is low): searched below
+        guess = np.floor((x32 - low3.astype(np.float64)) / delta3)
+    index = np.where(guess >= 0, np.minimum(guess, last), 0).astype(np.int64)  # NaN compares False: 0
+    # The guess is the cell unless float32 rounded an edge across the sample: search those (np.digitize's answer,
+    # the last edge at or below the sample, is where one edge is at or below it and the next above it).
+    wrong = (_authors_edge(index, low3, delta3) > x32) | (
+        (index < last) & (_authors_edge(index + 1, low3, delta3) <= x32))
+    if wrong.any():
+        every = [np.broadcast_to(a, x.shape)[wrong] for a in (x32, low3, delta3, last)]
+        index[wrong] = _last_edge_at_or_below(*every)
+    return index.astype(np.float64), edges, undefined, float(edges.prod(axis=0).max())
+
+
+def _last_edge_at_or_below(x: np.ndarray, low: np.ndarray, delta: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """Per sample, the largest edge index ``k <= last`` with edge ``k`` at or below the sample (edge 0, ``low``, is):
+    a binary search over the monotone edges of :func:`_authors_edge`."""
+    below = np.zeros(x.shape, dtype=np.int64)
+    above = last.copy()
+    for _ in range(int(last.max()).bit_length()):
+        middle = (below + above + 1) // 2
+        at_or_below = _authors_edge(middle, low, delta) <= x
+        below = np.where(at_or_below, middle, below)
+        above = np.where(at_or_below, above, middle - 1)
+    return below
+
+
+def _paper_bins(x: np.ndarray, cell: np.ndarray, range_buffer: float) -> Bins:
+    """The paper's binning of ``x[D, G, B]`` (in place)."""
     low = x.min(axis=2)
     span = x.max(axis=2) - low
     if range_buffer:
@@ -169,6 +251,16 @@ def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
             index[:, undefined] = 0.0
         np.minimum(index, (n_bins - 1)[:, :, None], out=index)
         cells = float(n_bins.prod(axis=0).max())
+    return index, n_bins, undefined, cells
+
+
+def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
+                       histogram_cells: float = HISTOGRAM_CELLS_PER_SAMPLE, binning: str = "paper") -> np.ndarray:
+    """Binned entropy (bits) of each group of samples ``x[D, G, B]``, a float64 array this function may overwrite
+    (``histogram_cells``: the histogram's bound, :data:`HISTOGRAM_CELLS_PER_SAMPLE`; 0 sorts always)."""
+    samples = x.shape[2]
+    bins = _paper_bins if binning == "paper" else _authors_bins
+    index, n_bins, undefined, cells = bins(x, cell, range_buffer)
     if cells <= histogram_cells * samples:
         entropies = _histogram_entropies(index, n_bins, int(cells))
     elif float(np.log2(n_bins).sum(axis=0).max()) < _MAX_CODE_BITS:
@@ -179,7 +271,8 @@ def _grouped_entropies(x: np.ndarray, cell: np.ndarray, range_buffer: float,
     return entropies
 
 
-def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: float = 0.0) -> np.ndarray:
+def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: float = 0.0,
+                   binning: str = "paper") -> np.ndarray:
     """Per-step entropies ``E_hat`` (bits) of action batches ``[..., B, H, D]`` -> ``[..., H]``.
 
     Args:
@@ -188,6 +281,8 @@ def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: flo
         range_buffer: Widen each step's sample range by this fraction on both sides before
             binning. ``0`` is the paper's definition; the reference profile uses ``0.01``
             (see :mod:`fiper_ros.core.profiles`).
+        binning: ``"paper"`` or ``"reference"`` (the authors' float32 edges, module docstring; the reference
+            profile's, with the cell of :func:`cell_size` ``binning="reference"``).
     """
     x = np.asarray(actions)
     if x.ndim < 3:
@@ -198,10 +293,12 @@ def step_entropies(actions: np.ndarray, cell_size: np.ndarray, range_buffer: flo
     if not np.isfinite(x).all():  # in float64 as in float32 or any other dtype: the conversion keeps finiteness
         raise ValueError("actions contain NaN/inf")
     cell = _validated_cell(cell_size, dims)
+    check_binning(binning)
     # One copy, in float64 and the [D, steps, B] layout at once, which the counting may overwrite.
     last = x.ndim - 1
     grouped = np.array(x.transpose(last, *range(last - 2), last - 1, last - 2), dtype=np.float64, order="C")
-    return _grouped_entropies(grouped.reshape(dims, -1, samples), cell, range_buffer).reshape(*lead, horizon)
+    return _grouped_entropies(grouped.reshape(dims, -1, samples), cell, range_buffer,
+                              binning=binning).reshape(*lead, horizon)
 
 
 def ace_score(actions: np.ndarray, cell_size: np.ndarray) -> float:

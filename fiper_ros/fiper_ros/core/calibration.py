@@ -202,6 +202,7 @@ class CalibrationSettings:
             band_sign=profile.band_sign,
             conformal=profile.conformal,
             seed=self.seed,
+            band_rule=profile.band_rule,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -284,7 +285,7 @@ class Calibration:
     @property
     def cell(self) -> np.ndarray:
         """ACE cell size ``alpha * R_d``."""
-        return cell_size(self.ranges, self.settings.resolved_alpha)
+        return cell_size(self.ranges, self.settings.resolved_alpha, self.profile.ace_binning)
 
     def projection(self, fk: ForwardKinematics | None = None) -> ActionProjection:
         """The action-to-position mapping ACE uses (``fk`` is needed for joint-space actions)."""
@@ -557,7 +558,7 @@ def _fit_models(fit: Sequence[Rollout], extra_ranges: Sequence[Rollout], setting
     from fiper_ros.core.rnd_train import fit_rnd  # noqa: PLC0415 - torch only where RND-OE is trained, not to load
 
     rnd = fit_rnd(np.concatenate([r.embeddings for r in fit]), settings.rnd, settings.seed, progress)
-    return _Fitted(rnd, ranges, cell_size(ranges, settings.resolved_alpha))
+    return _Fitted(rnd, ranges, cell_size(ranges, settings.resolved_alpha, settings.profile_obj.ace_binning))
 
 
 def _curves(models: _Fitted, rollouts: Sequence[Rollout], settings: CalibrationSettings,

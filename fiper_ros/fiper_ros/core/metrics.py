@@ -7,10 +7,17 @@ over calibration and test there), ``t_i`` being the index of the first alarm. ``
 true positives only, and the balanced timestep-wise accuracy is
 ``TWA = 1/2 [sum_TP (1 - DT_i) / #P + #TN / #N]``.
 
-Edge cases: without positives, TPR, DT and the positive half of TWA are undefined (NaN), and so are
-Acc and TWA; without negatives likewise for TNR, Acc and TWA. DT is NaN without true positives. The
-two halves of TWA are also returned (``twa_pos``, ``twa_neg``) so a one-class evaluation keeps its
-defined half.
+Edge cases (``metrics_rule="paper"``): without positives, TPR, DT and the positive half of TWA are undefined
+(NaN), and so are Acc and TWA; without negatives likewise for TNR, Acc and TWA. DT is NaN without true
+positives. The two halves of TWA are also returned (``twa_pos``, ``twa_neg``) so a one-class evaluation keeps
+its defined half.
+
+``metrics_rule="reference"`` computes the metrics as the authors' code does: TPR (TNR) is 0 without positives
+(negatives), so Acc is their half-sum; DT is 1.0 without true positives and otherwise ``np.mean`` of the
+detection times; TWA is accumulated rollout by rollout in the given order (``(1 - DT_i) / #P`` for a true
+positive, ``1 / #N`` for a true negative) and halved, an empty class adding nothing; ``twa_pos`` and
+``twa_neg`` are the halves with 0 for an empty class. Every one of these is then rounded to 6 decimals as
+``round`` rounds a numpy float (``np.round``: scaled by ``1e6``, ``rint``, scaled back) and cast to float32.
 """
 
 from __future__ import annotations
@@ -19,7 +26,13 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 DT_MODES = ("paper", "reference")
+#: Empty classes and rounding: NaN and unrounded (paper) or the authors' code's values (module docstring).
+METRIC_RULES = ("paper", "reference")
+#: Decimals the authors' code rounds its metrics to.
+AUTHORS_DECIMALS = 6
 
 
 def _detection_time(step: int, t_max: int, dt_mode: str) -> float:
@@ -36,11 +49,39 @@ def _ratio(numerator: float, denominator: int) -> float:
     return numerator / denominator if denominator else math.nan
 
 
+def authors_rounding(value: float) -> float:
+    """``value`` as the authors' code reports it: rounded to :data:`AUTHORS_DECIMALS` decimals as numpy rounds
+    (``round`` of a numpy float; 3.5e-6 -> 4e-6 where Python's ``round`` of a float gives 3e-6), then float32."""
+    return float(np.float32(np.round(np.float64(value), AUTHORS_DECIMALS)))
+
+
+def _authors_metrics(detection_times: list[float], outcomes: list[str], n_pos: int, n_neg: int, tp: int,
+                     tn: int) -> dict[str, float]:
+    """TPR, TNR, Acc, DT and TWA (and its halves) by the authors' code's rules (module docstring); ``outcomes``
+    is each rollout's ``"tp"``, ``"fn"``, ``"tn"`` or ``"fp"`` in order."""
+    tpr = tp / n_pos if n_pos else 0.0
+    tnr = tn / n_neg if n_neg else 0.0
+    twa = twa_pos = twa_neg = 0.0
+    times = iter(detection_times)
+    for outcome in outcomes:
+        if outcome == "tp":
+            term = (1.0 - next(times)) / n_pos
+            twa, twa_pos = twa + term, twa_pos + term
+        elif outcome == "tn":
+            term = 1.0 / n_neg
+            twa, twa_neg = twa + term, twa_neg + term
+    values = {"tpr": tpr, "tnr": tnr, "acc": (tpr + tnr) / 2.0,
+              "dt": float(np.mean(detection_times)) if detection_times else 1.0,
+              "twa": twa * 0.5, "twa_pos": twa_pos, "twa_neg": twa_neg}
+    return {name: authors_rounding(value) for name, value in values.items()}
+
+
 def evaluate(
     alarm_steps: Sequence[int | None],
     failed: Sequence[bool],
     t_max: int | Sequence[int],
     dt_mode: str = "paper",
+    metrics_rule: str = "paper",
 ) -> dict[str, Any]:
     """TPR, TNR, Acc, DT and balanced TWA of one failure predictor over a set of rollouts.
 
@@ -49,42 +90,42 @@ def evaluate(
         failed: Per rollout, whether it failed (a positive).
         t_max: ``T`` of the DT formula, one value or one per rollout.
         dt_mode: ``"paper"`` (``t / T``) or ``"reference"`` (``t / (T - 1)``).
+        metrics_rule: ``"paper"`` (NaN for an empty class) or ``"reference"`` (the authors' values for empty
+            classes, their TWA sum and their rounding; module docstring).
 
     Returns:
         ``tpr, tnr, acc, dt, twa, twa_pos, twa_neg`` and the counts ``tp, fn, tn, fp, n_pos, n_neg``.
     """
     if dt_mode not in DT_MODES:
         raise ValueError(f"unknown dt_mode {dt_mode!r}; expected one of {DT_MODES}")
+    if metrics_rule not in METRIC_RULES:
+        raise ValueError(f"unknown metrics_rule {metrics_rule!r}; expected one of {METRIC_RULES}")
     if len(alarm_steps) != len(failed):
         raise ValueError(f"{len(alarm_steps)} alarm steps but {len(failed)} outcomes")
     horizons = [int(t_max)] * len(failed) if isinstance(t_max, int) else [int(t) for t in t_max]
     if len(horizons) != len(failed):
         raise ValueError(f"{len(horizons)} t_max values but {len(failed)} outcomes")
-    tp = fn = tn = fp = 0
     detection_times: list[float] = []
+    outcomes: list[str] = []
     for step, is_failure, horizon in zip(alarm_steps, failed, horizons):
         if is_failure:
-            if step is None:
-                fn += 1
-            else:
-                tp += 1
+            outcomes.append("fn" if step is None else "tp")
+            if step is not None:
                 detection_times.append(_detection_time(int(step), horizon, dt_mode))
-        elif step is None:
-            tn += 1
         else:
-            fp += 1
+            outcomes.append("tn" if step is None else "fp")
+    tp, fn, tn, fp = (outcomes.count(outcome) for outcome in ("tp", "fn", "tn", "fp"))
     n_pos, n_neg = tp + fn, tn + fp
-    tpr, tnr = _ratio(tp, n_pos), _ratio(tn, n_neg)
-    twa_pos = _ratio(sum(1.0 - dt for dt in detection_times), n_pos)
-    twa_neg = tnr
+    if metrics_rule == "reference":
+        values = _authors_metrics(detection_times, outcomes, n_pos, n_neg, tp, tn)
+    else:
+        tpr, tnr = _ratio(tp, n_pos), _ratio(tn, n_neg)
+        twa_pos = _ratio(sum(1.0 - dt for dt in detection_times), n_pos)
+        values = {"tpr": tpr, "tnr": tnr, "acc": (tpr + tnr) / 2.0,
+                  "dt": sum(detection_times) / tp if tp else math.nan,
+                  "twa": (twa_pos + tnr) / 2.0, "twa_pos": twa_pos, "twa_neg": tnr}
     return {
-        "tpr": tpr,
-        "tnr": tnr,
-        "acc": (tpr + tnr) / 2.0,
-        "dt": sum(detection_times) / tp if tp else math.nan,
-        "twa": (twa_pos + twa_neg) / 2.0,
-        "twa_pos": twa_pos,
-        "twa_neg": twa_neg,
+        **values,
         "tp": tp,
         "fn": fn,
         "tn": tn,

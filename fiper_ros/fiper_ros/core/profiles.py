@@ -30,6 +30,16 @@ class Profile:
         ranges_from_all: ``R_d`` over all calibration rollouts, failed ones included (authors'
             code), instead of the successful ones only (paper: ``D_c`` holds successes).
         dt_mode: Detection time normalisation for :func:`fiper_ros.core.metrics.evaluate`.
+        band_rule: How ``cp_band`` splits its curves and models the band
+            (:data:`fiper_ros.core.thresholds.BAND_RULES`): ``"paper"``, a seeded split and the floored
+            standard deviation; ``"reference"``, the authors' split (the longest curve plus the first half of
+            the others in the order given), filter, maximum-deviation modulation and its fill-ins.
+        ace_binning: How ACE assigns samples to cells (:data:`fiper_ros.core.ace.BINNINGS`): ``"paper"``,
+            float64 ``floor((x - low) / cell)``; ``"reference"``, the authors' float32 ``np.arange`` edges
+            and ``np.digitize``, with the cell ``alpha * R_d`` in float32.
+        metrics_rule: Empty classes and rounding of :func:`fiper_ros.core.metrics.evaluate`
+            (:data:`fiper_ros.core.metrics.METRIC_RULES`): ``"paper"``, NaN where a class is empty;
+            ``"reference"``, TPR / TNR 0 and DT 1.0 there, every metric rounded to 6 decimals in float32.
     """
 
     name: str
@@ -43,6 +53,9 @@ class Profile:
     min_support: int | None
     ranges_from_all: bool
     dt_mode: str
+    band_rule: str
+    ace_binning: str
+    metrics_rule: str
 
 
 PAPER = Profile(
@@ -57,6 +70,9 @@ PAPER = Profile(
     min_support=None,
     ranges_from_all=False,
     dt_mode="paper",
+    band_rule="paper",
+    ace_binning="paper",
+    metrics_rule="paper",
 )
 
 REFERENCE = Profile(
@@ -71,6 +87,9 @@ REFERENCE = Profile(
     min_support=1,
     ranges_from_all=True,
     dt_mode="reference",
+    band_rule="reference",
+    ace_binning="reference",
+    metrics_rule="reference",
 )
 
 

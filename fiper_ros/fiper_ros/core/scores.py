@@ -53,7 +53,7 @@ def obs_scores(rnd: RNDOE, embeddings: np.ndarray, profile: Profile) -> np.ndarr
 def act_scores(positions: np.ndarray, cell: np.ndarray, profile: Profile) -> np.ndarray:
     """``s_ACE`` of position batches ``[..., B, H, P]`` -> ``[...]`` (sum or mean over ``H``, plus epsilon);
     finite or raises :class:`NonFiniteScore`."""
-    entropies = step_entropies(positions, cell, profile.range_buffer)
+    entropies = step_entropies(positions, cell, profile.range_buffer, profile.ace_binning)
     reduced = entropies.sum(axis=-1) if profile.ace_reduce == "sum" else entropies.mean(axis=-1)
     return finite(reduced + profile.score_epsilon, "ACE score")
 

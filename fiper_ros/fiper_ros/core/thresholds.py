@@ -31,6 +31,25 @@ that already holds curves of a disjoint set of rollouts passes them as ``shape_c
 :func:`fiper_ros.core.calibration.calibrate` does so with the rollouts the score model was fitted on,
 so no rollout of the conformal set was seen by anything fitted (the premise of Proposition 1).
 
+Band rule (``ThresholdSettings.band_rule``): the above is ``"paper"``. ``"reference"`` is the CP band of the
+authors' code (the ``"reference"`` profile), with their float operations; it has no finite-sample guarantee:
+
+- split: the longest curve (the first of equal longest ones) and the first ``floor((M-1)/2)`` of the other
+  ``M-1`` curves *in the order given* are ``I1`` (longest first), the rest ``I2``; no seed, no ``band_split``.
+  The authors' loader gives the calibration rollouts in sorted file-name order, so the curves must come in
+  that order to match their split (the FIPER converter reads the files so, and calibration and evaluation
+  keep the order of the successes). With ``shape_curves``, those are ``I1`` and every given curve is in
+  ``I2``, as in the paper rule.
+- ``mu(t)``: ``np.mean`` over the ``I1`` curves that reach ``t``, for ``t`` up to the longest ``I1`` curve
+  ``T_1`` (no support rule).
+- filter: with ``N1 = |I1|`` and ``q = 1 - delta``, every ``I1`` curve is kept if ``(N1 + 1) q > N1``; else
+  the curves whose ``max_t |eta_i(t) - mu(t)|`` is at most ``np.quantile`` (linear) of those maxima. The
+  filter makes the band depend on delta beyond ``k``.
+- modulation: ``s(t) = max |eta_i(t) - mu(t)|`` over the kept curves that reach ``t``, ``1/t`` where none
+  does, and ``1/T_1`` wherever that is below ``1e-7``.
+- band scores over ``t < min(len(eta_i), T_1)`` with ``band_sign``; ``gamma_t = mu(t) + k s(t)`` for
+  ``t < T_1``, the extension beyond (the authors' code: ``"mean"``).
+
 Support rule: a per-step statistic at ``t`` is only computed where at least ``min_support``
 rollouts of the set it is computed from reach ``t`` (default ``max(5, M // 5)``, capped at the set
 size). Later steps, up to the longest calibration rollout, carry the last well-supported value
@@ -56,6 +75,11 @@ KINDS = ("cp_constant", "cp_band", "time_varying", "cp_scaled", "gaussian")
 GUARANTEED_KINDS = ("cp_constant", "cp_band", "cp_scaled")
 EXTENSIONS = ("last", "mean", "max")
 BAND_SIGNS = ("upper", "lower")
+#: How ``cp_band`` splits and models its band: the paper's (seeded split, floored standard deviation) or the
+#: authors' code's (see the module docstring).
+BAND_RULES = ("paper", "reference")
+#: The authors' modulation: a value below this is replaced by ``1 / T_1``.
+_AUTHORS_SMALL_SCALE = 1e-7
 # Guards ceil() against (M+1)(1-delta) landing a rounding error above an integer.
 _CEIL_TOLERANCE = 1e-9
 
@@ -78,6 +102,8 @@ class ThresholdSettings:
         conformal: Conformal quantile (paper); ``False`` uses ``np.quantile`` as the authors' code.
         std_floor: ``s(t) >= std_floor * mean_t s(t)`` for ``cp_band``.
         seed: Seed of the ``I1``/``I2`` split.
+        band_rule: ``"paper"`` or ``"reference"`` (the authors' split, filter and modulation) for
+            ``cp_band``; the reference rule ignores ``band_split``, ``std_floor``, ``seed`` and ``min_support``.
     """
 
     kind: str = "cp_band"
@@ -89,6 +115,7 @@ class ThresholdSettings:
     conformal: bool = True
     std_floor: float = 0.1
     seed: int = 0
+    band_rule: str = "paper"
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -99,6 +126,8 @@ class ThresholdSettings:
             raise ThresholdError(f"unknown extension {self.extension!r}; expected one of {EXTENSIONS}")
         if self.band_sign not in BAND_SIGNS:
             raise ThresholdError(f"unknown band_sign {self.band_sign!r}; expected one of {BAND_SIGNS}")
+        if self.band_rule not in BAND_RULES:
+            raise ThresholdError(f"unknown band_rule {self.band_rule!r}; expected one of {BAND_RULES}")
         if not 0.0 < self.band_split < 1.0:
             raise ThresholdError(f"band_split must be in (0, 1), got {self.band_split}")
         if self.min_support is not None and self.min_support < 1:
@@ -257,12 +286,13 @@ def _split(m: int, settings: ThresholdSettings) -> tuple[np.ndarray, np.ndarray]
 
 @dataclass(frozen=True)
 class BandStatistics:
-    """The delta-independent part of a one-sided CP band (eqs. 12-13): ``gamma_t = mu + k s``."""
+    """A one-sided CP band before its factor ``k`` (eqs. 12-13): ``gamma_t = mu + k s``; independent of delta
+    with the paper band rule (the reference rule's filter depends on it, :class:`AuthorsBand`)."""
 
     mu: np.ndarray
     """``mu(t)`` from ``I1``."""
     scale: np.ndarray
-    """The modulation ``s(t)`` from ``I1`` (floored)."""
+    """The modulation ``s(t)`` from ``I1`` (floored; the reference rule's fill-ins)."""
     band_scores: np.ndarray
     """``R_i = max_t sign (eta_i(t) - mu(t)) / s(t)`` for ``i in I2``."""
     m1: int
@@ -293,9 +323,79 @@ def _shape_and_conformal(curves: list[np.ndarray], s: ThresholdSettings,
     return [curves[i] for i in first], [curves[i] for i in second]
 
 
+def _running_means(curves: list[np.ndarray]) -> np.ndarray:
+    """``np.mean`` of the values at ``t`` of the curves that reach ``t``, in the curves' order, for every ``t`` up
+    to the longest curve: bit for bit the per-step 1-D ``np.mean`` (numpy's pairwise sum along a contiguous
+    row), computed once per run of steps that the same curves reach."""
+    lengths = sorted({curve.shape[0] for curve in curves})
+    means = np.empty(lengths[-1])
+    start = 0
+    for end in lengths:
+        block = np.stack([curve[start:end] for curve in curves if curve.shape[0] >= end], axis=1)
+        means[start:end] = np.mean(block, axis=1)
+        start = end
+    return means
+
+
+@dataclass(frozen=True, eq=False)
+class AuthorsBand:
+    """The delta-independent part of the authors' CP band (the ``"reference"`` band rule, module docstring):
+    ``I1`` (longest first), ``I2``, ``mu`` and each ``I1`` curve's largest deviation from ``mu``."""
+
+    set1: list[np.ndarray]
+    set2: list[np.ndarray]
+    mu: np.ndarray
+    deviations: np.ndarray
+    """``max_t |eta_i(t) - mu(t)|`` per ``I1`` curve, in ``set1``'s order."""
+
+    @classmethod
+    def of(cls, curves: list[np.ndarray], shape_curves: list[np.ndarray] | None = None) -> AuthorsBand:
+        """The authors' split of ``curves`` in their order (``I1``: the first longest curve, then the first
+        ``floor((M-1)/2)`` of the others), or ``shape_curves`` as ``I1`` and every curve in ``I2``."""
+        if shape_curves is not None:
+            set1, set2 = list(shape_curves), list(curves)
+        else:
+            if len(curves) < 2:
+                raise ThresholdError(f"cp_band needs at least 2 calibration rollouts to split, got {len(curves)}")
+            longest = max(range(len(curves)), key=lambda i: curves[i].shape[0])  # the first of equal ones
+            others = [curve for i, curve in enumerate(curves) if i != longest]
+            half = len(others) // 2
+            set1, set2 = [curves[longest], *others[:half]], others[half:]
+        mu = _running_means(set1)
+        deviations = np.array([np.max(np.abs(c - mu[: c.shape[0]])) for c in set1])
+        return cls(set1, set2, mu, deviations)
+
+    def kept(self, delta: float) -> tuple[int, ...]:
+        """The authors' filter: the ``I1`` curves (indices) whose deviation is at most the ``1 - delta`` quantile
+        of the deviations, or all of them when ``(N1 + 1)(1 - delta) > N1``."""
+        q, n1 = 1.0 - delta, len(self.set1)
+        if (n1 + 1) * q > n1:
+            return tuple(range(n1))
+        return tuple(int(i) for i in np.flatnonzero(self.deviations <= np.quantile(self.deviations, q)))
+
+    def statistics(self, kept: tuple[int, ...], band_sign: str) -> BandStatistics:
+        """``mu``, the modulation over the ``kept`` curves (:meth:`kept`) and the band scores of ``I2`` with
+        ``band_sign``; ``floor`` is the fill-in ``1 / T_1``."""
+        length = self.mu.shape[0]
+        padded = _padded([self.set1[i] for i in kept], length)
+        spread = np.fmax.reduce(np.abs(padded - self.mu), axis=0)  # NaN where no kept curve reaches t
+        unreached = np.isnan(spread)  # never t = 0: every kept curve reaches it
+        spread[unreached] = 1.0 / np.flatnonzero(unreached)
+        fill = 1.0 / length
+        spread[spread < _AUTHORS_SMALL_SCALE] = fill
+        sign = 1.0 if band_sign == "upper" else -1.0
+        ends = [min(c.shape[0], length) for c in self.set2]
+        scores = np.array([np.max(sign * (c[:n] - self.mu[:n]) / spread[:n]) for c, n in zip(self.set2, ends)])
+        return BandStatistics(self.mu, spread, scores, len(self.set1), len(self.set2), fill)
+
+
 def band_statistics(curves: list[np.ndarray], length: int, s: ThresholdSettings,
                     shape_curves: list[np.ndarray] | None = None) -> BandStatistics:
-    """Split, ``mu``, ``s`` and the band scores of the CP band; only ``k`` depends on delta."""
+    """Split, ``mu``, ``s`` and the band scores of the CP band; with the paper rule only ``k`` depends on
+    delta. The reference rule's (:class:`AuthorsBand`) are as long as the longest ``I1`` curve, not ``length``."""
+    if s.band_rule == "reference":
+        band = AuthorsBand.of(curves, shape_curves)
+        return band.statistics(band.kept(s.delta), s.band_sign)
     set1, set2 = _shape_and_conformal(curves, s, shape_curves)
     padded = _padded(set1, length)
     mu = _per_step(padded, s.min_support, "mean")
@@ -350,7 +450,8 @@ def fit_threshold(curves: Sequence[np.ndarray], settings: ThresholdSettings | No
 
     ``shape_curves``: curves of other successful rollouts, disjoint from ``curves``, for the per-step
     shape of ``cp_band``, ``cp_scaled`` and ``gaussian`` (see the module docstring); the other kinds use
-    ``curves`` only.
+    ``curves`` only. With ``band_rule="reference"`` the order of ``curves`` decides the ``cp_band`` split: the
+    authors' order is that of their calibration files' sorted names.
     """
     s = settings or ThresholdSettings()
     checked = _validated(curves)

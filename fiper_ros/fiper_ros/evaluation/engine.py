@@ -223,7 +223,8 @@ def sweep_all(
     settings: EngineSettings,
 ) -> SweepOutcome:
     """Sweep every (task, seed) and evaluate the metrics on the subsets the protocols need."""
-    dt_mode = get_profile(settings.method_settings.profile).dt_mode
+    profile = get_profile(settings.method_settings.profile)
+    dt_mode = profile.dt_mode
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
     held_out: dict[str, list[np.ndarray]] = {"all": [d.held_out_id_successes for d in datasets]}
     if "clean" in settings.protocols:
@@ -245,7 +246,7 @@ def sweep_all(
             swept = swept_tasks[dataset.task]
             groups = swept.groups
             for name, per_task in subsets.items():
-                values = alarm_metrics(swept.alarms, dataset.failed, t_max, dt_mode, per_task[t])
+                values = alarm_metrics(swept.alarms, dataset.failed, t_max, dt_mode, per_task[t], profile.metrics_rule)
                 values[swept.infinite] = np.nan  # a +inf threshold has no metrics: never averaged
                 metrics[name][t].append(values)
             for name, members in held_out.items():

@@ -2,7 +2,9 @@
 
 Metrics come from :func:`fiper_ros.core.metrics.evaluate` on the sweep's first-alarm steps (identical
 alarm vectors are evaluated once). DT uses each rollout's own length ``T`` in the paper profile
-(``t / T``) and ``T_max`` over calibration and test in the reference profile (``t / (T_max - 1)``).
+(``t / T``) and ``T_max`` over calibration and test in the reference profile (``t / (T_max - 1)``); the
+reference profile's metrics rule also gives the authors' values for empty classes (TPR / TNR 0, DT 1.0) and
+rounds to 6 decimals, so a subset without failures has a TWA there (NaN in the paper profile).
 
 Protocols:
 
@@ -55,9 +57,11 @@ def nanstd(values: np.ndarray, axis: int) -> np.ndarray:
 
 
 def alarm_metrics(
-    alarms: np.ndarray, failed: np.ndarray, horizons: np.ndarray | int, dt_mode: str, subset: np.ndarray | None = None
+    alarms: np.ndarray, failed: np.ndarray, horizons: np.ndarray | int, dt_mode: str, subset: np.ndarray | None = None,
+    metrics_rule: str = "paper",
 ) -> np.ndarray:
-    """:data:`METRICS` ``[..., 5]`` of first-alarm steps ``[..., N]`` (-1: none) with the core's ``evaluate``."""
+    """:data:`METRICS` ``[..., 5]`` of first-alarm steps ``[..., N]`` (-1: none) with the core's ``evaluate``
+    (``metrics_rule``: its empty classes and rounding, the profile's)."""
     index = np.arange(alarms.shape[-1]) if subset is None else np.asarray(subset)
     # Not reshape(-1, n): an empty subset (a task without ID test successes) has no -1 to resolve.
     flat = alarms[..., index].reshape(int(np.prod(alarms.shape[:-1])), index.shape[0])
@@ -68,7 +72,7 @@ def alarm_metrics(
     for row, steps in enumerate(flat):
         key = steps.tobytes()
         if key not in seen:
-            result = evaluate([None if s < 0 else int(s) for s in steps], outcomes, t_max, dt_mode)
+            result = evaluate([None if s < 0 else int(s) for s in steps], outcomes, t_max, dt_mode, metrics_rule)
             seen[key] = np.array([result[m] for m in METRICS], dtype=np.float64)
         out[row] = seen[key]
     return out.reshape(*alarms.shape[:-1], len(METRICS))

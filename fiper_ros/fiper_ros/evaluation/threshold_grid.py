@@ -5,7 +5,9 @@ constant, CP band) or the per-step quantile level (time-varying, and the shape o
 delta, so the delta-independent statistics are computed once with the core's own helpers:
 
 - ``cp_constant``: the per-rollout maxima, then one quantile per delta;
-- ``cp_band``: the core's :func:`band_statistics` once, then ``k`` per delta;
+- ``cp_band``: the core's :func:`band_statistics` once, then ``k`` per delta; with the reference band rule
+  the core's :class:`AuthorsBand` (split, ``mu``, deviations) once, its filter per delta, and its modulation
+  and band scores once per distinct kept set (the filter is the only other use of delta);
 - ``time_varying``: the per-step quantiles for all levels at once: the calibration curves are sorted
   per step once and numpy's linear interpolation (the core's ``np.nanquantile``) is applied to the
   non-NaN order statistics with numpy's own float operations, vectorised over steps and levels;
@@ -26,6 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fiper_ros.core.thresholds import (
+    AuthorsBand,
     BandStatistics,
     Threshold,
     ThresholdSettings,
@@ -71,11 +74,18 @@ def _time_varying(matrix: np.ndarray, levels: np.ndarray, min_support: int | Non
 
 def _cp_band(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings,
              shape: list[np.ndarray] | None) -> tuple[np.ndarray, list[dict[str, float | int]]]:
-    """``mu + k(delta) s`` ``[len(deltas), length]``: the core's band statistics once, ``k`` per delta."""
-    stats = band_statistics(curves, length, s, shape)
-    ks = [_quantile(stats.band_scores, delta, s.conformal) for delta in deltas]
-    return (np.stack([stats.values(k) for k in ks]),
-            [{"k": float(k), "m1": stats.m1, "m2": stats.m2, "s_floor": stats.floor} for k in ks])
+    """``mu + k(delta) s`` ``[len(deltas), length]`` (reference band rule: as long as ``mu``): the core's band
+    statistics once, ``k`` per delta."""
+    if s.band_rule == "reference":
+        band = AuthorsBand.of(curves, shape)
+        kept = [band.kept(delta) for delta in deltas]
+        per_kept = {chosen: band.statistics(chosen, s.band_sign) for chosen in dict.fromkeys(kept)}
+        every = [per_kept[chosen] for chosen in kept]
+    else:
+        every = [band_statistics(curves, length, s, shape)] * len(deltas)
+    ks = [_quantile(stats.band_scores, delta, s.conformal) for stats, delta in zip(every, deltas)]
+    return (np.stack([stats.values(k) for stats, k in zip(every, ks)]),
+            [{"k": float(k), "m1": stats.m1, "m2": stats.m2, "s_floor": stats.floor} for stats, k in zip(every, ks)])
 
 
 def _cp_scaled(curves: list[np.ndarray], length: int, deltas: Sequence[float], s: ThresholdSettings,
