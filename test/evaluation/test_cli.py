@@ -25,9 +25,9 @@ def test_cli_writes_markdown_json_and_pngs(tmp_path: Path, tiny_dataset: Dataset
             "--protocol", "paper,clean", "--out", str(out), "--cache-dir", str(tmp_path / "cache"), "--quiet"]
     assert main(argv) == 0
     summary = capsys.readouterr().out
-    assert "fiper evaluate: 2 task(s), 8 method(s), 2 seed(s)" in summary and "results.md" in summary
+    assert "fiper evaluate: 2 task(s), 10 method(s), 2 seed(s)" in summary and "results.md" in summary
     assert "over the elapsed time" in summary
-    assert "cache 4 hit(s), 24 miss(es)" in summary  # STAC and the elapsed time fit nothing: reused for seed 1
+    assert "cache 4 hit(s), 32 miss(es)" in summary  # STAC and the elapsed time fit nothing: reused for seed 1
     markdown = (out / "results.md").read_text()
     for text in ("SYNTHETIC", "## Table 1", "## Table 2", "clean protocol", "| Elapsed |", "| FIPER |",
                  "| sorting | TWA ↑ |", "| Average | TWA ↑ |", "| | TWA − Elapsed |", "| AND | CP band |",

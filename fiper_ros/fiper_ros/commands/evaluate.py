@@ -49,7 +49,7 @@ from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_ev
 from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS  # noqa: E402
 from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, default_combinations,  # noqa: E402
-                                          observation_methods, parse_combination)
+                                          observation_methods, parse_combination, signal_methods)
 from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
 from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
 from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
@@ -139,6 +139,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             f"{', '.join(SHAPE_KINDS)})")
     sweep.add_argument("--combines", type=name_list(("and", "or")), default=("and", "or"))
     sweep.add_argument("--pairs", choices=PAIR_GRIDS, default="coarse", help="FIPER (w_O, w_A) grid")
+    sweep.add_argument("--signals", type=lambda text: tuple(p.strip() for p in text.split(",") if p.strip()),
+                       default=(), metavar="NAMES",
+                       help="logged per-step signals of the rollouts to evaluate as detectors (signal_<name>), alone "
+                            "and in the default combination, e.g. chunk_mse,eef_speed_3d")
     sweep.add_argument("--combo", action="append", default=[], metavar="NAME=DETECTOR+DETECTOR...",
                        help="a combination of detectors (streams) to evaluate besides the default ones (repeatable; "
                             "e.g. obs=rnd_oe+logpzo+elapsed)")
@@ -234,8 +238,11 @@ def settings_from(args: argparse.Namespace) -> EngineSettings:
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:
     """The default combinations of the evaluated methods (unless ``--no-default-combos``, or a split without a fit
     part) and ``--combo``'s."""
+    signals = signal_methods(args.signals)
     defaults = not args.no_default_combos and args.split == "split"  # the shapes need a fit part
-    chosen = list(default_combinations(args.methods)) if defaults else []
+    chosen = list(signals)
+    if defaults:
+        chosen += default_combinations(args.methods, tuple(s.name for s in signals))
     chosen += [parse_combination(text) for text in args.combo]
     return tuple(chosen)
 

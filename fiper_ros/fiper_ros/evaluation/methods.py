@@ -26,7 +26,9 @@ from typing import Any
 
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
-from fiper_ros.core.detectors import ACE, RND_OE, info
+from fiper_ros.core.consistency import ConsistencySettings
+from fiper_ros.core.detectors import ACE, CONSISTENCY, PROGRESS, RND_OE, info, signal_stream
+from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
@@ -58,10 +60,14 @@ METHODS: dict[str, Method] = {
     "rnd_oe": Method("RND-OE", ("rnd_oe",)),
     "ace": Method("ACE", ("ace",), needs_actions=True),
     "fiper": Method("FIPER", ("rnd_oe", "ace"), needs_actions=True),
+    PROGRESS: Method("Progress", (PROGRESS,)),
+    CONSISTENCY: Method("Consistency", (CONSISTENCY,), needs_actions=True),
 }
 
-#: Streams fitted on nothing: their scores depend neither on the calibration split nor on the seed.
-UNFITTED_STREAMS = frozenset(name for name in ("stac", ELAPSED) if not info(name).fitted)
+def fitted(stream: str) -> bool:
+    """Whether ``stream`` learns from the calibration successes (STAC, a logged signal and the elapsed time do not:
+    their scores depend neither on the calibration split nor on the seed)."""
+    return info(stream).fitted
 #: Streams fitted without randomness (ACE's ``R_d``): they depend on the seed only through the split.
 DETERMINISTIC_FITS = frozenset({"ace"})
 
@@ -80,6 +86,7 @@ class MethodSettings:
         alpha: ACE cell size factor; ``None`` uses the profile's.
         rnd: RND-OE network and training.
         pca_kmeans, logpzo, rnd_a: The baselines' configurations.
+        progress, consistency: The progress and action-consistency detectors' settings.
         robot: FK and control period for ACE on joint-space actions (App. A.1); ``None`` for
             end-effector actions.
         split: Which calibration successes fit the score models and which the thresholds' conformal
@@ -94,6 +101,8 @@ class MethodSettings:
     pca_kmeans: PCAKMeansConfig = field(default_factory=PCAKMeansConfig)
     logpzo: LogpZOConfig = field(default_factory=LogpZOConfig)
     rnd_a: RNDAConfig = field(default_factory=RNDAConfig)
+    progress: ProgressSettings = field(default_factory=ProgressSettings)
+    consistency: ConsistencySettings = field(default_factory=ConsistencySettings)
     robot: RobotModel | None = None
     split: str = "split"
     shape_folds: int = 0
@@ -117,7 +126,7 @@ class MethodSettings:
 
     def stream_seed(self, stream: str, seed: int) -> int | None:
         """The seed ``stream``'s scores depend on (``None``: none): through training and through the split."""
-        if stream in UNFITTED_STREAMS or (stream in DETERMINISTIC_FITS and self.split == "same"):
+        if not fitted(stream) or (stream in DETERMINISTIC_FITS and self.split == "same"):
             return None
         return seed
 
@@ -139,7 +148,7 @@ class MethodSettings:
         common: dict[str, Any] = {"profile": self.profile}
         if stream == ELAPSED:
             return {}
-        if stream not in UNFITTED_STREAMS:
+        if fitted(stream):
             common.update(self.split_settings())
         if stream == "rnd_oe":
             return {**common, "rnd": self.rnd.to_dict()}
@@ -154,6 +163,12 @@ class MethodSettings:
             return {**common, **self.logpzo.to_dict()}
         if stream == "rnd_a":
             return {**common, **self.rnd_a.to_dict()}
+        if stream == PROGRESS:
+            return {**common, **asdict(self.progress)}
+        if stream == CONSISTENCY:
+            return {**common, **self.consistency.to_dict()}
+        if info(stream).reads == "signal":
+            return common  # the magnitude of the logged value: nothing to set
         raise ValueError(f"unknown stream {stream!r}")
 
 
@@ -192,6 +207,11 @@ def pooled_methods(methods: tuple[str, ...]) -> tuple[Combination, ...]:
     """``methods`` as combinations, for thresholds pooled over tasks: each single method its stream alone, FIPER
     its pair (it votes with AND / OR), the elapsed time its cumulative count."""
     return tuple(Combination(m, METHODS[m].streams, METHODS[m].label) for m in methods)
+
+
+def signal_methods(signals: tuple[str, ...]) -> tuple[Combination, ...]:
+    """A logged per-step signal ``name`` as a method of its own (the stream ``signal_<name>``)."""
+    return tuple(Combination(signal_stream(name), (signal_stream(name),), f"signal {name}") for name in signals)
 
 
 def default_combinations(methods: tuple[str, ...], extra_streams: tuple[str, ...] = ()) -> tuple[Combination, ...]:

@@ -33,16 +33,18 @@ from fiper_ros.baselines.base import Baseline, BaselineError
 from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC, check_overlap
 from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
-from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY
+from fiper_ros.core.consistency import ActionConsistency
+from fiper_ros.core.detectors import ACE, CONSISTENCY, DETECTORS, OBSERVATION_ONLY, PROGRESS, SIGNAL_PREFIX, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZO
 from fiper_ros.core.pca_kmeans import PCAKMeans
 from fiper_ros.core.profiles import get_profile
+from fiper_ros.core.progress import ProgressDetector
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
 from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores, cache_key, code_version
 from fiper_ros.evaluation.data import Dataset, DatasetError
-from fiper_ros.evaluation.methods import ELAPSED, UNFITTED_STREAMS, MethodSettings
+from fiper_ros.evaluation.methods import ELAPSED, MethodSettings, fitted
 
 LOG = logging.getLogger(__name__)
 
@@ -88,15 +90,22 @@ def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
 
 
 def check_streams(dataset: Dataset, streams: Sequence[str]) -> None:
-    """Refuse a dataset a stream cannot score (STAC: chunks without an overlap, ``h = H``), before any work."""
-    if "stac" not in streams:
-        return
+    """Refuse a dataset a stream cannot score, before any work: STAC and action consistency on chunks without an
+    overlap (``h = H``), a logged signal a rollout lacks."""
+    overlapping = [s for s in ("stac", CONSISTENCY) if s in streams]
+    signals = [s.removeprefix(SIGNAL_PREFIX) for s in streams if info(s).reads == "signal"]
     for rollout in (*dataset.calibration, *dataset.test):
-        try:
-            check_overlap(rollout.exec_steps, rollout.actions.shape[2])
-        except BaselineError as error:
-            raise DatasetError(f"task {dataset.task!r}, rollout {rollout.rollout_id!r}: {error} (leave STAC out: "
-                               "--methods without stac)") from error
+        where = f"task {dataset.task!r}, rollout {rollout.rollout_id!r}"
+        for stream in overlapping:
+            try:
+                check_overlap(rollout.exec_steps, rollout.actions.shape[2])
+            except BaselineError as error:
+                raise DatasetError(f"{where}: {error} (leave {info(stream).label} out: --methods without "
+                                   f"{stream})") from error
+        missing = [name for name in signals if name not in rollout.signals] if signals else []
+        if missing:
+            raise DatasetError(f"{where}: no logged signal {', '.join(missing)} (it has "
+                               f"{', '.join(sorted(rollout.signals)) or 'none'})")
 
 
 def check_dataset(dataset: Dataset, settings: MethodSettings, streams: Sequence[str]) -> None:
@@ -163,11 +172,33 @@ def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int, with_ace
     return fit
 
 
+def _signal(rollout: Rollout, name: str) -> np.ndarray:
+    """The magnitude of a logged per-step signal (a score is >= 0); :class:`DatasetError` if the rollout lacks it."""
+    if name not in rollout.signals:
+        raise DatasetError(f"rollout {rollout.rollout_id!r} has no signal {name!r} (it has "
+                           f"{', '.join(sorted(rollout.signals)) or 'none'})")
+    return np.abs(rollout.signals[name])
+
+
 def baseline_fitter(stream: str, settings: MethodSettings, seed: int) -> Fitter:
-    """A baseline (or the elapsed-time stream) fitted on the successes given; its scores get the epsilon."""
+    """A baseline, a new detector (progress, consistency), a logged signal or the elapsed-time stream fitted on the
+    successes given; its scores get the epsilon."""
     if stream == ELAPSED:
         return lambda successes: {ELAPSED: lambda rollout: np.ones(rollout.length)}
+    if info(stream).reads == "signal":
+        name = stream.removeprefix(SIGNAL_PREFIX)
+        return lambda successes: {stream: lambda rollout: _signal(rollout, name)}
     epsilon = get_profile(settings.profile).score_epsilon
+    if stream == PROGRESS:
+        def fit_progress(successes: Sequence[Rollout]) -> dict[str, Scorer]:
+            detector = ProgressDetector.fit(successes, settings.progress, seed)
+            return {stream: lambda rollout: detector.scores(rollout.embeddings) + epsilon}
+        return fit_progress
+    if stream == CONSISTENCY:
+        def fit_consistency(successes: Sequence[Rollout]) -> dict[str, Scorer]:
+            detector = ActionConsistency.fit(successes, settings.consistency)
+            return {stream: lambda rollout: detector.scores(rollout.actions) + epsilon}
+        return fit_consistency
 
     def fit(successes: Sequence[Rollout]) -> dict[str, Scorer]:
         baseline = _baseline(stream, settings).fit(successes, seed)
@@ -238,21 +269,21 @@ def compute_streams(
             raw[stream], seconds[stream] = cached, 0.0
     missing = [s for s in streams if s not in raw]
     with torch_threads(threads):
-        fitted = [s for s in FIPER_PAIR if s in missing]
-        if fitted:
+        pair = [s for s in FIPER_PAIR if s in missing]
+        if pair:
             start = time.perf_counter()
-            both = split_scores(fiper_fitter(dataset, settings, seed, with_ace=ACE in fitted), dataset, split)
+            both = split_scores(fiper_fitter(dataset, settings, seed, with_ace=ACE in pair), dataset, split)
             elapsed = time.perf_counter() - start
-            for stream in fitted:
-                raw[stream], seconds[stream] = both[stream], elapsed / len(fitted)
+            for stream in pair:
+                raw[stream], seconds[stream] = both[stream], elapsed / len(pair)
         for stream in missing:
             if stream not in raw:
                 start = time.perf_counter()
                 # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
-                own = calibration_split(dataset, replace(settings, split="same", shape_folds=0), seed) \
-                    if stream in UNFITTED_STREAMS else split
+                own = split if fitted(stream) else calibration_split(
+                    dataset, replace(settings, split="same", shape_folds=0), seed)
                 raw[stream] = split_scores(baseline_fitter(stream, settings, seed), dataset, own,
-                                           stream not in UNFITTED_STREAMS)[stream]
+                                           fitted(stream))[stream]
                 seconds[stream] = time.perf_counter() - start
     if cache is not None:
         for stream in missing:
