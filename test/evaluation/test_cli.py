@@ -46,12 +46,12 @@ def test_cli_writes_markdown_json_and_pngs(tmp_path: Path, tiny_dataset: Dataset
     for png in ("scores_by_category.png", "window_impact.png", "delta_impact.png", "example_rollouts.png"):
         assert (out / png).stat().st_size > 10_000, png
     assert main(argv) == 0  # second run: every score stream from the cache
-    assert "cache 36 hit(s), 0 miss(es)" in capsys.readouterr().out  # 2 tasks x 2 seeds x 7 streams
+    assert "cache 36 hit(s), 0 miss(es)" in capsys.readouterr().out  # 2 tasks x 2 seeds x 9 streams
     same = out.parent / "same"
     assert main([*argv[:-5], "--out", str(same), "--cache-dir", str(tmp_path / "cache"), "--quiet", "--no-plots",
                  "--split", "same"]) == 0
     # STAC and the elapsed time from the first run; ACE, seedless with the same data, for seed 1
-    assert "cache 10 hit(s), 18 miss(es)" in capsys.readouterr().out
+    assert "cache 10 hit(s), 26 miss(es)" in capsys.readouterr().out
     assert "Calibration: same data (the paper's Remark 1)" in (same / "results.md").read_text()
     assert json.loads((same / "results.json").read_text())["settings"]["calibration_split"] == {"split": "same"}
 
