@@ -6,6 +6,7 @@ and the offline evaluation all call :mod:`fiper_ros.core.monitor`, so their resu
 Modules, one concept each:
 
 - :mod:`.rollout`: the rollout record and its ``.npz`` container.
+- :mod:`.data_split`: the calibration / test split of data that comes without one (a seeded fraction per task).
 - :mod:`.ace`: action-chunk entropy, eq. (4) and App. A.1.
 - :mod:`.kinematics`: joint-space actions to end-effector positions (App. A.1, last paragraph).
 - :mod:`.mlp`: MLP builder and numpy forward pass shared by RND-OE and the RND-A baseline.
@@ -22,5 +23,5 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "detectors", "fusion", "kinematics", "metrics", "mlp", "monitor",
-           "profiles", "rnd_oe", "rollout", "scores", "thresholds", "window"]
+__all__ = ["ace", "calibration", "calibration_file", "data_split", "detectors", "fusion", "kinematics", "metrics", "mlp",
+           "monitor", "profiles", "rnd_oe", "rollout", "scores", "thresholds", "window"]
