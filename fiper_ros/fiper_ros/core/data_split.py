@@ -109,6 +109,16 @@ def check_fraction(fraction: float) -> None:
         raise DataSplitError(f"calibration fraction must be in (0, 1), got {fraction:g}")
 
 
+def check_draw(fraction: float, seed: int, options: tuple[str, str]) -> None:
+    """Refuse a fraction outside (0, 1) or a negative seed, naming the ``options`` (fraction, seed) that gave them."""
+    try:
+        check_fraction(fraction)
+    except DataSplitError as error:
+        raise DataSplitError(f"{options[0]}: {error}") from error
+    if seed < 0:
+        raise DataSplitError(f"{options[1]}: the seed must be >= 0, got {seed}")
+
+
 def describe(fraction: float, seed: int) -> str:
     """The rule of a drawn split in words (stored with what it split, e.g. a bag's ``custom_data`` ``split_rule``)."""
     return (f"drawn: per task, calibration fraction {fraction:g} of its successes (seed {seed}), every other rollout "
