@@ -9,11 +9,14 @@ Add these lines to a policy (a runnable whole: ``python -m fiper_ros.examples.mi
     fiper.start(task="my_task", scenario="id") # RolloutEvent START (a new rollout id)
     for each policy step:
         fiper.step(embedding, chunks)          # embedding (E values), chunks [B, H, D]: same stamp and step
+        # or fiper.step(embedding, chunks, signals={"chunk_mse": 0.12})  # named scalars the policy logs, if any
     fiper.end(success=True)                    # RolloutEvent END with the outcome (None: not known)
 
 :class:`FiperPublisher` creates, on the caller's node (it has no node of its own), the publishers of
-``/fiper/observation_embedding`` and ``/fiper/action_chunks`` (:data:`~fiper_ros.interface.qos.INPUT`: RELIABLE,
-VOLATILE) and ``/fiper/rollout_events`` (:data:`~fiper_ros.interface.qos.EVENT`: RELIABLE, TRANSIENT_LOCAL). The
+``/fiper/observation_embedding``, ``/fiper/action_chunks`` and ``/fiper/step_signals`` (:data:`~fiper_ros.interface.
+qos.INPUT`: RELIABLE, VOLATILE) and ``/fiper/rollout_events`` (:data:`~fiper_ros.interface.qos.EVENT`: RELIABLE,
+TRANSIENT_LOCAL). A step's signals (named scalars the policy logs, e.g. features of the executed chunk) are optional:
+a StepSignals message goes out only for a step given some, with the step's rollout id, step and stamp. The
 inputs are VOLATILE: a step published before a scoring node's reader has matched the publisher is lost to it, so
 :meth:`~FiperPublisher.wait_for_suite` waits until every reader that reports its matches on ``/diagnostics`` (the
 suite's nodes, and ``fiper record``) has matched the publishers, among them an ACTIVE node of the suite per input
@@ -27,7 +30,7 @@ same messages, without the generated classes' per-field Python work).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -37,12 +40,12 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent
-from fiper_ros.core.rollout import ACTION_SPACES
+from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent, StepSignals
+from fiper_ros.core.rollout import ACTION_SPACES, RolloutError, check_signal_name
 from fiper_ros.interface import qos
-from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rollout_event_msg
+from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rollout_event_msg, step_signals_cdr
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
-from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EMBEDDING, EVENTS, STEP_SIGNALS
 from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.runtime.wiring import unmatched_readers
 
@@ -61,7 +64,7 @@ class SuiteNotReady(RuntimeError):
 
 
 class FiperPublisher:
-    """The three publishers of a policy's FIPER topics on ``node``, and START / step / END.
+    """The publishers of a policy's FIPER topics on ``node``, and START / step / END.
 
     Args:
         node: The policy's rclpy node (the publishers live on it).
@@ -72,13 +75,14 @@ class FiperPublisher:
             suite of RND-OE alone, ``observation_only:=true``).
         events_topic: Where the rollout events go; ``None``: another node (e.g. the robot's bridge) publishes
             them, and :meth:`start` / :meth:`end` are not used.
+        signals_topic: Where a step's signals go (:meth:`step`'s ``signals``); ``None``: none are published.
         event_callbacks: Makes the QoS event callbacks of the publisher of a topic (e.g. to count incompatible
             QoS); none by default.
     """
 
     def __init__(self, node: Node, *, action_space: str = ACTION_SPACES[0], exec_steps: int = 1,
                  embedding_topic: str = EMBEDDING, actions_topic: str | None = ACTIONS,
-                 events_topic: str | None = EVENTS,
+                 events_topic: str | None = EVENTS, signals_topic: str | None = STEP_SIGNALS,
                  event_callbacks: Callable[[str], PublisherEventCallbacks] | None = None) -> None:
         self.node = node
         self.set_layout(action_space, exec_steps)
@@ -90,6 +94,7 @@ class FiperPublisher:
         self.embeddings = publisher(ObservationEmbedding, embedding_topic, qos.INPUT)
         self.batches = None if actions_topic is None else publisher(ActionChunkBatch, actions_topic, qos.INPUT)
         self.events = None if events_topic is None else publisher(RolloutEvent, events_topic, qos.EVENT)
+        self.signals = None if signals_topic is None else publisher(StepSignals, signals_topic, qos.INPUT)
         self.rollout_id: int | None = None
         """The rollout :meth:`start` began and :meth:`end` has not ended."""
         self.next_step = 0
@@ -112,8 +117,9 @@ class FiperPublisher:
 
     def missing(self, also: Sequence[str] = (), suite: bool = True) -> list[str]:
         """What has not matched the publishers yet (empty: publishing loses nothing), from the ROS graph and the
-        ``/diagnostics`` reports received so far: every reader of the inputs or of ``/fiper/alarm`` that reports its
-        matches (for the alarm, KEEP_LAST(1) at the fusion node: so that the first verdicts are not lost to it),
+        ``/diagnostics`` reports received so far: every reader of the inputs (step signals included) or of
+        ``/fiper/alarm`` that reports its matches (for the alarm, KEEP_LAST(1) at the fusion node: so that the first
+        verdicts are not lost to it),
         ``also`` (nodes, fully qualified, e.g. ``/fiper_record``, that must have reported: a reader this process has not
         discovered yet cannot be waited for otherwise) and, with ``suite``, an ACTIVE reader of the suite per input
         topic and an ACTIVE fusion node."""
@@ -126,6 +132,10 @@ class FiperPublisher:
                 lines.append(f"an active node of the suite subscribing to {topic} (none reports one on /diagnostics)")
             lines += unmatched
             lines += self._writer_side(publisher)
+        if self.signals is not None:  # no node of the suite reads them: only who reports a reader (fiper record)
+            topic = self.signals.topic_name
+            lines += unmatched_readers(self._reports, topic, node.count_publishers(topic))[1]
+            lines += self._writer_side(self.signals)
         if self.events is not None:
             lines += self._writer_side(self.events)
         # who watches the suite's verdicts (fiper launch --summary, fiper record) must hear the first ones too
@@ -210,9 +220,9 @@ class FiperPublisher:
         return rollout_id
 
     def step(self, embedding: np.ndarray, chunks: np.ndarray | None = None, *, rollout_id: int | None = None,
-             step: int | None = None, stamp_ns: int | None = None) -> int:
+             step: int | None = None, stamp_ns: int | None = None, signals: Mapping[str, float] | None = None) -> int:
         """Publish one policy step: the observation embedding and the ``[B, H, D]`` sampled chunks (all B of
-        them: ACE needs the batch), with the same rollout id, step and stamp.
+        them: ACE needs the batch), and the step's signals if given, with the same rollout id, step and stamp.
 
         Args:
             embedding: The encoder's output for the step's observation (any shape, E values).
@@ -220,6 +230,8 @@ class FiperPublisher:
             rollout_id: Default: the rollout :meth:`start` began.
             step: Default: the next step of that rollout (0, 1, ...).
             stamp_ns: Default: the node clock's now.
+            signals: Named finite scalars of the step (names of :data:`~fiper_ros.core.rollout.SIGNAL_NAME`; give
+                the same names at every step of a rollout); ``None`` or empty: no StepSignals message.
 
         Returns:
             The step published.
@@ -243,12 +255,34 @@ class FiperPublisher:
             batch = np.asarray(chunks, dtype=np.float32)
             if batch.ndim != 3 or 0 in batch.shape:
                 raise ValueError(f"chunks must be [B, H, D] with B, H, D >= 1, got shape {batch.shape}")
+        scalars = self._checked_signals(signals or {})
         self.embeddings.publish(embedding_cdr(rollout_id, step, stamp, values))
         if chunks is not None:
             self.batches.publish(action_batch_cdr(rollout_id, step, stamp, batch, self.exec_steps, self.action_space))
+        if scalars:
+            self.signals.publish(step_signals_cdr(rollout_id, step, stamp, scalars))
         if rollout_id == self.rollout_id:
             self.next_step = step + 1
         return step
+
+    def _checked_signals(self, signals: Mapping[str, float]) -> dict[str, float]:
+        """A step's signals as ``{name: float}``, refused (:class:`ValueError`) unless every name is a signal name
+        and every value a finite number, and without a signals publisher."""
+        if signals and self.signals is None:
+            raise ValueError("this FiperPublisher publishes no signals (signals_topic None): give no signals")
+        checked: dict[str, float] = {}
+        for name, value in signals.items():
+            try:
+                check_signal_name(name, "signals")
+            except RolloutError as error:
+                raise ValueError(str(error)) from error
+            try:
+                checked[name] = float(value)
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"signal {name!r} is not a number: {value!r}") from error
+            if not np.isfinite(checked[name]):
+                raise ValueError(f"signal {name!r} is {checked[name]}: signals must be finite")
+        return checked
 
     def end(self, success: bool | None, *, rollout_id: int | None = None) -> None:
         """Publish the END of the rollout (default: the one :meth:`start` began) with its outcome: ``True``
@@ -268,7 +302,7 @@ class FiperPublisher:
         exits: what is still in flight would be lost); whether it did within ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         done = True
-        for publisher in (*self._inputs(), *([self.events] if self.events is not None else [])):
+        for publisher in (*self._inputs(), *(p for p in (self.events, self.signals) if p is not None)):
             left = max(0.0, deadline - time.monotonic())
             done = publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
         return done

@@ -58,7 +58,7 @@ def test_npz_by_hand(tmp_path: Path) -> None:
              success=np.array([True, True, False]), split=np.array(["calibration", "calibration", "test"]),
              task=np.array("pusht"), scenario=np.array(["id", "id", "lighting"]))
     counts = convert("generic", src, tmp_path / "out", ConvertOptions(exec_steps=1))
-    assert counts == {"calibration_rollouts": 1, "test_rollouts": 1}
+    assert counts.bags == {"calibration_rollouts": 1, "test_rollouts": 1}
     calibration = _messages(tmp_path / "out" / "calibration_rollouts")
     assert [t for t, _ in calibration] == [EVENTS, EMBEDDING, ACTIONS, EMBEDDING, ACTIONS, EVENTS]
     start, e0, a0, e1, a1, end = (m for _, m in calibration)
@@ -188,8 +188,6 @@ BAD_NPZ = {  # name: (arrays replaced (None: left out), message after "FILE: rol
     "label differs": ({"success": np.array([True, False])}, r"'success' \(--success-key\) differs between steps"),
     "bad split": ({"split": np.array("train")},
                   r"'split' \(--split-key\) is 'train'; expected one of calibration, test"),
-    "no split": ({"split": None},
-                 r"no split: give 'split' \(--split-key\) or put the file under calibration/ or test/"),
     "repeated step": ({"step": np.array([0, 0])}, r"'step' \(--step-key\) repeats a step"),
 }
 

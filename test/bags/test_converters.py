@@ -70,7 +70,7 @@ def _sentinel_fixture(root: Path, dims: int = 7) -> dict[str, tuple[str, str, bo
 def test_fiper_pickles(tmp_path: Path) -> None:
     expected = _fiper_fixture(tmp_path / "src")
     counts = convert("fiper", tmp_path / "src" / "pretzel", tmp_path / "out", ConvertOptions(max_steps=70))
-    assert counts == {"calibration_rollouts": 2, "test_rollouts": 5}
+    assert counts.bags == {"calibration_rollouts": 2, "test_rollouts": 5}
     converted = read_converted(tmp_path / "out")
     assert sorted(converted) == sorted(expected)
     for name, (split, scenario, success, embeddings, actions) in expected.items():

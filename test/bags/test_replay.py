@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from helpers.dds import ros_env
 from helpers.synthetic import make_rollout
@@ -19,10 +20,12 @@ from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import write_rollouts
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.writer import BagWriter
+from fiper_ros.client.replay import played_topics, readers_needed, suite_subscribers
 from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
 from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.interface.messages import outcome_name
-from fiper_ros.interface.topics import EVENTS
+from fiper_ros.interface.topics import EMBEDDING, EVENTS, STEP_SIGNALS
 
 SAMPLES = Path(__file__).resolve().parents[2] / "bags"
 SETS = sorted(p for p in SAMPLES.iterdir() if (p / "calibration").is_dir()) if SAMPLES.is_dir() else []
@@ -189,3 +192,27 @@ def test_replay_exits_1_when_a_step_gets_no_alarm(small_calibration: Path, ros_d
     assert "2 steps without an alarm" in result.stdout
     (complete,) = [r for r in report["rollouts"] if r["rollout_id"] == 7]
     assert len(complete["steps"]) == 6
+
+
+def test_the_step_signals_are_played_into_every_suite_without_waiting_for_a_reader() -> None:
+    """No node of the suite reads ``/fiper/step_signals``: the player publishes them (to ``fiper record``, or a node
+    of another's) but waits for no reader of them, in a suite it launched or one already running."""
+    assert STEP_SIGNALS in played_topics(DETECTORS) and STEP_SIGNALS in played_topics(OBSERVATION_ONLY)
+    assert suite_subscribers(DETECTORS)[STEP_SIGNALS] == 0 and suite_subscribers(DETECTORS)[EMBEDDING] == 1
+    assert readers_needed([EMBEDDING, STEP_SIGNALS, EVENTS]) == {EMBEDDING: 1, STEP_SIGNALS: 0, EVENTS: 1}
+
+
+def test_a_bag_with_step_signals_replays_as_the_offline_oracle(small_calibration: Path, ros_domain: int,
+                                                               tmp_path: Path) -> None:
+    rollouts = [make_rollout(110, length=5), make_rollout(111, fail=True)]
+    for rollout in rollouts:
+        rollout.signals = {"chunk_mse": np.linspace(0.0, 1.0, rollout.length), "eef_z": np.zeros(rollout.length)}
+    bag = tmp_path / "signals"
+    write_rollouts(bag, rollouts, [5, 6], BagInfo(task="synthetic", synthetic=True, source="test"))
+    with BagReader(bag) as reader:
+        assert STEP_SIGNALS in reader.topics
+    report, _ = _replay([str(bag), "--calibration", str(small_calibration), "--fast", "--step-timeout", "30"],
+                        ros_domain, tmp_path / "report.json")
+    assert report["missing"] == []
+    assert {r["rollout_id"]: r for r in report["rollouts"]} == {r["rollout_id"]: r for r in
+                                                                _offline([bag], small_calibration)}

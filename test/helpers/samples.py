@@ -12,7 +12,8 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
 
-from fiper_msgs.msg import ActionChunkBatch, ActionCommand, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
+from fiper_msgs.msg import (ActionChunkBatch, ActionCommand, FailureAlarm, ObservationEmbedding, RolloutEvent, Score,
+                            StepSignals)
 
 #: The largest batch the suite publishes (PushT / PushChair shape).
 BATCH_SHAPE = (256, 16, 3)
@@ -55,6 +56,10 @@ def sample_messages() -> dict[str, Any]:
         "fiper_msgs/msg/ActionCommand": ActionCommand(
             header=_header(16), rollout_id=7, step=3, num_actions=4, action_dim=8, data=_floats(32, 3),
             action_space=ActionCommand.ACTION_SPACE_JOINT_VELOCITY,
+        ),
+        "fiper_msgs/msg/StepSignals": StepSignals(
+            header=_header(17), rollout_id=2**64 - 1, step=3, names=["chunk_mse", "eef_z", "gripper_oscillation"],
+            values=array.array("d", [1e-300, -0.0, 1.7976931348623157e308]),
         ),
     }
 

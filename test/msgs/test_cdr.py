@@ -17,9 +17,11 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
-from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
+from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score, StepSignals
+from fiper_ros.bagio.schema import message_cdr
 from fiper_ros.interface.cdr import CDR_LE, CdrError, EncapsulationError, codec
-from fiper_ros.interface.conversions import STAMP_MAX_NS, STAMP_MIN_NS, header_view, to_stamp
+from fiper_ros.interface.conversions import (STAMP_MAX_NS, STAMP_MIN_NS, header_view, signals_of, step_signals_cdr,
+                                             step_signals_msg, to_stamp)
 from helpers.samples import as_plain, sample_messages
 
 PROPERTY = settings(max_examples=150, deadline=None, derandomize=True, database=None)
@@ -42,6 +44,8 @@ EMBEDDINGS = st.builds(ObservationEmbedding, header=HEADER, rollout_id=UINT64, s
                        shape=st.lists(UINT32, max_size=4))
 BATCHES = st.builds(ActionChunkBatch, header=HEADER, rollout_id=UINT64, step=UINT32, batch_size=UINT32, horizon=UINT32,
                     action_dim=UINT32, exec_steps=UINT32, action_space=TEXT, data=FLOATS32)
+SIGNALS = st.builds(StepSignals, header=HEADER, rollout_id=UINT64, step=UINT32, names=st.lists(TEXT, max_size=5),
+                    values=st.lists(st.floats(), max_size=5))
 DIAGNOSTICS = st.builds(DiagnosticArray, header=HEADER, status=st.lists(st.builds(
     DiagnosticStatus, level=st.binary(min_size=1, max_size=1), name=TEXT, message=TEXT, hardware_id=TEXT,
     values=st.lists(st.builds(KeyValue, key=TEXT, value=TEXT), max_size=5)), max_size=3))
@@ -91,11 +95,21 @@ def test_every_sample_message_reads_and_writes_as_rclpy_does(name: str) -> None:
 
 
 @PROPERTY
-@given(st.one_of(SCORES, ALARMS, EMBEDDINGS, BATCHES, DIAGNOSTICS, JOINT_STATES,
+@given(st.one_of(SCORES, ALARMS, EMBEDDINGS, BATCHES, SIGNALS, DIAGNOSTICS, JOINT_STATES,
                  st.builds(RolloutEvent, header=HEADER, rollout_id=UINT64, event=st.integers(0, 255),
                            outcome=st.integers(0, 255), task=TEXT, scenario=TEXT, max_steps=UINT32)))
 def test_any_message_reads_and_writes_as_rclpy_does(msg: Any) -> None:
     check(msg)
+
+
+def test_step_signals_bytes_are_the_message_rclpy_and_the_bag_writer_write() -> None:
+    signals = {"chunk_mse": 0.125, "eef_z": -1e-300, "action_jerk": 3.5}
+    raw = step_signals_cdr(2**64 - 1, 41, 7_000_000_011, signals)
+    message = step_signals_msg(2**64 - 1, 41, 7_000_000_011, signals)
+    assert plain(deserialize_message(raw, StepSignals)) == plain(message)
+    assert raw == message_cdr(message, "fiper_msgs/msg/StepSignals")  # padding zeroed as the bag writer's
+    assert signals_of(codec(StepSignals).decode(raw)) == signals
+    assert list(signals_of(message)) == ["chunk_mse", "eef_z", "action_jerk"]  # in the order given
 
 
 def test_a_float32_beyond_its_range_is_written_as_the_infinity_rclpy_writes() -> None:

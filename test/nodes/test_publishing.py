@@ -17,11 +17,11 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy
 
-from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent
+from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent, StepSignals
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import floats_of, stamp_ns
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, STEP_SIGNALS
 from fiper_ros.publishing import FiperPublisher, SuiteNotReady
 
 
@@ -34,15 +34,17 @@ class Ends:
         self.node = Node("test_policy", context=self.context)
         self.fiper = FiperPublisher(self.node, **options)  # type: ignore[arg-type]
         self.listener = Node("test_listener", context=self.context)
-        self.received: dict[str, list[object]] = {EMBEDDING: [], ACTIONS: [], EVENTS: []}
+        self.received: dict[str, list[object]] = {EMBEDDING: [], ACTIONS: [], EVENTS: [], STEP_SIGNALS: []}
         for kind, topic, profile in ((ObservationEmbedding, EMBEDDING, qos.INPUT),
-                                     (ActionChunkBatch, ACTIONS, qos.INPUT), (RolloutEvent, EVENTS, qos.EVENT)):
+                                     (ActionChunkBatch, ACTIONS, qos.INPUT), (RolloutEvent, EVENTS, qos.EVENT),
+                                     (StepSignals, STEP_SIGNALS, qos.INPUT)):
             self.listener.create_subscription(kind, topic, self.received[topic].append, profile)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.listener)
 
     def matched(self) -> bool:
-        publishers = [p for p in (self.fiper.embeddings, self.fiper.batches, self.fiper.events) if p is not None]
+        publishers = [p for p in (self.fiper.embeddings, self.fiper.batches, self.fiper.events, self.fiper.signals)
+                      if p is not None]
         topics = {p.topic_name for p in publishers}
         return all(p.get_subscription_count() >= 1 for p in publishers) and all(
             s.get_publisher_count() >= 1 for s in self.listener.subscriptions if s.topic_name in topics)
@@ -99,6 +101,40 @@ def test_start_steps_and_end_on_the_wire(ends: Ends) -> None:
     assert floats_of(batch.data).tolist() == list(range(1, 25))
 
 
+def test_a_steps_signals_go_out_with_its_rollout_step_and_stamp_and_only_when_given(ends: Ends) -> None:
+    fiper = ends.fiper
+    assert fiper.signals.qos_profile.durability == DurabilityPolicy.VOLATILE
+    rollout_id = fiper.start()
+    embedding, chunks = np.zeros(3), np.zeros((2, 4, 3))
+    fiper.step(embedding, chunks)  # no signals: no StepSignals message
+    fiper.step(embedding, chunks, signals={"chunk_mse": 0.25, "eef_z": np.float32(-1.5)}, stamp_ns=5_000_000_007)
+    fiper.step(embedding, chunks, signals={})
+    fiper.end(success=True)
+    assert ends.spin_until(lambda: len(ends.received[ACTIONS]) == 3 and len(ends.received[EVENTS]) == 2)
+    assert ends.spin_until(lambda: len(ends.received[STEP_SIGNALS]) >= 1, 2.0)
+    (signals,) = ends.received[STEP_SIGNALS]
+    assert (signals.rollout_id, signals.step, stamp_ns(signals.header.stamp)) == (rollout_id, 1, 5_000_000_007)
+    assert stamp_ns(ends.received[EMBEDDING][1].header.stamp) == 5_000_000_007
+    assert list(signals.names) == ["chunk_mse", "eef_z"] and list(signals.values) == [0.25, -1.5]
+
+
+@pytest.mark.parametrize(("signals", "message"), [
+    ({"Chunk": 1.0}, r"signals: signal name 'Chunk' must match \^\[a-z\]\[a-z0-9_\]\*\$"),
+    ({"jerk": float("nan")}, "signal 'jerk' is nan: signals must be finite"),
+    ({"jerk": np.inf}, "signal 'jerk' is inf: signals must be finite"),
+    ({"jerk": "high"}, "signal 'jerk' is not a number: 'high'"),
+])
+def test_bad_signals_are_refused_before_anything_is_published(ends: Ends, signals: dict, message: str) -> None:
+    fiper = ends.fiper
+    fiper.start(9)
+    with pytest.raises(ValueError, match=message):
+        fiper.step(np.zeros(3), np.zeros((2, 4, 3)), signals=signals)
+    assert fiper.next_step == 0
+    fiper.step(np.ones(3), np.zeros((2, 4, 3)))
+    assert ends.spin_until(lambda: len(ends.received[EMBEDDING]) == 1)
+    assert ends.received[EMBEDDING][0].data[0] == 1.0  # the refused step's embedding never went out
+
+
 def test_what_the_publisher_refuses(ends: Ends) -> None:
     fiper, embedding, chunks = ends.fiper, np.zeros(3), np.zeros((2, 4, 3))
     with pytest.raises(RuntimeError, match="no rollout is running: call start"):
@@ -123,10 +159,12 @@ def test_what_the_publisher_refuses(ends: Ends) -> None:
 
 
 def test_observation_only_and_without_events(ros_domain: int) -> None:
-    ends = Ends(ros_domain, actions_topic=None, events_topic=None)
+    ends = Ends(ros_domain, actions_topic=None, events_topic=None, signals_topic=None)
     try:
         fiper = ends.fiper
-        assert fiper.batches is None and fiper.events is None
+        assert fiper.batches is None and fiper.events is None and fiper.signals is None
+        with pytest.raises(ValueError, match="publishes no signals"):
+            fiper.step(np.zeros(3), rollout_id=3, step=0, signals={"a": 1.0})
         with pytest.raises(RuntimeError, match="publishes no rollout events"):
             fiper.start()
         with pytest.raises(ValueError, match="publishes no action batches"):
@@ -169,7 +207,7 @@ def test_a_recording_started_with_the_policy_holds_every_step(tmp_path: Path, ro
         rollout_id = fiper.start(task="my_task")
         chunks = np.zeros((2, 4, 3))
         for t in range(5):
-            fiper.step(np.full(3, t), chunks)
+            fiper.step(np.full(3, t), chunks, signals={"chunk_mse": t / 4, "step_sq": t * t})
         fiper.end(success=True)
         assert fiper.flush(30)
     finally:
@@ -178,6 +216,8 @@ def test_a_recording_started_with_the_policy_holds_every_step(tmp_path: Path, ro
     (recorded,) = read_rollouts(bag)
     assert (recorded.rollout_id, recorded.success, recorded.length) == (str(rollout_id), True, 5)
     assert recorded.embeddings[:, 0].tolist() == [0, 1, 2, 3, 4]
+    assert {name: values.tolist() for name, values in recorded.signals.items()} == {
+        "chunk_mse": [0, 0.25, 0.5, 0.75, 1.0], "step_sq": [0, 1, 4, 9, 16]}
 
 
 def test_a_reader_of_the_alarm_that_reports_must_have_matched_the_fusion_node(ends: Ends) -> None:

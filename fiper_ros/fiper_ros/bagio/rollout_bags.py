@@ -6,7 +6,10 @@ stamp (no batch for a rollout without action batches, observation-only data: its
 ``/fiper/action_chunks``), then END with the outcome; the messages are built by :mod:`fiper_ros.interface.conversions`, the
 same code a policy node uses. A rollout with ``metadata["joint_positions"]`` (``[T, 7]``, the measured
 arm joints of a joint-velocity policy) also gets a ``/joint_states`` message at each step's stamp, written
-before the step's embedding and batch. Reading matches embedding and batch on ``(rollout_id, step)``,
+before the step's embedding and batch. A rollout with signals (``Rollout.signals``) gets a StepSignals message per
+step after the step's embedding and batch, with the same ``(rollout_id, step)`` and stamp, as
+:class:`~fiper_ros.publishing.FiperPublisher` publishes them. Reading matches embedding, batch and signals on
+``(rollout_id, step)``,
 takes task, scenario and outcome from the rollout's events, and restores ``joint_positions`` as the
 ace_node sees them: per step, the arm joints of the ``/joint_states`` with the latest stamp not after
 the batch's among all of the bag's (:mod:`fiper_ros.runtime.joint_history`; a live recording also holds
@@ -34,9 +37,10 @@ from fiper_ros.bagio.schema import BagInfo, message_cdr, typestore
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.core.rollout import ACTION_SPACES, Rollout, RolloutError
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
-from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg, stamp_ns
+from fiper_ros.interface.conversions import (action_batch_msg, embedding_msg, rollout_event_msg, signals_of,
+                                             stamp_ns, step_signals_msg)
 from fiper_ros.interface.messages import OUTCOME_OF, SUCCESS_OF
-from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES, TOPICS
+from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES, STEP_SIGNALS, TOPICS
 from fiper_ros.runtime.joint_history import LatestNotAfter
 
 LOG = logging.getLogger(__name__)
@@ -140,6 +144,10 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
                     writer.write(ACTIONS, stamp, _cdr(action_batch_msg(
                         rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps, rollout.action_space),
                         ACTIONS))
+                if rollout.signals:
+                    values = {name: float(series[step]) for name, series in rollout.signals.items()}
+                    writer.write(STEP_SIGNALS, stamp, _cdr(step_signals_msg(rollout_id, step, stamp, values),
+                                                           STEP_SIGNALS))
             control_steps = rollout.metadata.get("control_steps")
             end = (stamp + rollout.exec_steps * env_dt_ns if control_steps is None
                    else now + EVENT_LEAD_NS + int(control_steps) * env_dt_ns)
@@ -168,6 +176,7 @@ class _Collected:
     exec_steps: int = 0
     action_space: str = ""
     joints: dict[int, np.ndarray] = field(default_factory=dict)
+    signals: dict[int, dict[str, float]] = field(default_factory=dict)
 
 
 def _arm_joints(msg: Any) -> np.ndarray:
@@ -179,7 +188,7 @@ def _arm_joints(msg: Any) -> np.ndarray:
 def _collect(bag: BagReader) -> list[_Collected]:
     rollouts: dict[int, _Collected] = {}
     batch_stamps: list[tuple[_Collected, int, int]] = []  # (rollout, step, the batch's stamp)
-    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS]):
+    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS, STEP_SIGNALS]):
         msg = bag.decode(message)
         record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task,
                                                                      exec_steps=bag.info.exec_steps))
@@ -190,6 +199,12 @@ def _collect(bag: BagReader) -> list[_Collected]:
                 record.outcome = int(msg.outcome)
         elif message.topic == EMBEDDING:
             record.embeddings[int(msg.step)] = np.asarray(msg.data, dtype=np.float32).ravel()
+        elif message.topic == STEP_SIGNALS:
+            try:
+                record.signals[int(msg.step)] = signals_of(msg)
+            except ValueError as error:
+                raise BagError(f"{bag.path}: rollout {record.rollout_id} step {msg.step}: step signals: {error}") \
+                    from error
         else:
             shape = (int(msg.batch_size), int(msg.horizon), int(msg.action_dim))
             data = np.asarray(msg.data, dtype=np.float32)
@@ -221,11 +236,34 @@ def _resolve_joints(bag: BagReader, batch_stamps: list[tuple[_Collected, int, in
             record.joints[step] = positions[stamp]
 
 
+def _tables(record: _Collected, has_actions: bool) -> list[tuple[str, dict[int, Any]]]:
+    """The per-step tables every step of ``record`` must have: embeddings, batches (in a bag with the action topic),
+    signals (in a rollout with any)."""
+    tables: list[tuple[str, dict[int, Any]]] = [("observation embedding", record.embeddings)]
+    if has_actions:
+        tables.append(("action batch", record.batches))
+    if record.signals:
+        tables.append(("step signals message", record.signals))
+    return tables
+
+
+def _signal_series(record: _Collected, steps: list[int], path: Path) -> dict[str, np.ndarray]:
+    """The rollout's signals as ``{name: [T]}``; every step must name the same signals."""
+    if not record.signals:
+        return {}
+    names = list(record.signals[steps[0]])
+    for step in steps[1:]:
+        if set(record.signals[step]) != set(names):
+            raise BagError(f"{path}: rollout {record.rollout_id} step {step}: step signals name "
+                           f"{', '.join(sorted(record.signals[step])) or 'none'}, step {steps[0]} "
+                           f"{', '.join(sorted(names)) or 'none'}: every step of a rollout names the same signals")
+    return {name: np.array([record.signals[s][name] for s in steps], dtype=np.float64) for name in names}
+
+
 def _to_rollout(record: _Collected, path: Path, has_actions: bool) -> Rollout:
-    steps = sorted(set(record.embeddings) | set(record.batches))
-    tables = (("observation embedding", record.embeddings), ("action batch", record.batches))
+    steps = sorted(set(record.embeddings) | set(record.batches) | set(record.signals))
     for step in range(len(steps)):
-        for name, table in tables if has_actions else tables[:1]:
+        for name, table in _tables(record, has_actions):
             if step not in table:
                 raise BagError(f"{path}: rollout {record.rollout_id} has no {name} for step {step} "
                                f"(steps {steps[0]}..{steps[-1]} present)")
@@ -236,6 +274,7 @@ def _to_rollout(record: _Collected, path: Path, has_actions: bool) -> Rollout:
         LOG.warning("%s: rollout %d: no /joint_states with %s before step %d: ACE cannot score its joint "
                     "velocities", path, record.rollout_id, ", ".join(ARM_JOINT_NAMES),
                     min(set(steps) - set(record.joints)))
+    signals = _signal_series(record, steps, path)
     try:
         return Rollout(
             rollout_id=str(record.rollout_id), task=record.task, scenario=record.scenario,
@@ -243,24 +282,27 @@ def _to_rollout(record: _Collected, path: Path, has_actions: bool) -> Rollout:
             actions=np.stack([record.batches[s] for s in steps]) if has_actions else None,
             exec_steps=record.exec_steps or 1, success=SUCCESS_OF.get(record.outcome),
             action_space=record.action_space or ACTION_SPACES[0], metadata=metadata,
+            signals=signals,
         )
     except (RolloutError, ValueError) as error:
         raise BagError(f"{path}: rollout {record.rollout_id}: {error}") from error
 
 
-def _drop_cut_step(record: _Collected, path: Path) -> None:
+def _drop_cut_step(record: _Collected, path: Path, has_actions: bool) -> None:
     """A rollout the bag cuts off (no END: the recording stopped, or ended unfinished) may end inside its last
-    step, with its embedding but not its batch or the reverse: that step is left out, with a warning."""
-    steps = set(record.embeddings) | set(record.batches)
+    step, with some of its messages (embedding, batch, signals) but not all: that step is left out, with a
+    warning."""
+    tables = _tables(record, has_actions)
+    steps = set().union(*(table for _, table in tables))
     if record.outcome is not None or not steps:
         return
     last = max(steps)
-    if (last in record.embeddings) == (last in record.batches):
+    held = [name for name, table in tables if last in table]
+    if len(held) == len(tables):
         return
-    held = "observation embedding" if last in record.embeddings else "action batch"
     LOG.warning("%s: rollout %d ends inside step %d (only its %s, no END): that step is left out", path,
-                record.rollout_id, last, held)
-    for table in (record.embeddings, record.batches, record.joints):
+                record.rollout_id, last, " and ".join(held))
+    for table in (record.embeddings, record.batches, record.joints, record.signals):
         table.pop(last, None)
 
 
@@ -274,8 +316,7 @@ def read_rollouts(path: Path) -> list[Rollout]:
         collected = _collect(bag)
     rollouts = []
     for record in collected:
-        if has_actions:
-            _drop_cut_step(record, path)
+        _drop_cut_step(record, path, has_actions)
         if not record.embeddings and not record.batches:
             LOG.warning("%s: rollout %d has no steps; left out", path, record.rollout_id)
             continue

@@ -75,6 +75,8 @@ class BagInfo:
         synthetic: True for generated data (never from a robot).
         source: Where the data came from (converter and source path, ``fiper record``, ...).
         split: ``calibration``, ``test`` or "" (mixed / unknown).
+        split_rule: How the split was made when the source gave none (``fiper convert`` drew it:
+            :func:`fiper_ros.core.data_split.describe`); "" when the source gave it.
         rollout_sources: Rollout id -> source file name (converters), for traceability.
         policy: Model folder of the policy that produced the rollouts (``fiper collect``; "" otherwise).
         policy_hash: SHA-256 of that model's files (``policy.pt``, ``policy.yaml``).
@@ -94,6 +96,7 @@ class BagInfo:
     synthetic: bool = False
     source: str = ""
     split: str = ""
+    split_rule: str = ""
     rollout_sources: dict[str, str] = field(default_factory=dict)
     policy: str = ""
     policy_hash: str = ""

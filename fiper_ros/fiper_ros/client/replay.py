@@ -1,10 +1,11 @@
 """The player of ``fiper replay BAG...`` (:mod:`fiper_ros.commands.replay`): bags into the node suite, its alarms
 per rollout back.
 
-The policy-side topics of the bags (embeddings, action batches, rollout events, joint states) are
+The policy-side topics of the bags (embeddings, action batches, step signals, rollout events, joint states) are
 published in log-time order, bag after bag (a bag that starts before the previous one ended is shifted
 later), with a ``/clock`` tick at each message's log time so nodes under ``use_sim_time`` see the
-bag's time. Before the first message the player waits until the suite subscribes to every topic.
+bag's time. Before the first message the player waits until the suite subscribes to every topic it reads
+(the step signals are played without waiting for a reader: no node of the suite reads them).
 
 Pacing: ``--rate K`` plays at K x real time, ``--fast`` as fast as possible. Either way the player is
 flow-controlled while a fusion node publishes ``/fiper/alarm``: it sends a step's inputs only after
@@ -43,7 +44,8 @@ from fiper_ros.evaluation.verdicts import rollout_line
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
-from fiper_ros.interface.topics import ACTIONS, ALARM as ALARM_TOPIC, CLOCK, EMBEDDING, EVENTS, INPUT_TOPICS, TOPICS
+from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, CLOCK, EMBEDDING, EVENTS, INPUT_TOPICS,
+                                        STEP_SIGNALS, TOPICS)
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
@@ -52,12 +54,20 @@ if TYPE_CHECKING:
 NODE_NAME = "fiper_replay"
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
 WARM_UP_S = 1.0
+#: Policy-side topics played whether or not anything reads them: no node of the suite reads the step signals.
+UNREAD_INPUTS = (STEP_SIGNALS,)
+
+
+def readers_needed(topics: Sequence[str]) -> dict[str, int]:
+    """Subscribers to wait for per played topic in a suite this process did not start: one, none for
+    :data:`UNREAD_INPUTS`."""
+    return {topic: 0 if topic in UNREAD_INPUTS else 1 for topic in topics}
 
 
 def suite_subscribers(detectors: tuple[str, ...]) -> dict[str, int]:
     """Subscribers a launched suite of ``detectors`` has per topic: each scoring node its input, the fusion
-    node each score, every node the rollout events."""
-    needed = {EVENTS: len(detectors) + 1}
+    node each score, every node the rollout events, none the :data:`UNREAD_INPUTS`."""
+    needed = {**readers_needed(UNREAD_INPUTS), EVENTS: len(detectors) + 1}
     for detector in detectors:
         step_input, _, score = DETECTOR_TOPICS[detector]
         needed[step_input] = needed[score] = 1
@@ -178,12 +188,13 @@ class Player:
         """Publish the bag's played topics; returns the (shifted) log time of its last message."""
         last = 0
         step_topics = {EMBEDDING, ACTIONS} & set(self.publishers)  # a step is sent once all of them are
+        keyed = step_topics | ({STEP_SIGNALS} & set(self.publishers))  # the messages of a step (rollout, step)
         for message in bag.messages([t for t in bag.topics if t in self.publishers]):
             if self.session.stop.is_set():
                 break
             sim_ns = message.log_time_ns + shift_ns
             key, event = None, None
-            if message.topic in step_topics:
+            if message.topic in keyed:
                 msg = bag.decode(message)
                 key = (int(msg.rollout_id), int(msg.step))
             elif message.topic == EVENTS:
@@ -201,7 +212,7 @@ class Player:
                 # Every node has the START (reliable: acknowledged) and a moment to act on it before step 0.
                 self.publishers[EVENTS].wait_for_all_acked(Duration(seconds=self.step_timeout))
                 self.session.spin_until(lambda: False, self.settle_s)
-            if key is not None:
+            if key is not None and message.topic in step_topics:
                 sent = self._sent.setdefault(key, set())
                 sent.add(message.topic)
                 if len(sent) == len(step_topics):

@@ -7,9 +7,12 @@ Examples::
     fiper evaluate --data sorting=data/study/sorting --split same --out results-same/   # the paper's Remark 1
 
 Each ``--data TASK=PATH[,PATH...]`` names a task and its rollout files (``RolloutSet.save_npz``) or
-directories of them; ``--synthetic`` generates the SYNTHETIC benchmark instead. ``--split`` chooses
-which calibration successes fit the score models and which the thresholds (default ``split``: split
-conformal, as ``fiper calibrate``; ``cross``: K-fold cross-fitting; ``same``: the paper's same-data
+directories of them or of bags; data of several tasks (``fiper convert generic`` of many tasks) is one dataset per
+task, named by the task. Bags without a split are split per task (``--calibration-fraction``,
+``--calibration-seed``: a seeded fraction of each task's successes is calibration, as ``fiper convert`` splits
+logs without one), and the split is printed. ``--synthetic`` generates the SYNTHETIC benchmark instead.
+``--split`` chooses which calibration successes fit the score models and which the thresholds (default ``split``:
+split conformal, as ``fiper calibrate``; ``cross``: K-fold cross-fitting; ``same``: the paper's same-data
 calibration, not covered by Proposition 1). The output directory
 receives ``results.md``, ``results.json`` and PNG figures. Per-step scores are cached in
 ``--cache-dir`` (default ``.cache/fiper-eval``), so a second run with other sweep or protocol options
@@ -42,9 +45,10 @@ from fiper_ros.bagio.errors import BagError, fail  # noqa: E402
 from fiper_ros.commands import options  # noqa: E402
 from fiper_ros.core.calibration import SPLITS  # noqa: E402
 from fiper_ros.core.combination import SHAPE_KINDS  # noqa: E402
+from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw  # noqa: E402
 from fiper_ros.core.fusion import Combine  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
-from fiper_ros.evaluation.data import Dataset, DatasetError, load_dataset  # noqa: E402
+from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS  # noqa: E402
@@ -119,7 +123,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``fiper evaluate``."""
     data = parser.add_argument_group("data")
     data.add_argument("--data", action="append", default=[], metavar="TASK=PATH[,PATH]",
-                      help="a task and its rollout .npz files or directories (repeatable)")
+                      help="a task and its rollout .npz files or directories of them or of bags (repeatable; data "
+                           "of several tasks: one dataset per task, named by the task)")
+    data.add_argument("--calibration-fraction", type=float, default=DEFAULT_FRACTION,
+                      help="bags without a split: fraction of each task's successes drawn into its calibration set "
+                           f"(default {DEFAULT_FRACTION:g}; every other rollout is test), as fiper convert draws it")
+    data.add_argument("--calibration-seed", type=int, default=DEFAULT_SEED,
+                      help=f"seed of that draw (default {DEFAULT_SEED}; fiper convert's --split-seed)")
     data.add_argument("--synthetic", type=name_list(tuple(TASKS)), metavar="TASKS",
                       help=f"generate the SYNTHETIC benchmark for these tasks ({', '.join(TASKS)})")
     data.add_argument("--synthetic-test", type=int, default=240, help="synthetic test rollouts per task")
@@ -184,11 +194,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def datasets_from(args: argparse.Namespace) -> list[Dataset]:
     """The datasets named by ``--data`` and ``--synthetic``."""
     datasets: list[Dataset] = []
+    try:
+        check_draw(args.calibration_fraction, args.calibration_seed, ("--calibration-fraction", "--calibration-seed"))
+    except DataSplitError as error:
+        raise DatasetError(str(error)) from error
     for spec in args.data:
         task, sep, paths = spec.partition("=")
         if not sep or not task or not paths:
             raise DatasetError(f"--data expects TASK=PATH[,PATH...], got {spec!r}")
-        datasets.append(load_dataset(task, paths.split(","), strict=args.strict))
+        loaded, drawn = load_datasets(task, paths.split(","), strict=args.strict, fraction=args.calibration_fraction,
+                                      seed=args.calibration_seed)
+        datasets += loaded
+        if drawn:
+            print(f"fiper evaluate: {task}: no split in the data: drawn per task with --calibration-fraction "
+                  f"{args.calibration_fraction:g} --calibration-seed {args.calibration_seed}:")
+            for split in drawn.values():
+                print(f"  {split.summary()}")
     for task in args.synthetic or ():
         rollouts = make_task(task, test=args.synthetic_test, scale=args.synthetic_scale)
         datasets.append(Dataset(task, rollouts.calibration, rollouts.test))

@@ -31,7 +31,7 @@ from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, CLOCK, DIAGNOSTICS,
                                         EMBEDDING, EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT,
-                                        SIM_PROPRIO, SIM_RESET, TOPICS, relative, score_topic)
+                                        SIM_PROPRIO, SIM_RESET, STEP_SIGNALS, TOPICS, relative, score_topic)
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
@@ -186,9 +186,10 @@ def supervisor_node(p: Mapping[str, Any]) -> Grants:
 
 
 def policy_node(p: Mapping[str, Any]) -> Grants:
-    """``fiper_ros.nodes.policy_node``."""
+    """``fiper_ros.nodes.policy_node`` (its :class:`~fiper_ros.publishing.FiperPublisher` also has the step signals'
+    publisher, which it never uses)."""
     return fiper_node(p) | Grants.of(
-        publish=(p.get("embedding_topic", EMBEDDING), p.get("action_chunks_topic", ACTIONS),
+        publish=(p.get("embedding_topic", EMBEDDING), p.get("action_chunks_topic", ACTIONS), STEP_SIGNALS,
                  p.get("action_topic", SIM_ACTION)),
         subscribe=(p.get("events_topic", EVENTS), p.get("wrist_image_topic", CAMERA_WRIST),
                    p.get("third_image_topic", CAMERA_THIRD), p.get("proprio_topic", SIM_PROPRIO)))

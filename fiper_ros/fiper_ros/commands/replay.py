@@ -17,7 +17,8 @@ from fiper_ros.bagio.atomic import atomic_output
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import ROLLOUT_GAP_NS
-from fiper_ros.client.replay import NODE_NAME, Player, find_calibration, played_topics, suite_subscribers
+from fiper_ros.client.replay import (NODE_NAME, Player, find_calibration, played_topics, readers_needed,
+                                     suite_subscribers)
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, replay_config
 from fiper_ros.commands import options
@@ -56,7 +57,7 @@ def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None
                 if topic in played_topics(detectors) or (args.all_topics and args.no_launch):
                     player.add_topic(topic, msgtype, any(q.durability.name == "TRANSIENT_LOCAL"
                                                          for q in reader.offered_qos(topic)))
-        needed = suite_subscribers(detectors) if launch else {t: 1 for t in player.publishers}
+        needed = suite_subscribers(detectors) if launch else readers_needed(list(player.publishers))
         print(f"waiting for the suite in ROS domain {session.domain} ...", file=sys.stderr, flush=True)
         player.wait_for_subscribers(needed, args.wait, suite)
         started = time.monotonic()

@@ -5,10 +5,12 @@ Every file holds the same named fields (:class:`~fiper_ros.converters.options.Ke
 each; defaults in brackets):
 
 - per policy step: the observation embedding ``[embeddings]``, ``(E,)``, and optionally the sampled action
-  batch ``[actions]``, ``(B, H, D)``, and the step index ``[step]`` (integers that order the steps);
+  batch ``[actions]``, ``(B, H, D)``, the step index ``[step]`` (integers that order the steps) and, with
+  ``--signals-key``, the step's signals ``(K,)`` (or one number) named by ``--signal-names`` (``Rollout.signals``);
 - per rollout: the outcome ``[success]`` (bool or 0/1), and optionally ``[split]`` (``calibration`` or
-  ``test``; without it the name of a directory on the way to the file), ``[task]`` and ``[scenario]``
-  (default ``id``), each one value per rollout or repeated on every step.
+  ``test``; without it the name of a directory on the way to the file; without either for every rollout the
+  conversion draws it: :mod:`fiper_ros.core.data_split`), ``[task]`` and ``[scenario]`` (default ``id``), each one
+  value per rollout or repeated on every step.
 
 ``.npz`` and ``.parquet`` files are tables of steps: with a ``[rollout_id]`` column the rows are grouped into
 rollouts by it, without one the file is one rollout. An ``.npz`` holds arrays whose first axis is the row
@@ -19,7 +21,8 @@ dicts (or one dict), one per rollout, each with ``embeddings`` ``[T, E]``, ``act
 the per-rollout values (``[rollout_id]`` its name).
 
 Rollouts without action batches (the key absent from every file) are converted as observation-only rollouts:
-bags without ``/fiper/action_chunks``. Every rollout of a conversion has one layout (E, and B, H, D).
+bags without ``/fiper/action_chunks``. Every rollout of a conversion has one layout (E, B, H, D and h), whatever
+its task: one conversion may hold several tasks.
 Everything read counts against ``--max-mb`` (:class:`~fiper_ros.converters.options.Budget`); each bad input
 is a :class:`~fiper_ros.bagio.errors.BagError` naming the file, the rollout and the key.
 
@@ -38,13 +41,14 @@ import numpy as np
 
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.converters.options import EXEC_STEPS, Budget, ConvertOptions, Converted, Keys, select_channels
-from fiper_ros.core.rollout import ID_SCENARIO, Rollout, RolloutError
+from fiper_ros.core.data_split import NO_SPLIT
+from fiper_ros.core.rollout import ID_SCENARIO, SIGNAL_NAME, Rollout, RolloutError
 
 SPLITS = ("calibration", "test")
 #: The option that names each key, for the error messages.
 KEY_OPTIONS = {"embeddings": "--embedding-key", "actions": "--actions-key", "success": "--success-key",
                "rollout": "--rollout-key", "step": "--step-key", "split": "--split-key", "task": "--task-key",
-               "scenario": "--scenario-key"}
+               "scenario": "--scenario-key", "signals": "--signals-key"}
 #: ``h`` of observation-only rollouts of a task whose ``h`` is not known (one policy step per control step).
 OBSERVATION_ONLY_EXEC_STEPS = 1
 
@@ -168,7 +172,7 @@ class _ColumnError(ValueError):
 
 
 def _wanted(keys: Keys) -> set[str]:
-    return {getattr(keys, field) for field in KEY_OPTIONS}
+    return {getattr(keys, field) for field in KEY_OPTIONS} - {""}
 
 
 def _table_records(path: Path, rel: str, keys: Keys, present: set[str],
@@ -273,7 +277,7 @@ def _text(record: Record, field: str, keys: Keys, default: str) -> str:
 
 
 def _split(record: Record, keys: Keys, root: Path) -> str:
-    """``[split]``, else the nearest directory below SRC named ``calibration`` or ``test``."""
+    """``[split]``, else the nearest directory below SRC named ``calibration`` or ``test``, else :data:`NO_SPLIT`."""
     if keys.split in record.fields:
         split = _text(record, "split", keys, "")
         if split not in SPLITS:
@@ -282,11 +286,13 @@ def _split(record: Record, keys: Keys, root: Path) -> str:
     for part in (*reversed(record.path.relative_to(root).parent.parts), root.name):
         if part in SPLITS:
             return part
-    raise BagError(f"{record.where}: no split: give {_key(keys, 'split')} or put the file under calibration/ or test/")
+    return NO_SPLIT
 
 
-def _steps(record: Record, field: str, keys: Keys, ndim: int, layout: str) -> np.ndarray:
-    """A per-step array field as float32 of ``ndim`` axes (``layout`` names them), checked finite."""
+def _steps(record: Record, field: str, keys: Keys, ndim: int | tuple[int, ...], layout: str,
+           dtype: type = np.float32) -> np.ndarray:
+    """A per-step array field as ``dtype`` of ``ndim`` axes (or one of several; ``layout`` names them), checked
+    finite."""
     try:
         array = np.asarray(record.fields[getattr(keys, field)])
         if array.dtype == object and array.ndim == 1 and array.size:
@@ -295,9 +301,9 @@ def _steps(record: Record, field: str, keys: Keys, ndim: int, layout: str) -> np
         raise BagError(f"{record.where}: {_key(keys, field)} has steps of different shapes") from error
     if not (np.issubdtype(array.dtype, np.number) and not np.issubdtype(array.dtype, np.complexfloating)):
         raise BagError(f"{record.where}: {_key(keys, field)} holds {array.dtype} values, not numbers")
-    if array.ndim != ndim or 0 in array.shape:
+    if array.ndim not in ((ndim,) if isinstance(ndim, int) else ndim) or 0 in array.shape:
         raise BagError(f"{record.where}: {_key(keys, field)} has shape {array.shape}, expected {layout}")
-    array = array.astype(np.float32)
+    array = array.astype(dtype)
     bad = np.argwhere(~np.isfinite(array))
     if bad.size:
         raise BagError(f"{record.where}: {_key(keys, field)} holds NaN/inf (first at step {bad[0][0]}, index "
@@ -318,14 +324,40 @@ def _order(record: Record, keys: Keys, length: int) -> np.ndarray | None:
     return np.argsort(steps, kind="stable")
 
 
+def _signals(record: Record, options: ConvertOptions, length: int) -> dict[str, np.ndarray]:
+    """The ``--signals-key`` field as named float64 series of ``length`` steps (empty without the option): ``[T, K]``
+    with the K ``--signal-names``, or ``[T]``, one signal named by ``--signal-names`` or else by the key."""
+    keys = options.keys
+    if not keys.signals:
+        return {}
+    if keys.signals not in record.fields:
+        raise BagError(f"{record.where}: no signals {_key(keys, 'signals')}")
+    array = _steps(record, "signals", keys, (1, 2), "[T, K] (or [T]: one signal)", np.float64)
+    if array.shape[0] != length:
+        raise BagError(f"{record.where}: {_key(keys, 'embeddings')} has T = {length} steps, {_key(keys, 'signals')} "
+                       f"T = {array.shape[0]}")
+    columns = array.reshape(length, -1)
+    names = options.signal_names
+    if array.ndim == 1 and not names:
+        if not SIGNAL_NAME.fullmatch(keys.signals):
+            raise BagError(f"{record.where}: {_key(keys, 'signals')} holds one signal per step, named after its key, "
+                           f"but {keys.signals!r} is no signal name ({SIGNAL_NAME.pattern}): give --signal-names NAME")
+        names = (keys.signals,)
+    if len(names) != columns.shape[1]:
+        given = f"--signal-names names {len(names)}" if names else "no --signal-names given"
+        raise BagError(f"{record.where}: {_key(keys, 'signals')} has K = {columns.shape[1]} signals per step, "
+                       f"{given}: name each column")
+    return {name: np.ascontiguousarray(columns[:, k]) for k, name in enumerate(names)}
+
+
 @dataclass(frozen=True)
 class _Layout:
-    """What every rollout of a conversion shares with the first: E, the action batch shape (B, H, D; None
-    without action batches) and the task."""
+    """What every rollout of a conversion shares with the first, whatever its task: E, the action batch shape
+    (B, H, D; None without action batches) and h."""
 
     embedding_dim: int
     batch: tuple[int, ...] | None
-    task: str
+    exec_steps: int
     record: Record
 
     def check(self, other: _Layout, keys: Keys) -> None:
@@ -341,8 +373,9 @@ class _Layout:
         if other.batch != self.batch:
             raise BagError(head.format(f"{_key(keys, 'actions')} has B, H, D = {other.batch}",
                                        f"B, H, D = {self.batch}"))
-        if other.task != self.task:
-            raise BagError(head.format(f"task {other.task!r}", f"task {self.task!r}"))
+        if other.exec_steps != self.exec_steps:
+            raise BagError(head.format(f"h = {other.exec_steps} (--exec-steps, else the task's)",
+                                       f"h = {self.exec_steps}"))
 
 
 def _rollout(record: Record, options: ConvertOptions, task: str, first: _Layout | None) -> tuple[Rollout, _Layout]:
@@ -356,34 +389,41 @@ def _rollout(record: Record, options: ConvertOptions, task: str, first: _Layout 
     if actions is not None and actions.shape[0] != embeddings.shape[0]:
         raise BagError(f"{record.where}: {_key(keys, 'embeddings')} has T = {embeddings.shape[0]} steps, "
                        f"{_key(keys, 'actions')} T = {actions.shape[0]}")
-    layout = _Layout(embeddings.shape[1], None if actions is None else actions.shape[1:], task, record)
-    (first or layout).check(layout, keys)
-    order = _order(record, keys, embeddings.shape[0])
-    if order is not None:
-        embeddings = embeddings[order]
-        actions = None if actions is None else actions[order]
-    success = _success(record, keys)
     if actions is None:
         exec_steps = options.exec_steps or EXEC_STEPS.get(task.lower(), OBSERVATION_ONLY_EXEC_STEPS)
     else:
         exec_steps = options.exec_steps_for(task, record.path)
+    layout = _Layout(embeddings.shape[1], None if actions is None else actions.shape[1:], exec_steps, record)
+    (first or layout).check(layout, keys)
+    signals = _signals(record, options, embeddings.shape[0])
+    order = _order(record, keys, embeddings.shape[0])
+    if order is not None:
+        embeddings = embeddings[order]
+        actions = None if actions is None else actions[order]
+        signals = {name: values[order] for name, values in signals.items()}
+    success = _success(record, keys)
+    if actions is not None:
         actions = select_channels(actions, options.channels, record.path)
     try:
         return Rollout(rollout_id=record.name, task=task, scenario=_text(record, "scenario", keys, ID_SCENARIO),
                        embeddings=embeddings, actions=actions, exec_steps=exec_steps, success=success,
-                       action_space=options.action_space, metadata={"max_steps": options.max_steps}), layout
+                       action_space=options.action_space, metadata={"max_steps": options.max_steps},
+                       signals=signals), layout
     except RolloutError as error:
         raise BagError(f"{record.path}: {error}") from error
 
 
 def load(src: Path, options: ConvertOptions) -> Converted:
-    """Every rollout of the generic files at ``src`` by split, with its source (``file`` or ``file#rollout``)."""
+    """Every rollout of the generic files at ``src`` by split, with its source (``file`` or ``file#rollout``):
+    under :data:`NO_SPLIT` if no rollout has a split (the caller draws it); rollouts with and without one are
+    refused."""
     files = source_files(src)
     root = src if src.is_dir() else src.parent
     budget = Budget(options.max_mb)
     keys = options.keys
     converted: Converted = {}
     first: _Layout | None = None
+    unsplit: Record | None = None
     for path in files:
         rel = str(path.relative_to(root))
         for record in READERS[path.suffix.lower()](path, rel, keys, budget):
@@ -391,7 +431,13 @@ def load(src: Path, options: ConvertOptions) -> Converted:
             rollout, layout = _rollout(record, options, task, first)
             budget.take(record.where, rollout)
             first = first or layout
-            converted.setdefault(_split(record, keys, root), []).append((rollout, record.source))
+            split = _split(record, keys, root)
+            unsplit = unsplit or (record if split == NO_SPLIT else None)
+            converted.setdefault(split, []).append((rollout, record.source))
     if not converted:
         raise BagError(f"{src}: no rollouts (every file has no rows)")
+    if unsplit is not None and len(converted) > 1:
+        raise BagError(f"{unsplit.where}: no split, while other rollouts have one: give {_key(keys, 'split')} or "
+                       "put the file under calibration/ or test/ (without a split for any rollout, the conversion "
+                       "draws one: --calibration-fraction)")
     return converted

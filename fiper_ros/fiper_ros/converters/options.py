@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.core.rollout import ACTION_SPACES, Rollout
+from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
+from fiper_ros.core.rollout import ACTION_SPACES, Rollout, RolloutError, check_signal_name
 
 #: ``h`` (executed actions per chunk) of the paper's tasks (Table 5), used when none is given.
 EXEC_STEPS = {"sorting": 4, "stacking": 4, "pusht": 8, "push_t": 8, "pretzel": 8, "pushchair": 4, "push_chair": 4}
@@ -19,7 +20,7 @@ ALL, AUTO = "all", "auto"
 DEFAULT_MAX_MB = 4096.0
 MB = 1_000_000
 
-#: split name -> [(rollout, source file name)]
+#: split name (or ``NO_SPLIT``: the source gives none, :mod:`fiper_ros.core.data_split`) -> [(rollout, source file name)]
 Converted = dict[str, list[tuple[Rollout, str]]]
 
 
@@ -58,9 +59,11 @@ class Keys:
     split: str = "split"
     task: str = "task"
     scenario: str = "scenario"
+    signals: str = ""
+    """The per-step signals ``[T, K]`` (or ``[T]``, one signal); empty: none are read."""
 
     def __post_init__(self) -> None:
-        names = [getattr(self, item.name) for item in fields(self)]
+        names = [getattr(self, item.name) for item in fields(self) if item.name != "signals" or self.signals]
         if not all(names) or len(set(names)) != len(names):
             raise BagError(f"the --*-key options must name distinct, non-empty keys, got {', '.join(map(repr, names))}")
 
@@ -82,7 +85,8 @@ class Budget:
 
     def take(self, where: str, rollout: Rollout) -> None:
         """Count the arrays of a converted rollout (``where``: its name in messages) against the bound."""
-        self.used += rollout.embeddings.nbytes + (0 if rollout.actions is None else rollout.actions.nbytes)
+        self.used += rollout.embeddings.nbytes + (0 if rollout.actions is None else rollout.actions.nbytes) + sum(
+            values.nbytes for values in rollout.signals.values())
         if self.used > self.limit:
             raise BagError(f"{where}: the converted arrays reach {self.used / MB:.1f} MB, more than --max-mb "
                            f"{self.limit / MB:g}")
@@ -102,6 +106,10 @@ class ConvertOptions:
         synthetic: Mark the bags as synthetic data.
         max_mb: The most one conversion reads, MB (:class:`Budget`).
         keys: Field names of the ``generic`` format.
+        signal_names: Names of the columns of ``keys.signals`` (one per column; default for a ``[T]`` key: the key).
+        calibration_fraction: Of data without a split, the fraction of each task's successes drawn into its
+            calibration set (:mod:`fiper_ros.core.data_split`).
+        split_seed: Seed of that draw.
     """
 
     task: str = ""
@@ -113,6 +121,9 @@ class ConvertOptions:
     synthetic: bool = False
     max_mb: float = DEFAULT_MAX_MB
     keys: Keys = field(default_factory=Keys)
+    signal_names: tuple[str, ...] = ()
+    calibration_fraction: float = DEFAULT_FRACTION
+    split_seed: int = DEFAULT_SEED
 
     def __post_init__(self) -> None:
         if self.action_space not in ACTION_SPACES:
@@ -121,6 +132,19 @@ class ConvertOptions:
             raise BagError(f"--control-hz must be > 0, got {self.control_hz}")
         if not self.max_mb > 0:
             raise BagError(f"--max-mb must be > 0, got {self.max_mb}")
+        if self.signal_names and not self.keys.signals:
+            raise BagError("--signal-names names the columns of --signals-key: give --signals-key too")
+        for name in self.signal_names:
+            try:
+                check_signal_name(name, "--signal-names")
+            except RolloutError as error:
+                raise BagError(str(error)) from error
+        if len(set(self.signal_names)) != len(self.signal_names):
+            raise BagError(f"--signal-names repeats a name ({', '.join(self.signal_names)})")
+        try:
+            check_draw(self.calibration_fraction, self.split_seed, ("--calibration-fraction", "--split-seed"))
+        except DataSplitError as error:
+            raise BagError(str(error)) from error
 
     def exec_steps_for(self, task: str, where: Path) -> int:
         """The given ``h``, else the paper's ``h`` for ``task``."""

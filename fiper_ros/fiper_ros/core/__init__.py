@@ -7,6 +7,7 @@ and the offline evaluation all call :mod:`fiper_ros.core.monitor`, so their resu
 Modules, one concept each:
 
 - :mod:`.rollout`: the rollout record and its ``.npz`` container.
+- :mod:`.data_split`: the calibration / test split of data that comes without one (a seeded fraction per task).
 - :mod:`.ace`: action-chunk entropy, eq. (4) and App. A.1.
 - :mod:`.kinematics`: joint-space actions to end-effector positions (App. A.1, last paragraph).
 - :mod:`.mlp`: MLP builder and numpy forward pass shared by RND-OE and the RND-A baseline.
@@ -20,7 +21,8 @@ Modules, one concept each:
 - :mod:`.step_stream`: the step order of a detector's streaming form.
 - :mod:`.window`: score aggregation, eqs. (2) and (5).
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
-- :mod:`.fusion`: the AND/OR combination, eq. (7) and App. A.4.
+- :mod:`.combination`: one conformal threshold over a combination of detectors (normalised, voted).
+- :mod:`.fusion`: the votes of the detectors' decisions: eq. (7)'s AND/OR, max and kth:K.
 - :mod:`.metrics`: TPR, TNR, accuracy, DT and TWA, App. B.4.
 - :mod:`.profiles`: the "paper" and "reference" (authors' code) profiles.
 - :mod:`.detectors`: the detector sets a calibration declares (FIPER's pair, or RND-OE alone).
@@ -30,6 +32,6 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "consistency", "detector_model", "detectors", "fusion",
-           "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles", "progress", "rnd_oe",
-           "rollout", "scores", "step_stream", "thresholds", "window"]
+__all__ = ["ace", "calibration", "calibration_file", "combination", "consistency", "data_split", "detector_model",
+           "detectors", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles",
+           "progress", "rnd_oe", "rollout", "scores", "step_stream", "thresholds", "window"]

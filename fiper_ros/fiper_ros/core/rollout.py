@@ -2,13 +2,15 @@
 
 A rollout holds, for every policy timestep ``t = 0, h, 2h, ...`` (indexed ``0..T-1`` here), the
 policy's observation embedding ``O_t^e = h(O_t)`` and the batch of ``B`` sampled action chunks
-``A_t`` of length ``H`` (eq. 4). :class:`RolloutSet` keeps the calibration and test splits and
-stores them in one versioned ``.npz`` file.
+``A_t`` of length ``H`` (eq. 4), and optionally named per-step scalar signals the policy logs (e.g. features of
+the executed chunk). :class:`RolloutSet` keeps the calibration and test splits and stores them in one versioned
+``.npz`` file.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,10 +21,20 @@ import numpy as np
 ACTION_SPACES = ("ee_position", "joint_position", "joint_velocity")
 ID_SCENARIO = "id"
 NPZ_FORMAT_VERSION = 1
+#: What a signal's name must be: it becomes part of ROS topic and detector names (``signal_chunk_mse``).
+SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
 class RolloutError(ValueError):
     """A rollout or rollout file is malformed."""
+
+
+def check_signal_name(name: object, where: str) -> str:
+    """``name`` if it is a signal name (:data:`SIGNAL_NAME`), else a :class:`RolloutError` starting with ``where``."""
+    if not isinstance(name, str) or not SIGNAL_NAME.fullmatch(name):
+        raise RolloutError(f"{where}: signal name {name!r} must match {SIGNAL_NAME.pattern} (lower-case letters, "
+                           "digits and _, a letter first)")
+    return name
 
 
 def _check_finite(name: str, array: np.ndarray, rollout_id: str) -> None:
@@ -48,6 +60,8 @@ class Rollout:
         metadata: Free-form extras (JSON values or numpy arrays). For ``"joint_velocity"``
             rollouts ACE reads ``metadata["joint_positions"]`` (``[T, nq]``, the measured joint
             position at each policy step).
+        signals: Named per-step scalar signals the policy logged, each float64 ``[T]`` and finite; a name
+            matches :data:`SIGNAL_NAME`. Empty: none logged.
     """
 
     rollout_id: str
@@ -59,6 +73,7 @@ class Rollout:
     success: bool | None
     action_space: str = "ee_position"
     metadata: dict[str, Any] = field(default_factory=dict)
+    signals: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.embeddings = np.ascontiguousarray(self.embeddings, dtype=np.float32)
@@ -79,6 +94,23 @@ class Rollout:
         elif int(self.exec_steps) < 1:
             raise RolloutError(f"rollout {rid!r}: exec_steps must be >= 1, got {self.exec_steps}")
         self.exec_steps = int(self.exec_steps)
+        self.signals = {name: self._signal(name, values) for name, values in self.signals.items()}
+
+    def _signal(self, name: object, values: object) -> np.ndarray:
+        """One signal checked: a name of :data:`SIGNAL_NAME`, ``T`` finite values (as float64)."""
+        rid = self.rollout_id
+        check_signal_name(name, f"rollout {rid!r}")
+        try:
+            array = np.ascontiguousarray(values, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise RolloutError(f"rollout {rid!r}: signal {name!r} is not numbers ({error})") from error
+        if array.shape != (self.length,):
+            raise RolloutError(f"rollout {rid!r}: signal {name!r} has shape {array.shape}, expected ({self.length},) "
+                               "(one value per step)")
+        bad = np.flatnonzero(~np.isfinite(array))
+        if bad.size:
+            raise RolloutError(f"rollout {rid!r}: signal {name!r} is NaN/inf at step {int(bad[0])} (first)")
+        return array
 
     def _check_actions(self) -> None:
         self.actions = np.ascontiguousarray(self.actions, dtype=np.float32)
@@ -129,6 +161,7 @@ def _header(rollout: Rollout) -> dict[str, Any]:
         "action_space": rollout.action_space,
         "metadata_arrays": sorted(k for k, v in rollout.metadata.items() if isinstance(v, np.ndarray)),
         "metadata": {k: v for k, v in rollout.metadata.items() if not isinstance(v, np.ndarray)},
+        "signals": sorted(rollout.signals),
     }
 
 
@@ -144,7 +177,10 @@ class RolloutSet:
 
         Layout: ``__header__`` is a JSON string ``{"format_version", "splits": {name: [header]}}``;
         arrays are stored as ``{split}/{i}/embeddings``, ``{split}/{i}/actions`` (absent for a rollout without
-        action batches) and ``{split}/{i}/meta/{key}`` for array-valued metadata. Non-array metadata must be JSON.
+        action batches), ``{split}/{i}/meta/{key}`` for array-valued metadata and ``{split}/{i}/signals/{name}``
+        for the signals (their names in the rollout's header, ``signals``; a file without them, as written before
+        signals existed, reads as rollouts without signals, and a reader of before them reads every other field of
+        a file with them). Non-array metadata must be JSON.
         """
         arrays: dict[str, np.ndarray] = {}
         splits: dict[str, list[dict[str, Any]]] = {}
@@ -158,6 +194,8 @@ class RolloutSet:
                 for key, value in rollout.metadata.items():
                     if isinstance(value, np.ndarray):
                         arrays[f"{split}/{i}/meta/{key}"] = value
+                for name, values in rollout.signals.items():
+                    arrays[f"{split}/{i}/signals/{name}"] = values
         try:
             header = json.dumps({"format_version": NPZ_FORMAT_VERSION, "splits": splits})
         except TypeError as error:
@@ -207,6 +245,7 @@ class RolloutSet:
                             success=head["success"],
                             action_space=head["action_space"],
                             metadata=metadata,
+                            signals={name: data[f"{split}/{i}/signals/{name}"] for name in head.get("signals", [])},
                         )
                     )
         return result

@@ -1,9 +1,12 @@
 """Evaluation datasets: a task name with its calibration and test rollouts.
 
 A dataset is read from one or more ``.npz`` files written by
-:meth:`fiper_ros.core.rollout.RolloutSet.save_npz` (or directories of them); the calibration and
-test splits of all files are concatenated in file-name order. All rollouts of a dataset have one layout
-(:func:`layout`): the score models are fitted for one.
+:meth:`fiper_ros.core.rollout.RolloutSet.save_npz` (or directories of them), or from folders of bags; the
+calibration and test splits of all files are concatenated in file-name order. All rollouts of a dataset have one
+layout (:func:`layout`): the score models are fitted for one. Data of several tasks (``fiper convert generic`` of
+many tasks) gives one dataset per task, named by the task (:func:`load_datasets`); bags without a split
+(``custom_data`` split empty) are split per task as ``fiper convert`` splits logs without one
+(:mod:`fiper_ros.core.data_split`).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fiper_ros.core.data_split import (DEFAULT_FRACTION, DEFAULT_SEED, NO_SPLIT, SPLITS, DataSplitError, TaskSplit,
+                                       split_by_task)
 from fiper_ros.core.rollout import Rollout, RolloutError, RolloutSet, successful
 
 #: The four rollout categories of the paper's Fig. 3.
@@ -100,6 +105,9 @@ class Dataset:
                     if isinstance(value, np.ndarray):
                         digest.update(key.encode())
                         digest.update(np.ascontiguousarray(value).tobytes())
+                for name in sorted(rollout.signals):  # none: the digest of data without signals, as before them
+                    digest.update(f"signal {name}".encode())
+                    digest.update(rollout.signals[name].tobytes())
         return digest.hexdigest()
 
 
@@ -137,25 +145,28 @@ def _npz_files(path: Path) -> list[Path]:
     return [path]
 
 
-def _bag_split(path: Path, strict: bool) -> tuple[list[tuple[Rollout, str]], list[tuple[Rollout, str]]]:
-    """The rollouts of the bags at ``path`` with their bag, split by each bag's ``custom_data`` split
-    (``strict``: refuse an unfinished bag instead of reading it up to its last complete chunk)."""
+#: Rollouts (each with the file or bag it came from) by split: ``calibration``, ``test`` and ``NO_SPLIT`` (a bag
+#: whose ``custom_data`` gives none).
+Sources = dict[str, list[tuple[Rollout, str]]]
+
+
+def _bag_split(path: Path, strict: bool, sources: Sources) -> None:
+    """Add the rollouts of the bags at ``path`` with their bag to ``sources``, by each bag's ``custom_data`` split
+    (empty: ``NO_SPLIT``; ``strict``: refuse an unfinished bag instead of reading it up to its last complete
+    chunk)."""
     from fiper_ros.bagio.errors import BagError  # noqa: PLC0415 - bags need the ROS message build
     from fiper_ros.bagio.reader import BagReader, find_bags  # noqa: PLC0415
     from fiper_ros.bagio.rollout_bags import read_rollouts  # noqa: PLC0415
 
-    calibration: list[tuple[Rollout, str]] = []
-    test: list[tuple[Rollout, str]] = []
     try:
         for bag in find_bags([path], strict=strict, command="evaluate"):
             with BagReader(bag) as reader:
                 split = reader.info.split
-            if split not in ("calibration", "test"):
-                raise DatasetError(f"{bag}: custom_data split is {split!r}; expected 'calibration' or 'test'")
-            (calibration if split == "calibration" else test).extend((r, str(bag)) for r in read_rollouts(bag))
+            if split not in (*SPLITS, NO_SPLIT):
+                raise DatasetError(f"{bag}: custom_data split is {split!r}; expected 'calibration', 'test' or none")
+            sources[split].extend((r, str(bag)) for r in read_rollouts(bag))
     except BagError as error:
         raise DatasetError(str(error)) from error
-    return calibration, test
 
 
 def _is_bag_input(path: Path) -> bool:
@@ -164,18 +175,12 @@ def _is_bag_input(path: Path) -> bool:
         any(path.rglob(pattern)) for pattern in ("metadata.yaml", "*.mcap"))
 
 
-def load_dataset(task: str, paths: Sequence[str | Path], strict: bool = True) -> Dataset:
-    """Read the rollout sets at ``paths`` (``.npz`` files, folders of them, or bag folders) into one
-    :class:`Dataset`. Bags are split by their ``custom_data`` split (``fiper convert`` writes it); an
-    unfinished bag is refused with ``strict``, else read up to its last complete chunk with a warning; rollouts
-    of more than one layout are refused (:func:`check_layout`)."""
-    calibration: list[tuple[Rollout, str]] = []
-    test: list[tuple[Rollout, str]] = []
+def _read(paths: Sequence[str | Path], strict: bool) -> Sources:
+    """The rollouts at ``paths`` (``.npz`` files, folders of them, or bag folders) by split, each with its source."""
+    sources: Sources = {split: [] for split in (*SPLITS, NO_SPLIT)}
     for path in map(Path, paths):
         if _is_bag_input(path):
-            cal, tst = _bag_split(path, strict)
-            calibration.extend(cal)
-            test.extend(tst)
+            _bag_split(path, strict, sources)
             continue
         for file in _npz_files(path):
             try:
@@ -184,7 +189,60 @@ def load_dataset(task: str, paths: Sequence[str | Path], strict: bool = True) ->
                 # the rollout's own checks (shapes, NaN) do not know the file: name it
                 text = str(error)
                 raise DatasetError(text if text.startswith(str(file)) else f"{file}: {text}") from error
-            calibration.extend((r, str(file)) for r in rollouts.calibration)
-            test.extend((r, str(file)) for r in rollouts.test)
-    check_layout([*calibration, *test])
-    return Dataset(task, [r for r, _ in calibration], [r for r, _ in test])
+            sources["calibration"].extend((r, str(file)) for r in rollouts.calibration)
+            sources["test"].extend((r, str(file)) for r in rollouts.test)
+    return sources
+
+
+def _draw(sources: Sources, fraction: float, seed: int) -> dict[str, TaskSplit]:
+    """Split the :data:`NO_SPLIT` rollouts of ``sources`` per task into its calibration and test lists; the drawn
+    split per task. Data with and without a split is refused."""
+    unsplit = sources.pop(NO_SPLIT)
+    if not unsplit:
+        return {}
+    given = next((source for split in SPLITS for _, source in sources[split]), None)
+    if given is not None:
+        raise DatasetError(f"{unsplit[0][1]}: no split (custom_data split empty), while {given} has one: give data "
+                           "with a split, or all without one (then a seeded --calibration-fraction of each task's "
+                           "successes is calibration)")
+    try:
+        drawn = split_by_task(unsplit, lambda item: item[0], fraction, seed)
+    except DataSplitError as error:
+        raise DatasetError(str(error)) from error
+    for part in drawn.values():
+        sources["calibration"] += part.calibration
+        sources["test"] += part.test
+    return {task: part.split for task, part in drawn.items()}
+
+
+def load_datasets(name: str, paths: Sequence[str | Path], strict: bool = True, fraction: float = DEFAULT_FRACTION,
+                  seed: int = DEFAULT_SEED) -> tuple[list[Dataset], dict[str, TaskSplit]]:
+    """Read the rollouts at ``paths`` (``.npz`` files, folders of them, or bag folders) into one :class:`Dataset`
+    per task: named ``name`` when they are of one task, else each by its task (in name order). Bags are split by
+    their ``custom_data`` split (``fiper convert`` writes it); bags without one are split per task by
+    :func:`fiper_ros.core.data_split.split_by_task` (``fraction``, ``seed``), which is returned (empty when the data
+    gave the split). An unfinished bag is refused with ``strict``, else read up to its last complete chunk with a
+    warning; a task's rollouts of more than one layout are refused (:func:`check_layout`)."""
+    sources = _read(paths, strict)
+    drawn = _draw(sources, fraction, seed)
+    tasks = sorted({rollout.task for items in sources.values() for rollout, _ in items})
+    if len(tasks) > 1 and "" in tasks:
+        raise DatasetError(f"{name}: rollouts without a task name beside those of tasks {', '.join(tasks[1:])}: "
+                           "one dataset per task needs every rollout's task")
+    datasets = []
+    for task in tasks:
+        calibration, test = ([(r, s) for r, s in sources[split] if r.task == task] for split in SPLITS)
+        check_layout([*calibration, *test])
+        datasets.append(Dataset(name if len(tasks) == 1 else task, [r for r, _ in calibration], [r for r, _ in test]))
+    if not datasets:
+        raise DatasetError(f"{name}: no rollouts in {', '.join(map(str, paths))}")
+    return datasets, drawn
+
+
+def load_dataset(task: str, paths: Sequence[str | Path], strict: bool = True) -> Dataset:
+    """The one :class:`Dataset` of :func:`load_datasets` (rollouts with their split, of one task)."""
+    datasets, _ = load_datasets(task, paths, strict)
+    if len(datasets) > 1:
+        raise DatasetError(f"{task}: rollouts of {len(datasets)} tasks ({', '.join(d.task for d in datasets)}): "
+                           "one dataset per task (load_datasets)")
+    return datasets[0]

@@ -2,19 +2,21 @@
 from __future__ import annotations
 
 import array
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from std_msgs.msg import Header
 
-from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
+from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent, StepSignals
 from fiper_ros.interface.cdr import codec
 
 _TIME_VIEW = codec(Time).view
 _HEADER_VIEW = codec(Header).view
 _EMBEDDING = codec(ObservationEmbedding)
 _BATCH = codec(ActionChunkBatch)
+_SIGNALS = codec(StepSignals)
 
 
 def float_array(values: np.ndarray) -> array.array:
@@ -92,6 +94,32 @@ def action_batch_cdr(rollout_id: int, step: int, stamp: int, actions: np.ndarray
     return _BATCH.encode(_BATCH.view(header=header_view(stamp), rollout_id=rollout_id, step=step, batch_size=b,
                                      horizon=h, action_dim=d, exec_steps=exec_steps, action_space=action_space,
                                      data=actions.ravel()))
+
+
+def step_signals_msg(rollout_id: int, step: int, stamp: int, signals: Mapping[str, float]) -> StepSignals:
+    """A StepSignals of named per-step values (in the mapping's order)."""
+    msg = StepSignals(rollout_id=rollout_id, step=step, names=list(signals),
+                      values=array.array("d", np.asarray(list(signals.values()), dtype=np.float64).tobytes()))
+    msg.header.stamp = to_stamp(stamp)
+    return msg
+
+
+def step_signals_cdr(rollout_id: int, step: int, stamp: int, signals: Mapping[str, float]) -> bytes:
+    """:func:`step_signals_msg`'s message as the bytes a publisher takes (see :func:`embedding_cdr`)."""
+    return _SIGNALS.encode(_SIGNALS.view(header=header_view(stamp), rollout_id=rollout_id, step=step,
+                                         names=list(signals),
+                                         values=np.asarray(list(signals.values()), dtype=np.float64)))
+
+
+def signals_of(msg: Any) -> dict[str, float]:  # noqa: ANN401 - a StepSignals message or view
+    """A StepSignals message (or its wire view) as ``{name: value}``; :class:`ValueError` if names and values
+    differ in number or a name repeats."""
+    names, values = list(msg.names), np.asarray(msg.values, dtype=np.float64)
+    if len(names) != values.size:
+        raise ValueError(f"{len(names)} signal names but {values.size} values")
+    if len(set(names)) != len(names):
+        raise ValueError(f"a signal name repeats ({', '.join(names)})")
+    return dict(zip(names, values.tolist(), strict=True))
 
 
 def action_command_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray, action_space: str,

@@ -12,7 +12,8 @@ from fiper_ros.interface.qos_spec import QosSpec
 
 __all__ = ["ACTIONS", "ALARM", "ARM_JOINT_NAMES", "CAMERAS", "CAMERA_THIRD", "CAMERA_WRIST", "CLOCK", "DIAGNOSTICS",
            "EMBEDDING", "EVENTS", "INPUT_TOPICS", "JOINT_STATES", "NAMESPACE", "RESET_ALARM", "SCORE_ACE", "SCORE_RND_OE",
-           "SIM_ACTION", "SIM_HALT", "SIM_PROPRIO", "SIM_RESET", "TOPICS", "TopicSpec", "relative", "score_topic"]
+           "SIM_ACTION", "SIM_HALT", "SIM_PROPRIO", "SIM_RESET", "STEP_SIGNALS", "TOPICS", "TopicSpec", "relative",
+           "score_topic"]
 
 #: The namespace of the suite's own topics in every shipped launch file. The scoring and fusion nodes name them
 #: relative to their own namespace (:func:`relative`), so a launch in another namespace moves them together.
@@ -34,6 +35,8 @@ def relative(topic: str) -> str:
 
 EMBEDDING = f"{NAMESPACE}/observation_embedding"
 ACTIONS = f"{NAMESPACE}/action_chunks"
+#: A policy's named per-step signals (optional: published only by a policy that logs them).
+STEP_SIGNALS = f"{NAMESPACE}/step_signals"
 EVENTS = f"{NAMESPACE}/rollout_events"
 SCORE_RND_OE = score_topic("rnd_oe")
 SCORE_ACE = score_topic("ace")
@@ -76,6 +79,7 @@ class TopicSpec:
 TOPICS: dict[str, TopicSpec] = {
     EMBEDDING: TopicSpec("fiper_msgs/msg/ObservationEmbedding", qos_spec.INPUT, True),
     ACTIONS: TopicSpec("fiper_msgs/msg/ActionChunkBatch", qos_spec.INPUT, True),
+    STEP_SIGNALS: TopicSpec("fiper_msgs/msg/StepSignals", qos_spec.INPUT, True),
     EVENTS: TopicSpec("fiper_msgs/msg/RolloutEvent", qos_spec.EVENT, True),
     SCORE_RND_OE: TopicSpec("fiper_msgs/msg/Score", qos_spec.SCORE_PUB, False),
     SCORE_ACE: TopicSpec("fiper_msgs/msg/Score", qos_spec.SCORE_PUB, False),
