@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from baselines.conftest import chunk_rollout
-from helpers.core_data import cluster_rollout
 from fiper_ros.baselines.rnd_a import RNDA, RNDAConfig
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rnd_train import fit_rnd
+from helpers.core_data import cluster_rollout
 
 SMALL_RND = RNDConfig(trunk=(64, 64), head=(64,), out_dim=16, max_epochs=30, lr=1e-3)
 

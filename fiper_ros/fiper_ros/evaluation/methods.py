@@ -28,11 +28,11 @@ from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import ACE, CONSISTENCY, PROGRESS, RND_OE, info, signal_stream
-from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import get_profile
+from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
 
 

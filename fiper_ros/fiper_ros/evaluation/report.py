@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.detectors import info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
 from fiper_ros.evaluation.engine import EvaluationResult
-from fiper_ros.core.detectors import info
 from fiper_ros.evaluation.methods import ELAPSED, METHODS
 from fiper_ros.evaluation.protocol import METRICS, MethodResult, ProtocolResult, nanmean, nanstd
 from fiper_ros.evaluation.sweep import CUMULATIVE, FIPER, Group
