@@ -21,6 +21,9 @@ only re-runs the sweep.
 Observation-only data (rollouts without action batches): by default only the methods that need none are
 evaluated (the elapsed time, PCA-kmeans, logpZO, RND-OE), with a note; ``--methods`` naming one that needs
 action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
+
+``--scores NAME=FILE`` evaluates per-step scores computed elsewhere (:mod:`fiper_ros.evaluation.external`) as the
+method ``external_<NAME>``, alone and in the default combination, like a built-in method.
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E4
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
+from fiper_ros.evaluation.external import ExternalScores, parse_scores  # noqa: E402
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS  # noqa: E402
 from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, default_combinations,  # noqa: E402
                                           observation_methods, parse_combination, signal_methods)
@@ -153,6 +157,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        default=(), metavar="NAMES",
                        help="logged per-step signals of the rollouts to evaluate as detectors (signal_<name>), alone "
                             "and in the default combination, e.g. chunk_mse,eef_speed_3d")
+    sweep.add_argument("--scores", action="append", default=[], metavar="NAME=FILE",
+                       help="per-step scores of a detector computed elsewhere, to evaluate as the method "
+                            "external_<NAME>, alone and in the default combination (repeatable): a .json or .npz of "
+                            "{rollout_id: [one score >= 0 per policy step]} for every calibration success and test "
+                            "rollout")
     sweep.add_argument("--combo", action="append", default=[], metavar="NAME=DETECTOR+DETECTOR...",
                        help="a combination of detectors (streams) to evaluate besides the default ones (repeatable; "
                             "e.g. obs=rnd_oe+logpzo+elapsed)")
@@ -237,13 +246,14 @@ def methods_for(requested: tuple[str, ...] | None, datasets: list[Dataset]) -> t
     return kept
 
 
-def settings_from(args: argparse.Namespace) -> EngineSettings:
-    """Engine settings from the parsed options (``--methods`` resolved by :func:`methods_for`)."""
+def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...] = ()) -> EngineSettings:
+    """Engine settings from the parsed options (``--methods`` resolved by :func:`methods_for`, with the methods
+    of the ``external`` scores of ``--scores``)."""
     if args.default_window not in args.windows:
         raise ValueError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
     method_settings = replace(method_settings, robot=options.robot_from(args), split=args.split,
-                              shape_folds=args.shape_folds)
+                              shape_folds=args.shape_folds, external=external)
     kinds = args.thresholds or (SHAPE_KINDS if args.pool else SweepSettings().kinds)
     sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
                           kinds=kinds, combines=args.combines, pairs=args.pairs, max_pool=args.max_pool)
@@ -293,8 +303,9 @@ def run(args: argparse.Namespace) -> int:
         if not args.no_cache:
             check_directory(args.cache_dir)
         datasets = datasets_from(args)
-        args.methods = methods_for(args.methods, datasets)
-        settings = settings_from(args)
+        external = parse_scores(args.scores)
+        args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
+        settings = settings_from(args, external)
         options.fk_of(settings.method_settings.robot)
         check_evaluation(datasets, settings)
     except (DatasetError, BagError, ValueError) as error:

@@ -7,8 +7,10 @@ by RND-OE alone: an *observation-only* calibration declares ``("rnd_oe",)``, and
 sets are supported by the calibration file: ACE alone would need no RND-OE, which it always holds.
 
 :data:`INFO` describes every per-step score stream the project computes (FIPER's two, the baselines, the
-elapsed time, progress, action consistency and a user's logged signals, ``signal_<name>``): what it reads,
-whether it learns from the successes, and where its aggregation or normalisation is fixed by what it is.
+elapsed time, progress, action consistency), and :func:`info` also a user's logged signals (``signal_<name>``)
+and a user's external scores (``external_<name>``, per-step scores of a detector computed elsewhere, read from a
+file by ``fiper evaluate --scores``): what it reads, whether it learns from the successes, and where its
+aggregation or normalisation is fixed by what it is.
 """
 from __future__ import annotations
 
@@ -19,12 +21,14 @@ from dataclasses import dataclass
 RND_OE = "rnd_oe"
 ACE = "ace"
 #: What a detector reads at each policy step.
-READS = ("embedding", "actions", "signal", "step")
+READS = ("embedding", "actions", "signal", "step", "external")
 ELAPSED = "elapsed"
 PROGRESS = "progress"
 CONSISTENCY = "consistency"
 #: A logged per-step signal ``name`` is the stream ``signal_<name>``.
 SIGNAL_PREFIX = "signal_"
+#: A user's external per-step scores ``name`` are the stream ``external_<name>``.
+EXTERNAL_PREFIX = "external_"
 _SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -35,9 +39,10 @@ class DetectorInfo:
     Attributes:
         name: The stream's name (also its score topic's last part).
         label: Its name for people.
-        reads: One of :data:`READS`.
+        reads: One of :data:`READS` (``"external"``: the scores are given, computed elsewhere).
         fitted: Whether it learns from the successes (a score model, a range, a centroid); an unfitted stream
-            scores every rollout alike whatever the split.
+            scores every rollout alike whatever the split. External scores count as unfitted: they are given per
+            rollout, whatever the split; whether their model saw calibration rollouts is the user's to know.
         aggregation: Its aggregation when fixed by what it is (``None``: the configured window).
         shape: Its normalisation in a joint combination when fixed (``None``: the configured kind).
     """
@@ -73,14 +78,24 @@ def signal_stream(signal: str) -> str:
     return SIGNAL_PREFIX + signal
 
 
+def external_stream(name: str) -> str:
+    """The stream of a user's external scores: ``external_<name>``; ``ValueError`` for a name that cannot be one."""
+    if not _SIGNAL_NAME.match(name):
+        raise ValueError(f"external score name {name!r} must match [a-z][a-z0-9_]* (it becomes the stream "
+                         f"{EXTERNAL_PREFIX}<name>)")
+    return EXTERNAL_PREFIX + name
+
+
 def info(name: str) -> DetectorInfo:
-    """The :class:`DetectorInfo` of a stream name (``signal_<name>`` for a logged signal); ``ValueError`` naming
-    the known ones otherwise."""
+    """The :class:`DetectorInfo` of a stream name (``signal_<name>`` for a logged signal, ``external_<name>`` for
+    external scores); ``ValueError`` naming the known ones otherwise."""
     if name in INFO:
         return INFO[name]
-    if name.startswith(SIGNAL_PREFIX) and _SIGNAL_NAME.match(name[len(SIGNAL_PREFIX):]):
-        return DetectorInfo(name, f"signal {name[len(SIGNAL_PREFIX):]}", "signal", fitted=False)
-    raise ValueError(f"unknown detector {name!r}; expected one of {', '.join(INFO)} or signal_<name>")
+    for prefix, reads in ((SIGNAL_PREFIX, "signal"), (EXTERNAL_PREFIX, "external")):
+        if name.startswith(prefix) and _SIGNAL_NAME.match(name[len(prefix):]):
+            return DetectorInfo(name, f"{reads} {name[len(prefix):]}", reads, fitted=False)
+    raise ValueError(f"unknown detector {name!r}; expected one of {', '.join(INFO)}, signal_<name> or "
+                     "external_<name>")
 
 
 #: FIPER's detectors, in the order the fusion reports them (observation first).

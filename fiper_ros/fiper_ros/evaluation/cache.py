@@ -29,7 +29,7 @@ LOG = logging.getLogger(__name__)
 DEFAULT_DIRECTORY = Path(".cache") / "fiper-eval"
 #: Packages whose source determines the scores.
 _SCORING_PACKAGES = ("core", "baselines")
-_SCORING_MODULES = ("evaluation/scoring.py", "evaluation/methods.py")
+_SCORING_MODULES = ("evaluation/scoring.py", "evaluation/methods.py", "evaluation/external.py")
 
 
 @dataclass

@@ -14,8 +14,10 @@ from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
+from fiper_ros.evaluation.external import check_external
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
-from fiper_ros.evaluation.methods import METHODS, Combination, Method, MethodSettings, pooled_methods, streams_of
+from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSettings, method_of, pooled_methods,
+                                          streams_of)
 from fiper_ros.evaluation.progress import Progress
 from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, ProtocolResult, alarm_metrics, run_protocol,
                                            validation_split)
@@ -30,7 +32,8 @@ class EngineSettings:
     """Everything an evaluation run depends on besides the data.
 
     Attributes:
-        methods: Method names (:data:`fiper_ros.evaluation.methods.METHODS`), in table order.
+        methods: Method names (:data:`fiper_ros.evaluation.methods.METHODS`, and ``external_<name>`` for the
+            external scores of ``method_settings.external``), in table order.
         seeds: Seeds of the learned scores and of the CP band split.
         sweep: Windows, deltas, threshold kinds, FIPER pairs and combines.
         method_settings: Hyperparameters of every score stream (and the profile).
@@ -92,7 +95,7 @@ class EngineSettings:
 
     def catalogue(self) -> dict[str, Method]:
         """The table column of every method and combination name."""
-        return {**METHODS, **{c.name: c.method() for c in self.combinations}}
+        return {**METHODS, **{m: method_of(m) for m in self.methods}, **{c.name: c.method() for c in self.combinations}}
 
     def streams(self) -> list[str]:
         """Every stream the methods and combinations read."""
@@ -157,13 +160,15 @@ def horizons(dataset: Dataset, profile: str) -> np.ndarray | int:
 
 def check_evaluation(datasets: Sequence[Dataset], settings: EngineSettings) -> None:
     """Refuse, before any work, what the run would stop on (:class:`DatasetError`): task names that are not
-    distinct, and each dataset's :func:`~fiper_ros.evaluation.scoring.check_dataset`."""
+    distinct, each dataset's :func:`~fiper_ros.evaluation.scoring.check_dataset`, and external scores that do not
+    match the data (:func:`~fiper_ros.evaluation.external.check_external`)."""
     tasks = [d.task for d in datasets]
     if len(set(tasks)) != len(tasks):
         raise DatasetError(f"task names must be distinct, got {tasks}")
     streams = settings.streams()
     for dataset in datasets:
         check_dataset(dataset, settings.method_settings, streams)
+    check_external(datasets, settings.method_settings.external, streams)
 
 
 def score_all(

@@ -14,6 +14,9 @@ has this one configuration (:attr:`Method.fixed`): nothing is selected for it.
 Observation-only data (rollouts without action batches) can be evaluated by the methods that
 read observations alone (:func:`observation_methods`): the elapsed time, PCA-kmeans, logpZO and RND-OE.
 
+A user's external scores (:mod:`fiper_ros.evaluation.external`) are a method too, named by their stream
+``external_<name>`` (:func:`method_of`), swept like a built-in single-stream method.
+
 A :class:`Combination` is a method too: named detectors (streams) voting under the thresholds of
 :mod:`fiper_ros.evaluation.joint_sweep` (one conformal factor for ``max`` / ``kth:K``, one per detector for
 ``and`` / ``or``). :func:`default_combinations` names the ones every run evaluates.
@@ -27,13 +30,14 @@ from typing import Any
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
 from fiper_ros.core.consistency import ConsistencySettings
-from fiper_ros.core.detectors import ACE, CONSISTENCY, PROGRESS, RND_OE, info, signal_stream
+from fiper_ros.core.detectors import ACE, CONSISTENCY, EXTERNAL_PREFIX, PROGRESS, RND_OE, info, signal_stream
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
+from fiper_ros.evaluation.external import ExternalScores
 
 
 @dataclass(frozen=True)
@@ -64,10 +68,23 @@ METHODS: dict[str, Method] = {
     CONSISTENCY: Method("Consistency", (CONSISTENCY,), needs_actions=True),
 }
 
+
+def method_of(name: str) -> Method:
+    """The method ``name``: a built-in one (:data:`METHODS`) or a user's external scores (``external_<name>``, one
+    stream); ``ValueError`` naming the methods otherwise."""
+    if name in METHODS:
+        return METHODS[name]
+    if name.startswith(EXTERNAL_PREFIX):
+        return Method(info(name).label, (name,))  # info refuses a name that is no stream
+    raise ValueError(f"unknown method {name!r}; expected some of {list(METHODS)} or external_<name>")
+
+
 def fitted(stream: str) -> bool:
-    """Whether ``stream`` learns from the calibration successes (STAC, a logged signal and the elapsed time do not:
-    their scores depend neither on the calibration split nor on the seed)."""
+    """Whether ``stream`` learns from the calibration successes (STAC, a logged signal, external scores and the
+    elapsed time do not: their scores depend neither on the calibration split nor on the seed)."""
     return info(stream).fitted
+
+
 #: Streams fitted without randomness (ACE's ``R_d``): they depend on the seed only through the split.
 DETERMINISTIC_FITS = frozenset({"ace"})
 
@@ -93,6 +110,8 @@ class MethodSettings:
             quantiles (:data:`fiper_ros.core.calibration.SPLITS`; ``"split"``, split conformal, by default).
         shape_folds: With ``"split"``: 0 takes the thresholds' per-step shape from the fit part's in-sample curves,
             K >= 2 from cross-fitted ones (:class:`fiper_ros.core.calibration.CalibrationSettings`).
+        external: A user's external scores, each the stream ``external_<name>`` (keyed in the cache by the file's
+            content hash).
     """
 
     profile: str = "paper"
@@ -106,6 +125,7 @@ class MethodSettings:
     robot: RobotModel | None = None
     split: str = "split"
     shape_folds: int = 0
+    external: tuple[ExternalScores, ...] = ()
 
     def __post_init__(self) -> None:
         get_profile(self.profile)
@@ -123,6 +143,13 @@ class MethodSettings:
         data = self.calibration_settings(0).to_dict()
         return ({key: data[key] for key in ("split", "conformal_fraction", "folds", "shape_folds") if key in data}
                 or {"split": "same"})
+
+    def external_scores(self, stream: str) -> ExternalScores:
+        """The external scores of the stream ``external_<name>``; ``ValueError`` if none were given."""
+        for external in self.external:
+            if external.stream == stream:
+                return external
+        raise ValueError(f"no external scores for the stream {stream!r}")
 
     def stream_seed(self, stream: str, seed: int) -> int | None:
         """The seed ``stream``'s scores depend on (``None``: none): through training and through the split."""
@@ -169,6 +196,8 @@ class MethodSettings:
             return {**common, **self.consistency.to_dict()}
         if info(stream).reads == "signal":
             return common  # the magnitude of the logged value: nothing to set
+        if info(stream).reads == "external":
+            return {"sha256": self.external_scores(stream).sha256}  # taken as they are: the file alone
         raise ValueError(f"unknown stream {stream!r}")
 
 
@@ -206,7 +235,7 @@ def parse_combination(text: str) -> Combination:
 def pooled_methods(methods: tuple[str, ...]) -> tuple[Combination, ...]:
     """``methods`` as combinations, for thresholds pooled over tasks: each single method its stream alone, FIPER
     its pair (it votes with AND / OR), the elapsed time its cumulative count."""
-    return tuple(Combination(m, METHODS[m].streams, METHODS[m].label) for m in methods)
+    return tuple(Combination(m, method_of(m).streams, method_of(m).label) for m in methods)
 
 
 def signal_methods(signals: tuple[str, ...]) -> tuple[Combination, ...]:
@@ -229,14 +258,12 @@ def default_combinations(methods: tuple[str, ...], extra_streams: tuple[str, ...
 
 def observation_methods(methods: tuple[str, ...]) -> tuple[str, ...]:
     """The methods of ``methods`` that need no action batches, in their order."""
-    return tuple(m for m in methods if not METHODS[m].needs_actions)
+    return tuple(m for m in methods if not method_of(m).needs_actions)
 
 
 def streams_of(methods: list[str]) -> list[str]:
     """The distinct streams the methods read, in first-use order."""
     out: list[str] = []
     for name in methods:
-        if name not in METHODS:
-            raise ValueError(f"unknown method {name!r}; expected some of {list(METHODS)}")
-        out.extend(s for s in METHODS[name].streams if s not in out)
+        out.extend(s for s in method_of(name).streams if s not in out)
     return out

@@ -118,11 +118,12 @@ def window_impact(result: EvaluationResult, path: Path) -> None:
     windows = sorted(set(result.settings.sweep.windows))
     figure, axes = plt.subplots(len(METRICS), len(kinds), figsize=(4 * len(kinds), 2.2 * len(METRICS)),
                                 squeeze=False, sharex=True)
+    catalogue = result.settings.catalogue()
     for k, kind in enumerate(kinds):
         for method in _swept(result):
             values = nanmean(_series(result, method, kind, [str(w) for w in windows]), axis=1)
             for m, metric in enumerate(METRICS):
-                axes[m, k].plot(windows, values[:, m], label=METHODS[method].label, linewidth=1.2)
+                axes[m, k].plot(windows, values[:, m], label=catalogue[method].label, linewidth=1.2)
         axes[0, k].set_title(KIND_LABELS[kind])
         axes[-1, k].set_xlabel("window w")
     for m, metric in enumerate(METRICS):
@@ -140,11 +141,12 @@ def delta_impact(result: EvaluationResult, path: Path) -> None:
     levels = [1.0 - d for d in result.settings.sweep.deltas]
     figure, axes = plt.subplots(len(METRICS), len(kinds), figsize=(4 * len(kinds), 2.2 * len(METRICS)),
                                 squeeze=False, sharex=True)
+    catalogue = result.settings.catalogue()
     for k, kind in enumerate(kinds):
         for method in _swept(result):
             values = _series(result, method, kind, [str(window)])[0]
             for m in range(len(METRICS)):
-                axes[m, k].plot(levels, values[:, m], marker=".", label=METHODS[method].label, linewidth=1.2)
+                axes[m, k].plot(levels, values[:, m], marker=".", label=catalogue[method].label, linewidth=1.2)
         axes[0, k].set_title(KIND_LABELS[kind])
         axes[-1, k].set_xlabel("1 - delta")
     for m, metric in enumerate(METRICS):

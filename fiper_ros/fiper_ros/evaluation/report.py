@@ -258,14 +258,21 @@ def _voting_table(result: EvaluationResult, protocol: ProtocolResult,
 
 def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], pooled: bool = False) -> str:
     """What a configuration promises about false alarms on new successes (docs/method.md, "What each
-    threshold guarantees"): the bound, or why there is none; ``streams`` are the configuration's detectors."""
+    threshold guarantees"): the bound, or why there is none; ``streams`` are the configuration's detectors.
+    External scores were fitted on what their user knows: the bound then holds only if that model saw no
+    calibration rollout."""
     if chosen.group.kind not in GUARANTEED_KINDS:
         return "none (per-step quantile)"
     bound = f"{len(streams)}δ (OR)" if chosen.group.combine == "or" else "δ"
     bound += " over all tasks (pooled)" if pooled else ""
     if all(not info(s).fitted for s in streams) or split == "split":
-        return f"≤ {bound}"  # nothing fitted on the conformal rollouts
-    return f"≈ {bound} (cross-fitted)" if split == "cross" else "not covered (same data)"
+        text = f"≤ {bound}"  # nothing we fitted saw the conformal rollouts
+    elif split == "cross":
+        text = f"≈ {bound} (cross-fitted)"
+    else:
+        return "not covered (same data)"
+    external = [info(s).label for s in streams if info(s).reads == "external"]
+    return f"{text} if the model of {', '.join(external)} saw no calibration rollout" if external else text
 
 
 def _shown_deltas(deltas: list[float]) -> list[float]:
@@ -482,6 +489,8 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
                      "thresholds": list(s.sweep.kinds), "combines": list(s.sweep.combines), "pairs": s.sweep.pairs,
                      "protocols": list(s.protocols), "split_seed": s.split_seed,
                      "calibration_split": s.method_settings.split_settings(),
+                     "external_scores": {e.stream: {"file": str(e.path), "sha256": e.sha256}
+                                         for e in s.method_settings.external},
                      "default": {"window": s.default_window, "threshold": s.default_kind}},
         "metrics_order": list(METRICS),
         "timings_s": result.timings,

@@ -15,7 +15,8 @@ and seed):
 Scores are kept for the successful calibration rollouts (:class:`fiper_ros.evaluation.cache.RolloutScores`;
 :class:`fiper_ros.evaluation.cache.StreamScores` separates them into the fit and the conformal part) and
 for all test rollouts. Every per-step score gets the profile's ``score_epsilon`` (0 in the paper profile;
-the authors' code adds 1e-6 to every score, baselines included); the elapsed-time stream is exactly 1.
+the authors' code adds 1e-6 to every score, baselines included); the elapsed-time stream is exactly 1, a logged
+signal its magnitude, and a user's external scores (:mod:`fiper_ros.evaluation.external`) are taken as given.
 """
 
 from __future__ import annotations
@@ -181,13 +182,16 @@ def _signal(rollout: Rollout, name: str) -> np.ndarray:
 
 
 def baseline_fitter(stream: str, settings: MethodSettings, seed: int) -> Fitter:
-    """A baseline, a new detector (progress, consistency), a logged signal or the elapsed-time stream fitted on the
-    successes given; its scores get the epsilon."""
+    """A baseline, a new detector (progress, consistency), a logged signal, external scores or the elapsed-time
+    stream fitted on the successes given; a baseline's and a new detector's scores get the epsilon."""
     if stream == ELAPSED:
         return lambda successes: {ELAPSED: lambda rollout: np.ones(rollout.length)}
     if info(stream).reads == "signal":
         name = stream.removeprefix(SIGNAL_PREFIX)
         return lambda successes: {stream: lambda rollout: _signal(rollout, name)}
+    if info(stream).reads == "external":
+        given = settings.external_scores(stream).scores  # checked against the data (external.check_covers)
+        return lambda successes: {stream: lambda rollout: given[rollout.rollout_id]}
     epsilon = get_profile(settings.profile).score_epsilon
     if stream == PROGRESS:
         def fit_progress(successes: Sequence[Rollout]) -> dict[str, Scorer]:
