@@ -23,7 +23,8 @@ evaluated (the elapsed time, PCA-kmeans, logpZO, RND-OE), with a note; ``--metho
 action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
 
 ``--scores NAME=FILE`` evaluates per-step scores computed elsewhere (:mod:`fiper_ros.evaluation.external`) as the
-method ``external_<NAME>``, alone and in the default combination, like a built-in method.
+method ``external_<NAME>``, alone and in the default combination, like a built-in method. ``--dump DIR`` writes
+every configuration's thresholds per step and first alarm per rollout (:mod:`fiper_ros.evaluation.dump`).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import argparse  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from contextlib import ExitStack  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -52,6 +54,7 @@ from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitE
 from fiper_ros.core.fusion import Combine  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets  # noqa: E402
+from fiper_ros.evaluation.dump import INDEX  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.external import ExternalScores, parse_scores  # noqa: E402
@@ -197,6 +200,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument("--cache-dir", type=Path, default=DEFAULT_DIRECTORY)
     output.add_argument("--no-cache", action="store_true")
     output.add_argument("--no-plots", action="store_true")
+    output.add_argument("--dump", type=Path, default=None, metavar="DIR",
+                        help="also write every configuration's thresholds per step and first alarm per rollout: one "
+                             f".npz per task and seed and {INDEX} naming the configurations (docs/evaluation.md)")
     output.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -300,8 +306,8 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         check_directory(args.out)
-        if not args.no_cache:
-            check_directory(args.cache_dir)
+        for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
+            check_directory(directory)
         datasets = datasets_from(args)
         external = parse_scores(args.scores)
         args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
@@ -316,16 +322,18 @@ def run(args: argparse.Namespace) -> int:
     previous = threshold_log.level
     threshold_log.setLevel(logging.ERROR)
     try:
-        result = run_evaluation(datasets, settings, cache)
-        # Written beside --out and moved in when complete: a failed run leaves no partial results.
-        with atomic_files(args.out) as staging:
-            figures: list[str] = []
-            if not args.no_plots:
-                from fiper_ros.evaluation.plots import write_figures  # matplotlib only when plotting
+        # Written beside --out (and --dump) and moved in when complete: a failed run leaves no partial results.
+        with ExitStack() as dumped:
+            dump = None if args.dump is None else dumped.enter_context(atomic_files(args.dump))
+            result = run_evaluation(datasets, settings, cache, dump)
+            with atomic_files(args.out) as staging:
+                figures: list[str] = []
+                if not args.no_plots:
+                    from fiper_ros.evaluation.plots import write_figures  # matplotlib only when plotting
 
-                figures = write_figures(result, staging)
-            markdown, _ = write_reports(result, staging, figures)
+                    figures = write_figures(result, staging)
+                markdown, _ = write_reports(result, staging, figures)
     finally:
         threshold_log.setLevel(previous)
-    print(summary(result, args.out / markdown.name))
+    print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))
     return 0

@@ -6,6 +6,7 @@ import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -14,6 +15,7 @@ from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
+from fiper_ros.evaluation.dump import Dump
 from fiper_ros.evaluation.external import check_external
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
 from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSettings, method_of, pooled_methods,
@@ -191,15 +193,16 @@ def score_all(
 
 
 def sweep_seed(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
-               settings: EngineSettings, seed: int) -> dict[str, TaskSweep]:
+               settings: EngineSettings, seed: int, thresholds: bool = False) -> dict[str, TaskSweep]:
     """Every configuration of one seed, per task: per task (:func:`sweep_task`) and the combinations
-    (:func:`joint_sweep`), or everything pooled over the tasks."""
+    (:func:`joint_sweep`), or everything pooled over the tasks; with ``thresholds`` each configuration's
+    thresholds too (:attr:`TaskSweep.thresholds`)."""
     base = settings.calibration_settings(seed).threshold_settings()
     streams = {d.task: scores[(d.task, seed)] for d in datasets}
     bases = {d.task: base for d in datasets}
     # a combination normalises its detectors: the swept kinds that have a shape (all of them when pooled)
     kinds = tuple(k for k in settings.sweep.kinds if k in SHAPE_KINDS) or SHAPE_KINDS
-    joint = dict(settings=settings.sweep, bases=bases, pooled=settings.pooled, kinds=kinds)
+    joint = dict(settings=settings.sweep, bases=bases, pooled=settings.pooled, kinds=kinds, thresholds=thresholds)
     parts: list[dict[str, TaskSweep]] = []
     if settings.pooled:
         singles = [c for c in pooled_methods(settings.methods) if c.name != FIPER]
@@ -208,7 +211,7 @@ def sweep_seed(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[s
             fiper = [c for c in pooled_methods(settings.methods) if c.name == FIPER]
             parts.append(joint_sweep(streams, fiper, combines=settings.sweep.combines, **joint))
     else:
-        parts.append({task: sweep_task(own, list(settings.methods), settings.sweep, base)
+        parts.append({task: sweep_task(own, list(settings.methods), settings.sweep, base, thresholds)
                       for task, own in streams.items()})
     if settings.combinations:
         parts.append(joint_sweep(streams, settings.combinations, combines=settings.combines, **joint))
@@ -216,18 +219,22 @@ def sweep_seed(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[s
 
 
 def _joined(parts: Sequence[TaskSweep]) -> TaskSweep:
-    """One task's configurations of several sweeps, in order."""
+    """One task's configurations of several sweeps, in order (their thresholds where every part kept them)."""
+    kept = [part.thresholds for part in parts]
     return TaskSweep([g for part in parts for g in part.groups], np.concatenate([part.alarms for part in parts]),
                      np.concatenate([part.infinite for part in parts]),
-                     np.concatenate([part.conformal for part in parts]))
+                     np.concatenate([part.conformal for part in parts]),
+                     None if any(k is None for k in kept) else [t for k in kept if k is not None for t in k])
 
 
 def sweep_all(
     datasets: Sequence[Dataset],
     scores: dict[tuple[str, int], dict[str, StreamScores]],
     settings: EngineSettings,
+    dump: Dump | None = None,
 ) -> SweepOutcome:
-    """Sweep every (task, seed) and evaluate the metrics on the subsets the protocols need."""
+    """Sweep every (task, seed) and evaluate the metrics on the subsets the protocols need; with ``dump``, write
+    every (task, seed)'s thresholds and first alarms there as the sweep goes."""
     profile = get_profile(settings.method_settings.profile)
     dt_mode = profile.dt_mode
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
@@ -245,10 +252,12 @@ def sweep_all(
     conformal: list[list[np.ndarray]] = [[] for _ in datasets]
     tnr = METRICS.index("tnr")
     for seed in settings.seeds:
-        swept_tasks = sweep_seed(datasets, scores, settings, seed)
+        swept_tasks = sweep_seed(datasets, scores, settings, seed, thresholds=dump is not None)
         for t, dataset in enumerate(datasets):
             t_max = horizons(dataset, settings.method_settings.profile)
             swept = swept_tasks[dataset.task]
+            if dump is not None:
+                dump.add(dataset, seed, swept)
             groups = swept.groups
             for name, per_task in subsets.items():
                 values = alarm_metrics(swept.alarms, dataset.failed, t_max, dt_mode, per_task[t], profile.metrics_rule)
@@ -271,14 +280,21 @@ def sweep_all(
 
 
 def run_evaluation(
-    datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None = None
+    datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None = None, dump: Path | None = None
 ) -> EvaluationResult:
-    """Scores, sweep, metrics and protocols for ``datasets`` (distinct task names)."""
+    """Scores, sweep, metrics and protocols for ``datasets`` (distinct task names); with ``dump`` a directory that
+    receives every configuration's thresholds and first alarms (:mod:`fiper_ros.evaluation.dump`)."""
     check_evaluation(datasets, settings)
     start = time.perf_counter()
     scores, computing = score_all(datasets, settings, cache)
     scored = time.perf_counter()
-    outcome = sweep_all(datasets, scores, settings)
+    writer = None if dump is None else Dump(
+        dump, {"profile": settings.method_settings.profile,
+               "calibration_split": settings.method_settings.split_settings(), "deltas": list(settings.sweep.deltas)},
+        {name: method.streams for name, method in settings.catalogue().items()})
+    outcome = sweep_all(datasets, scores, settings, writer)
+    if writer is not None:
+        writer.close()
     swept = time.perf_counter()
     protocols: dict[str, ProtocolResult] = {}
     for protocol in settings.protocols:
@@ -288,7 +304,7 @@ def run_evaluation(
                                            settings.default_kind, settings.select_aggregations, outcome.infinite,
                                            outcome.held_out[report])
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
-               "total": time.perf_counter() - start}
+               **({} if writer is None else {"dump": writer.seconds}), "total": time.perf_counter() - start}
     LOG.info("evaluation: %d configurations x %d deltas, %.1f s", len(outcome.groups), len(settings.sweep.deltas),
              timings["total"])
     first = settings.seeds[0]

@@ -18,7 +18,8 @@ every test rollout, exactly as a calibration of that configuration would decide:
 - detector ``d``'s threshold is ``shape.values(k)`` extended with :meth:`~fiper_ros.core.thresholds.Threshold.over`,
   and a step alarms when at least the combine's votes of ``eta_d > gamma_d`` hold (the core's strict comparison).
 
-A ``k`` that is ``+inf`` (too few conformal rollouts for delta) is recorded, as in the per-task sweep.
+A ``k`` that is ``+inf`` (too few conformal rollouts for delta) is recorded, as in the per-task sweep. On request
+(``thresholds``) every configuration's per-detector thresholds are kept, as the per-task sweep keeps them.
 """
 
 from __future__ import annotations
@@ -106,9 +107,10 @@ def _length(curves: Mapping[str, _Curves]) -> int:
 def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations: Sequence[Combination],
                 settings: SweepSettings, bases: Mapping[str, ThresholdSettings], pooled: bool,
                 combines: Sequence[str] = JOINT_COMBINE_DEFAULTS,
-                kinds: Sequence[str] = SHAPE_KINDS) -> dict[str, TaskSweep]:
+                kinds: Sequence[str] = SHAPE_KINDS, thresholds: bool = False) -> dict[str, TaskSweep]:
     """Every configuration of ``combinations`` on one seed's ``streams[task][stream]``: per task its groups,
-    first alarms ``[groups, deltas, test rollouts]``, infinite thresholds and conformal counts.
+    first alarms ``[groups, deltas, test rollouts]``, infinite thresholds and conformal counts (and with
+    ``thresholds`` each group's thresholds ``[deltas, detectors, T]``, :attr:`TaskSweep.thresholds`).
 
     ``bases[task]`` carries the threshold rules (support, floor, extension, conformal quantile); ``pooled``:
     ``k`` over every task's conformal rollouts (each task normalised by its own shapes), else per task.
@@ -124,7 +126,8 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
     fixed = {(t, d): dict(_labelled(streams[t][d], fixed_settings))[CUMULATIVE]
              for t in tasks for d in needed if d not in swept}
     generators = {(t, d): _labelled(streams[t][d], settings) for t in tasks for d in swept}
-    out: dict[str, dict[str, list]] = {t: {"groups": [], "alarms": [], "infinite": [], "conformal": []} for t in tasks}
+    parts = ("groups", "alarms", "infinite", "conformal", *(("thresholds",) if thresholds else ()))
+    out: dict[str, dict[str, list]] = {t: {part: [] for part in parts} for t in tasks}
     for position, label in enumerate(settings.labels()):
         current = {key: next(generator)[1] for key, generator in generators.items()}
         for combination in combinations:
@@ -136,8 +139,8 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
             for kind in _kinds(combination, kinds):
                 _configurations(combination, label if windowed else CUMULATIVE, kind, chosen, settings.deltas, bases,
                                 pooled, _combines(combination, combines), out)
-    return {t: TaskSweep(parts["groups"], np.stack(parts["alarms"]), np.stack(parts["infinite"]),
-                         np.array(parts["conformal"], dtype=int)) for t, parts in out.items()}
+    return {t: TaskSweep(own["groups"], np.stack(own["alarms"]), np.stack(own["infinite"]),
+                         np.array(own["conformal"], dtype=int), own.get("thresholds")) for t, own in out.items()}
 
 
 def _configurations(combination: Combination, label: str, kind: str, chosen: Mapping[str, Mapping[str, _Curves]],
@@ -150,6 +153,7 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
     band = {(t, d): fit_shape(chosen[t][d].fit, _length(chosen[t]), "cp_band", bases[t])
             for t in tasks for d in detectors if kinds[d] == "cp_band"}  # its shape does not depend on delta
     alarms: dict[tuple[str, str], list[np.ndarray]] = {(t, str(c)): [] for t in tasks for c in combines}
+    kept: dict[tuple[str, str], list[np.ndarray]] = {(t, str(c)): [] for t in tasks for c in combines}
     infinite: dict[tuple[str, str], list[bool]] = {(t, str(c)): [] for t in tasks for c in combines}
     behind: dict[tuple[str, str], int] = {}
     for delta in deltas:
@@ -174,6 +178,8 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
                 gammas = [Threshold(kinds[d], delta, shapes[t][d].values(k), bases[t].extension).over(test_length)
                           for d, k in zip(detectors, per_detector)]
                 alarms[(t, str(combine))].append(_alarms([chosen[t][d].test for d in detectors], gammas, votes))
+                if "thresholds" in out[t]:
+                    kept[(t, str(combine))].append(np.stack(gammas))
                 infinite[(t, str(combine))].append(not all(np.isfinite(k) for k in per_detector))
     for t in tasks:
         for combine in combines:
@@ -183,3 +189,5 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
             out[t]["alarms"].append(np.stack(alarms[key]))
             out[t]["infinite"].append(np.array(infinite[key]))
             out[t]["conformal"].append(behind[key])
+            if "thresholds" in out[t]:
+                out[t]["thresholds"].append(np.stack(kept[key]))

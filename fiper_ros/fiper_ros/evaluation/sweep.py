@@ -21,6 +21,9 @@ it, so that no table averages or selects it.
 A method with a single configuration (:attr:`fiper_ros.evaluation.methods.Method.fixed`, the
 elapsed-time baseline) gets only that one, whatever the grid.
 
+On request (``thresholds``, for ``fiper evaluate --dump``) every configuration's thresholds over the test steps
+are kept too (:attr:`TaskSweep.thresholds`): the arrays the alarms were decided with, no extra work.
+
 FIPER's ``(w_O, w_A)`` grid (``pairs``): ``"diagonal"`` (``w_O = w_A``, every window), ``"coarse"``
 (the diagonal plus all pairs of :data:`COARSE_WINDOWS`, the default) or ``"full"`` (all pairs; slow).
 """
@@ -154,6 +157,8 @@ class LabelAlarms:
     label: str
     first: np.ndarray
     """First alarm steps ``[kinds, deltas, test rollouts]`` (-1: none)."""
+    gamma: np.ndarray
+    """The thresholds over the test steps ``[kinds, deltas, T]`` (``T``: the longest test rollout)."""
     exceeded: np.ndarray | None
     """``eta > gamma`` ``[kinds, deltas, test rollouts, T]``, kept only for the labels FIPER fuses."""
     infinite: np.ndarray
@@ -183,7 +188,7 @@ def _stream_alarms(
         exceeded = np.asarray(exceeds(eta_test[None, None], gamma[:, :, None, :]), dtype=bool)
         infinite = np.array([[bool(np.isinf(t.values).any()) for t in grid[kind]] for kind in settings.kinds])
         behind = np.array([int(grid[kind][0].params.get("m2", grid[kind][0].params["m"])) for kind in settings.kinds])
-        yield LabelAlarms(label, first_alarms(exceeded), exceeded if label in keep else None, infinite, behind)
+        yield LabelAlarms(label, first_alarms(exceeded), gamma, exceeded if label in keep else None, infinite, behind)
 
 
 @dataclass
@@ -197,6 +202,9 @@ class TaskSweep:
     """``[groups, deltas]``: a threshold of the configuration is +inf (FIPER: either one)."""
     conformal: np.ndarray
     """``[groups]``: rollouts behind the configuration's conformal quantile (FIPER: the fewer of its two)."""
+    thresholds: list[np.ndarray] | None = None
+    """Kept on request: per group, its detectors' thresholds over the test steps ``[deltas, detectors, T]`` (the
+    detectors in the order of the method's streams or the combination's detectors)."""
 
 
 def _fixed_settings(settings: SweepSettings, label: str, kind: str) -> SweepSettings:
@@ -208,9 +216,11 @@ def _fixed_settings(settings: SweepSettings, label: str, kind: str) -> SweepSett
 
 
 def sweep_task(
-    streams: dict[str, StreamScores], methods: list[str], settings: SweepSettings, base: ThresholdSettings
+    streams: dict[str, StreamScores], methods: list[str], settings: SweepSettings, base: ThresholdSettings,
+    thresholds: bool = False,
 ) -> TaskSweep:
-    """Every configuration's first alarms ``[groups, deltas, test rollouts]`` of one task and seed.
+    """Every configuration's first alarms ``[groups, deltas, test rollouts]`` of one task and seed (and with
+    ``thresholds`` the thresholds they were decided with, :attr:`TaskSweep.thresholds`).
 
     ``base`` carries the profile's threshold rules and the seed of the CP band split.
     """
@@ -218,6 +228,7 @@ def sweep_task(
     alarms: list[np.ndarray] = []
     infinite: list[np.ndarray] = []
     conformal: list[int] = []
+    gammas: list[np.ndarray] | None = [] if thresholds else None
     pairs = settings.fiper_pairs() if FIPER in methods else []
     kept: dict[str, dict[str, LabelAlarms]] = {s: {} for s in FIPER_STREAMS}
     for name, stream in streams.items():
@@ -232,6 +243,8 @@ def sweep_task(
                 alarms.extend(result.first)
                 infinite.extend(result.infinite)
                 conformal.extend(result.conformal.tolist())
+                if gammas is not None:
+                    gammas.extend(result.gamma[:, :, None, :])
     for obs_label, act_label in pairs:
         obs, act = kept["rnd_oe"][obs_label], kept["ace"][act_label]
         assert obs.exceeded is not None and act.exceeded is not None
@@ -241,4 +254,6 @@ def sweep_task(
             alarms.extend(first_alarms(fused))
             infinite.extend(obs.infinite | act.infinite)
             conformal.extend(np.minimum(obs.conformal, act.conformal).tolist())
-    return TaskSweep(groups, np.stack(alarms), np.stack(infinite), np.array(conformal, dtype=int))
+            if gammas is not None:
+                gammas.extend(np.stack([obs.gamma, act.gamma], axis=2))  # per kind [deltas, 2, T]
+    return TaskSweep(groups, np.stack(alarms), np.stack(infinite), np.array(conformal, dtype=int), gammas)
