@@ -96,10 +96,10 @@ def test_evaluate_runs_the_methods_that_need_no_action_batches(
               "--deltas", "0.1", "--split", "same"]
     assert main([*common, "--out", str(tmp_path / "all")]) == 0
     err = capsys.readouterr().err
-    assert ("task(s) synthetic have no action batches (observation-only data); RND-A, STAC, ACE, FIPER cannot run "
-            "without them: evaluating Elapsed, PCA-kmeans, logpZO, RND-OE") in err
+    assert ("task(s) synthetic have no action batches (observation-only data); RND-A, STAC, ACE, FIPER, Consistency cannot run "
+            "without them: evaluating Elapsed, PCA-kmeans, logpZO, RND-OE, Progress") in err
     results = json.loads((tmp_path / "all" / "results.json").read_text())
-    assert results["settings"]["methods"] == ["elapsed", "pca_kmeans", "logpzo", "rnd_oe"]
+    assert results["settings"]["methods"] == ["elapsed", "pca_kmeans", "logpzo", "rnd_oe", "progress"]
     assert main([*common, "--methods", "rnd_oe,fiper", "--out", str(tmp_path / "fiper")]) == 2
     assert capsys.readouterr().err == (
         "fiper evaluate: task(s) synthetic have no action batches (observation-only data); FIPER cannot run without "

@@ -127,6 +127,10 @@ def test_a_killed_nodes_files_go_and_a_running_nodes_stay(ros_domain: int) -> No
         assert still_there(dead), "nothing was left behind: the test would prove nothing"
         live_files = owned_files(live.pid)
         result = clean_stale()
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while still_there(dead) and result.busy and time.monotonic() < deadline:  # a port another node was
+            time.sleep(0.5)  # opening is left for the next time (fiper_ros.shm): the next cleaning takes it
+            result = clean_stale()
         assert still_there(dead) == {}, result.summary()
         assert still_there(live_files) == live_files
         receiver = spawn_python(["-m", "helpers.receive_samples", "40"], ros_domain)

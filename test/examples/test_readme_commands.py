@@ -140,7 +140,7 @@ COVERAGE: dict[str, Coverage] = {
         "test/bags/test_convert_generic.py", '"convert", "generic"', "a template for your own logs"),
     "bin/fiper evaluate --data sorting=bags/sorting_sim_calibration_rollouts,bags/sorting_sim/test_rollouts "
     "--out runs/eval": Run(
-        EVAL, expect=("fiper evaluate: 1 task(s), 8 method(s), 1 seed(s)",),
+        EVAL, expect=("fiper evaluate: 1 task(s), 10 method(s), 1 seed(s)",),
         files=tuple(f"runs/eval/{name}" for name in ("results.md", "results.json", "scores_by_category.png",
                                                      "window_impact.png", "delta_impact.png", "example_rollouts.png"))),
     "bin/fiper replay bags/sorting_sim --view": Run(EVAL, expect=("serving ws://127.0.0.1:", SORTING_SIM_VERDICTS),
