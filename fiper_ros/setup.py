@@ -8,9 +8,11 @@ PACKAGE = "fiper_ros"
 #: The shipped policies and calibrations (``fiper_ros/models`` links to the checkout's ``models/``), installed in the
 #: share directory, where relative model and calibration paths are looked up (fiper_ros/data_paths.py).
 MODELS = "models"
-#: Node executables (``ros2 run fiper_ros NAME``): each node module's ``main``; ``container`` runs several of the
+#: Node executables (``ros2 run fiper_ros NAME``): each node module's ``main`` (``detector_node`` scores any detector, its
+#: ``detector`` parameter names it; ``rnd_oe_node`` and ``ace_node`` are its presets); ``container`` runs several of the
 #: suite's nodes in one process (``ros2 run fiper_ros container rnd_oe_node fusion_node``).
-NODES = ("rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node", "view_node", "container")
+NODES = ("detector_node", "rnd_oe_node", "ace_node", "fusion_node", "supervisor_node", "policy_node", "view_node",
+         "container")
 
 
 def tree(folder: str) -> list[tuple[str, list[str]]]:

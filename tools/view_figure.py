@@ -35,15 +35,13 @@ COLOURS = {OK: "#2ca02c", ALARM: "#d62728", UNKNOWN: "#7f7f7f"}
 
 def fused(rollout_id: int, prediction: object, combine: str) -> list[tuple[str, str]]:
     """(state, reason) of every step, as the fusion node says them."""
-    fuser = AlarmFuser(combine)
+    fuser = AlarmFuser(combine, detectors=tuple(prediction.detectors))  # type: ignore[attr-defined]
     fuser.start(rollout_id, 0)
     out = []
-    for t in range(len(prediction.obs_windowed)):  # type: ignore[attr-defined]
-        for name, side in ((RND_OE, "obs"), (ACE, "act")):
-            eta = float(np.float32(getattr(prediction, f"{side}_windowed")[t]))
-            gamma = float(np.float32(getattr(prediction, f"{side}_thresholds")[t]))
-            state = fuser.add(DetectorScore(name, rollout_id, t, eta, gamma, t, True,
-                                            bool(getattr(prediction, f"{side}_exceeded")[t])), t)
+    for t in range(len(prediction.alarms)):  # type: ignore[attr-defined]
+        for name, trace in prediction.detectors.items():  # type: ignore[attr-defined]
+            eta, gamma = float(np.float32(trace.windowed[t])), float(np.float32(trace.thresholds[t]))
+            state = fuser.add(DetectorScore(name, rollout_id, t, eta, gamma, t, True, bool(trace.exceeded[t])), t)
         out.append((state.state, state.reason))
     return out
 
@@ -58,10 +56,9 @@ def draw(out: Path) -> Path:
     grid = figure.add_gridspec(5, 2, width_ratios=(3, 2), height_ratios=(3, 3, 1.2, 1, 0.01), hspace=0.85)
     for row, (label, side, detector) in enumerate((("RND-OE", "obs", RND_OE), ("ACE", "act", ACE))):
         axes = figure.add_subplot(grid[row, 0])
-        axes.plot(steps, getattr(prediction, f"{side}_windowed"), color="#1f77b4", lw=1.5,
-                  label=f"{label} windowed score (eta_{side})")
-        axes.step(steps, getattr(prediction, f"{side}_thresholds"), where="post", color="#d62728", ls="--",
-                  label=f"threshold (gamma_{side})")
+        trace = prediction.detectors[detector]
+        axes.plot(steps, trace.windowed, color="#1f77b4", lw=1.5, label=f"{label} windowed score (eta_{side})")
+        axes.step(steps, trace.thresholds, where="post", color="#d62728", ls="--", label=f"threshold (gamma_{side})")
         axes.set_title(f"Plot: {label}: windowed score and threshold  ({score_topic(detector)})", fontsize=9,
                        loc="left")
         axes.legend(fontsize=8, loc="upper left")

@@ -29,7 +29,7 @@ def test_calibrate_uses_the_successes_and_prints_what_it_used(
     assert f"hash {calibration.content_hash}" in printed.out
     assert "RND-OE epoch 4/4" in printed.err  # progress of the training
     rnd = RNDConfig.from_dict(RND_PRESETS["small"]().to_dict() | {"max_epochs": 4})
-    settings = CalibrationSettings(window_obs=3, window_act=3, threshold="cp_constant", delta=0.3, rnd=rnd, seed=3,
+    settings = CalibrationSettings(window=3, threshold="cp_constant", delta=0.3, rnd=rnd, seed=3,
                                    min_rollouts=3, split="same")
     assert calibrate(read_rollouts(small_bag), settings).content_hash == calibration.content_hash
 
@@ -40,17 +40,18 @@ def test_a_window_longer_than_every_rollout_is_warned_and_the_summary_closes_the
     assert main(["calibrate", str(small_bag), "-o", str(out), "--min-rollouts", "3", *SETTINGS,
                  "--window-act", "21"]) == 0
     printed = capsys.readouterr()
-    warning = ("warning: --window-act 21 is longer than every calibration rollout (the longest has 20 steps): ACE's "
-               "windowed score sums the whole rollout so far at every step, as any window of 20 or more would; a "
+    warning = ("warning: the window of ACE (21) is longer than every calibration rollout (the longest has 20 steps): "
+               "its windowed score sums the whole rollout so far at every step, as any window of 20 or more would; a "
                "shorter window reacts sooner")
     assert printed.err.count(warning) == 1 and f"fiper calibrate: {warning}" in printed.err  # before the training
     closing = printed.out[printed.out.index(f"calibration {out} written"):].splitlines()
     hash_ = load_calibration(out).content_hash
     assert closing[:3] == [f"calibration {out} written (hash {hash_}):",
                            "  M = 3 successful rollouts fitted it (60 steps, 20 to 20 per rollout)",
-                           "  split: same: 3 successes fitted RND-OE and R_d, 3 the thresholds"]
-    assert closing[3] == "  windows: RND-OE w_O = 3, ACE w_A = 21 policy steps (window)"
-    assert [line.split(",")[0].split(":")[0] for line in closing[4:]] == [
+                           "  judged by RND-OE and ACE"]
+    assert closing[3:5] == ["  windows: RND-OE 3 (window), ACE 21 (window) policy steps",
+                            "  split: same: 3 successes fitted the models, 3 the thresholds"]
+    assert [line.split(",")[0].split(":")[0] for line in closing[5:]] == [
         "  threshold RND-OE", "  threshold ACE", "  false alarms on held-out successes", "  guarantee",
         "  warning", "  warning"]  # the second: same-data calibration, not covered by Proposition 1
     assert closing[-1] == f"  {warning}"

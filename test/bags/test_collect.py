@@ -376,8 +376,9 @@ def test_joint_velocity_bags_calibrate_and_replay_through_the_panda_fk_and_are_r
     calibration = tmp_path / "calibration"
     assert main([*calibrate, "-o", str(calibration), "--urdf", str(URDF_PATH), "--control-dt", "0.1"]) == 0
     cal = load_calibration(calibration)
-    assert cal.action_space == "joint_velocity" and cal.settings.control_dt == 0.1
-    assert cal.ranges.shape == (3,) and np.all(cal.ranges > 0) and np.all(cal.ranges < 1.8)  # hand positions: within twice the reach (0.855 m)
+    assert cal.layout.action_space == "joint_velocity" and cal.settings.control_dt == 0.1
+    ranges = cal.scorer("ace").ranges  # R_d of hand positions: within twice the reach (0.855 m)
+    assert ranges.shape == (3,) and np.all(ranges > 0) and np.all(ranges < 1.8)
 
     replay = ["replay", "--offline", "--calibration", str(calibration), str(out)]
     capsys.readouterr()

@@ -380,5 +380,5 @@ def test_a_calibration_that_declares_no_detector_is_refused_before_any_node_star
     out = tmp_path / "out"
     out.mkdir()
     err = refused(CALIBRATION_COMMANDS[command](recorded_bag, calibration, out), out, capsys)
-    assert err == (f"fiper {command}: {calibration / 'calibration.yaml'}: malformed entry (unsupported detectors "
-                   "(none): declare rnd_oe,ace or rnd_oe)\n")
+    assert err == (f"fiper {command}: {calibration / 'calibration.yaml'}: malformed entry (declare each detector once, "
+                   "at least one, got (none))\n")

@@ -56,13 +56,13 @@ def test_calibrate_without_action_batches_says_how_in_one_line(
 def test_calibrate_rnd_oe_alone(observation_bags: dict[str, Path], observation_calibration: Path, tmp_path: Path,
                                 capsys: pytest.CaptureFixture[str]) -> None:
     calibration = load_calibration(observation_calibration)
-    assert calibration.detectors == OBSERVATION_ONLY and calibration.threshold_act is None
+    assert calibration.detectors == OBSERVATION_ONLY and not calibration.layout.has_actions
     # the same options on the bag with action batches: the batches are not used, the calibration is the same
     out = tmp_path / "from_full"
     assert main(["calibrate", str(observation_bags["calibration_full"]), "-o", str(out), *OBSERVATION_CALIBRATE]) == 0
     printed = capsys.readouterr().out
-    assert "observation-only: RND-OE alone" in printed and "threshold RND-OE: cp_constant" in printed
-    assert "ACE" not in printed.replace("R_d", "")
+    assert "judged by RND-OE alone (observation-only: no ACE)" in printed and "threshold RND-OE: cp_constant" in printed
+    assert "ACE" not in printed.replace("R_d", "").replace("(observation-only: no ACE)", "")
     assert load_calibration(out).content_hash == calibration.content_hash
 
 
@@ -74,7 +74,7 @@ def test_offline_replay_judges_rnd_oe_alone(observation_bags: dict[str, Path], o
     rollouts = {r["rollout_id"]: r for r in json.loads(report.read_text())["rollouts"]}
     assert rollouts[22]["outcome"] == "failure" and rollouts[22]["first_alarm"] is not None
     steps = [s for r in rollouts.values() for s in r["steps"]]
-    assert all(s["eta_act"] is None and not s["act_exceeded"] and s["eta_obs"] is not None for s in steps)
+    assert all(len(s["exceeded"]) == len(s["windowed"]) == 1 and s["windowed"][0] is not None for s in steps)
     assert all((s["state"] == "alarm") == (s["step"] >= r["first_alarm"] if r["first_alarm"] is not None else False)
                for r in rollouts.values() for s in r["steps"])
 

@@ -8,12 +8,13 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from helpers.dds import ros_env
-from helpers.synthetic import make_rollout
+from helpers.synthetic import FAIL_FROM, TINY_RND, make_rollout
 
 from fiper_msgs.msg import RolloutEvent
 from fiper_ros.bagio.reader import BagReader, find_bags
@@ -21,8 +22,9 @@ from fiper_ros.bagio.rollout_bags import write_rollouts
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.client.replay import played_topics, readers_needed, suite_subscribers
-from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.calibration import CalibrationSettings, calibrate, load_calibration
 from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
+from fiper_ros.core.rollout import Rollout
 from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import EMBEDDING, EVENTS, STEP_SIGNALS
@@ -167,7 +169,7 @@ def test_the_observation_only_suite_replays_as_the_offline_oracle(
     assert report["missing"] == [] and len(expected) == 3 + 12
     assert {r["rollout_id"]: r for r in report["rollouts"]} == expected
     assert [expected[i]["first_alarm"] is not None for i in (21, 22, 23)] == [False, True, False]  # failure predicted
-    assert all(s["eta_act"] is None for r in expected.values() for s in r["steps"])
+    assert all(len(s["windowed"]) == 1 for r in expected.values() for s in r["steps"])
 
 
 def test_replay_exits_1_when_a_step_gets_no_alarm(small_calibration: Path, ros_domain: int, tmp_path: Path) -> None:
@@ -216,3 +218,41 @@ def test_a_bag_with_step_signals_replays_as_the_offline_oracle(small_calibration
     assert report["missing"] == []
     assert {r["rollout_id"]: r for r in report["rollouts"]} == {r["rollout_id"]: r for r in
                                                                 _offline([bag], small_calibration)}
+
+
+def _with_signal(rollout: Rollout) -> Rollout:
+    """``rollout`` logging ``chunk_mse``: small and flat while it succeeds, rising once it drifts."""
+    rng = np.random.default_rng(zlib.crc32(rollout.rollout_id.encode()))
+    values = rng.uniform(0.0, 0.1, rollout.length)
+    if not rollout.success:
+        values[FAIL_FROM:] += np.linspace(0.5, 2.0, rollout.length - FAIL_FROM)
+    rollout.signals = {"chunk_mse": values}
+    return rollout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("detectors", "combine"), [
+    (("rnd_oe", "progress", "elapsed", "signal_chunk_mse"), "max"),
+    (("rnd_oe", "ace", "consistency"), "kth:2"),
+], ids=["four-detectors-max", "three-detectors-kth2"])
+def test_an_n_detector_suite_replays_as_the_offline_oracle(detectors: tuple[str, ...], combine: str,
+                                                           ros_domain: int, tmp_path: Path) -> None:
+    """Live == offline for the combinations: a calibration of N detectors under one joint threshold (the detector
+    nodes of every declared detector, the fusion node voting as the calibration says) alarms on every step of a
+    replayed bag exactly as the offline oracle does, and predicts the failure."""
+    settings = CalibrationSettings(detectors=detectors, combine=combine, threshold="cp_scaled", window=3, delta=0.2,
+                                   rnd=TINY_RND, seed=0)
+    calibration = tmp_path / "calibration"
+    calibrate([_with_signal(make_rollout(400 + i)) for i in range(24)], settings).save(calibration)
+    bag = tmp_path / "bag"
+    rollouts = [_with_signal(make_rollout(500)), _with_signal(make_rollout(501, fail=True))]
+    write_rollouts(bag, rollouts, [31, 32], BagInfo(task="synthetic", synthetic=True, source="test"))
+    report, result = _replay([str(bag), "--calibration", str(calibration), "--fast", "--step-timeout", "30",
+                              "--verbose"], ros_domain, tmp_path / "report.json")
+    for detector in detectors:
+        assert f"[launch] started {detector}_node" in result.stderr, detector
+    expected = {r["rollout_id"]: r for r in _offline([bag], calibration)}
+    assert report["missing"] == []
+    assert {r["rollout_id"]: r for r in report["rollouts"]} == expected
+    assert all(len(s["windowed"]) == len(detectors) for r in expected.values() for s in r["steps"])
+    assert expected[32]["first_alarm"] is not None  # the failure is predicted

@@ -29,7 +29,7 @@ def test_live_replay_with_a_cp_band_calibration_equals_offline(ros_domain: int, 
     _fiper(["calibrate", str(PRETZEL / "calibration_rollouts"), "-o", str(calibration_dir), "--threshold", "cp_band",
             "--delta", "0.2", "--max-epochs", "30"], ros_domain)
     calibration = load_calibration(calibration_dir)
-    for threshold in (calibration.threshold_obs, calibration.threshold_act):
+    for threshold in (calibration.threshold("rnd_oe"), calibration.threshold("ace")):
         assert threshold.kind == "cp_band" and np.isfinite(threshold.values).all()
         assert np.unique(threshold.values).size > 10, "a band: gamma_t = mu(t) + k s(t) moves with t"
     report_path = tmp_path / "report.json"

@@ -28,4 +28,4 @@ def test_the_pushchair_set_regenerates_the_shipped_rollouts(tmp_path: Path) -> N
             assert a.success == b.success
     calibration = yaml.safe_load((made / "calibration" / "calibration.yaml").read_text())
     assert calibration["settings"].get("split", "same") == "same"
-    assert "not covered by Proposition 1" in calibration["split"]["guarantee"]
+    assert "not covered by Proposition 1" in calibration["guarantee"]

@@ -20,7 +20,7 @@ def calibration_rollouts() -> list[Rollout]:
 
 @pytest.fixture(scope="session")
 def settings() -> CalibrationSettings:
-    return CalibrationSettings(rnd=TINY_RND, window_obs=3, window_act=3, delta=0.2, threshold="cp_band")
+    return CalibrationSettings(rnd=TINY_RND, window=3, delta=0.2, threshold="cp_band")
 
 
 @pytest.fixture(scope="session")

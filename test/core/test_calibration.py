@@ -16,53 +16,59 @@ from helpers.core_data import ACTION_DIM, EMBEDDING_DIM, HORIZON, TINY_RND, make
 
 from fiper_ros.core.ace import action_ranges
 from fiper_ros.core.calibration import (
-    CALIBRATION_FILE,
     Calibration,
     CalibrationError,
     CalibrationMismatch,
     CalibrationSettings,
     calibrate,
+    guarantee,
     load_calibration,
+    promised_rate,
+    upgrade_calibration,
 )
-from fiper_ros.core.calibration_file import declared_detectors
-from fiper_ros.core.detectors import DETECTORS
+from fiper_ros.core.calibration_file import CALIBRATION_FILE, declared, declared_detectors
+from fiper_ros.core.combination import GroupCurves, fit_joint
+from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
+from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.scores import act_scores, rollout_positions
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, fit_threshold
 from fiper_ros.core.window import aggregate
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = sorted([*ROOT.glob("models/*/calibration"), *ROOT.glob("bags/*/calibration")])
+SHIPPED = sorted([*ROOT.glob("models/*/calibration*"), *ROOT.glob("bags/*/calibration")])
+FORMAT2 = ROOT / "test" / "data" / "calibration_format2"
 
 
 def test_fitted_fields(calibration: Calibration, calibration_rollouts: list[Rollout]) -> None:
     assert calibration.num_rollouts == 24  # the failed rollout is not used
-    layout = (calibration.embedding_dim, calibration.action_dim, calibration.horizon)
-    assert layout == (EMBEDDING_DIM, ACTION_DIM, HORIZON)
+    layout = calibration.layout
+    assert (layout.embedding_dim, layout.action_dim, layout.horizon) == (EMBEDDING_DIM, ACTION_DIM, HORIZON)
     # split conformal (the default): R_d from the rollouts that fitted the models, none of the conformal set
     split = calibration.split
     assert split["mode"] == "split" and len(split["fit"]) == len(split["conformal"]) == 12
     assert not set(split["fit"]) & set(split["conformal"])
     fitted = [r.actions[..., :3] for r in calibration_rollouts if r.success and str(r.rollout_id) in split["fit"]]
-    assert np.allclose(calibration.ranges, action_ranges(fitted))
-    assert np.allclose(calibration.cell, 0.03 * calibration.ranges)
+    ace = calibration.scorer(ACE)
+    assert np.allclose(ace.ranges, action_ranges(fitted))
+    assert np.allclose(ace.cell, 0.03 * ace.ranges)
     longest = max(r.length for r in calibration_rollouts if r.success)
-    assert calibration.threshold_obs.values.shape == (longest,)
-    assert calibration.threshold_act.kind == "cp_band" and np.all(np.isfinite(calibration.threshold_act.values))
+    assert calibration.threshold(RND_OE).values.shape == (longest,)
+    assert calibration.threshold(ACE).kind == "cp_band" and np.all(np.isfinite(calibration.threshold(ACE).values))
 
 
 def test_save_load_round_trip(calibration: Calibration, tmp_path: Path) -> None:
     path = calibration.save(tmp_path)
     content = yaml.safe_load(path.read_text())
-    for key in ("format_version", "settings", "delta", "windows", "threshold_kind", "ranges", "thresholds",
-                "embedding_dim", "action_dim", "horizon", "exec_steps", "action_space", "content_hash"):
+    for key in ("format_version", "settings", "layout", "guarantee", "tasks", "false_alarm_estimate", "content_hash"):
         assert key in content
+    assert content["format_version"] == 3 and list(content["tasks"]) == ["synthetic"]
     loaded = load_calibration(tmp_path)
     assert loaded.content_hash == calibration.content_hash == content["content_hash"]
-    assert loaded.settings == calibration.settings
-    assert np.array_equal(loaded.threshold_obs.values, calibration.threshold_obs.values)
-    assert np.array_equal(loaded.threshold_act.values, calibration.threshold_act.values)
-    assert np.array_equal(loaded.ranges, calibration.ranges)
+    assert loaded.settings == calibration.settings and loaded.layout == calibration.layout
+    for detector in DETECTORS:
+        assert np.array_equal(loaded.threshold(detector).values, calibration.threshold(detector).values)
+    assert np.array_equal(loaded.scorer(ACE).ranges, calibration.scorer(ACE).ranges)
 
 
 @pytest.fixture(scope="module")
@@ -90,54 +96,90 @@ def test_a_calibration_of_other_data_loads_and_names_what_differs(damage: str, s
     shutil.copytree(saved, directory)
     expected = fit_damages(saved, ROOT / "models" / "sorting" / "calibration")[damage](directory)
     fitting = load_calibration(saved)
+    layout = fitting.layout
     with pytest.raises(CalibrationMismatch) as error:
         load_calibration(directory).check_compatible(
-            embedding_dim=fitting.embedding_dim, action_dim=fitting.action_dim, horizon=fitting.horizon,
-            exec_steps=fitting.exec_steps, action_space=fitting.action_space, task=fitting.task)
+            embedding_dim=layout.embedding_dim, action_dim=layout.action_dim, horizon=layout.horizon,
+            exec_steps=layout.exec_steps, action_space=layout.action_space, task=fitting.named_tasks[0])
     assert str(error.value).startswith(expected), str(error.value)
 
 
-def test_the_task_is_recorded_and_rollouts_of_several_tasks_are_refused(
-        calibration: Calibration, calibration_rollouts: list[Rollout], settings: CalibrationSettings) -> None:
-    assert calibration.task == "synthetic"
-    calibration.check_compatible(task="")  # a caller that does not know the task checks nothing
-    mixed = [dataclasses.replace(r, task="other") if i == 3 else r for i, r in enumerate(calibration_rollouts)]
-    with pytest.raises(CalibrationError, match=r"calibration rollouts of several tasks \(other, synthetic\)"):
-        calibrate(mixed, settings)
+def test_rollouts_of_several_tasks_are_calibrated_each_with_its_own_models_and_shapes(
+        calibration_rollouts: list[Rollout], settings: CalibrationSettings) -> None:
+    """Each task its own models, split and thresholds; a rollout of a task the calibration never saw cannot be
+    judged (a mismatch naming the tasks), one without a task neither when there are several."""
+    rng = np.random.default_rng(11)
+    other = [dataclasses.replace(make_rollout(rng, 100 + i), task="other", rollout_id=f"other-{i}") for i in range(12)]
+    both = calibrate([*calibration_rollouts, *other], dataclasses.replace(settings, delta=0.3))
+    assert list(both.tasks) == ["other", "synthetic"] and both.named_tasks == ("other", "synthetic")
+    assert both.tasks["other"].num_rollouts == 12 and both.tasks["synthetic"].num_rollouts == 24
+    assert both.scorer(RND_OE, "other") is not both.scorer(RND_OE, "synthetic")
+    assert set(both.tasks["other"].split["fit"]) <= {f"other-{i}" for i in range(12)}
+    with pytest.raises(CalibrationMismatch, match=r"task: expected other or synthetic, got third"):
+        both.part("third")
+    with pytest.raises(CalibrationMismatch, match=r"task: expected other or synthetic, got \(none\)"):
+        both.part("")
+
+
+def test_a_calibration_without_a_task_judges_any_and_one_task_judges_rollouts_without_one(
+        calibration: Calibration) -> None:
+    assert calibration.named_tasks == ("synthetic",)
+    assert calibration.part("") is calibration.part("synthetic")  # a caller that does not know the task
+    with pytest.raises(CalibrationMismatch, match="task: expected synthetic, got other"):
+        calibration.check_compatible(task="other")
+    anonymous = dataclasses.replace(calibration, tasks={"": calibration.part("synthetic")})
+    assert anonymous.part("any task") is calibration.part("synthetic")
 
 
 def _content(directory: Path) -> dict[str, Any]:
     return yaml.safe_load((directory / CALIBRATION_FILE).read_text())
 
 
-WITHOUT_TASK = [d for d in SHIPPED if "task" not in _content(d)]
-MODELS_CALIBRATIONS = sorted(ROOT.glob("models/*/calibration*"))
-
-
-@pytest.mark.parametrize("directory", WITHOUT_TASK, ids=lambda d: str(d.relative_to(ROOT)))
-def test_shipped_calibrations_without_a_task_keep_their_content_hash(directory: Path) -> None:
-    """Written before the task (and the detectors, issue #19) were recorded: they still load, with their stored
-    hash, fit any task and declare FIPER's pair."""
+@pytest.mark.parametrize("directory", SHIPPED, ids=lambda d: str(d.relative_to(ROOT)))
+def test_shipped_calibrations_are_of_the_current_format_and_load(directory: Path) -> None:
     content = _content(directory)
     loaded = load_calibration(directory)
-    assert loaded.task == "" and loaded.content_hash == content["content_hash"]
-    loaded.check_compatible(task="any task")
-    assert "detectors" not in content["settings"] and loaded.detectors == declared_detectors(directory) == DETECTORS
+    assert content["format_version"] == 3 and loaded.content_hash == content["content_hash"]
+    assert loaded.detectors == declared_detectors(directory) == tuple(content["settings"]["detectors"])
 
 
-def test_old_format_calibrations_are_still_shipped() -> None:
-    """The test above must have something to check (the sample sets' calibrations are of the old format)."""
-    assert len(WITHOUT_TASK) >= 3
+def test_a_format_2_calibration_loads_as_it_is_and_upgrades_to_the_same_thresholds_and_weights(tmp_path: Path) -> None:
+    """Written before any other detector existed: read as FIPER's pair (its windows, thresholds, ranges and
+    weights), its own content hash checked; ``--upgrade`` writes the same calibration in format 3, which scores a
+    rollout identically."""
+    old = load_calibration(FORMAT2)
+    assert old.detectors == DETECTORS and old.named_tasks == () and old.settings.windows == {ACE: 50}
+    assert old.settings.window_of(RND_OE) == 8 and old.settings.combine == "and"
+    assert declared(FORMAT2).detectors == DETECTORS
+    upgraded = upgrade_calibration(FORMAT2)
+    upgraded.save(tmp_path / "new")
+    new = load_calibration(tmp_path / "new")
+    assert _content(tmp_path / "new")["format_version"] == 3
+    for detector in DETECTORS:
+        assert np.array_equal(new.threshold(detector).values, old.threshold(detector).values)
+    assert new.scorer(RND_OE).digest() == old.scorer(RND_OE).digest()
+    rng = np.random.default_rng(0)
+    rollout = Rollout("r", "", "id", rng.normal(size=(30, old.layout.embedding_dim)),
+                      rng.normal(size=(30, 32, old.layout.horizon, old.layout.action_dim)), old.layout.exec_steps, None)
+    a, b = predict_rollout(rollout, old), predict_rollout(rollout, new)
+    for detector in DETECTORS:
+        assert np.array_equal(a.detectors[detector].windowed, b.detectors[detector].windowed)
+    edited = tmp_path / "edited"
+    shutil.copytree(FORMAT2, edited)
+    text = (edited / CALIBRATION_FILE).read_text().replace("window_obs: 8", "window_obs: 9")
+    (edited / CALIBRATION_FILE).write_text(text)
+    with pytest.raises(CalibrationError, match="content hash mismatch"):
+        load_calibration(edited)
 
 
-@pytest.mark.parametrize("directory", MODELS_CALIBRATIONS, ids=lambda d: str(d.relative_to(ROOT)))
+@pytest.mark.parametrize("directory", sorted(ROOT.glob("models/*/calibration*")), ids=lambda d: str(d.relative_to(ROOT)))
 def test_shipped_model_calibrations_keep_the_promise_by_construction(directory: Path) -> None:
-    """Issue #19: the policies' calibrations are split conformal (models and thresholds on disjoint successes)
-    with a guaranteed threshold kind, and name the policy's task."""
+    """The policies' calibrations are split conformal (models and thresholds on disjoint successes) with a
+    guaranteed threshold kind."""
     content = _content(directory)
-    assert content["task"] == directory.parent.name and content["split"]["mode"] == "split"
-    assert content["threshold_kind"] in GUARANTEED_KINDS
-    assert not set(content["split"]["fit"]) & set(content["split"]["conformal"])
+    assert content["settings"]["threshold"] in GUARANTEED_KINDS
+    for part in content["tasks"].values():
+        assert part["split"]["mode"] == "split" and not set(part["split"]["fit"]) & set(part["split"]["conformal"])
 
 
 def test_check_compatible(calibration: Calibration) -> None:
@@ -152,7 +194,7 @@ def test_check_compatible(calibration: Calibration) -> None:
 def test_too_few_successes_are_refused(settings: CalibrationSettings) -> None:
     rng = np.random.default_rng(0)
     rollouts = [make_rollout(rng, i) for i in range(3)] + [make_rollout(rng, 9, success=False)]
-    with pytest.raises(CalibrationError, match="at least 4 successful rollouts, got 3"):
+    with pytest.raises(CalibrationError, match="at least 4 successful rollouts of task 'synthetic', got 3"):
         calibrate(rollouts, settings)
     with pytest.raises(CalibrationError, match="got 0"):
         calibrate([], settings)
@@ -171,8 +213,8 @@ def test_reference_profile_takes_ranges_over_all_rollouts(calibration_rollouts: 
     quick = dataclasses.replace(TINY_RND, max_epochs=2)
     settings = CalibrationSettings(rnd=quick, profile="reference", threshold="cp_constant")
     reference = calibrate(calibration_rollouts, settings)
-    assert np.allclose(reference.ranges, action_ranges([r.actions[..., :3] for r in calibration_rollouts]))
-    assert reference.threshold_obs.extension == "mean"
+    assert np.allclose(reference.scorer(ACE).ranges, action_ranges([r.actions[..., :3] for r in calibration_rollouts]))
+    assert reference.threshold(RND_OE).extension == "mean"
 
 
 def _noise_rollout(rng: np.random.Generator, index: int) -> Rollout:
@@ -187,7 +229,6 @@ def test_split_conformal_keeps_the_promise_where_same_data_breaks_it() -> None:
     (an RND-OE predictor trained far past the point of memorising 40 rollouts of noise): fitted and
     calibrated on the same successes its thresholds come out too low; split, the rate stays at delta."""
     from fiper_ros.core.rnd_oe import RNDConfig  # noqa: PLC0415
-    from fiper_ros.core.scores import obs_scores  # noqa: PLC0415
 
     memoriser = RNDConfig(trunk=(64,), head=(64,), out_dim=8, max_epochs=60, lr=1e-2, patience=1000)
     delta, rates = 0.1, {"same": [], "split": []}
@@ -196,11 +237,11 @@ def test_split_conformal_keeps_the_promise_where_same_data_breaks_it() -> None:
         successes = [_noise_rollout(rng, i) for i in range(40)]
         new = [_noise_rollout(rng, 1000 + i) for i in range(100)]
         for split in rates:
-            fitted = calibrate(successes, CalibrationSettings(rnd=memoriser, window_obs=1, window_act=1, delta=delta,
+            fitted = calibrate(successes, CalibrationSettings(rnd=memoriser, window=1, delta=delta,
                                                               threshold="cp_constant", split=split, seed=trial))
-            gamma = fitted.threshold_obs.values[0]
-            rates[split].append(np.mean([np.any(obs_scores(fitted.rnd, r.embeddings, fitted.profile) > gamma)
-                                         for r in new]))
+            gamma = fitted.threshold(RND_OE).values[0]
+            scorer = fitted.scorer(RND_OE)
+            rates[split].append(np.mean([np.any(scorer.scores(r) > gamma) for r in new]))
     split, same = np.array(rates["split"]), np.array(rates["same"])
     # split conformal: E[rate] = 1 - 19/21 = 0.095 for 20 conformal rollouts; allow 3 standard errors
     assert split.mean() <= delta + 3 * split.std(ddof=1) / np.sqrt(split.size), split
@@ -210,49 +251,139 @@ def test_split_conformal_keeps_the_promise_where_same_data_breaks_it() -> None:
 def test_an_infinite_threshold_is_refused_with_the_fewest_successes_that_would_do() -> None:
     rng = np.random.default_rng(3)
     successes = [_noise_rollout(rng, i) for i in range(30)]
-    tiny = CalibrationSettings(rnd=TINY_RND, window_obs=1, window_act=1, threshold="cp_constant", delta=0.05)
+    tiny = CalibrationSettings(rnd=TINY_RND, window=1, threshold="cp_constant", delta=0.05)
     # 15 conformal rollouts, 19 needed at delta 0.05 (ceil(20 * 0.95) = 19 <= 19): 38 successes split in half
     with pytest.raises(CalibrationError, match=r"needs at least 19 rollouts, this calibration gives it 15 of 30 "
                                                r"successes; calibrate on at least 38 successful rollouts"):
         calibrate(successes, tiny)
     kept = calibrate(successes, tiny, refuse_infinite=False)
-    assert np.isinf(kept.threshold_obs.values).all()
+    assert np.isinf(kept.threshold(RND_OE).values).all()
 
 
 def test_the_split_is_recorded_and_each_kind_states_its_guarantee(calibration: Calibration, tmp_path: Path) -> None:
-    from fiper_ros.core.calibration import guarantee  # noqa: PLC0415
-
-    split = calibration.split
-    assert split["behind_thresholds"]["obs"] == {"shape": 12, "conformal": 12}  # cp_band: mu, s on the fit part
-    assert "Proposition 1" in split["guarantee"] and calibration.false_alarms["held_out_from_models"]
+    part = calibration.part("synthetic")
+    assert part.split["behind_thresholds"][RND_OE] == {"shape": 12, "conformal": 12}  # cp_band: mu, s on the fit part
+    assert "Proposition 1" in calibration.guarantee and calibration.false_alarms["held_out_from_models"]
     calibration.save(tmp_path / "saved")
-    assert load_calibration(tmp_path / "saved").split == split
+    assert load_calibration(tmp_path / "saved").split == calibration.split
     for kind, promise in (("time_varying", "none"), ("cp_scaled", "at most"), ("cp_constant", "at most")):
         assert guarantee(CalibrationSettings(threshold=kind)).startswith(promise), kind
     assert guarantee(CalibrationSettings(split="same")).startswith("not covered by Proposition 1")
     assert guarantee(CalibrationSettings(split="cross")).startswith("about")
 
 
-def test_or_promises_twice_delta_and_says_how_to_get_delta() -> None:
-    """OR alarms when either threshold is exceeded, each on at most delta of new successes: the union bound
-    2 delta (the old text promised delta for OR too)."""
-    from fiper_ros.core.calibration import guarantee, promised_rate  # noqa: PLC0415
-
+def test_or_promises_n_times_delta_and_a_joint_combine_delta() -> None:
+    """OR alarms when any of N thresholds is exceeded, each on at most delta of new successes: the union bound
+    N delta; a joint combine (one conformal factor) promises delta however many detectors vote."""
     assert promised_rate(CalibrationSettings(delta=0.05, combine="and")) == 0.05
     assert promised_rate(CalibrationSettings(delta=0.05, combine="or")) == 0.1
+    three = ("rnd_oe", "progress", "elapsed")
+    assert promised_rate(CalibrationSettings(delta=0.05, combine="or", detectors=three)) == pytest.approx(0.15)
+    assert promised_rate(CalibrationSettings(delta=0.05, combine="max", detectors=three)) == 0.05
     text = guarantee(CalibrationSettings(delta=0.05, combine="or"))
     assert text.startswith("at most 0.1 of new successful rollouts") and "--delta 0.025 for 0.05" in text
+    assert "combine max" in text
     assert guarantee(CalibrationSettings(delta=0.05, combine="and")).startswith("at most 0.05 of new")
+    joint = guarantee(CalibrationSettings(delta=0.05, combine="kth:2", detectors=three))
+    assert joint.startswith("at most 0.05 of new") and "kth:2 of 3 detectors under one conformal threshold" in joint
 
 
 def test_reference_profile_calibrates_the_authors_band_on_float32_cells(calibration_rollouts: list[Rollout]) -> None:
     quick = dataclasses.replace(TINY_RND, max_epochs=2)
-    settings = CalibrationSettings(rnd=quick, profile="reference", threshold="cp_band", split="same", window_act=3)
+    settings = CalibrationSettings(rnd=quick, profile="reference", threshold="cp_band", split="same", windows={ACE: 3})
     reference = calibrate(calibration_rollouts, settings)
-    np.testing.assert_array_equal(reference.cell, np.float32(0.03) * reference.ranges.astype(np.float32))
+    ace = reference.scorer(ACE)
+    np.testing.assert_array_equal(ace.cell, np.float32(0.03) * ace.ranges.astype(np.float32))
     successes = successful(calibration_rollouts)  # in the order given: the authors' split takes them so
-    curves = [aggregate(act_scores(rollout_positions(r, reference.projection()), reference.cell, reference.profile),
+    curves = [aggregate(act_scores(rollout_positions(r, ace.projection(None)), ace.cell, reference.profile),
                         "window", 3) for r in successes]
     expected = fit_threshold(curves, settings.threshold_settings())
-    np.testing.assert_array_equal(reference.threshold_act.values, expected.values)
-    assert (reference.threshold_act.params["m1"], reference.threshold_act.params["m2"]) == (12, 12)  # 1 + 23 // 2
+    np.testing.assert_array_equal(reference.threshold(ACE).values, expected.values)
+    assert (reference.threshold(ACE).params["m1"], reference.threshold(ACE).params["m2"]) == (12, 12)  # 1 + 23 // 2
+
+
+# -- any detectors, one conformal threshold -----------------------------------------------------------------------
+THREE = (RND_OE, "progress", "elapsed")
+
+
+def test_a_joint_combine_is_the_core_combination_of_the_detectors_curves(calibration_rollouts: list[Rollout]) -> None:
+    """max over RND-OE, progress and the elapsed time: every detector's threshold is its shape times the one
+    conformal factor fit_joint finds on the split's curves (the elapsed time always CP scaled, cumulative)."""
+    settings = CalibrationSettings(rnd=TINY_RND, detectors=THREE, combine="max", threshold="cp_band", delta=0.2,
+                                   window=3)
+    fitted = calibrate(calibration_rollouts, settings)
+    part, successes = fitted.part("synthetic"), successful(calibration_rollouts)
+    index = {str(r.rollout_id): r for r in successes}
+
+    def curves(ids: list[str]) -> dict[str, list[np.ndarray]]:
+        return {d: [aggregate(fitted.scorer(d).scores(index[i]), settings.aggregation_of(d), settings.window_of(d))
+                    for i in ids] for d in THREE}
+
+    group = GroupCurves(curves(part.split["fit"]), curves(part.split["conformal"]))
+    expected = fit_joint({"synthetic": group}, THREE, {d: settings.shape_of(d) for d in THREE}, 1,
+                         settings.threshold_settings())
+    for detector in THREE:
+        np.testing.assert_array_equal(part.detectors[detector].threshold.values,
+                                      expected.thresholds["synthetic"][detector].values)
+    assert settings.aggregation_of("elapsed") == "cumulative" and settings.shape_of("elapsed") == "cp_scaled"
+    assert fitted.joint == {"votes": 1}
+    assert declared(_saved(fitted)).combine == "max"
+
+
+def _saved(calibration: Calibration) -> Path:
+    import tempfile  # noqa: PLC0415
+
+    directory = Path(tempfile.mkdtemp()) / "calibration"
+    calibration.save(directory)
+    return directory
+
+
+def test_a_calibration_of_any_detectors_round_trips(calibration_rollouts: list[Rollout], tmp_path: Path) -> None:
+    settings = CalibrationSettings(rnd=TINY_RND, detectors=(*THREE, "consistency", "pca_kmeans"), combine="kth:2",
+                                   threshold="cp_scaled", delta=0.2, windows={"progress": 5})
+    fitted = calibrate(calibration_rollouts, settings)
+    fitted.save(tmp_path)
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["calibration.yaml", "consistency.json", "consistency.npz", "pca_kmeans.json", "pca_kmeans.npz",
+                     "progress.json", "progress.npz", "rnd_oe.json", "rnd_oe.npz"]
+    loaded = load_calibration(tmp_path)
+    assert loaded.content_hash == fitted.content_hash and loaded.settings.votes == 2
+    rollout = calibration_rollouts[0]
+    a, b = predict_rollout(rollout, fitted), predict_rollout(rollout, loaded)
+    assert np.array_equal(a.alarms, b.alarms)
+    for detector in settings.detectors:
+        assert np.array_equal(a.detectors[detector].windowed, b.detectors[detector].windowed)
+    (tmp_path / "progress.npz").unlink()
+    with pytest.raises(CalibrationError, match=r"progress model file missing: .*progress\.npz"):
+        load_calibration(tmp_path)
+
+
+def test_pooled_thresholds_share_one_factor_over_the_tasks(calibration_rollouts: list[Rollout]) -> None:
+    """Two tasks of 12 successes (6 conformal each) cannot serve delta 0.1 apiece (9 needed): refused with the hint
+    to pool; pooled, one conformal factor over their 12 conformal rollouts serves it."""
+    rng = np.random.default_rng(5)
+    rollouts = [dataclasses.replace(make_rollout(rng, i), task=task, rollout_id=f"{task}-{i}")
+                for task in ("a", "b") for i in range(12)]
+    settings = CalibrationSettings(rnd=TINY_RND, detectors=(RND_OE, "elapsed"), combine="max", threshold="cp_band",
+                                   delta=0.1)
+    with pytest.raises(CalibrationError, match=r"or pool the tasks \(--pool\)"):
+        calibrate(rollouts, settings)
+    pooled = calibrate(rollouts, dataclasses.replace(settings, pooled=True))
+    assert pooled.joint["m"] == 12 and pooled.joint["conformal"] == {"a": 6, "b": 6}
+    k = pooled.joint["k"]
+    for task in ("a", "b"):
+        assert pooled.threshold(RND_OE, task).params["k"] == k
+    assert "pooled over the tasks" in pooled.guarantee
+
+
+def test_settings_refuse_what_cannot_be_calibrated() -> None:
+    with pytest.raises(CalibrationError, match=r"detector 'stac' cannot be calibrated"):
+        CalibrationSettings(detectors=("rnd_oe", "stac"))
+    with pytest.raises(CalibrationError, match=r"a joint combine normalises each detector by its shape: threshold "
+                                               r"cp_band or cp_scaled, not cp_constant"):
+        CalibrationSettings(combine="max", threshold="cp_constant")
+    with pytest.raises(CalibrationError, match=r"combine kth:3 needs at least 3 detectors, got 2"):
+        CalibrationSettings(combine="kth:3")
+    with pytest.raises(CalibrationError, match=r"windows of undeclared detectors: progress"):
+        CalibrationSettings(windows={"progress": 3})
+    assert CalibrationSettings(detectors=("elapsed", "rnd_oe")).detectors == ("rnd_oe", "elapsed")

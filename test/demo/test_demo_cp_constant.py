@@ -17,7 +17,7 @@ CP_CONSTANT = ROOT / "models" / "sorting" / "calibration_cp_constant"
 
 def test_demo_with_the_cp_constant_calibration_alarms_as_the_offline_oracle(tmp_path: Path) -> None:
     calibration = load_calibration(CP_CONSTANT)
-    assert calibration.threshold_obs.kind == calibration.threshold_act.kind == "cp_constant"
+    assert calibration.threshold("rnd_oe").kind == calibration.threshold("ace").kind == "cp_constant"
     out = tmp_path / "demo"
     run, summary = run_demo(out, "--calibration", str(CP_CONSTANT))
     assert Path(summary["calibration"]) == CP_CONSTANT
@@ -29,8 +29,8 @@ def test_demo_with_the_cp_constant_calibration_alarms_as_the_offline_oracle(tmp_
         assert oracle.first_alarm == live["alarm_step"], (live["label"], why)
         steps = sorted(oracle.steps)
         assert len(steps) == live["policy_steps"]
-        assert np.array_equal(np.float32([oracle.steps[t].eta_obs for t in steps]),
+        assert np.array_equal(np.float32([oracle.steps[t].windowed[0] for t in steps]),
                               np.float32(live["rnd_oe"]["windowed"]))
-        assert set(np.float32(live["rnd_oe"]["threshold"])) == {np.float32(calibration.threshold_obs.over(1)[0])}
+        assert set(np.float32(live["rnd_oe"]["threshold"])) == {np.float32(calibration.threshold("rnd_oe").over(1)[0])}
     in_dist, ood = summary["rollouts"]
     assert in_dist["alarm_step"] is None and ood["alarm_step"] is not None, why

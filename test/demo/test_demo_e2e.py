@@ -42,15 +42,15 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
     assert {"/fiper/observation_embedding", "/fiper/action_chunks", "/fiper/scores/rnd_oe", "/fiper/scores/ace",
             "/fiper/alarm", "/fiper/rollout_events", "/camera/wrist/image_raw", "/sim/action"} <= topics
     calibration = load_calibration(ROOT / "models/sorting/calibration")
-    assert calibration.threshold_obs.kind == calibration.threshold_act.kind == "cp_band"  # the paper's default
+    assert calibration.threshold("rnd_oe").kind == calibration.threshold("ace").kind == "cp_band"  # the paper's default
     offline = {r.rollout_id: r for r in predict_bag(out / "bag", calibration)}
     for live in (in_dist, ood):
         oracle = offline[live["rollout_id"]]
         assert len(oracle.steps) == live["policy_steps"]
         # the thresholds the suite published are the band's gamma_t, step by step (not one constant)
         assert np.array_equal(np.float32(live["rnd_oe"]["threshold"]),
-                              np.float32(calibration.threshold_obs.over(len(oracle.steps))))
+                              np.float32(calibration.threshold("rnd_oe").over(len(oracle.steps))))
         assert len(set(live["rnd_oe"]["threshold"])) > 5
         assert oracle.first_alarm == live["alarm_step"]
-        assert [round(s.eta_obs, 3) for _, s in sorted(oracle.steps.items())] == \
+        assert [round(s.windowed[0], 3) for _, s in sorted(oracle.steps.items())] == \
             [round(v, 3) for v in live["rnd_oe"]["windowed"]]

@@ -60,7 +60,7 @@ def _oracle_agrees(bag: Path, calibration: Path, rollout_id: int, policy_steps: 
     # every step's decision is recorded (the very last one may follow the END past the bag's close)
     assert set(range(policy_steps - 1)) <= set(recorded) <= set(offline.steps)
     assert recorded == {step: offline.steps[step] for step in recorded}
-    assert all(s.eta_act is None and not s.act_exceeded and s.eta_obs is not None for s in recorded.values())
+    assert all(len(s.exceeded) == len(s.windowed) == 1 and s.windowed[0] is not None for s in recorded.values())
     return dict(offline.steps)
 
 
@@ -87,10 +87,10 @@ def test_the_demo_runs_rnd_oe_alone_and_its_alarms_equal_the_offline_oracle(
         assert live["outcome"] in ("success", "failure") and live["scored_steps"] == live["policy_steps"] > 0
         steps = _oracle_agrees(out / "bag", observation_calibration, live["rollout_id"], live["policy_steps"])
         assert min((t for t, s in steps.items() if s.state == "alarm"), default=None) == live["alarm_step"]
-        assert np.array_equal(np.float32([steps[t].eta_obs for t in sorted(steps)]),
+        assert np.array_equal(np.float32([steps[t].windowed[0] for t in sorted(steps)]),
                               np.float32(live["rnd_oe"]["windowed"]))
         assert np.array_equal(np.float32(live["rnd_oe"]["threshold"]),
-                              np.float32(calibration.threshold_obs.over(live["policy_steps"])))
+                              np.float32(calibration.threshold("rnd_oe").over(live["policy_steps"])))
     # RND-OE alone alarms on the harmful OOD rollout and the supervisor halts the robot on it
     why = run.stdout[-2000:]
     assert ood["alarm_step"] is not None, why

@@ -154,13 +154,17 @@ def test_the_demo_of_an_observation_only_calibration_runs_no_ace_node(tmp_path: 
 
 
 def test_the_progress_line_shows_the_declared_scores() -> None:
-    msg = FailureAlarm(rollout_id=5, step=12, state=FailureAlarm.STATE_ALARM, obs_exceeded=True, eta_obs=3.25,
-                       gamma_obs=2.5, eta_act=1.5, gamma_act=4.0)
-    assert alarm_line(msg, DETECTORS) == ("step  12 | RND-OE    3.250 /    2.500 > | ACE    1.500 /    4.000   "
-                                          "| ALARM")
-    alone = FailureAlarm(rollout_id=5, step=3, state=FailureAlarm.STATE_OK, eta_obs=1.0, gamma_obs=2.5,
-                         eta_act=math.nan, gamma_act=math.nan)
-    assert alarm_line(alone, OBSERVATION_ONLY) == "step   3 | RND-OE    1.000 /    2.500   | OK"
+    msg = FailureAlarm(rollout_id=5, step=12, state=FailureAlarm.STATE_ALARM, detectors=list(DETECTORS),
+                       eta=[3.25, 1.5], gamma=[2.5, 4.0], exceeded=[True, False])
+    assert alarm_line(msg) == ("step  12 | RND-OE    3.250 /    2.500 > | ACE    1.500 /    4.000   "
+                               "| ALARM")
+    alone = FailureAlarm(rollout_id=5, step=3, state=FailureAlarm.STATE_OK, detectors=list(OBSERVATION_ONLY),
+                         eta=[1.0], gamma=[2.5], exceeded=[False])
+    assert alarm_line(alone) == "step   3 | RND-OE    1.000 /    2.500   | OK"
+    three = FailureAlarm(rollout_id=5, step=4, state=FailureAlarm.STATE_UNKNOWN, detectors=["rnd_oe", "progress",
+                         "elapsed"], eta=[1.0, 0.5, math.nan], gamma=[2.5, 0.25, 3.0], exceeded=[False, True, False])
+    assert alarm_line(three) == ("step   4 | RND-OE    1.000 /    2.500   | progress    0.500 /    0.250 > "
+                                 "| elapsed time      nan /    3.000   | UNKNOWN")
 
 
 def test_events_pair_with_a_trace_whichever_comes_first() -> None:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
-from fiper_ros.core.fusion import first_alarm
+from fiper_ros.core.detectors import ACE, RND_OE
 from fiper_ros.core.metrics import evaluate
 from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.core.profiles import get_profile
@@ -43,17 +43,16 @@ CASES = {
 def _single_path(dataset: Dataset, settings: MethodSettings, group: Group, delta: float) -> list[int | None]:
     """First alarm per test rollout from a calibration fitted for exactly this configuration."""
     w_obs, w_act = group.windows()
+    detectors = (RND_OE, ACE) if group.method == "fiper" else (group.method,)
+    windows = {RND_OE: w_obs or 1, ACE: w_act or w_obs or 1} if group.method == "fiper" else {}
     calibration = calibrate(dataset.calibration, CalibrationSettings(
-        window_obs=w_obs or 1, window_act=(w_act or w_obs or 1), aggregation=group.aggregation, threshold=group.kind,
+        detectors=detectors, window=(w_act or w_obs or 1) if group.method == ACE else (w_obs or 1), windows=windows,
+        aggregation=group.aggregation, threshold=group.kind,
         delta=delta, combine=group.combine or "and", rnd=settings.rnd, seed=SEED, profile=settings.profile,
         split=settings.split, shape_folds=settings.shape_folds), refuse_infinite=False)
     out: list[int | None] = []
     for rollout in dataset.test:
-        prediction = predict_rollout(rollout, calibration)
-        if group.method == "fiper":
-            out.append(prediction.first_alarm_step)
-        else:
-            out.append(first_alarm(prediction.obs_exceeded if group.method == "rnd_oe" else prediction.act_exceeded))
+        out.append(predict_rollout(rollout, calibration).first_alarm_step)
     return out
 
 

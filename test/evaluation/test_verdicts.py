@@ -10,7 +10,7 @@ from fiper_ros.evaluation.verdicts import (ALL, in_sample, in_sample_warning, ro
 
 def rollout(rollout_id: int, scenario: str, outcome: str, steps: int, alarm_from: int | None = None) -> RolloutResult:
     """A result of ``steps`` steps, latched ALARM from ``alarm_from`` on."""
-    states = {t: StepResult("alarm" if alarm_from is not None and t >= alarm_from else "ok", False, False, 1.0, 1.0)
+    states = {t: StepResult("alarm" if alarm_from is not None and t >= alarm_from else "ok", (False, False), (1.0, 1.0))
               for t in range(steps)}
     return RolloutResult(rollout_id, "task", scenario, outcome, states)
 

@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from fiper_ros.core.calibration import CALIBRATION_FILE, load_calibration
-from fiper_ros.core.calibration_file import FORMAT_VERSION
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.calibration_file import CALIBRATION_FILE, FORMAT_VERSION, READ_VERSIONS
 from fiper_ros.core.rnd_oe import CONFIG_FILE, WEIGHTS_FILE
 
 #: A damage: modifies the calibration directory at the path, returns the text its refusal holds.
 Damage = Callable[[Path], str]
-HASH_MISMATCH = "content hash mismatch (file or weights modified, or files of different runs)"
+HASH_MISMATCH = "content hash mismatch (file or models modified, or files of different runs)"
 
 
 def _edit_yaml(directory: Path, edit: Callable[[dict], None]) -> Path:
@@ -66,7 +66,8 @@ def yaml_empty(directory: Path) -> str:
 
 def newer_format_version(directory: Path) -> str:
     path = _edit_yaml(directory, lambda content: content.update(format_version=FORMAT_VERSION + 1))
-    return f"{path}: format_version {FORMAT_VERSION + 1} not supported (this code reads {FORMAT_VERSION})"
+    return (f"{path}: format_version {FORMAT_VERSION + 1} not supported (this code reads "
+            f"{', '.join(map(str, READ_VERSIONS))})")
 
 
 def older_format_version(directory: Path) -> str:
@@ -76,18 +77,23 @@ def older_format_version(directory: Path) -> str:
 
 
 def entry_missing(directory: Path) -> str:
-    path = _edit_yaml(directory, lambda content: content.pop("horizon"))
-    return f"{path}: missing entry 'horizon'"
+    path = _edit_yaml(directory, lambda content: content["layout"].pop("embedding_dim"))
+    return f"{path}: missing entry 'embedding_dim'"
 
 
 def entry_malformed(directory: Path) -> str:
-    path = _edit_yaml(directory, lambda content: content.update(embedding_dim="sixteen"))
+    path = _edit_yaml(directory, lambda content: content["layout"].update(embedding_dim="sixteen"))
     return f"{path}: malformed entry (invalid literal for int() with base 10: 'sixteen')"
+
+
+def _rnd_oe_threshold(content: dict) -> dict:
+    """The RND-OE threshold entry of a calibration of one task."""
+    return next(iter(content["tasks"].values()))["detectors"]["rnd_oe"]["threshold"]
 
 
 def yaml_edited(directory: Path) -> str:
     """A threshold value changed: still a well-formed calibration, but not the fitted one."""
-    path = _edit_yaml(directory, lambda content: content["thresholds"]["obs"]["values"].__setitem__(0, 1e-3))
+    path = _edit_yaml(directory, lambda content: _rnd_oe_threshold(content)["values"].__setitem__(0, 1e-3))
     return f"{path}: {HASH_MISMATCH}"
 
 
@@ -141,16 +147,19 @@ FIT_DAMAGES = ("another_embedding_size", "another_action_shape", "another_execut
                "another_task")
 
 
-def resaved(base: Path, directory: Path, **changes: object) -> None:
-    """``base``'s calibration with ``changes``, saved as a valid calibration (its own content hash)."""
-    dataclasses.replace(load_calibration(base), **changes).save(directory)
+def resaved(base: Path, directory: Path, task: str | None = None, **layout: object) -> None:
+    """``base``'s calibration with a changed ``layout`` (and one task renamed ``task``), saved as a valid calibration
+    (its own content hash)."""
+    calibration = load_calibration(base)
+    tasks = calibration.tasks if task is None else {task: next(iter(calibration.tasks.values()))}
+    dataclasses.replace(calibration, layout=dataclasses.replace(calibration.layout, **layout), tasks=tasks).save(directory)
 
 
 def fit_damages(base: Path, foreign: Path) -> dict[str, Damage]:
     """Calibrations that load but do not fit the data ``base`` fits: another embedding size (the valid
     calibration ``foreign``), action shape, execution horizon, action space or task."""
-    embedding_dim = load_calibration(foreign).embedding_dim
-    fitting = load_calibration(base)
+    embedding_dim = load_calibration(foreign).layout.embedding_dim
+    fitting = load_calibration(base).layout
 
     def another_embedding_size(directory: Path) -> str:
         shutil.rmtree(directory)

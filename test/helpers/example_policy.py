@@ -24,7 +24,7 @@ def example_rollout(seed: int, *, fail: bool = False, steps: int = STEPS) -> Rol
 
 def example_calibration(directory: Path) -> Path:
     """A small calibration on 24 successes of the example (split conformal, windows 3, delta 0.1)."""
-    settings = CalibrationSettings(window_obs=3, window_act=3, threshold="cp_constant", delta=0.1, rnd=TINY_RND,
+    settings = CalibrationSettings(window=3, threshold="cp_constant", delta=0.1, rnd=TINY_RND,
                                    seed=0)
     calibrate([example_rollout(1000 + seed) for seed in range(24)], settings).save(directory)
     return directory

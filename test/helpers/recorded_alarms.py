@@ -3,8 +3,7 @@ compare them with :func:`fiper_ros.evaluation.offline.predict_bag` step for step
 from __future__ import annotations
 
 from fiper_ros.bagio.reader import BagReader
-from fiper_ros.evaluation.results import StepResult, as_float32
-from fiper_ros.interface.messages import STATE_NAMES
+from fiper_ros.evaluation.results import StepResult
 from fiper_ros.interface.topics import ALARM
 
 
@@ -12,6 +11,4 @@ def alarm_steps(reader: BagReader, rollout_id: int) -> dict[int, StepResult]:
     """The recorded FailureAlarm decisions (not heartbeats) of ``rollout_id``, per step (a score of a detector
     that was not judged, NaN on the wire, is ``None`` as in the oracle)."""
     alarms = (reader.decode(m) for m in reader.messages([ALARM]))
-    return {int(m.step): StepResult(STATE_NAMES[m.state], bool(m.obs_exceeded), bool(m.act_exceeded),
-                                    as_float32(m.eta_obs), as_float32(m.eta_act))
-            for m in alarms if m.rollout_id == rollout_id and not m.heartbeat}
+    return {int(m.step): StepResult.of_alarm(m) for m in alarms if m.rollout_id == rollout_id and not m.heartbeat}

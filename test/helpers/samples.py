@@ -52,6 +52,8 @@ def sample_messages() -> dict[str, Any]:
             header=_header(15), rollout_id=7, step=3, state=FailureAlarm.STATE_ALARM, latched=True,
             obs_exceeded=True, act_exceeded=False, eta_obs=10.5, gamma_obs=9.25, eta_act=float("inf"),
             gamma_act=-1.0, combine=FailureAlarm.COMBINE_OR, reason="rnd_oe exceeded (or) — ünïcode", heartbeat=True,
+            detectors=["rnd_oe", "ace", "signal_ünï"], eta=[10.5, float("inf"), 0.25],
+            gamma=[9.25, -1.0, 0.5], exceeded=[True, False, False], votes=1,
         ),
         "fiper_msgs/msg/ActionCommand": ActionCommand(
             header=_header(16), rollout_id=7, step=3, num_actions=4, action_dim=8, data=_floats(32, 3),

@@ -47,7 +47,7 @@ def make_calibration(directory: Path, *, combine: str = "and", threshold: str = 
     """Fit a small calibration of ``detectors`` on 24 synthetic successes (split conformal, the default: 12 fit
     RND-OE and R_d, 12 the thresholds) and save it to ``directory``."""
     rollouts = [make_rollout(seed) for seed in range(24)]
-    settings = CalibrationSettings(window_obs=3, window_act=3, threshold=threshold, delta=delta, combine=combine,
+    settings = CalibrationSettings(window=3, threshold=threshold, delta=delta, combine=combine,
                                    rnd=TINY_RND, seed=0, detectors=detectors)
     calibrate(rollouts, settings).save(directory)
     return directory

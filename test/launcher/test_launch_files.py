@@ -149,7 +149,7 @@ def test_an_include_shares_the_scope_and_its_arguments_are_declared(tmp_path: Pa
     ([node(param=[{"name": "p", "value": []}])], "an empty list has no type ROS can infer"),
     ([node(param=[{"name": "p", "value": [1, "a"]}])], "a list's items must all be bool, all int"),
     ([node(), node()], "node 'fusion_node': a second node of this name"),
-    ([node("no_such_node")], "package 'fiper_ros' has no executable 'no_such_node' (it has ace_node, container, fiper,"),
+    ([node("no_such_node")], "package 'fiper_ros' has no executable 'no_such_node' (it has ace_node, container, detector_node, fiper,"),
     ([{"node": {"pkg": "rclpy", "exec": "x", "name": "x"}}], "package 'rclpy' has no Python executables installed"),
     ([{"node": {"pkg": "fiper_ros", "name": "fusion_node"}}], "needs 'exec'"),
     ([{"node": {"pkg": "fiper_ros", "exec": "container"}}, {"node": {"pkg": "fiper_ros", "exec": "container"}}],
@@ -182,8 +182,8 @@ def test_files_that_are_not_launch_yaml_are_refused(tmp_path: Path) -> None:
 def test_an_unknown_argument_is_refused_with_the_declared_ones() -> None:
     assert refused(FIPER, {"calibraton_dir": "x"}) == (
         f"{FIPER}: unknown launch argument calibraton_dir (it declares: autostart, calibration_dir, combine, "
-        "compose, log_level, namespace, observation_only, params_file, use_sim_time, view, view_host, view_port)")
-    assert "is not one of and, or" in refused(FIPER, {"combine": "AND"})
+        "compose, consistency, elapsed, log_level, logpzo, namespace, observation_only, params_file, pca_kmeans, "
+        "progress, rnd_oe, signal, use_signal, use_sim_time, view, view_host, view_port)")
 
 
 def test_launch_arguments_on_the_command_line() -> None:
@@ -204,7 +204,7 @@ def test_fiper_launch_says_what_it_refuses_in_one_line_and_exits_2(tmp_path: Pat
     assert capsys.readouterr().err.startswith(f"fiper launch: {FIPER}: unknown launch argument nope (it declares: ")
     assert main(["launch", str(FIPER), "--show-args", "combine:=or"]) == 0
     shown = capsys.readouterr().out
-    assert "'combine': how the fusion node fuses" in shown and "(default: 'and'), here 'or'" in shown
+    assert "'combine': how the fusion node votes" in shown and "(default: 'calibration'), here 'or'" in shown
 
 
 def test_the_shipped_launch_files_read_with_their_defaults() -> None:

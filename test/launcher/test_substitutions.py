@@ -61,7 +61,7 @@ def test_the_parsed_form() -> None:
 
 @pytest.mark.parametrize(("text", "message"), [
     ("$(command ls)", "substitution $(command ...) is not supported by fiper launch (it reads $(var), $(env), "
-                      "$(find-pkg-share), $(dirname))"),
+                      "$(find-pkg-share), $(dirname), $(not), $(and), $(or))"),
     ("$(find-pkg-prefix fiper_ros)", "substitution $(find-pkg-prefix ...) is not supported"),
     ("x $(eval '1 + 2')", "substitution $(eval ...) is not supported"),
     ("$(var a", "unclosed $(var ..."),

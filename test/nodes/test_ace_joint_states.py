@@ -15,7 +15,7 @@ from sim_bridge.robot import URDF_PATH
 from fiper_msgs.msg import ActionChunkBatch, RolloutEvent, Score
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.kinematics import PinocchioFK
-from fiper_ros.core.monitor import ActionMonitor
+from fiper_ros.core.monitor import DetectorMonitor
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, rollout_event_msg, to_stamp
 from fiper_ros.nodes.ace_node import AceNode
@@ -58,9 +58,9 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
         return spin_until(executor, condition, timeout, step=0.02)
 
     calibration = load_calibration(CALIBRATION)
-    monitor = ActionMonitor(calibration, PinocchioFK(URDF_PATH, "panda_hand"))
+    monitor = DetectorMonitor(calibration, "ace", "stacking", PinocchioFK(URDF_PATH, "panda_hand"))
     rng = np.random.default_rng(0)
-    velocities = [rng.normal(0.0, 0.3, (8, calibration.horizon, calibration.action_dim)).astype(np.float32)
+    velocities = [rng.normal(0.0, 0.3, (8, calibration.layout.horizon, calibration.layout.action_dim)).astype(np.float32)
                   for _ in range(3)]
     q = [np.array([0.0, -0.3, 0.0, -2.2, 0.0, 2.0, 0.8]) + 0.05 * i for i in range(4)]
     try:
@@ -82,7 +82,7 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
         assert "0" not in held and (7, 0) not in scores
         joints.publish(_joint_state(200 * MS, q[1]))
         assert spin(lambda: (7, 0) in scores)
-        assert scores[7, 0].score == np.float32(monitor.update(0, velocities[0], q[1]).score)
+        assert scores[7, 0].score == np.float32(monitor.update(0, (velocities[0], q[1])).score)
 
         # 2. an END behind a waiting batch waits too, so the batch still belongs to its rollout
         batches.publish(action_batch_msg(7, 1, 300 * MS, velocities[1], 4, "joint_velocity"))
@@ -90,16 +90,16 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
         events.publish(rollout_event_msg(7, RolloutEvent.EVENT_END, 0, outcome=RolloutEvent.OUTCOME_SUCCESS))
         assert spin(lambda: len(ace._gate) == 2)  # noqa: SLF001
         joints.publish(_joint_state(400 * MS, q[2]))  # a later control step's state opens the gate
-        assert spin(lambda: (7, 1) in scores and ace.rollouts.active is None)
-        assert scores[7, 1].score == np.float32(monitor.update(1, velocities[1], q[1]).score)  # latest <= 300 ms
+        assert spin(lambda: (7, 1) in scores and ace.gate.active is None)
+        assert scores[7, 1].score == np.float32(monitor.update(1, (velocities[1], q[1])).score)  # latest <= 300 ms
 
         # 3. no joint state at or after the stamp: after joint_state_wait_s the latest one before it is used
         events.publish(rollout_event_msg(8, RolloutEvent.EVENT_START, 0, task="stacking"))
-        assert spin(lambda: ace.rollouts.active is not None and ace.rollouts.active.rollout_id == 8)
+        assert spin(lambda: ace.gate.active is not None and ace.gate.active.rollout_id == 8)
         batches.publish(action_batch_msg(8, 0, 500 * MS, velocities[2], 4, "joint_velocity"))
         assert spin(lambda: (8, 0) in scores)
         assert ace.joint_state_waits_out == 1
-        assert scores[8, 0].score == np.float32(monitor.update(2, velocities[2], q[2]).score)  # latest <= 500 ms
+        assert scores[8, 0].score == np.float32(monitor.update(2, (velocities[2], q[2])).score)  # latest <= 500 ms
         assert not ace.rejected, ace.rejected
     finally:
         executor.shutdown()

@@ -44,7 +44,7 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import JOINT_POSITIONS_KEY
 from fiper_ros.interface.conversions import (action_batch_msg, embedding_msg, float_array, rollout_event_msg, stamp_ns,
                                              to_stamp)
-from fiper_ros.nodes import ace_node, detector
+from fiper_ros.nodes import ace_node, detector_node
 from fiper_ros.nodes.ace_node import AceNode
 from fiper_ros.nodes.fusion_node import FusionNode
 from fiper_ros.nodes.rnd_oe_node import RndOeNode
@@ -78,7 +78,7 @@ ROWS = make_rollout(900, fail=True)
 @pytest.fixture
 def context(ros_domain: int, monkeypatch: pytest.MonkeyPatch) -> Iterator[Context]:
     """A private rclpy context; the scoring nodes load each calibration (and URDF) once per test (``load_once``)."""
-    load_once(monkeypatch, detector, "load_calibration")
+    load_once(monkeypatch, detector_node, "load_calibration")
     load_once(monkeypatch, ace_node, "PinocchioFK")
     with private_context(ros_domain) as ctx:
         yield ctx
@@ -306,8 +306,8 @@ class ScoringLedger:
 
     def _on_score(self, msg: Score) -> None:
         # A rollout whose START names another task than the calibration's may have its valid steps rejected too.
-        current, task = self.node.rollouts.current, self.node.calibration.task
-        if current is not None and current.task and task and current.task != task:
+        current, tasks = self.node.gate.current, self.node.calibration.named_tasks
+        if current is not None and current.task and tasks and current.task not in tasks:
             self.content_ok[msg.header.frame_id] = self.content_ok[msg.header.frame_id] and None
 
     def check(self) -> None:
@@ -319,11 +319,11 @@ class ScoringLedger:
         for score in self.published:
             ok = self.content_ok[score.header.frame_id]
             assert ok is None or math.isfinite(score.score) == ok, (score, ok)  # bad input never scores, good does
-        waiting = len(node.pending) + self.held()
+        waiting = len(node.gate.waiting) + self.held()
         assert len(self.content_ok) == len(finite) + node.rejected.total() - self.other_rejections + waiting, \
             (len(self.content_ok), len(finite), node.rejected, waiting)
-        assert len(node.pending) <= node.pending.max_items
-        assert node.pending._size <= node.pending.max_size  # noqa: SLF001
+        assert len(node.gate.waiting) <= node.gate.waiting.max_items
+        assert node.gate.waiting._size <= node.gate.waiting.max_size  # noqa: SLF001
 
 
 # the pipeline -----------------------------------------------------------------------------------------
@@ -338,8 +338,8 @@ class Pipeline:
         self.ace = bring_up(AceNode(context=context, namespace="/fiper", parameter_overrides=scoring, **NODE_KWARGS))
         self.fusion = bring_up(FusionNode(context=context, namespace="/fiper", parameter_overrides=node_params(
             buffer_size=FUSION_BUFFER, start_wait_s=60.0), **NODE_KWARGS))
-        self.contract = PipelineContract({"rnd_oe": calibration.settings.window_obs,
-                                          "ace": calibration.settings.window_act}, calibration.settings.combine)
+        self.contract = PipelineContract({"rnd_oe": calibration.settings.window_of("rnd_oe"),
+                                          "ace": calibration.settings.window_of("ace")}, calibration.settings.combine)
         self.alarms = record(self.fusion._alarm_pub, self.contract.on_alarm)  # noqa: SLF001
         fusion_in = callbacks(self.fusion)
         self.ledgers = {}
@@ -371,7 +371,7 @@ class Pipeline:
         fusion = self.fusion
         assert set(fusion.rejected) <= set(REASONS), fusion.rejected
         assert len(fusion.fuser._pending) <= FUSION_BUFFER  # noqa: SLF001
-        assert len(fusion.pending) <= fusion.pending.max_items
+        assert len(fusion.fuser.gate.waiting) <= fusion.fuser.gate.waiting.max_items
         assert set(fusion.rates) <= {f"scores/{d}" for d in DETECTORS}, sorted(fusion.rates)
 
     def judge(self, rollout: Rollout, rollout_id: int) -> dict[int, FailureAlarm]:
@@ -420,21 +420,21 @@ def test_the_scoring_and_fusion_nodes_survive_any_input_and_never_say_ok_for_a_r
         for n in range(data.draw(st.integers(1, 50), label="messages")):
             kind = data.draw(PIPELINE_INPUTS)
             if kind == "event":
-                pipeline.event(draw_event(data.draw, pipeline.rnd.rollouts))
+                pipeline.event(draw_event(data.draw, pipeline.rnd.gate))
             elif kind == "timer":
                 note("timer")
                 pipeline.fusion._on_timer()  # noqa: SLF001
                 for node in pipeline.nodes():
                     node.publish_diagnostics()
             elif kind == "step":  # a policy step: an embedding and a batch of one (rollout_id, step)
-                address = draw_address(data.draw, pipeline.rnd.rollouts, in_order=True)
+                address = draw_address(data.draw, pipeline.rnd.gate, in_order=True)
                 for part, make in (("embedding", draw_embedding), ("batch", draw_batch)):
-                    msg, ok = make(data.draw, pipeline.rnd.rollouts, f"m{n} {part}", address)
+                    msg, ok = make(data.draw, pipeline.rnd.gate, f"m{n} {part}", address)
                     pipeline.send(part, msg, ok)
                     pipeline.check()
             else:
                 make, node = (draw_embedding, pipeline.rnd) if kind == "embedding" else (draw_batch, pipeline.ace)
-                msg, ok = make(data.draw, node.rollouts, f"m{n}")
+                msg, ok = make(data.draw, node.gate, f"m{n}")
                 pipeline.send(kind, msg, ok)
             pipeline.check()
         oks = sum(not m.heartbeat and m.state == FailureAlarm.STATE_OK for m in pipeline.alarms)
@@ -529,13 +529,13 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
         note(f"score {msg.detector!r} of rollout {msg.rollout_id} step {msg.step}: {msg.score} {msg.windowed_score} "
              f"{msg.threshold} exceeded={msg.exceeded} complete={msg.complete}")
         contract.on_score(msg)
-        rejected, waiting = fusion.rejected.total(), len(fusion.pending)
+        rejected, waiting = fusion.rejected.total(), len(fusion.fuser.gate.waiting)
         foreign = msg.rollout_id != fusion.fuser.rollout_id
         inputs[f"/fiper/scores/{msg.detector}" if msg.detector in DETECTORS else "/fiper/scores/rnd_oe"](msg)
         if msg.detector not in DETECTORS:
             assert fusion.rejected.total() == rejected + 1 and fusion.rejected["unknown_detector"] >= 1
         elif foreign:  # a Score of another rollout than the fusion node's waits for its START, or is counted
-            assert fusion.rejected.total() + len(fusion.pending) >= rejected + waiting + 1, \
+            assert fusion.rejected.total() + len(fusion.fuser.gate.waiting) >= rejected + waiting + 1, \
                 f"a Score of rollout {msg.rollout_id} (not the current {fusion.fuser.rollout_id}) vanished"
 
     try:
@@ -565,7 +565,7 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
                                 (first.rollout_id, first.step)))
             assert set(fusion.rejected) <= set(REASONS), fusion.rejected
             assert len(fusion.fuser._pending) <= FUSION_BUFFER  # noqa: SLF001
-            assert len(fusion.pending) <= fusion.pending.max_items
+            assert len(fusion.fuser.gate.waiting) <= fusion.fuser.gate.waiting.max_items
             assert set(fusion.rates) <= {f"scores/{d}" for d in DETECTORS}, sorted(fusion.rates)
         # afterwards: the Scores of valid rollouts, as the scoring nodes would publish them, are judged as offline
         for i, (rollout, prediction) in enumerate(oracle.cases):
@@ -575,10 +575,10 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
                 on_event(event_msg)
             for t in range(rollout.length):
                 for d, (scores, windowed, thresholds, exceeded) in (
-                        ("rnd_oe", (prediction.obs_scores, prediction.obs_windowed, prediction.obs_thresholds,
-                                    prediction.obs_exceeded)),
-                        ("ace", (prediction.act_scores, prediction.act_windowed, prediction.act_thresholds,
-                                 prediction.act_exceeded))):
+                        ("rnd_oe", (prediction.detectors["rnd_oe"].scores, prediction.detectors["rnd_oe"].windowed, prediction.detectors["rnd_oe"].thresholds,
+                                    prediction.detectors["rnd_oe"].exceeded)),
+                        ("ace", (prediction.detectors["ace"].scores, prediction.detectors["ace"].windowed, prediction.detectors["ace"].thresholds,
+                                 prediction.detectors["ace"].exceeded))):
                     valid = Score(rollout_id=rollout_id, step=t, detector=d, score=float(scores[t]),
                                   windowed_score=float(windowed[t]), threshold=float(thresholds[t]),
                                   exceeded=bool(exceeded[t]), window=3, complete=True)
@@ -641,7 +641,7 @@ def stacking() -> Oracle:
     """The joint-velocity calibration and a valid rollout of it (joint positions measured at each step)."""
     calibration, length = load_calibration(STACKING), 12
     q = Q0 + 0.01 * np.arange(length)[:, None]
-    rollout = Rollout("valid", "stacking", "id", np.zeros((length, calibration.embedding_dim), np.float32),
+    rollout = Rollout("valid", "stacking", "id", np.zeros((length, calibration.layout.embedding_dim), np.float32),
                       VELOCITIES[:length], 4, True, "joint_velocity", {JOINT_POSITIONS_KEY: q})
     return Oracle(calibration, [(rollout, predict_rollout(rollout, calibration, PinocchioFK(URDF_PATH, "panda_hand")))])
 
@@ -662,7 +662,7 @@ def test_the_joint_velocity_ace_node_survives_any_batch_and_joint_state(context:
             topics = callbacks(ace)
             kind = data.draw(JV_INPUTS)
             if kind == "event":
-                msg = draw_event(data.draw, ace.rollouts)
+                msg = draw_event(data.draw, ace.gate)
                 note(f"event {msg.event} of rollout {msg.rollout_id}")
                 topics["/fiper/rollout_events"](msg)
             elif kind == "timer":
@@ -681,7 +681,7 @@ def test_the_joint_velocity_ace_node_survives_any_batch_and_joint_state(context:
                 else:
                     assert (joints._stamps, [id(q) for q in joints._positions]) == history, fate  # noqa: SLF001
             else:
-                msg, ok = draw_batch(data.draw, ace.rollouts, f"m{n}", space="joint_velocity", rows=VELOCITIES)
+                msg, ok = draw_batch(data.draw, ace.gate, f"m{n}", space="joint_velocity", rows=VELOCITIES)
                 msg.header.stamp = data.draw(_POOLED_STAMP) if data.draw(MOSTLY) else msg.header.stamp
                 known = ace._joints.at(stamp_ns(msg.header.stamp)) is not None  # noqa: SLF001
                 note(f"m{n}: batch of rollout {msg.rollout_id} step {msg.step} at {stamp_ns(msg.header.stamp)}: "
@@ -711,8 +711,8 @@ def test_the_joint_velocity_ace_node_survives_any_batch_and_joint_state(context:
         assert [m.step for m in got] == list(range(length))
         for t, m in enumerate(got):
             assert (m.score, m.windowed_score, m.threshold, m.exceeded, m.complete) == (
-                np.float32(prediction.act_scores[t]), np.float32(prediction.act_windowed[t]),
-                np.float32(prediction.act_thresholds[t]), prediction.act_exceeded[t], True), t
+                np.float32(prediction.detectors["ace"].scores[t]), np.float32(prediction.detectors["ace"].windowed[t]),
+                np.float32(prediction.detectors["ace"].thresholds[t]), prediction.detectors["ace"].exceeded[t], True), t
         ledger.check()
     finally:
         ace.destroy_node()
@@ -807,9 +807,9 @@ def test_scores_of_no_current_rollout_are_counted_as_unknown_rollout(context: Co
             on_event(rollout_event_msg(rollout_id, event, 0))
         on_score(Score(rollout_id=1, step=3, detector="ace"))  # late: rollout 2 runs
         assert fusion.rejected == {"unknown_rollout": 1}
-        for step in range(fusion.pending.max_items + 1):  # rollout 9 never starts: one drops out of the wait
+        for step in range(fusion.fuser.gate.waiting.max_items + 1):  # rollout 9 never starts: one drops out of the wait
             on_score(Score(rollout_id=9, step=step, detector="ace"))
-        assert fusion.rejected == {"unknown_rollout": 2} and len(fusion.pending) == fusion.pending.max_items
+        assert fusion.rejected == {"unknown_rollout": 2} and len(fusion.fuser.gate.waiting) == fusion.fuser.gate.waiting.max_items
     finally:
         fusion.destroy_node()
 

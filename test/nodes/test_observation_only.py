@@ -58,8 +58,8 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
         assert spin_until(executor, lambda: rnd_oe.lifecycle_state() == fusion.lifecycle_state() == "active"
                           and status("ace_node").get("message", "").startswith("configure failed"), 20.0)
         assert status("ace_node")["message"] == (
-            f"configure failed: calibration {directory} is observation-only (detectors rnd_oe): nothing for ace_node "
-            "to score; launch the suite without it (fiper.launch.yaml observation_only:=true)")
+            f"configure failed: calibration {directory} declares rnd_oe, not ace: nothing for ace_node to score; launch "
+            "the suite of its detectors (fiper.launch.yaml)")
         assert ace.lifecycle_state() == "unconfigured" and fusion.fuser.detectors == OBSERVATION_ONLY
         assert spin_until(executor, lambda: "intruder" in [i.node_name for i in
                                                           driver.get_publishers_info_by_topic("/fiper/scores/ace")])
@@ -81,18 +81,18 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
             assert [STATE[alarms[t].state] for t in range(rollout.length)] == \
                 ["alarm" if a else "ok" for a in latched]
             for t, msg in alarms.items():
-                assert (msg.obs_exceeded, msg.act_exceeded, msg.combine) == (prediction.obs_exceeded[t], False, "")
-                assert (msg.eta_obs, msg.gamma_obs) == (np.float32(prediction.obs_windowed[t]),
-                                                        np.float32(prediction.obs_thresholds[t]))
+                assert (msg.obs_exceeded, msg.act_exceeded, msg.combine) == (prediction.detectors["rnd_oe"].exceeded[t], False, "")
+                assert (msg.eta_obs, msg.gamma_obs) == (np.float32(prediction.detectors["rnd_oe"].windowed[t]),
+                                                        np.float32(prediction.detectors["rnd_oe"].thresholds[t]))
                 assert math.isnan(msg.eta_act) and math.isnan(msg.gamma_act)
             assert (prediction.first_alarm_step is not None) == fail
             if fail:
                 first = prediction.first_alarm_step
                 since = first  # the first step of RND-OE's unbroken run of exceedances up to the alarm
-                while since > 0 and prediction.obs_exceeded[since - 1]:
+                while since > 0 and prediction.detectors["rnd_oe"].exceeded[since - 1]:
                     since -= 1
-                ratio = ratio_text(float(np.float32(prediction.obs_windowed[first])),
-                                   float(np.float32(prediction.obs_thresholds[first])))
+                ratio = ratio_text(float(np.float32(prediction.detectors["rnd_oe"].windowed[first])),
+                                   float(np.float32(prediction.detectors["rnd_oe"].thresholds[first])))
                 assert alarms[first].reason == \
                     f"RND-OE {ratio} threshold since step {since}: exceeded (rnd_oe alone: combine does not apply)"
                 assert first >= FAIL_FROM

@@ -154,7 +154,7 @@ def test_a_repeated_default_and_a_pass_through_with_another_default_are_caught(t
             {"name": "no_such_parameter", "value": 1}]}}]}))
     assert launch_problems(bad, defaults) == [
         "bad.launch.yaml: fusion_node: heartbeat_s: repeats the node's default 0.5",
-        "bad.launch.yaml: fusion_node: combine: argument combine's default 'or' is not the node's default 'and'",
+        "bad.launch.yaml: fusion_node: combine: argument combine's default 'or' is not the node's default 'calibration'",
         "bad.launch.yaml: fusion_node: deadline_s: argument deadline's default 1 is not the node's default 1.0",
         "bad.launch.yaml: fusion_node: no_such_parameter: not a parameter of fiper_ros.nodes.fusion_node"]
     params = tmp_path / "nodes.yaml"

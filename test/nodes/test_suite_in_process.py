@@ -31,9 +31,9 @@ def test_node_alarms_equal_the_vectorised_core(suite: Suite, calibration_dir: Pa
         first = alarms[FAIL_FROM]
         assert first.obs_exceeded and first.act_exceeded and first.latched and first.combine == "and"
     for t in range(rollout.length):
-        assert alarms[t].eta_obs == pytest.approx(prediction.obs_windowed[t], rel=1e-6)
-        assert alarms[t].eta_act == pytest.approx(prediction.act_windowed[t], rel=1e-6)
-        assert alarms[t].gamma_obs == pytest.approx(prediction.obs_thresholds[t], rel=1e-6)
+        assert alarms[t].eta_obs == pytest.approx(prediction.detectors["rnd_oe"].windowed[t], rel=1e-6)
+        assert alarms[t].eta_act == pytest.approx(prediction.detectors["ace"].windowed[t], rel=1e-6)
+        assert alarms[t].gamma_obs == pytest.approx(prediction.detectors["rnd_oe"].thresholds[t], rel=1e-6)
 
 
 def test_start_resets_the_latch_and_the_windows(suite: Suite) -> None:
@@ -47,7 +47,7 @@ def test_inputs_that_overtake_their_start_wait_for_it(suite: Suite) -> None:
     rollout = make_rollout(303)
     drv = suite.driver
     drv.step(9, 0, rollout.embeddings[0], rollout.actions[0], rollout.exec_steps)  # before the START
-    assert suite.spin_until(lambda: len(suite.rnd_oe.pending) == 1 and len(suite.ace.pending) == 1)
+    assert suite.spin_until(lambda: len(suite.rnd_oe.gate.waiting) == 1 and len(suite.ace.gate.waiting) == 1)
     drv.start(9)
     assert suite.spin_until(lambda: 0 in drv.alarms_of(9))
     assert drv.alarms_of(9)[0].state == FailureAlarm.STATE_OK
@@ -59,8 +59,8 @@ def test_a_cp_band_calibration_over_dds_equals_the_vectorised_core(ros_domain: i
     # M2 = 6 band scores, delta = 0.2 is the smallest round level with a finite k (ceil(7 * 0.8) = 6).
     directory = make_calibration(tmp_path / "cp_band", threshold="cp_band", delta=0.2)
     calibration = load_calibration(directory)
-    assert calibration.threshold_obs.kind == "cp_band" and np.isfinite(calibration.threshold_obs.values).all()
-    assert len(set(calibration.threshold_obs.values[:LENGTH_CHECKED])) > 1, "a band varies over t"
+    assert calibration.threshold("rnd_oe").kind == "cp_band" and np.isfinite(calibration.threshold("rnd_oe").values).all()
+    assert len(set(calibration.threshold("rnd_oe").values[:LENGTH_CHECKED])) > 1, "a band varies over t"
     suite = Suite(ros_domain, str(directory))
     try:
         suite.wait_active()
@@ -69,8 +69,8 @@ def test_a_cp_band_calibration_over_dds_equals_the_vectorised_core(ros_domain: i
             alarms = suite.run(rollout, rollout_id=rollout_id)
             assert [STATE[alarms[t].state] for t in range(rollout.length)] == _expected_states(prediction)
             for t in range(rollout.length):
-                assert alarms[t].gamma_obs == np.float32(prediction.obs_thresholds[t])
-                assert alarms[t].gamma_act == np.float32(prediction.act_thresholds[t])
+                assert alarms[t].gamma_obs == np.float32(prediction.detectors["rnd_oe"].thresholds[t])
+                assert alarms[t].gamma_act == np.float32(prediction.detectors["ace"].thresholds[t])
             assert (prediction.first_alarm_step is not None) == (rollout_id == 1)
     finally:
         suite.close()
@@ -91,19 +91,19 @@ def test_a_repeated_start_keeps_the_latch_and_the_windows(suite: Suite, calibrat
         drv.step(7, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
         assert suite.spin_until(lambda s=step: s in drv.alarms_of(7)), step
     assert drv.alarms_of(7)[FAIL_FROM].state == FailureAlarm.STATE_ALARM
-    events = suite.rnd_oe.rollouts.active
+    events = suite.rnd_oe.gate.active
     drv.start(7)  # the START again (a restarted policy node, a replayed event): nothing is reset
-    assert suite.spin_until(lambda: (suite.rnd_oe.repeated_starts, suite.ace.repeated_starts,
-                                     suite.fusion.repeated_starts) == (1, 1, 1))  # each node has seen it
-    assert suite.rnd_oe.rollouts.active is events and suite.fusion.fuser.latched
+    assert suite.spin_until(lambda: (suite.rnd_oe.gate.repeated_starts, suite.ace.gate.repeated_starts,
+                                     suite.fusion.fuser.gate.repeated_starts) == (1, 1, 1))  # each node has seen it
+    assert suite.rnd_oe.gate.active is events and suite.fusion.fuser.latched
     for step in range(half, rollout.length):
         drv.step(7, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
         assert suite.spin_until(lambda s=step: s in drv.alarms_of(7)), step
     alarms = drv.alarms_of(7)
     assert all(alarms[t].state == FailureAlarm.STATE_ALARM and alarms[t].latched for t in range(FAIL_FROM, rollout.length))
     for t in range(half, rollout.length):  # the windows went on where they were: the same numbers as offline
-        assert alarms[t].eta_obs == np.float32(prediction.obs_windowed[t])
-        assert alarms[t].eta_act == np.float32(prediction.act_windowed[t])
+        assert alarms[t].eta_obs == np.float32(prediction.detectors["rnd_oe"].windowed[t])
+        assert alarms[t].eta_act == np.float32(prediction.detectors["ace"].windowed[t])
 
 
 def test_a_rollout_started_again_after_its_end_is_judged_afresh(suite: Suite) -> None:
@@ -115,8 +115,8 @@ def test_a_rollout_started_again_after_its_end_is_judged_afresh(suite: Suite) ->
     failing = make_rollout(307, fail=True)
     assert suite.run(failing, rollout_id=13)[FAIL_FROM].state == FailureAlarm.STATE_ALARM  # ends with END
     drv.start(13)
-    assert suite.spin_until(lambda: suite.rnd_oe.rollouts.active is not None and suite.ace.rollouts.active is not None
-                            and (suite.fusion.fuser.active_rollout == 13 or suite.fusion.repeated_starts == 1))
+    assert suite.spin_until(lambda: suite.rnd_oe.gate.active is not None and suite.ace.gate.active is not None
+                            and (suite.fusion.fuser.active_rollout == 13 or suite.fusion.fuser.gate.repeated_starts == 1))
     fine = make_rollout(308)
     steps = [0, 1, 5, 6, 7, 8]  # steps 2-4 never come
     for step in steps:
@@ -126,7 +126,7 @@ def test_a_rollout_started_again_after_its_end_is_judged_afresh(suite: Suite) ->
     again = {m.step: m for m in drv.alarms if m.rollout_id == 13 and not m.heartbeat}  # the later verdict per step
     assert [again[t].state for t in (0, 1)] == [FailureAlarm.STATE_OK] * 2, [again[t].reason for t in (0, 1)]
     assert [again[t].state for t in steps[2:]] == [FailureAlarm.STATE_UNKNOWN] * 4, [again[t].reason for t in steps]
-    assert suite.fusion.repeated_starts == 0
+    assert suite.fusion.fuser.gate.repeated_starts == 0
 
 
 def test_after_the_end_of_a_latched_rollout_the_heartbeat_names_it(suite: Suite) -> None:
@@ -151,7 +151,7 @@ def test_the_last_step_of_a_rollout_is_judged_even_when_its_end_overtakes_it(sui
         drv.step(12, step, rollout.embeddings[step], rollout.actions[step], rollout.exec_steps)
         assert suite.spin_until(lambda s=step: s in drv.alarms_of(12)), step
     drv.end(12, True)
-    assert suite.spin_until(lambda: suite.rnd_oe.rollouts.active is None and suite.ace.rollouts.active is None
+    assert suite.spin_until(lambda: suite.rnd_oe.gate.active is None and suite.ace.gate.active is None
                             and suite.fusion.fuser.active_rollout is None)  # every node took the END
     drv.step(12, last, rollout.embeddings[last], rollout.actions[last], rollout.exec_steps)
     assert suite.spin_until(lambda: last in drv.alarms_of(12)), "the overtaken step got no verdict"
@@ -163,7 +163,7 @@ def test_a_rollout_of_another_task_than_the_calibrations_is_never_judged_ok(suit
     from fiper_msgs.msg import RolloutEvent  # noqa: PLC0415
     from fiper_ros.interface.conversions import rollout_event_msg  # noqa: PLC0415
 
-    assert load_calibration(suite.rnd_oe.get_parameter("calibration_dir").value).task == "synthetic"
+    assert load_calibration(suite.rnd_oe.get_parameter("calibration_dir").value).named_tasks == ("synthetic",)
     rollout = make_rollout(307)
     drv = suite.driver
     drv.events.publish(rollout_event_msg(13, RolloutEvent.EVENT_START, 0, task="pusht"))

@@ -67,7 +67,9 @@ def _alarm(rollout_id: int, step: int, state: int, reason: str, *, heartbeat: bo
     """An alarm with RND-OE 2.0 against 1.5 and ACE 1.0 against 3.0 (``act`` False: ACE not judged, NaN)."""
     return FailureAlarm(rollout_id=rollout_id, step=step, state=state, latched=state == ALARMED, obs_exceeded=True,
                         act_exceeded=False, eta_obs=2.0, gamma_obs=1.5, eta_act=1.0 if act else NAN,
-                        gamma_act=3.0 if act else NAN, combine="and", reason=reason, heartbeat=heartbeat)
+                        gamma_act=3.0 if act else NAN, combine="and", reason=reason, heartbeat=heartbeat,
+                        detectors=["rnd_oe", "ace"], eta=[2.0, 1.0 if act else NAN],
+                        gamma=[1.5, 3.0 if act else NAN], exceeded=[True, False], votes=2)
 
 
 #: An alarm stream as the fusion node publishes it around one alarmed rollout, by hand.

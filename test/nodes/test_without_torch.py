@@ -104,7 +104,8 @@ def test_the_nodes_reach_active_on_the_shipped_calibrations_without_torch_or_muj
                 assert node.lifecycle_state() == "active", (directory, cls.__name__)
                 node.destroy_node()
             calibration = load_calibration(directory)
-            assert np.isfinite(calibration.rnd.score_one(np.zeros(calibration.embedding_dim, np.float32)))
+            zeros = np.zeros(calibration.layout.embedding_dim, np.float32)
+            assert np.isfinite(calibration.scorer("rnd_oe").rnd.score_one(zeros))
         supervisor.destroy_node()
         rclpy.shutdown()
         """, env=local_env(ros_domain))
@@ -136,7 +137,7 @@ def test_the_converted_calibration_scores_and_alarms_as_the_old_code_did(tmp_pat
     directory = tmp_path / "calibration"
     shutil.copytree(FORMAT1, directory)
     old = json.loads(FORMAT1_SCORES.read_text())
-    assert upgrade_calibration(directory).threshold_obs.kind == "cp_band"
+    assert upgrade_calibration(directory).threshold("rnd_oe").kind == "cp_band"
     result = subprocess.run([sys.executable, "-m", "fiper_ros.cli", *upgrade_command(directory).split()[1:]],
                             capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr
@@ -146,7 +147,7 @@ def test_the_converted_calibration_scores_and_alarms_as_the_old_code_did(tmp_pat
     rng = np.random.default_rng(8)
     for rollout in (make_rollout(rng, 0), make_rollout(rng, 1, ood=True)):
         expected = old["rollouts"][rollout.rollout_id]
-        np.testing.assert_allclose(obs_scores(converted.rnd, rollout.embeddings, converted.profile),
+        np.testing.assert_allclose(obs_scores(converted.scorer("rnd_oe").rnd, rollout.embeddings, converted.profile),
                                    expected["rnd_oe_scores"], rtol=1e-6, atol=0)
         assert np.flatnonzero(predict_rollout(rollout, converted).alarms).tolist() == expected["alarms"]
     run_blocked(f"""
@@ -166,5 +167,5 @@ def test_a_modified_format1_calibration_is_not_converted(tmp_path: Path) -> None
 
 
 def test_a_current_calibration_needs_no_conversion() -> None:
-    with pytest.raises(CalibrationError, match="already of format_version 2, nothing to convert"):
+    with pytest.raises(CalibrationError, match="already of format_version 3, nothing to convert"):
         upgrade_calibration(SHIPPED[0])

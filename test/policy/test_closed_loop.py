@@ -72,8 +72,8 @@ def test_shipped_stacking_model_turns_its_hand_and_places_the_red_block() -> Non
     assert episode.rollout is not None
     calibration = load_calibration(MODELS / "stacking" / "calibration")
     prediction = predict_rollout(episode.rollout, calibration, PinocchioFK(URDF_PATH, "panda_hand"))
-    assert prediction.act_scores.shape == (episode.policy_steps,) and np.all(np.isfinite(prediction.act_scores))
-    assert np.all(prediction.act_scores >= 0) and np.median(prediction.act_scores) > 1.0  # bits: the 32 spread
+    assert prediction.detectors["ace"].scores.shape == (episode.policy_steps,) and np.all(np.isfinite(prediction.detectors["ace"].scores))
+    assert np.all(prediction.detectors["ace"].scores >= 0) and np.median(prediction.detectors["ace"].scores) > 1.0  # bits: the 32 spread
     assert prediction.first_alarm_step is None  # a success, and the shipped AND stays quiet on it
 
 
@@ -82,7 +82,7 @@ def test_every_shipped_calibration_fits_its_policy(task: str) -> None:
     config = Policy.load(MODELS / task).config
     calibration = load_calibration(MODELS / task / "calibration")
     calibration.check_compatible(embedding_dim=config.embed_dim, action_dim=config.action_dim, horizon=config.horizon)
-    assert (calibration.action_space, calibration.exec_steps) == (config.action_space, config.exec_steps)
+    assert (calibration.layout.action_space, calibration.layout.exec_steps) == (config.action_space, config.exec_steps)
     if config.action_space == "joint_velocity":
         assert calibration.settings.control_dt == pytest.approx(1.0 / SIM_TASKS[task].control_hz)
 

@@ -25,12 +25,19 @@ def _started(combine: str = "and", **kwargs: float) -> AlarmFuser:
 
 def _fields(state: AlarmState) -> dict[str, object]:
     """The state as a dict, NaN replaced by the string "nan" (so that == compares it)."""
-    return {k: ("nan" if isinstance(v, float) and math.isnan(v) else v) for k, v in asdict(state).items()}
+    def plain(value: object) -> object:
+        if isinstance(value, tuple):
+            return tuple(plain(v) for v in value)
+        return "nan" if isinstance(value, float) and math.isnan(value) else value
+    return {k: plain(v) for k, v in asdict(state).items()}
 
 
-def _state(**fields: object) -> dict[str, object]:
-    base = dict(rollout_id=1, step=0, state=OK, latched=False, obs_exceeded=False, act_exceeded=False, eta_obs=0.5,
-                gamma_obs=1.0, eta_act=0.25, gamma_act=1.0, combine="and", reason="below thresholds", stamp_ns=0)
+def _state(obs_exceeded: bool = False, act_exceeded: bool = False, eta_obs: object = 0.5, gamma_obs: object = 1.0,
+           eta_act: object = 0.25, gamma_act: object = 1.0, **fields: object) -> dict[str, object]:
+    """The fields of a state of FIPER's pair (RND-OE, ACE), each detector's numbers given one by one."""
+    base = dict(rollout_id=1, step=0, state=OK, latched=False, detectors=("rnd_oe", "ace"),
+                exceeded=(obs_exceeded, act_exceeded), windowed=(eta_obs, eta_act), thresholds=(gamma_obs, gamma_act),
+                votes=1 if fields.get("combine") == "or" else 2, combine="and", reason="below thresholds", stamp_ns=0)
     return base | fields
 
 
@@ -181,7 +188,7 @@ def test_each_bad_deadline_setting_is_refused_on_its_own(kwargs: dict[str, float
 def test_the_smallest_settings_are_accepted_and_a_bad_combine_is_named() -> None:
     fuser = AlarmFuser("and", deadline_ns=1, deadline_periods=0.0, deadline_floor_ns=0)
     assert fuser.deadline() == 1
-    with pytest.raises(ValueError, match="combine must be 'and' or 'or', got 'xor'"):
+    with pytest.raises(ValueError, match="unknown combine 'xor'; expected one of and, or, max, kth:K"):
         AlarmFuser("xor")
     with pytest.raises(ValueError, match=r"detector 'stac' is not fused here \(detectors rnd_oe, ace\)"):
         _started().add(DetectorScore("stac", 1, 0, 0.0, 1.0, 0), 0)
@@ -245,7 +252,7 @@ def test_a_start_and_a_reset_clear_the_last_state_and_the_latch_field_by_field()
     assert (fuser.latched, fuser.alarm_step, fuser.last, fuser.tainted) == (False, None, None, "")
     _pair(fuser, 1, 2.0, 2.0)
     fuser.start(2, 0)
-    assert (fuser.latched, fuser.alarm_step, fuser.last, fuser.ended) == (False, None, None, False)
+    assert (fuser.latched, fuser.alarm_step, fuser.last, fuser.active_rollout) == (False, None, None, 2)
     state = fuser.check(10 * S)
     assert state is not None and state.latched is False and state.state == UNKNOWN
 

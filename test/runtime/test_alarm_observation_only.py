@@ -30,11 +30,12 @@ def test_the_alarm_is_rnd_oes_exceedance_and_latches_whatever_the_combine(combin
     fuser = _fuser(combine)
     ok = _score(fuser, 0, 0.5)
     assert ok is not None and ok.state == OK and ok.reason == f"below threshold {ALONE}"
-    assert (ok.combine, ok.act_exceeded) == ("", False) and math.isnan(ok.eta_act) and math.isnan(ok.gamma_act)
-    assert (ok.eta_obs, ok.gamma_obs) == (0.5, 1.0)
+    assert (ok.combine, ok.detectors, ok.votes) == ("", ("rnd_oe",), 1)
+    assert ok.of("rnd_oe") == (False, 0.5, 1.0)
+    assert ok.of("ace")[0] is False and all(math.isnan(v) for v in ok.of("ace")[1:])  # not declared
     assert _score(fuser, 1, 1.0).state == OK  # equal is not exceeded (strict >)
     alarm = _score(fuser, 2, 2.0)
-    assert alarm.state == ALARM and alarm.latched and alarm.obs_exceeded and alarm.combine == ""
+    assert alarm.state == ALARM and alarm.latched and alarm.exceeded == (True,) and alarm.combine == ""
     assert alarm.reason == f"RND-OE 2x threshold since step 2: exceeded {ALONE}"
     later = _score(fuser, 3, 0.0)
     assert later.state == ALARM and later.reason == f"latched since step 2: {alarm.reason}"
@@ -114,7 +115,10 @@ def test_an_ace_score_is_refused_and_no_state_waits_for_one() -> None:
     assert fuser.matched == 5 and fuser.evicted == 0
 
 
-@pytest.mark.parametrize("detectors", [(), ("ace",), ("rnd_oe", "rnd_oe"), ("rnd_oe", "stac")])
-def test_an_unsupported_detector_set_is_refused(detectors: tuple[str, ...]) -> None:
-    with pytest.raises(ValueError, match="unsupported detectors"):
+@pytest.mark.parametrize(("detectors", "reason"), [
+    ((), "declare each detector once, at least one, got [(]none[)]"),
+    (("rnd_oe", "rnd_oe"), "declare each detector once, at least one, got rnd_oe, rnd_oe"),
+    (("rnd_oe", "nope"), "unknown detector 'nope'")])
+def test_an_unsupported_detector_set_is_refused(detectors: tuple[str, ...], reason: str) -> None:
+    with pytest.raises(ValueError, match=reason):
         AlarmFuser("and", detectors=detectors)

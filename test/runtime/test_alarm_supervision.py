@@ -19,7 +19,7 @@ def test_and_alarms_only_when_both_exceed_and_latches() -> None:
     assert _pair(fuser, 0, 2.0, 0.5, 0).state == OK
     assert _pair(fuser, 1, 0.5, 2.0, 0).state == OK
     state = _pair(fuser, 2, 2.0, 2.0, 0)
-    assert state.state == ALARM and state.latched and state.obs_exceeded and state.act_exceeded
+    assert state.state == ALARM and state.latched and state.exceeded == (True, True)
     later = _pair(fuser, 3, 0.0, 0.0, 0)
     assert later.state == ALARM and later.latched and "latched since step 2" in later.reason
     fuser.reset()
@@ -73,7 +73,7 @@ def test_the_detectors_full_precision_decision_counts_where_float32_rounds_to_eq
     fuser = AlarmFuser("or")
     fuser.start(1, 0)
     state = _pair(fuser, 0, eta, 0.0, 0, flags=(True, False))
-    assert state.state == ALARM and state.obs_exceeded and state.latched
+    assert state.state == ALARM and state.of("rnd_oe")[0] and state.latched
 
 
 @pytest.mark.parametrize(("obs", "flag"), [(2.0, False), (0.5, True)])

@@ -16,7 +16,7 @@ _spec.loader.exec_module(heldout)
 
 
 def rollout(scenario: str, outcome: str, states: list[str]) -> RolloutResult:
-    steps = {t: StepResult(s, False, False, 0.0, 0.0) for t, s in enumerate(states)}
+    steps = {t: StepResult(s, (False, False), (0.0, 0.0)) for t, s in enumerate(states)}
     return RolloutResult(1, "sorting", scenario, outcome, steps)
 
 

@@ -223,7 +223,7 @@ def test_a_foxglove_client_gets_what_the_suite_published_beside_a_stalled_and_a_
     report = json.loads((tmp_path / "report.json").read_text())
     decisions = [j for j in reader.received[ALARM] if not j["heartbeat"] and j["rollout_id"]]
     assert [(j["rollout_id"], j["step"], STATE_NAMES[j["state"]], j["eta_obs"]) for j in decisions] == \
-        [(r["rollout_id"], s["step"], s["state"], s["eta_obs"]) for r in report["rollouts"] for s in r["steps"]]
+        [(r["rollout_id"], s["step"], s["state"], s["windowed"][0]) for r in report["rollouts"] for s in r["steps"]]
     first_alarms = [j["reason"] for j in decisions
                     if j["state"] == FailureAlarm.STATE_ALARM and not j["reason"].startswith("latched since")]
     assert first_alarms, "the failures of the set are predicted"

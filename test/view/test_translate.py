@@ -46,8 +46,12 @@ def test_a_score_is_its_fields_with_a_nan_threshold_as_null_and_the_stamp_in_sec
 
 def test_an_alarm_keeps_its_state_code_and_reason() -> None:
     msg = FailureAlarm(rollout_id=3, step=4, state=FailureAlarm.STATE_ALARM, latched=True, eta_obs=2.0, gamma_obs=1.0,
-                       eta_act=math.nan, gamma_act=-math.inf, combine="", reason="RND-OE 2x threshold since step 4")
+                       eta_act=math.nan, gamma_act=-math.inf, combine="", reason="RND-OE 2x threshold since step 4",
+                       detectors=["rnd_oe", "progress"], eta=[2.0, math.nan], gamma=[1.0, 0.5],
+                       exceeded=[True, False], votes=1)
     out = to_json(msg)
+    assert (out["detectors"], out["eta"], out["gamma"], out["exceeded"], out["votes"]) == (
+        ["rnd_oe", "progress"], [2.0, None], [1.0, 0.5], [True, False], 1)
     assert (out["state"], out["latched"], out["reason"]) == (1, True, "RND-OE 2x threshold since step 4")
     assert (out["eta_obs"], out["gamma_obs"], out["eta_act"], out["gamma_act"]) == (2.0, 1.0, None, None)
 

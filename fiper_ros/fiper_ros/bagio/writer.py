@@ -40,7 +40,7 @@ from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, LiveChunks
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.schema import BagInfo, offered_qos, typestore
 from fiper_ros.bagio.storage import METADATA
-from fiper_ros.interface.topics import TOPICS
+from fiper_ros.interface.topics import topic_spec
 
 #: Name of the MCAP metadata record that holds a live bag's ``custom_data`` so far.
 INFO_RECORD = "fiper_custom_data"
@@ -203,8 +203,8 @@ class BagWriter:
         The type's definition is the installed one, or ``msgdef`` with its hash ``rihs01`` (both given)."""
         if topic in self._connections:
             return
-        if not offered and topic in TOPICS:
-            offered = [offered_qos(TOPICS[topic].qos)]
+        if not offered and _in_schema(topic):
+            offered = [offered_qos(topic_spec(topic).qos)]
         store = typestore()
         if msgdef is None and msgtype not in store.fielddefs:
             raise BagError(f"{self.path}: no definition of message type {msgtype} to record topic {topic}")
@@ -218,9 +218,9 @@ class BagWriter:
         """Write one serialised (CDR) message; a schema topic is added on first use."""
         if topic not in self._connections:
             if msgtype is None:
-                if topic not in TOPICS:
+                if not _in_schema(topic):
                     raise BagError(f"{self.path}: topic {topic} is not in the schema: give its type")
-                msgtype = TOPICS[topic].msgtype
+                msgtype = topic_spec(topic).msgtype
             self.add_topic(topic, msgtype)
         try:
             self._writer.write(self._connections[topic], int(log_time_ns), raw)
@@ -282,3 +282,12 @@ class BagWriter:
             self.close()
         else:
             self.abort()
+
+
+def _in_schema(topic: str) -> bool:
+    """Whether ``topic`` is one of the bag schema's (:func:`~fiper_ros.interface.topics.topic_spec`)."""
+    try:
+        topic_spec(topic)
+    except KeyError:
+        return False
+    return True

@@ -16,13 +16,15 @@ from collections.abc import Callable
 import numpy as np
 
 from fiper_ros.core.ace import ace_score
-from fiper_ros.core.calibration import Calibration, CalibrationSettings
+from fiper_ros.core.calibration import Calibration, CalibrationSettings, DetectorPart, Layout, TaskPart
 from fiper_ros.core.consistency import ActionConsistency
-from fiper_ros.core.monitor import ActionMonitor, ObservationMonitor
+from fiper_ros.core.detectors import ACE, RND_OE
+from fiper_ros.core.monitor import DetectorMonitor
 from fiper_ros.core.progress import ProgressDetector, ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rnd_train import untrained_rnd
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.scorers import AceScorer, RndOeScorer
 from fiper_ros.core.thresholds import Threshold
 from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore
 
@@ -54,21 +56,13 @@ def measure(function: Callable[[int], object], iterations: int, warmup: int) -> 
 def _calibration(embedding_dim: int, ace_shape: tuple[int, int, int]) -> Calibration:
     """A calibration with an untrained small RND-OE: the per-step cost does not depend on training."""
     _, horizon, dims = ace_shape
-    thresholds = Threshold("cp_constant", 0.05, np.full(100, 1e9))
-    calibration = Calibration(
-        settings=CalibrationSettings(window_obs=5, window_act=5),
-        rnd=untrained_rnd(embedding_dim, RNDConfig.small()),
-        ranges=np.ones(dims),
-        threshold_obs=thresholds,
-        threshold_act=thresholds,
-        embedding_dim=embedding_dim,
-        action_dim=dims,
-        horizon=horizon,
-        exec_steps=horizon // 2,
-        action_space="ee_position",
-        num_rollouts=0,
-    )
-    return calibration
+    threshold = Threshold("cp_constant", 0.05, np.full(100, 1e9))
+    settings = CalibrationSettings(window=5)
+    profile = settings.profile_obj
+    detectors = {RND_OE: DetectorPart(RndOeScorer(untrained_rnd(embedding_dim, RNDConfig.small()), profile), threshold),
+                 ACE: DetectorPart(AceScorer(np.ones(dims), settings.options(), "ee_position", profile), threshold)}
+    return Calibration(settings, Layout(embedding_dim, dims, horizon, horizon // 2, "ee_position"),
+                       {"": TaskPart(detectors, 0)})
 
 
 def _fit_rollouts(rng: np.random.Generator, embedding_dim: int, steps: int = 5000) -> list[Rollout]:
@@ -122,7 +116,7 @@ def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | N
 
     p50, p99 = measure(lambda i: fuse(i, i % 3 == 0, i % 2 == 0), iterations, warmup)
     rows.append(("fusion step (AlarmFuser.add of both scores)", p50, p99, None))
-    observation, action = ObservationMonitor(calibration), ActionMonitor(calibration)
+    observation, action = DetectorMonitor(calibration, RND_OE), DetectorMonitor(calibration, ACE)
     fuser.start(2, 0)
     embeddings = rng.normal(size=(8, 512)).astype(np.float32)
     actions = [rng.normal(size=ACE_SHAPES[0]).astype(np.float32) for _ in range(8)]
@@ -130,7 +124,7 @@ def run(iterations: int, warmup: int) -> list[tuple[str, float, float, float | N
 
     def together(i: int) -> object:
         t = next(step)
-        obs, act = observation.update(t, embeddings[i % 8]), action.update(t, actions[i % 8])
+        obs, act = observation.update(t, embeddings[i % 8]), action.update(t, (actions[i % 8], None))
         fuser.add(DetectorScore("rnd_oe", 2, t, obs.windowed, obs.threshold, t, obs.complete, bool(obs.exceeded)), t)
         return fuser.add(DetectorScore("ace", 2, t, act.windowed, act.threshold, t, act.complete, bool(act.exceeded)), t)
 

@@ -25,9 +25,9 @@ from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetRollout
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import DETECTOR_TOPICS, SuiteProcess
+from fiper_ros.client.suite_process import SuiteProcess, detector_topics
 from fiper_ros.client.trace import RolloutEvents, RolloutTrace
-from fiper_ros.core.detectors import LABELS, SIDES
+from fiper_ros.core.detectors import info
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EVENTS, SIM_RESET
@@ -68,10 +68,10 @@ def state_name(msg: FailureAlarm) -> str:
     return messages.state_name(msg.state).upper()
 
 
-def alarm_line(msg: FailureAlarm, detectors: Sequence[str]) -> str:
-    """One alarm decision on one line: the windowed scores of ``detectors`` against their thresholds, the state."""
-    scores = [f"{LABELS[d]} {getattr(msg, f'eta_{SIDES[d]}'):8.3f} / {getattr(msg, f'gamma_{SIDES[d]}'):8.3f} "
-              f"{'>' if getattr(msg, f'{SIDES[d]}_exceeded') else ' '}" for d in detectors]
+def alarm_line(msg: FailureAlarm) -> str:
+    """One alarm decision on one line: each judged detector's windowed score against its threshold, the state."""
+    scores = [f"{info(d).label} {eta:8.3f} / {gamma:8.3f} {'>' if exceeded else ' '}"
+              for d, eta, gamma, exceeded in zip(msg.detectors, msg.eta, msg.gamma, msg.exceeded)]
     return " | ".join([f"step {msg.step:3d}", *scores, state_name(msg)])
 
 
@@ -106,7 +106,7 @@ class Driver:
         self._reset = node.create_client(ResetRollout, SIM_RESET)
         node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
         for detector in detectors:
-            node.create_subscription(Score, DETECTOR_TOPICS[detector][2], self._on_score, TRACE_QOS)
+            node.create_subscription(Score, detector_topics(detector)[2], self._on_score, TRACE_QOS)
         node.create_subscription(FailureAlarm, ALARM, self._on_alarm, TRACE_QOS)
         node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
         node.create_subscription(ActionChunkBatch, ACTIONS, self._on_actions, qos.INPUT)
@@ -151,7 +151,7 @@ class Driver:
                 trace.unknown_steps.add(msg.step)
             elif state == "ALARM" and trace.alarm_step is None:
                 trace.alarm_step = msg.step
-                trace.alarm_text = alarm_line(msg, trace.detectors)
+                trace.alarm_text = alarm_line(msg)
             if self.display is not None:
                 self.display(trace, msg)
         self._route(msg.rollout_id, apply)

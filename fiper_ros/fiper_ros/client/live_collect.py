@@ -38,7 +38,7 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import (DETECTOR_TOPICS, SuiteProcess, installed_launch, scoring_modules,
+from fiper_ros.client.suite_process import (SuiteProcess, detector_topics, installed_launch, scoring_modules,
                                             suite_arguments, suite_topics)
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
@@ -202,7 +202,7 @@ class RosRunner:
         the scores of the trace's detectors) for each of the rollout's ``steps`` steps. A scoring node drops a
         step that comes after the END it saw, so the last scores may never come."""
         counts = recorder.counts
-        scores = tuple(DETECTOR_TOPICS[d][2] for d in trace.detectors) if scored else ()
+        scores = tuple(detector_topics(d)[2] for d in trace.detectors) if scored else ()
         stepwise = (EMBEDDING, ACTIONS, *scores)
         return trace.ended and counts[EVENTS] >= 2 and all(counts[topic] >= steps for topic in stepwise)
 

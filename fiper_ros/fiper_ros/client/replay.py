@@ -24,6 +24,7 @@ them). ``--offline`` prints what the suite would say, computed without DDS by th
 from __future__ import annotations
 
 import argparse
+import collections
 import sys
 import time
 from collections.abc import Sequence
@@ -38,14 +39,15 @@ from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import BagReader
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import DETECTOR_TOPICS, SuiteProcess
-from fiper_ros.evaluation.results import RolloutResult, StepResult, as_float32
+from fiper_ros.client.suite_process import SuiteProcess, detector_topics
+from fiper_ros.core.detectors import DETECTORS
+from fiper_ros.evaluation.results import RolloutResult, StepResult
 from fiper_ros.evaluation.verdicts import rollout_line
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
-from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class, state_name
+from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class
 from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, CLOCK, EMBEDDING, EVENTS, INPUT_TOPICS,
-                                        STEP_SIGNALS, TOPICS)
+                                        STEP_SIGNALS, TOPICS, topic_spec)
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration
@@ -65,20 +67,19 @@ def readers_needed(topics: Sequence[str]) -> dict[str, int]:
 
 
 def suite_subscribers(detectors: tuple[str, ...]) -> dict[str, int]:
-    """Subscribers a launched suite of ``detectors`` has per topic: each scoring node its input, the fusion
-    node each score, every node the rollout events, none the :data:`UNREAD_INPUTS`."""
+    """Subscribers a launched suite of ``detectors`` has per topic: each scoring node its input (an input several
+    detectors read has as many), the fusion node each score, every node the rollout events, none an input no
+    declared detector reads (:data:`UNREAD_INPUTS`)."""
     needed = {**readers_needed(UNREAD_INPUTS), EVENTS: len(detectors) + 1}
-    for detector in detectors:
-        step_input, _, score = DETECTOR_TOPICS[detector]
-        needed[step_input] = needed[score] = 1
-    return needed
+    readers = collections.Counter(detector_topics(detector)[0] for detector in detectors)
+    return needed | dict(readers) | {detector_topics(detector)[2]: 1 for detector in detectors}
 
 
 def played_topics(detectors: tuple[str, ...]) -> tuple[str, ...]:
     """The policy-side topics replayed into a suite of ``detectors`` (none that only another detector reads)."""
-    others = {t for d, (step_input, extra, _) in DETECTOR_TOPICS.items() if d not in detectors
-              for t in (step_input, *extra)}
-    return tuple(t for t in INPUT_TOPICS if t not in others)
+    read = {t for d in detectors for t in (detector_topics(d)[0], *detector_topics(d)[1])}
+    others = {t for d in DETECTORS if d not in detectors for t in (detector_topics(d)[0], *detector_topics(d)[1])}
+    return tuple(t for t in INPUT_TOPICS if t not in others - read)
 
 
 def find_calibration(bags: Sequence[Path]) -> Path | None:
@@ -124,7 +125,7 @@ class Player:
         if topic in self.publishers:
             return
         if topic in TOPICS:
-            profile = qos.profile(TOPICS[topic].qos)
+            profile = qos.profile(topic_spec(topic).qos)
         else:
             profile = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
@@ -231,9 +232,7 @@ class Player:
 
     def steps_of(self, rollout_id: int) -> dict[int, StepResult]:
         """The per-step states received for ``rollout_id``."""
-        return {step: StepResult(state_name(m.state), bool(m.obs_exceeded), bool(m.act_exceeded),
-                                 as_float32(m.eta_obs), as_float32(m.eta_act))
-                for (rid, step), m in sorted(self.alarms.items()) if rid == rollout_id}
+        return {step: StepResult.of_alarm(m) for (rid, step), m in sorted(self.alarms.items()) if rid == rollout_id}
 
     def collect(self) -> list[RolloutResult]:
         """Every rollout's result, with the alarms that arrived until now."""

@@ -3,9 +3,10 @@ launch file, with its launch arguments, in a child process; and which of its nod
 detectors need.
 
 A replay launches the installed ``launch/fiper.launch.yaml`` (or ``--launch FILE``, which declares the same
-arguments) with ``use_sim_time:=true`` and the calibration's :func:`suite_arguments`: ``calibration_dir:=DIR`` and,
-for a calibration that declares RND-OE alone, ``observation_only:=true`` (no ACE node). ``fiper demo`` and ``fiper
-collect --ros`` give ``launch/demo.launch.yaml`` (which includes the suite) the same. A robot model for joint-space
+arguments) with ``use_sim_time:=true`` and the calibration's :func:`suite_arguments`: ``calibration_dir:=DIR`` and
+the arguments that run exactly the scoring nodes of the detectors it declares (``observation_only:=true``: no ACE
+node; ``progress:=true``: a progress node; ...). ``fiper demo`` and ``fiper collect --ros`` give
+``launch/demo.launch.yaml`` (which includes the suite) the same. A robot model for joint-space
 actions goes to the ACE node through :class:`~fiper_ros.launcher.overrides.Overrides` (the file has no argument
 for it), so the nodes are exactly those of a normal launch.
 """
@@ -23,25 +24,36 @@ from pathlib import Path
 
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
-from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
+from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, JOINT_STATES, SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.interface.topics import JOINT_STATES, TOPICS, input_topic, score_topic
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
-#: The scoring node of each detector, by module; the fusion node.
+#: The scoring node's module of FIPER's pair (every other detector's is the generic detector node's); the fusion node.
 DETECTOR_MODULES = {RND_OE: "fiper_ros.nodes.rnd_oe_node", ACE: "fiper_ros.nodes.ace_node"}
+GENERIC_MODULE = "fiper_ros.nodes.detector_node"
 ACE_MODULE = DETECTOR_MODULES[ACE]
 FUSION_MODULE = "fiper_ros.nodes.fusion_node"
-#: Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores.
-DETECTOR_TOPICS = {RND_OE: (EMBEDDING, (), SCORE_RND_OE), ACE: (ACTIONS, (JOINT_STATES,), SCORE_ACE)}
-#: The installed launch file of the scoring suite (RND-OE, ACE unless observation-only, fusion).
+#: The installed launch file of the scoring suite (a node per declared detector, fusion).
 SUITE_LAUNCH = "fiper.launch.yaml"
 #: Lines of the suite's output kept for an error report.
 KEPT_LINES = 200
 #: The launcher's report of a node process it started.
 STARTED = re.compile(r"\[launch\] started (\S+) \(pid (\d+)\)")
+#: Launch arguments of the suite's file that add a detector's node (FIPER's pair: ``rnd_oe``, ``observation_only``).
+DETECTOR_ARGUMENTS = ("logpzo", "pca_kmeans", "progress", "consistency", "elapsed")
+
+
+def detector_topics(detector: str) -> tuple[str, tuple[str, ...], str]:
+    """Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores."""
+    return input_topic(info(detector).reads), (JOINT_STATES,) if detector == ACE else (), score_topic(detector)
+
+
+def detector_module(detector: str) -> str:
+    """The module of ``detector``'s scoring node."""
+    return DETECTOR_MODULES.get(detector, GENERIC_MODULE)
 
 
 def detectors_of(directory: Path | None) -> tuple[str, ...]:
@@ -56,20 +68,32 @@ def detectors_of(directory: Path | None) -> tuple[str, ...]:
 
 def scoring_modules(detectors: tuple[str, ...]) -> tuple[str, ...]:
     """The modules of the nodes that score and fuse ``detectors``: the scoring node of each, the fusion node."""
-    return (*(DETECTOR_MODULES[d] for d in detectors), FUSION_MODULE)
+    return (*dict.fromkeys(detector_module(d) for d in detectors), FUSION_MODULE)
 
 
 def suite_topics(detectors: tuple[str, ...]) -> tuple[str, ...]:
-    """The bag schema's topics of a suite that scores ``detectors``: all but the other detectors' scores."""
-    others = {DETECTOR_TOPICS[d][2] for d in DETECTORS if d not in detectors}
-    return tuple(topic for topic in TOPICS if topic not in others)
+    """The bag schema's topics of a suite that scores ``detectors``: all but FIPER's pair's scores the suite has
+    not, and the scores of the others it has."""
+    others = {score_topic(d) for d in DETECTORS if d not in detectors}
+    extra = tuple(score_topic(d) for d in detectors if d not in DETECTORS)
+    return tuple(topic for topic in TOPICS if topic not in others) + extra
 
 
 def suite_arguments(calibration: Path, detectors: tuple[str, ...]) -> dict[str, str]:
-    """The launch arguments that give the suite ``calibration`` (absolute): ``calibration_dir``, and
-    ``observation_only:=true`` when it declares RND-OE alone (``detectors``: those it declares)."""
-    alone = {"observation_only": "true"} if detectors == OBSERVATION_ONLY else {}
-    return {"calibration_dir": str(calibration.resolve()), **alone}
+    """The launch arguments that give the suite ``calibration`` (absolute) and the scoring nodes of ``detectors``
+    (those it declares): ``calibration_dir``, ``rnd_oe:=false`` without RND-OE, ``observation_only:=true`` without
+    ACE, ``<detector>:=true`` for each other detector and ``use_signal:=true signal:=NAME`` for a logged signal
+    (the suite's file runs one); :class:`BagError` for a set the file cannot run."""
+    signals = [d.removeprefix(SIGNAL_PREFIX) for d in detectors if info(d).reads == "signal"]
+    if len(signals) > 1:
+        raise BagError(f"the calibration declares {len(signals)} logged signals ({', '.join(signals)}); the suite's "
+                       "launch file runs the node of one: launch the others' detector nodes beside it")
+    arguments = {"calibration_dir": str(calibration.resolve())}
+    arguments |= {"rnd_oe": "false"} if RND_OE not in detectors else {}
+    arguments |= {"observation_only": "true"} if ACE not in detectors else {}
+    arguments |= {name: "true" for name in DETECTOR_ARGUMENTS if name in detectors}
+    arguments |= {"use_signal": "true", "signal": signals[0]} if signals else {}
+    return arguments
 
 
 def robot_parameters(robot: RobotModel | None) -> dict[str, dict[str, str]]:

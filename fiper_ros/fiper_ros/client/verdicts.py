@@ -25,10 +25,10 @@ from rclpy.executors import ExternalShutdownException
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_ros.client.capture import report_matches
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.evaluation.results import RolloutResult, StepResult, as_float32
+from fiper_ros.evaluation.results import RolloutResult, StepResult
 from fiper_ros.evaluation.verdicts import in_sample_warning, rollout_line, table, tally
 from fiper_ros.interface import qos
-from fiper_ros.interface.messages import NO_ROLLOUT, outcome_name, state_name
+from fiper_ros.interface.messages import NO_ROLLOUT, outcome_name
 from fiper_ros.interface.topics import ALARM, EVENTS, SCORE_RND_OE
 
 #: Seconds after a rollout's END within which its last verdicts are waited for.
@@ -101,9 +101,7 @@ class LiveVerdicts:
         if msg.heartbeat or msg.rollout_id == NO_ROLLOUT:
             return
         with self._lock:
-            self._result(int(msg.rollout_id)).steps.setdefault(int(msg.step), StepResult(
-                state_name(msg.state), bool(msg.obs_exceeded), bool(msg.act_exceeded), as_float32(msg.eta_obs),
-                as_float32(msg.eta_act)))
+            self._result(int(msg.rollout_id)).steps.setdefault(int(msg.step), StepResult.of_alarm(msg))
 
     def _on_score(self, msg: Score) -> None:
         with self._lock:

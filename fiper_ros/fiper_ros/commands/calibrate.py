@@ -11,13 +11,16 @@ status 2. A window longer than every successful rollout is warned about (before 
 summary): the windowed score is then the sum over the whole rollout so far at every step, as any longer window
 would be, which is allowed (the shipped Sorting calibration's ACE window is such a one) but rarely meant.
 
-``--detectors rnd_oe`` writes an observation-only calibration (RND-OE alone: its alarm is RND-OE's
-exceedance), which needs no action batches; bags without them and no ``--detectors rnd_oe`` are refused
-with one line saying so.
+``--detectors`` names the detectors (FIPER's pair by default; ``rnd_oe`` alone is an observation-only
+calibration, which needs no action batches; any set of rnd_oe, ace, logpzo, pca_kmeans, progress, consistency,
+elapsed and logged signals ``signal_<name>``) and ``--combine`` how they vote: ``and`` / ``or`` with a threshold
+each, ``max`` / ``kth:K`` under one conformal threshold. Bags without action batches for a detector that reads
+them are refused with one line saying so. Rollouts of several tasks are calibrated together, each task its own
+models and shapes; ``--pool`` pools the conformal factor over the tasks.
 
 ``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
-file ``rnd_oe.pt``, which the nodes no longer read) to the current format (``rnd_oe.npz``, numpy): the same
-thresholds, weights and scores, checked against the old content hash. ``-o OLD --force`` converts in place.
+file ``rnd_oe.pt``, which the nodes no longer read) or 2 to the current format: the same thresholds, weights
+and scores, checked against the old content hash. ``-o OLD --force`` converts in place.
 """
 from __future__ import annotations
 
@@ -36,13 +39,14 @@ from fiper_ros.converters.options import parse_channels
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
                                         upgrade_calibration)
 from fiper_ros.core.calibration_file import FORMAT_VERSION
-from fiper_ros.core.detectors import DETECTOR_SETS, LABELS, SIDES, parse_detectors
-from fiper_ros.core.fusion import COMBINES
+from fiper_ros.core.detectors import info, judged_by
+from fiper_ros.core.fusion import Combine
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.profiles import PROFILE_NAMES
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.thresholds import KINDS, Threshold
+from fiper_ros.core.window import MODES
 from fiper_ros.interface.topics import ACTIONS
 
 RND_PRESETS = {"small": RNDConfig.small, "paper": RNDConfig.paper}
@@ -76,17 +80,17 @@ def window_warnings(settings: CalibrationSettings, successes: Sequence[Rollout])
     """One warning per declared detector whose window (eqs. 2 and 5) is longer than every rollout of
     ``successes``: its windowed score is the sum over the whole rollout so far at every step, as with any window
     at least as long as the longest rollout."""
-    if settings.aggregation != "window" or not successes:
+    if not successes:
         return []
     longest = max(r.length for r in successes)
     warnings = []
     for detector in settings.detectors:
-        side = SIDES[detector]
-        window = getattr(settings, f"window_{side}")
-        if window > longest:
-            warnings.append(f"warning: --window-{side} {window} is longer than every calibration rollout (the longest "
-                            f"has {longest} steps): {LABELS[detector]}'s windowed score sums the whole rollout so far "
-                            f"at every step, as any window of {longest} or more would; a shorter window reacts sooner")
+        window = settings.window_of(detector)
+        if settings.aggregation_of(detector) == "window" and window > longest:
+            warnings.append(f"warning: the window of {info(detector).label} ({window}) is longer than every calibration "
+                            f"rollout (the longest has {longest} steps): its windowed score sums the whole rollout so "
+                            f"far at every step, as any window of {longest} or more would; a shorter window reacts "
+                            "sooner")
     return warnings
 
 
@@ -102,9 +106,10 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
         raise BagError(f"too few successful rollouts to calibrate: {len(good)} of {len(rollouts)} in {names} "
                        f"(need at least {settings.min_rollouts}, see --min-rollouts)")
     without = sorted({str(r.metadata.get("bag", "")) for r in rollouts if not r.has_actions})
-    if settings.has_ace and without:
-        raise BagError(f"no action batches ({ACTIONS}) in {', '.join(without)}: ACE cannot be calibrated; for an "
-                       "observation-only calibration (RND-OE alone) give --detectors rnd_oe")
+    readers = [info(d).label for d in settings.detectors if info(d).reads == "actions"]
+    if readers and without:
+        raise BagError(f"no action batches ({ACTIONS}) in {', '.join(without)}: {' and '.join(readers)} cannot be "
+                       "calibrated; for an observation-only calibration (RND-OE alone) give --detectors rnd_oe")
     if not quiet:
         print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
               f"{len(rollouts)} in {names}", flush=True)
@@ -130,13 +135,17 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
         rnd = RND_PRESETS[args.rnd_preset]()
         if args.max_epochs:
             rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
-        return CalibrationSettings(alpha=args.alpha, window_obs=args.window_obs, window_act=args.window_act,
-                                   threshold=args.threshold, delta=args.delta, combine=args.combine, rnd=rnd,
-                                   seed=args.seed, profile=args.profile, min_rollouts=args.min_rollouts,
-                                   action_dims=dims, control_dt=args.control_dt,
-                                   split="same" if args.same_data else args.split,
+        windows = dict(args.windows)
+        for detector, window in (("rnd_oe", args.window_obs), ("ace", args.window_act)):
+            if window is not None and detector in args.detectors:
+                windows.setdefault(detector, window)
+        return CalibrationSettings(detectors=args.detectors, window=args.window, windows=windows,
+                                   aggregation=args.aggregation, alpha=args.alpha, threshold=args.threshold,
+                                   delta=args.delta, combine=args.combine, rnd=rnd, seed=args.seed,
+                                   profile=args.profile, min_rollouts=args.min_rollouts, action_dims=dims,
+                                   control_dt=args.control_dt, split="same" if args.same_data else args.split,
                                    conformal_fraction=args.conformal_fraction, folds=args.folds,
-                                   detectors=args.detectors)
+                                   shape_folds=args.shape_folds, pooled=args.pool)
     except (CalibrationError, ValueError) as error:
         raise BagError(str(error)) from error
 
@@ -147,18 +156,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", nargs="*", type=Path, help="bags (or directories of bags) with calibration rollouts")
     parser.add_argument("-o", "--out", type=Path, required=True, help="calibration directory to write")
     parser.add_argument("--upgrade", type=Path, metavar="OLD", default=None,
-                        help="instead of calibrating: convert the format-1 calibration OLD (weights in rnd_oe.pt, "
-                             "torch) to the current format (rnd_oe.npz, numpy); -o OLD --force converts in place")
-    parser.add_argument("--window-obs", type=int, default=defaults.window_obs, help="RND-OE window w_O (eq. 2)")
-    parser.add_argument("--window-act", type=int, default=defaults.window_act, help="ACE window w_A (eq. 5)")
+                        help="instead of calibrating: convert the calibration OLD of format 1 (weights in rnd_oe.pt, "
+                             f"torch) or 2 to format {FORMAT_VERSION}; -o OLD --force converts in place")
+    parser.add_argument("--detectors", type=_names, default=defaults.detectors,
+                        help="detectors calibrated and combined, a comma list of rnd_oe, ace, logpzo, pca_kmeans, "
+                             "progress, consistency, elapsed and signal_<name> (default rnd_oe,ace; rnd_oe alone: "
+                             "observation-only, no action batches needed)")
+    parser.add_argument("--combine", type=_combine, default=defaults.combine,
+                        help="how the detectors vote: and (eq. 7), or (a threshold each), max or kth:K (one "
+                             "conformal threshold over all: the promise is delta)")
+    parser.add_argument("--window", type=int, default=defaults.window, help="every detector's window w (eqs. 2, 5)")
+    parser.add_argument("--window-obs", type=int, default=None, help="RND-OE's window w_O (eq. 2)")
+    parser.add_argument("--window-act", type=int, default=None, help="ACE's window w_A (eq. 5)")
+    parser.add_argument("--windows", type=_windows, default={}, metavar="DETECTOR=W,...",
+                        help="per-detector windows, e.g. rnd_oe=8,ace=50")
+    parser.add_argument("--aggregation", choices=MODES, default=defaults.aggregation,
+                        help="window sum (eqs. 2, 5), max-pooled window, cumulative sum or the single step")
     parser.add_argument("--threshold", choices=KINDS, default=defaults.threshold, help="threshold kind")
     parser.add_argument("--delta", type=float, default=defaults.delta, help="target false-alarm rate")
     parser.add_argument("--alpha", type=float, default=None, help="ACE cell size factor (default: the profile's)")
-    parser.add_argument("--combine", choices=COMBINES, default=defaults.combine, help="fusion of the two predictors")
-    parser.add_argument("--detectors", type=_detectors, default=defaults.detectors,
-                        help=f"detectors calibrated and fused: {' or '.join(','.join(s) for s in DETECTOR_SETS)} "
-                             "(observation-only: RND-OE alone, no action batches needed)")
-    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of RND-OE and of the splits")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the models and of the splits")
     parser.add_argument("--split", choices=SPLITS, default=defaults.split,
                         help="which successes fit what: 'split' conformal (default; Proposition 1 holds), 'cross' "
                              "(K-fold, approximate), 'same' (the paper's same-data calibration, no guarantee)")
@@ -166,6 +183,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="models and thresholds on the same successes (= --split same; not covered by Prop. 1)")
     parser.add_argument("--conformal-fraction", type=float, default=defaults.conformal_fraction,
                         help="with --split split: the share of the successes the thresholds' quantiles use")
+    parser.add_argument("--shape-folds", type=int, default=defaults.shape_folds, metavar="K",
+                        help="with --split split: the thresholds' per-step shapes from K-fold cross-fitted scores of "
+                             "the fit part (0: in-sample)")
+    parser.add_argument("--pool", action="store_true",
+                        help="rollouts of several tasks: one conformal factor over every task's conformal rollouts "
+                             "(each task normalised by its own shapes); the promise is then over all tasks")
     parser.add_argument("--folds", type=int, default=defaults.folds, help="with --split cross: the folds K")
     parser.add_argument("--min-rollouts", type=int, default=defaults.min_rollouts, help="fewest successes accepted")
     parser.add_argument("--profile", choices=PROFILE_NAMES, default=defaults.profile,
@@ -190,15 +213,15 @@ def run(args: argparse.Namespace) -> int:
         calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
     except BagError as error:
         return fail("calibrate", error)
-    shown = {k: v for k, v in settings.to_dict().items() if k != "rnd"}
+    shown = {k: v for k, v in settings.to_dict().items() if k not in ("rnd", "progress", "consistency", "logpzo",
+                                                                        "pca_kmeans")}
     print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
-    if calibration.has_ace:
-        print(f"layout: E={calibration.embedding_dim} H={calibration.horizon} D={calibration.action_dim} "
-              f"h={calibration.exec_steps} {calibration.action_space}; "
-              f"R_d={[round(float(r), 4) for r in calibration.ranges]}")
+    layout = calibration.layout
+    if layout.has_actions:
+        print(f"layout: E={layout.embedding_dim} H={layout.horizon} D={layout.action_dim} h={layout.exec_steps} "
+              f"{layout.action_space}")
     else:
-        print(f"layout: E={calibration.embedding_dim}; observation-only: RND-OE alone (its alarm is its exceedance, no "
-              "action batches used)")
+        print(f"layout: E={layout.embedding_dim}; no detector reads the action batches (observation-only)")
     print(f"calibration {args.out} written (hash {calibration.content_hash}):")
     lengths = [r.length for r in successes]
     for line in [f"M = {len(successes)} successful rollouts fitted it ({sum(lengths)} steps, {min(lengths)} to "
@@ -208,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def upgrade(args: argparse.Namespace) -> int:
-    """``fiper calibrate --upgrade OLD -o NEW``: the calibration ``OLD`` of format 1 in the current format."""
+    """``fiper calibrate --upgrade OLD -o NEW``: the calibration ``OLD`` of format 1 or 2 in the current format."""
     try:
         if args.upgrade is None or args.bags:
             raise BagError("give either the bags to calibrate on or --upgrade OLD (a calibration to convert)")
@@ -228,33 +251,58 @@ def upgrade(args: argparse.Namespace) -> int:
 
 def summary(calibration: Calibration) -> list[str]:
     """What the calibration fitted on which rollouts, and what it promises (lines to print)."""
-    split, estimate, settings = calibration.split, calibration.false_alarms, calibration.settings
-    fitted = "RND-OE and R_d" if calibration.has_ace else "RND-OE"
-    lines = [f"split: {split['mode']}: {len(split['fit'])} successes fitted {fitted}, "
-             f"{len(split['conformal'])} the thresholds"
-             + (f" ({len(split['folds'])} folds)" if "folds" in split else ""),
-             "windows: " + ", ".join(f"{LABELS[d]} w_{SIDES[d][0].upper()} = {getattr(settings, f'window_{SIDES[d]}')}"
-                                     for d in calibration.detectors) + f" policy steps ({settings.aggregation})"]
-    for detector in calibration.detectors:
-        threshold = calibration.threshold(detector)
-        parts = ", ".join(f"{k} {v}" for k, v in split["behind_thresholds"][SIDES[detector]].items())
-        lines.append(f"threshold {LABELS[detector]}: {threshold.kind}, delta {threshold.delta:g}, "
-                     f"gamma {value_range(threshold)} ({parts} rollouts)")
+    estimate, settings = calibration.false_alarms, calibration.settings
+    lines = [f"judged by {judged_by(calibration.detectors, settings.combine)}",
+             "windows: " + ", ".join(f"{info(d).label} {settings.window_of(d)} ({settings.aggregation_of(d)})"
+                                     for d in calibration.detectors) + " policy steps"]
+    for task, part in calibration.tasks.items():
+        split = part.split
+        where = f"task {task}: " if len(calibration.tasks) > 1 else ""
+        lines.append(f"{where}split: {split['mode']}: {len(split['fit'])} successes fitted the models, "
+                     f"{len(split['conformal'])} the thresholds"
+                     + (f" ({len(split['folds'])} folds)" if "folds" in split else "")
+                     + (f"; shapes cross-fitted in {len(split['shape_folds'])} folds" if "shape_folds" in split else ""))
+        for detector in calibration.detectors:
+            threshold = part.detectors[detector].threshold
+            behind = ", ".join(f"{k} {v}" for k, v in split["behind_thresholds"][detector].items())
+            lines.append(f"{where}threshold {info(detector).label}: {threshold.kind}, delta {threshold.delta:g}, "
+                         f"gamma {value_range(threshold)} ({behind} rollouts)")
+    if settings.combine_rule.joint and len(calibration.detectors) > 1:
+        joint = calibration.joint
+        pooled = f", k {joint['k']:.4g} over {joint['m']} conformal rollouts of every task" if "k" in joint else ""
+        lines.append(f"combine {settings.combine}: an alarm needs {settings.votes} of {len(calibration.detectors)} "
+                     f"detectors above thresholds with one conformal factor{pooled}")
     lines.append(f"false alarms on held-out successes, {estimate['method']}: {estimate['false_alarms']} of "
                  f"{estimate['rollouts']} ({estimate['rate']:.3f} +- {estimate['standard_error']:.3f})"
                  + ("" if estimate["held_out_from_models"] else "; optimistic: the models saw these rollouts"))
-    lines.append(f"guarantee: {split['guarantee']}")
+    lines.append(f"guarantee: {calibration.guarantee}")
     if settings.split == "same":
         lines.append("warning: same-data calibration (--same-data): not covered by Proposition 1")
     return lines
 
 
-def _detectors(text: str) -> tuple[str, ...]:
-    """``--detectors``: a supported detector set."""
+def _names(text: str) -> tuple[str, ...]:
+    """``--detectors``: a comma list of names (checked with the other settings)."""
+    return tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+def _combine(text: str) -> str:
+    """``--combine``: and, or, max or kth:K."""
     try:
-        return parse_detectors(text)
+        return str(Combine.parse(text))
     except ValueError as error:
         raise argparse.ArgumentTypeError(str(error)) from error
+
+
+def _windows(text: str) -> dict[str, int]:
+    """``--windows``: ``DETECTOR=W,...``."""
+    windows = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        name, _, value = part.partition("=")
+        if not value.isdigit():
+            raise argparse.ArgumentTypeError(f"--windows expects DETECTOR=W,..., got {part!r}")
+        windows[name.strip()] = int(value)
+    return windows
 
 
 def value_range(threshold: Threshold) -> str:

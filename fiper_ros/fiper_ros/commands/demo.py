@@ -79,7 +79,7 @@ class Display:
 
     def alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
         """Show one alarm decision of ``trace``'s rollout."""
-        state, line = state_name(msg), alarm_line(msg, trace.detectors)
+        state, line = state_name(msg), alarm_line(msg)
         if state == "UNKNOWN":
             self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
         elif state == "ALARM" and trace.alarm_step == msg.step:

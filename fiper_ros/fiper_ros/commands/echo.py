@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.core.detectors import DETECTORS, LABELS, SIDES
+from fiper_ros.core.detectors import info
 from fiper_ros.interface.messages import message_class, state_name
 
 ARRAY_PREVIEW = 8
@@ -72,10 +72,9 @@ def subscribe(node: Any, topic: str, type_name: str, on_message: Callable[[Any],
 def alarm_brief(msg: Any) -> str:
     """A FailureAlarm on one line: rollout, step, state, the judged detectors' windowed scores against their
     thresholds (``>`` where exceeded), and why."""
-    scores = [f"{LABELS[d]} {getattr(msg, f'eta_{SIDES[d]}'):.3f}"
-              f"{'>' if getattr(msg, f'{SIDES[d]}_exceeded') else '<='}{getattr(msg, f'gamma_{SIDES[d]}'):.3f}"
-              for d in DETECTORS
-              if not np.isnan(getattr(msg, f"gamma_{SIDES[d]}"))]  # NaN: a detector the suite does not judge
+    scores = [f"{info(d).label} {eta:.3f}{'>' if exceeded else '<='}{gamma:.3f}"
+              for d, eta, gamma, exceeded in zip(msg.detectors, msg.eta, msg.gamma, msg.exceeded)
+              if not np.isnan(gamma)]  # NaN: a state about no step
     flags = " latched" * bool(msg.latched) + " (heartbeat)" * bool(msg.heartbeat)
     return " ".join([f"rollout {msg.rollout_id} step {msg.step}: {state_name(msg.state).upper()}{flags}", *scores,
                      f"| {msg.reason}"])

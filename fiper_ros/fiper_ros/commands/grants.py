@@ -26,12 +26,13 @@ import yaml
 from fiper_msgs.msg import ActionChunkBatch
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.calibration_file import declared_detectors
-from fiper_ros.core.detectors import DETECTORS
+from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, CLOCK, DIAGNOSTICS,
                                         EMBEDDING, EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT,
-                                        SIM_PROPRIO, SIM_RESET, STEP_SIGNALS, TOPICS, relative, score_topic)
+                                        SIM_PROPRIO, SIM_RESET, STEP_SIGNALS, TOPICS, input_topic, relative,
+                                        score_topic)
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
@@ -145,10 +146,18 @@ def fiper_node(p: Mapping[str, Any]) -> Grants:
     return ros_node(p) | Grants.of(publish=(TRANSITION_EVENT, DIAGNOSTICS), reply=LIFECYCLE_SERVICES)
 
 
-def detector_node(p: Mapping[str, Any], detector: str, step_input: str) -> Grants:
-    """:class:`fiper_ros.nodes.detector.DetectorNode`: its score out, the rollout events and its input in."""
+def scoring_node(p: Mapping[str, Any], detector: str) -> Grants:
+    """:class:`fiper_ros.nodes.detector_node.DetectorNode` of ``detector``: its score out, the rollout events and
+    what the detector reads in."""
     return fiper_node(p) | Grants.of(publish=(relative(score_topic(detector)),),
-                                     subscribe=(relative(EVENTS), relative(step_input)))
+                                     subscribe=(relative(EVENTS), relative(input_topic(info(detector).reads))))
+
+
+def detector_node(p: Mapping[str, Any]) -> Grants:
+    """``fiper_ros.nodes.detector_node``: the detector its ``detector`` parameter names."""
+    if not p.get("detector"):
+        raise LaunchError("detector is not set: the node's grants depend on its detector")
+    return scoring_node(p, str(p["detector"]))
 
 
 def calibration_dir(p: Mapping[str, Any]) -> Path:
@@ -161,14 +170,14 @@ def calibration_dir(p: Mapping[str, Any]) -> Path:
 
 def rnd_oe_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.rnd_oe_node``."""
-    return detector_node(p, "rnd_oe", EMBEDDING)
+    return scoring_node(p, RND_OE)
 
 
 def ace_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.ace_node``: with a joint-velocity calibration also the joint states."""
-    velocities = load_calibration(calibration_dir(p)).action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY
+    velocities = load_calibration(calibration_dir(p)).layout.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY
     joints = (p.get("joint_state_topic", JOINT_STATES),) if velocities else ()
-    return detector_node(p, "ace", ACTIONS) | Grants.of(subscribe=joints)
+    return scoring_node(p, ACE) | Grants.of(subscribe=joints)
 
 
 def fusion_node(p: Mapping[str, Any]) -> Grants:
@@ -216,6 +225,7 @@ def view_node(p: Mapping[str, Any]) -> Grants:
 #: Node module (a launch file's ``module``) -> its rule.
 NODE_RULES: dict[str, Rule] = {
     "fiper_ros.nodes.rnd_oe_node": rnd_oe_node, "fiper_ros.nodes.ace_node": ace_node,
+    "fiper_ros.nodes.detector_node": detector_node,
     "fiper_ros.nodes.fusion_node": fusion_node, "fiper_ros.nodes.supervisor_node": supervisor_node,
     "fiper_ros.nodes.policy_node": policy_node, "sim_bridge.bridge_node": bridge_node,
     "fiper_ros.nodes.view_node": view_node,
@@ -299,7 +309,7 @@ def arm_for(calibration: Path) -> RobotModel | None:
     Stacking deployment gives ACE (``urdf_path``; ``fiper replay --urdf``, ``fiper collect --ros``)."""
     from sim_bridge.robot import URDF_PATH  # noqa: PLC0415 - MuJoCo
 
-    space = load_calibration(calibration).action_space
+    space = load_calibration(calibration).layout.action_space
     return None if space == ActionChunkBatch.ACTION_SPACE_EE_POSITION else RobotModel(str(URDF_PATH))
 
 

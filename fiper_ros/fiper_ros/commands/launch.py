@@ -11,7 +11,7 @@ from pathlib import Path
 
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.commands import options
-from fiper_ros.core.calibration_file import CALIBRATION_FILE, CalibrationError, read_yaml
+from fiper_ros.core.calibration_file import CALIBRATION_FILE, CalibrationError, read_yaml, split_of
 from fiper_ros.data_paths import DataPathNotFound, resolve_data_path
 from fiper_ros.dds import die_with_parent
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_launch, parse_arguments
@@ -85,6 +85,6 @@ def calibration_split(config: LaunchConfig) -> dict[str, object]:
     """The ``split`` record of the calibration the file's ``calibration_dir`` argument names (empty without one)."""
     directory = config.values.get("calibration_dir")
     try:
-        return dict(read_yaml(resolve_data_path(directory) / CALIBRATION_FILE).get("split") or {}) if directory else {}
+        return split_of(read_yaml(resolve_data_path(directory) / CALIBRATION_FILE)) if directory else {}
     except (CalibrationError, DataPathNotFound):
         return {}  # the nodes say what is wrong with it

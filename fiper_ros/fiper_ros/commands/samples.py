@@ -100,12 +100,12 @@ SAMPLE_SPLIT = "same"
 PRETZEL = SampleSet("pretzel_synthetic", "pretzel", "fiper", embedding_dim=512, batch_size=30, horizon=16,
                     action_dim=5, positions=(0, 3), exec_steps=8, max_steps=70, success_lengths=(40, 62),
                     ood_scenarios=("rope_vertical", "rope_horizontal", "rope_rotation"),
-                    calibration={"window_obs": 5, "window_act": 5, "threshold": "cp_constant", "delta": 0.1,
+                    calibration={"window": 5, "threshold": "cp_constant", "delta": 0.1,
                                  "split": SAMPLE_SPLIT})
 PUSHCHAIR = SampleSet("pushchair_synthetic", "pushchair", "sentinel", embedding_dim=96, batch_size=256, horizon=16,
                       action_dim=7, positions=(1, 4), exec_steps=4, max_steps=22, success_lengths=(8, 16),
                       ood_scenarios=("na", "hh", "ss"),
-                      calibration={"window_obs": 3, "window_act": 3, "threshold": "cp_constant", "delta": 0.1,
+                      calibration={"window": 3, "threshold": "cp_constant", "delta": 0.1,
                                    "split": SAMPLE_SPLIT})
 SETS = {"pretzel": PRETZEL, "pushchair": PUSHCHAIR}
 

@@ -25,13 +25,14 @@ Modules, one concept each:
 - :mod:`.fusion`: the votes of the detectors' decisions: eq. (7)'s AND/OR, max and kth:K.
 - :mod:`.metrics`: TPR, TNR, accuracy, DT and TWA, App. B.4.
 - :mod:`.profiles`: the "paper" and "reference" (authors' code) profiles.
-- :mod:`.detectors`: the detector sets a calibration declares (FIPER's pair, or RND-OE alone).
+- :mod:`.detectors`: every detector's name, label and what it reads (one registry).
+- :mod:`.scorers`: each declarable detector fitted on successes and scored, whole-rollout and streaming.
 - :mod:`.calibration_file`: reading ``calibration.yaml`` without torch (what a calibration declares).
-- :mod:`.calibration`: fitting, saving and loading a calibration.
+- :mod:`.calibration`: a calibration's settings, model, fitting and files (one module each).
 - :mod:`.monitor`: streaming and vectorised failure prediction.
 """
 from __future__ import annotations
 
 __all__ = ["ace", "calibration", "calibration_file", "combination", "consistency", "data_split", "detector_model",
            "detectors", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles",
-           "progress", "rnd_oe", "rollout", "scores", "step_stream", "thresholds", "window"]
+           "progress", "rnd_oe", "rollout", "scorers", "scores", "step_stream", "thresholds", "window"]

@@ -102,33 +102,39 @@ def info(name: str) -> DetectorInfo:
 DETECTORS: tuple[str, ...] = (RND_OE, ACE)
 #: An observation-only calibration: RND-OE alone, no action batches needed.
 OBSERVATION_ONLY: tuple[str, ...] = (RND_OE,)
-#: The detector sets a calibration may declare.
-DETECTOR_SETS: tuple[tuple[str, ...], ...] = (DETECTORS, OBSERVATION_ONLY)
+#: The detector sets a calibration of format 2 could declare.
+PAIR_FORMAT_SETS: tuple[tuple[str, ...], ...] = (DETECTORS, OBSERVATION_ONLY)
 #: How a detector is named in messages to people.
 LABELS = {name: detector.label for name, detector in INFO.items()}
-#: A detector's side, as the calibration file (``thresholds.obs``, ``windows.act``) and FailureAlarm
-#: (``eta_obs``, ``gamma_act``) name it.
-SIDES = {RND_OE: "obs", ACE: "act"}
 
 
-def check_detectors(names: Iterable[str]) -> tuple[str, ...]:
-    """``names`` as a supported detector set in :data:`DETECTORS` order; ``ValueError`` naming the sets otherwise."""
+def in_fusion_order(names: Iterable[str]) -> tuple[str, ...]:
+    """``names`` in the fusion's order: the known detectors in :data:`INFO`'s order, then the others (logged
+    signals) in the order given."""
+    given = tuple(names)
+    return tuple(d for d in INFO if d in given) + tuple(d for d in given if d not in INFO)
+
+
+def check_pair_format(names: Iterable[str]) -> tuple[str, ...]:
+    """``names`` as a detector set of a format-2 calibration, in :data:`DETECTORS` order; ``ValueError`` naming the
+    sets otherwise."""
     given = tuple(names)
     ordered = tuple(d for d in DETECTORS if d in given)
-    if sorted(given) != sorted(ordered) or ordered not in DETECTOR_SETS:
-        supported = " or ".join(",".join(s) for s in DETECTOR_SETS)
+    if sorted(given) != sorted(ordered) or ordered not in PAIR_FORMAT_SETS:
+        supported = " or ".join(",".join(s) for s in PAIR_FORMAT_SETS)
         raise ValueError(f"unsupported detectors {','.join(given) or '(none)'}: declare {supported}")
     return ordered
 
 
-def judged_by(detectors: Iterable[str]) -> str:
-    """Which detectors judge, for people: ``"RND-OE and ACE"``, or ``"RND-OE alone (observation-only: no ACE)"``."""
+def judged_by(detectors: Iterable[str], combine: str = "and") -> str:
+    """Which detectors judge, for people: ``"RND-OE and ACE"``, ``"RND-OE alone (observation-only: no ACE)"``,
+    or ``"RND-OE, progress and elapsed time (max)"``."""
     given = tuple(detectors)
-    absent = [LABELS[d] for d in DETECTORS if d not in given]
-    named = " and ".join(LABELS[d] for d in given)
-    return f"{named} alone (observation-only: no {', '.join(absent)})" if absent else named
-
-
-def parse_detectors(text: str) -> tuple[str, ...]:
-    """A comma-separated detector list (``"rnd_oe"``, ``"rnd_oe,ace"``) as a supported set."""
-    return check_detectors(part.strip() for part in text.split(",") if part.strip())
+    labels = [info(d).label for d in given]
+    if given == OBSERVATION_ONLY:
+        return f"{labels[0]} alone (observation-only: no {info(ACE).label})"
+    if len(given) == 1:
+        return f"{labels[0]} alone"
+    if given == DETECTORS and combine == "and":
+        return " and ".join(labels)
+    return f"{', '.join(labels[:-1])} and {labels[-1]} ({combine})"

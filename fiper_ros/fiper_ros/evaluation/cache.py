@@ -81,7 +81,7 @@ class StreamScores:
 def code_version() -> str:
     """SHA-256 over the source files that compute scores (core, baselines, scoring)."""
     root = Path(fiper_ros.__file__).parent
-    files = sorted(f for package in _SCORING_PACKAGES for f in (root / package).glob("*.py"))
+    files = sorted(f for package in _SCORING_PACKAGES for f in (root / package).rglob("*.py"))
     files += [root / module for module in _SCORING_MODULES]
     digest = hashlib.sha256(fiper_ros.__version__.encode())
     for file in files:

@@ -37,6 +37,7 @@ from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
+from fiper_ros.core.scorers import DetectorOptions
 from fiper_ros.evaluation.external import ExternalScores
 
 
@@ -132,6 +133,13 @@ class MethodSettings:
         if self.split not in SPLITS:
             raise ValueError(f"unknown split {self.split!r}; expected one of {SPLITS}")
         self.calibration_settings(0)  # shape_folds: refused now, in the core's words
+
+    def detector_options(self, robot: RobotModel | None = None) -> DetectorOptions:
+        """Every core detector's own settings, as a calibration of this profile passes them to its scorers (the
+        control period of ``robot`` for ACE on joint velocities)."""
+        alpha = get_profile(self.profile).alpha if self.alpha is None else self.alpha
+        return DetectorOptions(self.rnd, alpha, None, None if robot is None else robot.control_dt, self.progress,
+                               self.consistency, self.logpzo, self.pca_kmeans)
 
     def calibration_settings(self, seed: int) -> CalibrationSettings:
         """The core calibration settings of ``seed``: profile, split (with its shape folds) and the seed of the

@@ -1,9 +1,9 @@
 """Per-rollout prediction results, the same record for the live replay and the offline oracle.
 
 A step's ``state`` is ``"ok"``, ``"alarm"`` (latched: from the first alarm of the rollout on, as on
-/fiper/alarm) or ``"unknown"``; ``eta_*`` are the windowed scores as float32 (the precision of the
-Score and FailureAlarm messages), so live and offline results compare exactly, and ``None`` for a detector
-the calibration does not declare (``eta_act`` of an observation-only one: NaN on /fiper/alarm).
+/fiper/alarm) or ``"unknown"``; per declared detector (the calibration's order) its decision and its windowed
+score as float32 (the precision of the Score and FailureAlarm messages), so live and offline results compare
+exactly (``None`` where a state is about no step: NaN on /fiper/alarm).
 """
 from __future__ import annotations
 
@@ -12,19 +12,27 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.interface.messages import ALARM, UNKNOWN
-
+from fiper_ros.interface.messages import ALARM, UNKNOWN, state_name
+from fiper_ros.runtime.alarm import AlarmState
 
 
 @dataclass(frozen=True)
 class StepResult:
-    """FIPER's output at one policy step."""
+    """FIPER's output at one policy step: the state, and per declared detector its decision and windowed score."""
 
     state: str
-    obs_exceeded: bool
-    act_exceeded: bool
-    eta_obs: float | None
-    eta_act: float | None
+    exceeded: tuple[bool, ...]
+    windowed: tuple[float | None, ...]
+
+    @classmethod
+    def of_alarm(cls, msg: Any) -> StepResult:  # noqa: ANN401 - a FailureAlarm message (or its wire view)
+        """The result a FailureAlarm message carries."""
+        return cls(state_name(msg.state), tuple(bool(e) for e in msg.exceeded), tuple(as_float32(v) for v in msg.eta))
+
+    @classmethod
+    def of_state(cls, state: AlarmState) -> StepResult:
+        """The result of a fused state, as its FailureAlarm carries it (the windowed scores as float32)."""
+        return cls(state.state, tuple(bool(e) for e in state.exceeded), tuple(as_float32(v) for v in state.windowed))
 
 
 @dataclass
@@ -54,7 +62,8 @@ class RolloutResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON form (steps in order)."""
         data = asdict(self)
-        data["steps"] = [{"step": s, **asdict(self.steps[s])} for s in sorted(self.steps)]
+        data["steps"] = [{"step": s, "state": self.steps[s].state, "exceeded": list(self.steps[s].exceeded),
+                          "windowed": list(self.steps[s].windowed)} for s in sorted(self.steps)]
         data["first_alarm"] = self.first_alarm
         return data
 

@@ -33,19 +33,15 @@ import torch
 from fiper_ros.baselines.base import Baseline, BaselineError
 from fiper_ros.baselines.rnd_a import RNDA
 from fiper_ros.baselines.stac import STAC, check_overlap
-from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, calibrate, split_successes
-from fiper_ros.core.consistency import ActionConsistency
-from fiper_ros.core.detectors import ACE, CONSISTENCY, DETECTORS, OBSERVATION_ONLY, PROGRESS, SIGNAL_PREFIX, info
+from fiper_ros.core.calibration import CalibrationError, CalibrationSplit, split_successes
+from fiper_ros.core.detectors import ACE, CONSISTENCY, SIGNAL_PREFIX, info
 from fiper_ros.core.kinematics import RobotModel
-from fiper_ros.core.logpzo import LogpZO
-from fiper_ros.core.pca_kmeans import PCAKMeans
 from fiper_ros.core.profiles import get_profile
-from fiper_ros.core.progress import ProgressDetector
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.core.scores import act_scores, obs_scores, rollout_positions
+from fiper_ros.core.scorers import FitContext, fit_scorer
 from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores, cache_key, code_version
 from fiper_ros.evaluation.data import Dataset, DatasetError
-from fiper_ros.evaluation.methods import ELAPSED, MethodSettings, fitted
+from fiper_ros.evaluation.methods import MethodSettings, fitted
 
 LOG = logging.getLogger(__name__)
 
@@ -61,13 +57,13 @@ def torch_threads(count: int) -> Iterator[None]:
         torch.set_num_threads(previous)
 
 
+#: The evaluation's own baselines: streams no calibration declares (the others are the core's detectors).
+BASELINES = ("stac", "rnd_a")
+
+
 def _baseline(stream: str, settings: MethodSettings) -> Baseline:
     if stream == "stac":
         return STAC()
-    if stream == "pca_kmeans":
-        return PCAKMeans(settings.pca_kmeans)
-    if stream == "logpzo":
-        return LogpZO(settings.logpzo)
     if stream == "rnd_a":
         return RNDA(settings.rnd_a)
     raise ValueError(f"{stream!r} is not a baseline stream")
@@ -76,7 +72,6 @@ def _baseline(stream: str, settings: MethodSettings) -> Baseline:
 Scorer = Callable[[Rollout], np.ndarray]
 #: Fits score models on some successful calibration rollouts; returns the scorer of every stream it serves.
 Fitter = Callable[[Sequence[Rollout]], dict[str, Scorer]]
-FIPER_PAIR = ("rnd_oe", "ace")
 
 
 def robot_for(dataset: Dataset, settings: MethodSettings) -> RobotModel | None:
@@ -137,78 +132,41 @@ def check_split(dataset: Dataset, settings: MethodSettings) -> None:
                            "calibration successes, or --split same)")
 
 
-def fiper_fitter(dataset: Dataset, settings: MethodSettings, seed: int, with_ace: bool = True) -> Fitter:
-    """RND-OE and ACE (``with_ace`` False: RND-OE alone, as an observation-only calibration) fitted through the
-    core calibration on the successes given, with the calibration failures where the profile takes ``R_d``
-    over them too (``core.scores``; epsilon included there).
-
-    The core calibrates them with ``split="same"``: the split is the caller's (:func:`split_scores`), so
-    RND-OE and ``R_d`` are those :func:`fiper_ros.core.calibration.calibrate` fits on the split's fit part
-    (RND-OE is the same network either way: ``R_d`` draws no randomness).
-    """
-    robot = robot_for(dataset, settings) if with_ace else None
-    calibration_settings = replace(settings.calibration_settings(seed), alpha=settings.alpha, rnd=settings.rnd,
-                                   split="same", shape_folds=0,
-                                   control_dt=None if robot is None else robot.control_dt,
-                                   detectors=DETECTORS if with_ace else OBSERVATION_ONLY)
+def detector_fitter(stream: str, dataset: Dataset, settings: MethodSettings, seed: int) -> Fitter:
+    """A detector a calibration can declare (:data:`fiper_ros.core.scorers.CALIBRATED`, a logged signal) fitted on
+    the successes given exactly as :func:`fiper_ros.core.calibration.calibrate` fits it (:func:`fit_scorer`: the
+    profile's epsilon, ACE's ranges over the calibration failures too where the profile takes them); its
+    whole-rollout scores."""
+    robot = robot_for(dataset, settings) if stream == ACE else None
     fk = None if robot is None else robot.forward_kinematics()
-    failed = [r for r in dataset.calibration if r.success is not True]
+    profile = get_profile(settings.profile)
+    failed = [r for r in dataset.calibration if r.success is not True] if profile.ranges_from_all else []
+    context = FitContext(seed, profile, settings.detector_options(robot), dataset.action_space, fk, failed)
 
     def fit(successes: Sequence[Rollout]) -> dict[str, Scorer]:
-        calibration = calibrate([*successes, *failed], calibration_settings, fk=fk, refuse_infinite=False)
-        profile = calibration.profile
-
-        def rnd(rollout: Rollout) -> np.ndarray:
-            return obs_scores(calibration.rnd, rollout.embeddings, profile)
-
-        if not with_ace:
-            return {"rnd_oe": rnd}
-        projection = calibration.projection(fk)
-
-        def ace(rollout: Rollout) -> np.ndarray:
-            return act_scores(rollout_positions(rollout, projection), calibration.cell, profile)
-
-        return {"rnd_oe": rnd, "ace": ace}
+        scorer = fit_scorer(stream, successes, context)
+        return {stream: lambda rollout: scorer.scores(rollout, fk)}
 
     return fit
 
 
-def _signal(rollout: Rollout, name: str) -> np.ndarray:
-    """The magnitude of a logged per-step signal (a score is >= 0); :class:`DatasetError` if the rollout lacks it."""
-    if name not in rollout.signals:
-        raise DatasetError(f"rollout {rollout.rollout_id!r} has no signal {name!r} (it has "
-                           f"{', '.join(sorted(rollout.signals)) or 'none'})")
-    return np.abs(rollout.signals[name])
-
-
 def baseline_fitter(stream: str, settings: MethodSettings, seed: int) -> Fitter:
-    """A baseline, a new detector (progress, consistency), a logged signal, external scores or the elapsed-time
-    stream fitted on the successes given; a baseline's and a new detector's scores get the epsilon."""
-    if stream == ELAPSED:
-        return lambda successes: {ELAPSED: lambda rollout: np.ones(rollout.length)}
-    if info(stream).reads == "signal":
-        name = stream.removeprefix(SIGNAL_PREFIX)
-        return lambda successes: {stream: lambda rollout: _signal(rollout, name)}
-    if info(stream).reads == "external":
-        given = settings.external_scores(stream).scores  # checked against the data (external.check_covers)
-        return lambda successes: {stream: lambda rollout: given[rollout.rollout_id]}
+    """An evaluation baseline a calibration cannot declare (STAC, RND-A) fitted on the successes given; its scores
+    get the profile's epsilon."""
     epsilon = get_profile(settings.profile).score_epsilon
-    if stream == PROGRESS:
-        def fit_progress(successes: Sequence[Rollout]) -> dict[str, Scorer]:
-            detector = ProgressDetector.fit(successes, settings.progress, seed)
-            return {stream: lambda rollout: detector.scores(rollout.embeddings) + epsilon}
-        return fit_progress
-    if stream == CONSISTENCY:
-        def fit_consistency(successes: Sequence[Rollout]) -> dict[str, Scorer]:
-            detector = ActionConsistency.fit(successes, settings.consistency)
-            return {stream: lambda rollout: detector.scores(rollout.actions) + epsilon}
-        return fit_consistency
 
     def fit(successes: Sequence[Rollout]) -> dict[str, Scorer]:
         baseline = _baseline(stream, settings).fit(successes, seed)
         return {stream: lambda rollout: np.asarray(baseline.scores(rollout), dtype=np.float64) + epsilon}
 
     return fit
+
+
+def external_fitter(stream: str, settings: MethodSettings) -> Fitter:
+    """Scores computed elsewhere (``--scores NAME=FILE``), used as given: nothing is fitted, the successes given are
+    ignored (the file was checked against the data by :func:`fiper_ros.evaluation.external.check_covers`)."""
+    given = settings.external_scores(stream).scores
+    return lambda successes: {stream: lambda rollout: given[rollout.rollout_id]}
 
 
 def _out_of_fold(fit: Fitter, good: Sequence[Rollout], members: Sequence[int], folds: Sequence[Sequence[int]]
@@ -273,22 +231,16 @@ def compute_streams(
             raw[stream], seconds[stream] = cached, 0.0
     missing = [s for s in streams if s not in raw]
     with torch_threads(threads):
-        pair = [s for s in FIPER_PAIR if s in missing]
-        if pair:
-            start = time.perf_counter()
-            both = split_scores(fiper_fitter(dataset, settings, seed, with_ace=ACE in pair), dataset, split)
-            elapsed = time.perf_counter() - start
-            for stream in pair:
-                raw[stream], seconds[stream] = both[stream], elapsed / len(pair)
         for stream in missing:
-            if stream not in raw:
-                start = time.perf_counter()
-                # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
-                own = split if fitted(stream) else calibration_split(
-                    dataset, replace(settings, split="same", shape_folds=0), seed)
-                raw[stream] = split_scores(baseline_fitter(stream, settings, seed), dataset, own,
-                                           fitted(stream))[stream]
-                seconds[stream] = time.perf_counter() - start
+            start = time.perf_counter()
+            # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
+            own = split if fitted(stream) else calibration_split(
+                dataset, replace(settings, split="same", shape_folds=0), seed)
+            fitter = (baseline_fitter(stream, settings, seed) if stream in BASELINES
+                      else external_fitter(stream, settings) if info(stream).reads == "external"
+                      else detector_fitter(stream, dataset, settings, seed))
+            raw[stream] = split_scores(fitter, dataset, own, fitted(stream))[stream]
+            seconds[stream] = time.perf_counter() - start
     if cache is not None:
         for stream in missing:
             cache.put(keys[stream], raw[stream])

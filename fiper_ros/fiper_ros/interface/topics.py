@@ -12,8 +12,8 @@ from fiper_ros.interface.qos_spec import QosSpec
 
 __all__ = ["ACTIONS", "ALARM", "ARM_JOINT_NAMES", "CAMERAS", "CAMERA_THIRD", "CAMERA_WRIST", "CLOCK", "DIAGNOSTICS",
            "EMBEDDING", "EVENTS", "INPUT_TOPICS", "JOINT_STATES", "NAMESPACE", "RESET_ALARM", "SCORE_ACE", "SCORE_RND_OE",
-           "SIM_ACTION", "SIM_HALT", "SIM_PROPRIO", "SIM_RESET", "STEP_SIGNALS", "TOPICS", "TopicSpec", "relative",
-           "score_topic"]
+           "SCORE_SPEC", "SIM_ACTION", "SIM_HALT", "SIM_PROPRIO", "SIM_RESET", "STEP_SIGNALS", "TOPICS", "TopicSpec",
+           "input_topic", "relative", "score_topic", "topic_spec"]
 
 #: The namespace of the suite's own topics in every shipped launch file. The scoring and fusion nodes name them
 #: relative to their own namespace (:func:`relative`), so a launch in another namespace moves them together.
@@ -23,6 +23,12 @@ NAMESPACE = "/fiper"
 def score_topic(detector: str) -> str:
     """The score topic of a detector (``rnd_oe``, ``ace``: :mod:`fiper_ros.core.detectors`)."""
     return f"{NAMESPACE}/scores/{detector}"
+
+
+def input_topic(reads: str) -> str:
+    """The topic a detector's per-step input comes on, by what it reads (:data:`fiper_ros.core.detectors.READS`:
+    the elapsed time reads the embeddings' step numbers); ``KeyError`` for external scores (not in the suite)."""
+    return {"embedding": EMBEDDING, "step": EMBEDDING, "actions": ACTIONS, "signal": STEP_SIGNALS}[reads]
 
 
 def relative(topic: str) -> str:
@@ -87,3 +93,14 @@ TOPICS: dict[str, TopicSpec] = {
     JOINT_STATES: TopicSpec("sensor_msgs/msg/JointState", qos_spec.INPUT, True),
 }
 INPUT_TOPICS = tuple(name for name, spec in TOPICS.items() if spec.input)
+SCORE_SPEC = TOPICS[SCORE_RND_OE]
+
+
+def topic_spec(topic: str) -> TopicSpec:
+    """The :class:`TopicSpec` of one of the suite's topics, the score topic of any detector included
+    (``/fiper/scores/<detector>``); ``KeyError`` for another."""
+    if topic in TOPICS:
+        return TOPICS[topic]
+    if topic.startswith(score_topic("")) and topic != score_topic(""):
+        return SCORE_SPEC
+    raise KeyError(topic)

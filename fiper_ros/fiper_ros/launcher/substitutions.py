@@ -1,5 +1,6 @@
 """The substitutions of a ROS 2 launch file (``$(var name)``, ``$(env NAME [default])``, ``$(find-pkg-share PKG)``,
-``$(dirname)``), parsed and evaluated the way the ``launch`` package's front end does, without it.
+``$(dirname)``, and the boolean ``$(not X)``, ``$(and X Y)``, ``$(or X Y)``), parsed and evaluated the way the
+``launch`` package's front end does, without it.
 
 A text is a *template*: plain fragments and substitutions, one after the other. A substitution is ``$(`` a name,
 its arguments separated by spaces, and ``)``; an argument is itself a template (so ``$(var $(env WHICH))``
@@ -15,7 +16,10 @@ from dataclasses import dataclass, field
 from typing import Union
 
 #: Substitution name -> (fewest, most) arguments.
-SUPPORTED: dict[str, tuple[int, int]] = {"var": (1, 1), "env": (1, 2), "find-pkg-share": (1, 1), "dirname": (0, 0)}
+SUPPORTED: dict[str, tuple[int, int]] = {"var": (1, 1), "env": (1, 2), "find-pkg-share": (1, 1), "dirname": (0, 0),
+                                          "not": (1, 1), "and": (2, 2), "or": (2, 2)}
+#: The texts a boolean substitution reads as true and as false (case folded), as ``launch`` does.
+TRUE, FALSE = ("true", "1"), ("false", "0")
 OPEN = "$("
 QUOTES = "'\""
 
@@ -174,4 +178,16 @@ def _evaluate(substitution: Substitution, context: Context) -> str:
         raise SubstitutionError(f"$(env {args[0]}): the environment variable is not set and no default is given")
     if substitution.name == "find-pkg-share":
         return context.package_share(args[0])
+    if substitution.name in ("not", "and", "or"):
+        values = [_boolean(substitution.name, arg) for arg in args]
+        result = {"not": lambda: not values[0], "and": lambda: all(values), "or": lambda: any(values)}[substitution.name]()
+        return "true" if result else "false"
     return context.dirname  # dirname
+
+
+def _boolean(name: str, text: str) -> bool:
+    """``text`` as a boolean argument of ``$(name ...)``; :class:`SubstitutionError` if it is none."""
+    folded = text.strip().lower()
+    if folded not in TRUE + FALSE:
+        raise SubstitutionError(f"$({name} ...): {text!r} is not a boolean (true, false, 1 or 0)")
+    return folded in TRUE

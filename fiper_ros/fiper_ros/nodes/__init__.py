@@ -3,5 +3,5 @@ arrays to messages. One console script per node module (``ros2 run fiper_ros NAM
 """
 from __future__ import annotations
 
-__all__ = ["ace_node", "base", "detector", "fusion_node", "graph_watch", "main", "policy_node", "rnd_oe_node",
+__all__ = ["ace_node", "base", "detector_node", "fusion_node", "graph_watch", "main", "policy_node", "rnd_oe_node",
            "supervisor_node", "view_node"]

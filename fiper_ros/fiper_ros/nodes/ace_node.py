@@ -1,4 +1,4 @@
-"""ACE node: ActionChunkBatch -> Score on ``scores/ace`` (paper eqs. 4-6).
+"""ACE node: ActionChunkBatch -> Score on ``scores/ace`` (paper eqs. 4-6); the detector node's preset.
 
 Joint-space batches are mapped to end-effector positions with pinocchio (parameters ``urdf_path``
 and ``ee_frame``); joint-velocity batches are integrated first from the ``joint_states`` position
@@ -16,13 +16,13 @@ from sensor_msgs.msg import JointState
 
 from fiper_msgs.msg import ActionChunkBatch, RolloutEvent
 from fiper_ros.core.calibration import Calibration
-from fiper_ros.core.kinematics import PinocchioFK
-from fiper_ros.core.monitor import ActionMonitor, StepScore
+from fiper_ros.core.detectors import ACE
+from fiper_ros.core.kinematics import ForwardKinematics, PinocchioFK
 from fiper_ros.interface import qos
-from fiper_ros.interface.conversions import floats_of, stamp_ns
-from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, JOINT_STATES, relative
+from fiper_ros.interface.conversions import stamp_ns
+from fiper_ros.interface.topics import ARM_JOINT_NAMES, JOINT_STATES
 from fiper_ros.nodes.base import describe
-from fiper_ros.nodes.detector import DetectorNode
+from fiper_ros.nodes.detector_node import DetectorNode
 from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.joint_history import JointHistory, StampGate
@@ -34,9 +34,7 @@ JOINT_SPACES = (ActionChunkBatch.ACTION_SPACE_JOINT_POSITION, ActionChunkBatch.A
 class AceNode(DetectorNode):
     """Scores each batch of sampled action chunks with action-chunk entropy."""
 
-    detector = "ace"
-    input_topic = relative(ACTIONS)
-    input_type = ActionChunkBatch
+    preset = ACE
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ace_node", **kwargs)
@@ -56,23 +54,19 @@ class AceNode(DetectorNode):
         #: Batches scored after joint_state_wait_s without a joint state at or after their stamp.
         self.joint_state_waits_out = 0
 
-    def make_monitor(self, calibration: Calibration) -> ActionMonitor:
-        if not calibration.has_ace:
-            directory = self.get_parameter("calibration_dir").value
-            raise ValueError(f"calibration {directory} is observation-only (detectors "
-                             f"{','.join(calibration.detectors)}): nothing for ace_node to score; launch the suite "
-                             "without it (fiper.launch.yaml observation_only:=true)")
-        fk = None
-        if calibration.action_space in JOINT_SPACES:
-            urdf = self.get_parameter("urdf_path").value
-            if not urdf:
-                raise ValueError(f"calibration action space is {calibration.action_space}: set parameter urdf_path")
-            fk = PinocchioFK(urdf, self.get_parameter("ee_frame").value)
-        return ActionMonitor(calibration, fk)
+    def forward_kinematics(self, calibration: Calibration) -> ForwardKinematics | None:
+        """The robot's FK for joint-space actions (parameters ``urdf_path``, ``ee_frame``)."""
+        if calibration.layout.action_space not in JOINT_SPACES:
+            return None
+        urdf = self.get_parameter("urdf_path").value
+        if not urdf:
+            raise ValueError(f"calibration action space is {calibration.layout.action_space}: set parameter urdf_path")
+        return PinocchioFK(urdf, self.get_parameter("ee_frame").value)
 
     def activate(self) -> None:
         super().activate()
-        if self.calibration is not None and self.calibration.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
+        if self.calibration is not None and \
+                self.calibration.layout.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
             self._joint_sub = self.create_subscription(
                 JointState, self.get_parameter("joint_state_topic").value, self._on_joint_state, qos.INPUT)
             self._inputs.append(self._joint_sub)
@@ -126,31 +120,16 @@ class AceNode(DetectorNode):
                     f"within joint_state_wait_s; integrating from the latest one before it")
             handler(item)
 
-    def window(self) -> int:
-        return self.calibration.settings.window_act if self.calibration else 0
-
-    def to_array(self, msg: ActionChunkBatch) -> tuple[np.ndarray, np.ndarray | None]:
+    def to_value(self, msg: ActionChunkBatch) -> tuple[np.ndarray, np.ndarray | None]:
         """The batch and, for joint velocities, the joint position it integrates from."""
-        actions = validation.action_batch(floats_of(msg.data), msg.batch_size, msg.horizon, msg.action_dim,
-                                          msg.exec_steps, self.get_parameter("max_elements").value,
-                                          self.get_parameter("max_abs_value").value)
-        cal = self.calibration
-        if msg.action_space != cal.action_space:
-            raise InputRejected(validation.ACTION_SPACE,
-                                f"action space {msg.action_space!r} != calibration's {cal.action_space!r}")
-        if (msg.horizon, msg.action_dim) != (cal.horizon, cal.action_dim):
-            raise InputRejected(validation.CALIBRATION_MISMATCH,
-                                f"H x D = {msg.horizon} x {msg.action_dim} != calibration's {cal.horizon} x {cal.action_dim}")
-        if cal.action_space != ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
+        actions = self.batch(msg)
+        if self.calibration.layout.action_space != ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
             return actions, None
         q_current = self._joints.at(stamp_ns(msg.header.stamp))
         if q_current is None:
             raise InputRejected(validation.NO_JOINT_STATE, "joint-velocity actions need a joint_states message "
                                                            "stamped at or before the batch")
         return actions, q_current
-
-    def score(self, step: int, value: tuple[np.ndarray, np.ndarray | None]) -> StepScore:
-        return self.monitor.update(step, *value)
 
     def diagnostic_values(self) -> dict[str, str]:
         return super().diagnostic_values() | {"waiting_for_joint_state": str(len(self._gate)),

@@ -1,7 +1,7 @@
-"""Fusion node: matches ``scores/rnd_oe`` and ``scores/ace`` per (rollout_id, step), fuses them
-(eq. 7, AND by default) and publishes FailureAlarm on ``alarm`` (/fiper/alarm) every policy step.
-With ``calibration_dir`` it fuses the detectors that calibration declares: for an observation-only one
-(RND-OE alone) it follows ``scores/rnd_oe`` only and its alarm is RND-OE's exceedance.
+"""Fusion node: matches the declared detectors' ``scores/<detector>`` per (rollout_id, step), votes (eq. 7,
+generalised: AND by default) and publishes FailureAlarm on ``alarm`` (/fiper/alarm) every policy step.
+With ``calibration_dir`` it fuses the detectors that calibration declares, with its combine (a joint combine's
+thresholds are calibrated for it); without one, FIPER's pair with the ``combine`` parameter.
 
 The contract for supervisors is in docs/alarm-contract.md: RELIABLE + TRANSIENT_LOCAL + KEEP_LAST(1);
 ALARM latches until ``~/reset`` (``fiper_msgs/ResetAlarm``: who and why, logged and counted; refused with
@@ -18,28 +18,31 @@ from collections import Counter
 from dataclasses import replace
 from typing import Any
 
+from rclpy.parameter import Parameter
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
-from fiper_ros.core.calibration_file import declared_detectors
+from fiper_ros.core.calibration_file import declared
+from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec
 from fiper_ros.interface.conversions import header_view, stamp_ns
-from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN, outcome_name
+from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, outcome_name
 from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
-from fiper_ros.runtime.alarm import DETECTORS, AlarmFuser, AlarmState, DetectorScore, reset_refusal
-from fiper_ros.runtime.pending import StartGate
-from fiper_ros.runtime.publishers import Expected
-from fiper_ros.runtime.rollout_tracker import RolloutTracker
+from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
+from fiper_ros.runtime.publishers import Expected, resolve_node
+from fiper_ros.runtime.rollout_gate import Route
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
 STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
-#: The FailureAlarm on the wire: the node publishes its bytes (issue #24).
+#: The FailureAlarm on the wire: the node publishes its bytes.
 ALARM_WIRE = codec(FailureAlarm)
+#: The ``combine`` parameter's value that takes the calibration's own combine.
+FROM_CALIBRATION = "calibration"
 
 
 class FusionNode(FiperNode):
@@ -47,7 +50,9 @@ class FusionNode(FiperNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("fusion_node", **kwargs)
-        self.declare_parameter("combine", "and", describe("'and' (paper eq. 7) or 'or'", read_only=True))
+        self.declare_parameter("combine", FROM_CALIBRATION, describe(
+            f"'{FROM_CALIBRATION}': the calibration's own combine (and without one); 'and' (paper eq. 7), 'or', 'max' "
+            "or 'kth:K' must be the calibration's, whose thresholds are calibrated for it", read_only=True))
         self.declare_parameter("calibration_dir", "",
                                describe("calibration whose declared detectors are fused (empty: rnd_oe and ace)",
                                         read_only=True))
@@ -74,14 +79,10 @@ class FusionNode(FiperNode):
         self.declare_parameter("allow_reset", True,
                                describe("~/reset may clear a latched alarm (false: only the next START does)",
                                         read_only=True))
-        self.declare_parameter("score_publishers", [f"{d}_node" for d in DETECTORS], describe(
-            "nodes that may publish the score topics, one publisher each (relative names: in this node's namespace)",
-            read_only=True))
+        self.declare_parameter("score_publishers", Parameter.Type.STRING_ARRAY, describe(
+            "nodes that may publish the score topics, one publisher each (relative names: in this node's namespace; "
+            "empty: each declared detector's <detector>_node)", read_only=True))
         self.fuser: AlarmFuser | None = None
-        self.pending: StartGate[DetectorScore] = StartGate(int(self.get_parameter("start_wait_s").value * 1e9))
-        #: STARTs of the rollout already active (ignored: its latch is kept).
-        self.repeated_starts = 0
-        self.rollouts = RolloutTracker()
         self.lost: set[str] = set()
         self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
         self._last_publish_ns = 0
@@ -98,21 +99,31 @@ class FusionNode(FiperNode):
         self.create_service(ResetAlarm, RESET_ALARM, self._on_reset)
         #: Reset requests, by outcome ("accepted", "refused").
         self.resets: Counter[str] = Counter()
-        #: Each detector's score topic relative to the namespace: what the node subscribes to, and the key of its
-        #: rate on /diagnostics.
-        self.score_streams = {d: relative(score_topic(d)) for d in DETECTORS}
-        self.score_topics = {d: self.resolve_topic_name(topic) for d, topic in self.score_streams.items()}
+        self._declare_streams(DETECTORS)
         self.watch_publishers(self._on_publishers)
+
+    def _declare_streams(self, detectors: tuple[str, ...]) -> None:
+        """The score topics of ``detectors``: what the node subscribes to and watches, and the keys of their rates on
+        /diagnostics (relative to the namespace; fully qualified in :attr:`score_topics`)."""
+        self.score_streams = {d: relative(score_topic(d)) for d in detectors}
+        self.score_topics = {d: self.resolve_topic_name(topic) for d, topic in self.score_streams.items()}
 
     def configure(self) -> None:
         combine = self.get_parameter("combine").value
         directory = self.get_parameter("calibration_dir").value
+        detectors = DETECTORS
         if directory:  # relative: the working directory, the share, $FIPER_MODELS (as the scoring nodes)
             directory = str(resolve_data_path(directory))
-        detectors = declared_detectors(directory) if directory else DETECTORS
-        self.fuser = AlarmFuser(combine, int(self.get_parameter("deadline_s").value * 1e9),
+            own = declared(directory)
+            if combine not in (FROM_CALIBRATION, own.combine) and len(own.detectors) > 1:
+                raise ValueError(f"parameter combine is {combine!r}, but calibration {directory} was calibrated for "
+                                 f"{own.combine!r}: set combine {FROM_CALIBRATION!r}, or calibrate for it")
+            detectors, combine = own.detectors, own.combine
+        self._declare_streams(detectors)
+        self.fuser = AlarmFuser("and" if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
-                                int(self.get_parameter("deadline_floor_s").value * 1e9), detectors)
+                                int(self.get_parameter("deadline_floor_s").value * 1e9), detectors,
+                                int(self.get_parameter("start_wait_s").value * 1e9))
         alone = "" if self.fuser.combined else ": alone, combine does not apply"
         self.get_logger().info(f"fusing {', '.join(detectors)}{alone}"
                                + (f" (calibration {directory})" if directory else ""))
@@ -142,8 +153,10 @@ class FusionNode(FiperNode):
         self.fuser = None
 
     def expected_publishers(self) -> list[Expected]:
-        """The shell's expectations, with each score topic published by one of ``score_publishers``."""
-        scorers = self.allowed("score_publishers")
+        """The shell's expectations, with each score topic published by one of ``score_publishers`` (empty: each
+        declared detector's own node)."""
+        scorers = self.allowed("score_publishers") or frozenset(resolve_node(f"{d}_node", self.get_namespace())
+                                                              for d in self.score_streams)
         topics = set(self.score_topics.values())
         return [replace(e, nodes=scorers) if e.topic in topics else e for e in super().expected_publishers()]
 
@@ -167,17 +180,11 @@ class FusionNode(FiperNode):
     def _on_event(self, msg: RolloutEvent) -> None:
         now = self.now_ns()
         if msg.event == RolloutEvent.EVENT_START:
-            if self.fuser.active_rollout == msg.rollout_id:
-                self.repeated_starts += 1
-                return  # a repeated START of the running rollout: keep its state (and its latch)
-            self.rollouts.start(msg.rollout_id, msg.task, msg.scenario, msg.max_steps)
-            self.fuser.start(msg.rollout_id, now)
-            for early in self.pending.start(msg.rollout_id):
+            waited = self.fuser.start(msg.rollout_id, now, msg.task, msg.scenario, msg.max_steps)
+            for early in waited or ():  # None: a repeated START of the running rollout, its state (and latch) kept
                 self._fuse(early, now)
         elif msg.event == RolloutEvent.EVENT_END:
-            self.pending.end(msg.rollout_id)
-            record = self.rollouts.end(msg.rollout_id, outcome_name(msg.outcome))
-            self.fuser.end(msg.rollout_id)
+            record = self.fuser.end(msg.rollout_id, outcome_name(msg.outcome))
             if record is not None:
                 record.alarm_step = self.fuser.alarm_step
                 self.get_logger().info(f"fusion: {record.summary()}")
@@ -191,13 +198,15 @@ class FusionNode(FiperNode):
         self.tick(self.score_streams[msg.detector], now)
         score = DetectorScore(msg.detector, msg.rollout_id, msg.step, msg.windowed_score, msg.threshold,
                               stamp_ns(msg.header.stamp), msg.complete, msg.exceeded, math.isfinite(msg.score))
-        for expired in self.pending.expire(now):
+        gate = self.fuser.gate
+        for expired in gate.expire(now):
             self._reject_unknown(expired, "no START within start_wait_s")
-        if msg.rollout_id != self.fuser.rollout_id:
-            if self.pending.has_ended(msg.rollout_id):  # late, after the next rollout started
-                self._reject_unknown(score, f"its rollout ended, rollout {self.fuser.rollout_id} runs")
-                return
-            for dropped in self.pending.add(msg.rollout_id, score, now):  # its START is still on the way
+        route = gate.route(msg.rollout_id)
+        if route is Route.LATE:  # late, after the next rollout started
+            self._reject_unknown(score, f"its rollout ended, rollout {self.fuser.rollout_id} runs")
+            return
+        if route is Route.WAIT:  # its START is still on the way
+            for dropped in gate.wait(msg.rollout_id, score, now):
                 self._reject_unknown(dropped, "dropped from the full START wait buffer")
             return
         self._fuse(score, now)
@@ -211,7 +220,7 @@ class FusionNode(FiperNode):
         state = self.fuser.add(score, now_ns)
         if state is None:
             return
-        active = self.rollouts.active
+        active = self.fuser.gate.active
         if active is not None:
             active.steps += 1
         self.publish(state, now_ns)
@@ -264,11 +273,13 @@ class FusionNode(FiperNode):
         if state.state == OK:
             self.publisher_check.check_if_matched()
         state = self.fuser.doubted(state)
+        (obs_exceeded, eta_obs, gamma_obs), (act_exceeded, eta_act, gamma_act) = state.of(RND_OE), state.of(ACE)
         self._alarm_pub.publish(ALARM_WIRE.encode(ALARM_WIRE.view(
             header=header_view(state.stamp_ns), rollout_id=state.rollout_id, step=state.step,
-            state=STATES[state.state], latched=state.latched, obs_exceeded=state.obs_exceeded,
-            act_exceeded=state.act_exceeded, eta_obs=state.eta_obs, gamma_obs=state.gamma_obs, eta_act=state.eta_act,
-            gamma_act=state.gamma_act, combine=state.combine, reason=state.reason, heartbeat=heartbeat)))
+            state=STATES[state.state], latched=state.latched, detectors=list(state.detectors),
+            eta=list(state.windowed), gamma=list(state.thresholds), exceeded=list(state.exceeded), votes=state.votes,
+            obs_exceeded=obs_exceeded, act_exceeded=act_exceeded, eta_obs=eta_obs, gamma_obs=gamma_obs,
+            eta_act=eta_act, gamma_act=gamma_act, combine=state.combine, reason=state.reason, heartbeat=heartbeat)))
         self.states[state.state] += 1
         self._last_publish_ns = now_ns
         self._last_published = (state.rollout_id, state.state, state.reason)
@@ -288,8 +299,8 @@ class FusionNode(FiperNode):
                        "unmatched": str(self.fuser.unmatched_stale), "latched": str(self.fuser.latched),
                        "lost_streams": ",".join(sorted(self.lost)) or "none",
                        "detectors": ",".join(self.fuser.detectors),
-                       "waiting_for_start": str(len(self.pending)),
-                       "repeated_starts": str(self.repeated_starts),
+                       "waiting_for_start": str(len(self.fuser.gate.waiting)),
+                       "repeated_starts": str(self.fuser.gate.repeated_starts),
                        "scores_in_doubt": self.fuser.suspicion or self.running_taint() or "no",
                        "deadline_ms": f"{self.fuser.deadline() / 1e6:.1f}",
                        "policy_period_ms": "unknown" if (p := self.fuser.period.period_ns()) is None else f"{p / 1e6:.1f}"}

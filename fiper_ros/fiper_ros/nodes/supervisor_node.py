@@ -22,7 +22,7 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, state_name
+from fiper_ros.interface.messages import state_name
 from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, DIAGNOSTICS, EVENTS, SIM_HALT
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
@@ -101,9 +101,9 @@ class SupervisorNode(Node):
                                        msg.step, msg.heartbeat, self._steady.now().nanoseconds,
                                        stamp_ns(msg.header.stamp))
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:
-            self.get_logger().warning(
-                f"ALARM rollout {msg.rollout_id} step {msg.step}: eta_obs {msg.eta_obs:.3g} > {msg.gamma_obs:.3g}"
-                f" = {msg.obs_exceeded}, eta_act {msg.eta_act:.3g} > {msg.gamma_act:.3g} = {msg.act_exceeded}")
+            scores = ", ".join(f"{d} {eta:.3g} > {gamma:.3g} = {exceeded}"
+                               for d, eta, gamma, exceeded in zip(msg.detectors, msg.eta, msg.gamma, msg.exceeded))
+            self.get_logger().warning(f"ALARM rollout {msg.rollout_id} step {msg.step}: {scores}")
         self._act(decision)
 
     def _expected(self) -> list[Expected]:

@@ -1,10 +1,11 @@
-"""The fusion node's state machine: match the declared score streams per step, fuse (eq. 7), latch, and
-say UNKNOWN whenever a stream is missing, stale or uncalibrated.
+"""The fusion node's state machine: match the declared score streams per step, vote (eq. 7, generalised),
+latch, and say UNKNOWN whenever a stream is missing, stale or uncalibrated.
 
-The declared detectors are those of the calibration (:mod:`fiper_ros.core.detectors`): FIPER's pair, or
-RND-OE alone (observation-only). Alone, a step's alarm is RND-OE's exceedance and ``combine`` does not
-apply (the state's ``combine`` is empty and its reason says so); only the declared streams are matched,
-checked for staleness and for liveliness.
+The declared detectors are those of the calibration (:mod:`fiper_ros.core.calibration`): FIPER's pair, RND-OE
+alone, or any set. A step alarms when at least the combine's votes of them exceed their thresholds
+(:class:`fiper_ros.core.fusion.Combine`: all for AND, one for OR and max, K for kth:K). One detector alone is its
+own decision and ``combine`` does not apply (the state's ``combine`` is empty and its reason says so); only the
+declared streams are matched, checked for staleness and for liveliness.
 
 Contract (docs/alarm-contract.md): one :class:`AlarmState` per policy step whose declared scores all
 arrived; ALARM latches until :meth:`AlarmFuser.reset` or the next rollout START, and the latch wins over
@@ -18,8 +19,8 @@ A step's exceedance is the detector's own decision (``Score.exceeded``, made in 
 rounding to float32 can turn ``eta > gamma`` into ``eta == gamma``, and the offline oracle decides in
 float64. The float32 numbers still have to agree with it (:func:`decision`).
 
-An ALARM says in one line what a person can act on (:func:`explanation`): which windowed score exceeded,
-by how much relative to its threshold, and since which step it has exceeded without a break, e.g.
+An ALARM says in one line what a person can act on (:func:`explanation`): which windowed scores exceeded,
+by how much relative to their thresholds, and since which step each has exceeded without a break, e.g.
 "RND-OE 1.9x threshold since step 10, ACE 1.05x since step 25: both exceeded (and)"; the steps after it
 repeat that line behind "latched since step N: ".
 """
@@ -29,9 +30,11 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
-from fiper_ros.core.detectors import ACE, DETECTORS, LABELS, RND_OE, check_detectors
-from fiper_ros.core.fusion import exceeds, fuse_declared
+from fiper_ros.core.detectors import DETECTORS, info
+from fiper_ros.core.fusion import Combine, exceeds, fuse_votes
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
+from fiper_ros.runtime.rollout_gate import RolloutGate
+from fiper_ros.runtime.rollout_tracker import RolloutRecord
 from fiper_ros.runtime.stats import PeriodEstimator
 
 #: Longest requester or reason of a reset, in characters (what is logged stays one line of the log).
@@ -52,16 +55,21 @@ def ratio_text(windowed: float, threshold: float) -> str:
 
 
 def explanation(exceeded: list[tuple[str, float, float, int]], declared: int, how: str) -> str:
-    """The one line of an ALARM: per exceeded detector (``(name, windowed, threshold, since step)``, in
-    :data:`DETECTORS` order) its label, its ratio to the threshold and the step since which it exceeded, then
-    who exceeded and how the detectors were combined (``how``: ``"(and)"``, ``"(or)"`` or the alone note;
-    ``declared``: how many detectors are judged)."""
+    """The one line of an ALARM: per exceeded detector (``(name, windowed, threshold, since step)``, in the
+    declared order) its label, its ratio to the threshold and the step since which it exceeded, then who exceeded
+    and how the detectors were combined (``how``: ``"(and)"``, ``"(max)"``, ... or the alone note; ``declared``:
+    how many detectors are judged)."""
     parts = []
     for name, windowed, threshold, since in exceeded:
         ratio = ratio_text(windowed, threshold)
         word = " threshold" if not parts and ratio.endswith("x") else ""
-        parts.append(f"{LABELS[name]} {ratio}{word} since step {since}")
-    who = "" if declared == 1 else "both " if len(exceeded) == 2 else "one "
+        parts.append(f"{info(name).label} {ratio}{word} since step {since}")
+    if declared == 1:
+        who = ""
+    elif declared == 2:
+        who = "both " if len(exceeded) == 2 else "one "
+    else:
+        who = f"{len(exceeded)} of {declared} "
     return f"{', '.join(parts)}: {who}exceeded {how}"
 
 
@@ -119,40 +127,53 @@ def decision(score: DetectorScore) -> bool | None:
 
 @dataclass(frozen=True)
 class AlarmState:
-    """What the fusion node publishes on /fiper/alarm."""
+    """What the fusion node publishes on /fiper/alarm: the state and, per declared detector (in the declared
+    order), its windowed score, threshold and decision at the step (NaN, NaN, False about no step)."""
 
     rollout_id: int
     step: int
     state: str
     latched: bool
-    obs_exceeded: bool
-    act_exceeded: bool
-    eta_obs: float
-    gamma_obs: float
-    eta_act: float
-    gamma_act: float
+    detectors: tuple[str, ...]
+    exceeded: tuple[bool, ...]
+    windowed: tuple[float, ...]
+    thresholds: tuple[float, ...]
+    votes: int
+    """How many of the detectors must exceed at a step for an alarm."""
     combine: str
-    """``"and"`` / ``"or"``; empty when one detector is judged alone (the combine does not apply)."""
+    """``"and"``, ``"or"``, ``"max"``, ``"kth:K"``; empty when one detector is judged alone (the combine does not
+    apply)."""
     reason: str
     stamp_ns: int
 
+    def of(self, detector: str) -> tuple[bool, float, float]:
+        """``(exceeded, windowed, threshold)`` of ``detector`` (``(False, NaN, NaN)`` if it is not declared)."""
+        if detector not in self.detectors:
+            return False, math.nan, math.nan
+        i = self.detectors.index(detector)
+        return self.exceeded[i], self.windowed[i], self.thresholds[i]
+
 
 class AlarmFuser:
-    """Streaming eq. (7) over the declared detectors' scores matched per (rollout_id, step), with latch and
-    staleness (``detectors``: FIPER's pair, or ``("rnd_oe",)`` alone)."""
+    """Streaming votes of the declared detectors' scores matched per (rollout_id, step) (eq. 7, generalised), with
+    latch and staleness."""
 
     def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
                  deadline_periods: float = 0.0, deadline_floor_ns: int = 0,
-                 detectors: tuple[str, ...] = DETECTORS) -> None:
-        if combine not in ("and", "or"):
-            raise ValueError(f"combine must be 'and' or 'or', got {combine!r}")
+                 detectors: tuple[str, ...] = DETECTORS, start_wait_ns: int = 1_000_000_000) -> None:
         if deadline_periods < 0 or deadline_floor_ns < 0 or deadline_ns <= 0:
             raise ValueError("deadline_ns must be > 0, deadline_periods and deadline_floor_ns >= 0")
-        self.detectors = check_detectors(detectors)
-        self.combine = combine
-        self.combined = combine if len(self.detectors) > 1 else ""
-        """What the states say in ``combine``: the AND/OR, or empty for one detector alone."""
-        self._how = f"({combine})" if self.combined else f"({self.detectors[0]} alone: combine does not apply)"
+        if not detectors or len(set(detectors)) != len(detectors):
+            raise ValueError(f"declare each detector once, at least one, got {', '.join(detectors) or '(none)'}")
+        for name in detectors:
+            info(name)
+        self.detectors = tuple(detectors)
+        self.rule = Combine.parse(combine)
+        self.votes = self.rule.votes(len(self.detectors))
+        self.combine = str(self.rule)
+        self.combined = self.combine if len(self.detectors) > 1 else ""
+        """What the states say in ``combine``: the combine, or empty for one detector alone."""
+        self._how = f"({self.combine})" if self.combined else f"({self.detectors[0]} alone: combine does not apply)"
         self.deadline_ns = deadline_ns
         """The staleness deadline until the rollout's policy period is measured (always, if
         ``deadline_periods`` is 0)."""
@@ -160,9 +181,8 @@ class AlarmFuser:
         self.deadline_floor_ns = deadline_floor_ns
         self.buffer_size = buffer_size
         self.period = PeriodEstimator()
-        self.rollout_id: int | None = None
-        """The rollout of the latest START (also after its END: its late steps are still judged)."""
-        self.ended = False
+        self.gate: RolloutGate[DetectorScore] = RolloutGate(start_wait_ns=start_wait_ns, max_waiting_size=None)
+        """The node's rollouts (the one rollout state of the fusion node) and the scores waiting for a START."""
         self._next_step = 0
         self.suspicion = ""
         """Why the score streams cannot be attributed to the suite now (``""``: they can)."""
@@ -174,28 +194,38 @@ class AlarmFuser:
         self.reset()  # the latch and its companions: latched, alarm_step, last, unjudged, tainted
 
     # rollout lifecycle -------------------------------------------------------------------------------
-    def start(self, rollout_id: int, now_ns: int) -> None:
-        """A new rollout: clear the latch, the buffer and the streams' ages."""
+    def start(self, rollout_id: int, now_ns: int, task: str = "", scenario: str = "", max_steps: int = 0
+              ) -> list[DetectorScore] | None:
+        """A START: ``None`` for a repeated START of the running rollout (its state and latch are kept); else clear
+        the latch, the buffer and the streams' ages, and return the scores that waited for it (to :meth:`add`)."""
+        waited = self.gate.start(rollout_id, task, scenario, max_steps)
+        if waited is None:
+            return None
         self.unmatched_stale += len(self._pending)
         self._pending.clear()
-        self.rollout_id = rollout_id
-        self.ended = False
         self._next_step = 0
         self.reset()
         self.period.reset()
         self._last_seen = {d: now_ns for d in self.detectors}  # the deadline runs from the START
+        return waited
 
-    def end(self, rollout_id: int) -> None:
+    def end(self, rollout_id: int, outcome: str = "unknown") -> RolloutRecord | None:
         """The rollout ended: its streams are no longer expected (no staleness), but a step of it still on its
         way is judged (topics are not ordered: the END can overtake the last step). A latched ALARM (and
-        :attr:`last`) stays until the next START or :meth:`reset`."""
-        if rollout_id == self.rollout_id:
-            self.ended = True
+        :attr:`last`) stays until the next START or :meth:`reset`. Returns the rollout's record if it was active."""
+        return self.gate.end(rollout_id, outcome)
+
+    @property
+    def rollout_id(self) -> int | None:
+        """The rollout of the latest START (also after its END: its late steps are still judged)."""
+        current = self.gate.current
+        return None if current is None else current.rollout_id
 
     @property
     def active_rollout(self) -> int | None:
         """The rollout that is running (started, not ended), if any."""
-        return None if self.ended else self.rollout_id
+        active = self.gate.active
+        return None if active is None else active.rollout_id
 
     def reset(self) -> None:
         """Clear a latched ALARM (the ~/reset service); the next step is judged afresh, as after a START."""
@@ -285,14 +315,11 @@ class AlarmFuser:
                 self.exceeding_since.setdefault(score.detector, score.step)
             else:
                 self.exceeding_since.pop(score.detector, None)
-        by_name = {s.detector: (s, e) for s, e in zip(scores, exceeded)}
-        obs, obs_exc = by_name[RND_OE]
-        act, act_exc = by_name.get(ACE, (None, False))
+        first = scores[0]
         common = dict(
-            rollout_id=obs.rollout_id, step=obs.step, obs_exceeded=obs_exc, act_exceeded=act_exc,
-            eta_obs=obs.windowed, gamma_obs=obs.threshold, eta_act=math.nan if act is None else act.windowed,
-            gamma_act=math.nan if act is None else act.threshold, combine=self.combined,
-            stamp_ns=max(s.stamp_ns for s in scores),
+            rollout_id=first.rollout_id, step=first.step, detectors=self.detectors, exceeded=tuple(exceeded),
+            windowed=tuple(s.windowed for s in scores), thresholds=tuple(s.threshold for s in scores),
+            votes=self.votes, combine=self.combined, stamp_ns=max(s.stamp_ns for s in scores),
         )
         if self.latched:  # the latch wins over whatever this step brings
             return AlarmState(state=ALARM, latched=True,
@@ -308,8 +335,8 @@ class AlarmFuser:
                               **common)
         # Scores are >= 0, so an incomplete window's sum is a lower bound: its "exceeded" is certain,
         # its "not exceeded" is not. An alarm therefore stands; an OK needs complete windows.
-        if bool(fuse_declared(exceeded, self.combine)):
-            self.latched, self.alarm_step = True, obs.step
+        if fuse_votes(exceeded, self.votes):
+            self.latched, self.alarm_step = True, first.step
             self.explained = explanation([(s.detector, s.windowed, s.threshold, self.exceeding_since[s.detector])
                                           for s, e in zip(scores, exceeded) if e], len(scores), self._how)
             return AlarmState(state=ALARM, latched=True, reason=self.explained, **common)
@@ -322,9 +349,10 @@ class AlarmFuser:
         if rejected:  # a step whose input was rejected is never OK, whatever the other detector says
             return AlarmState(state=UNKNOWN, latched=False, reason=f"input of this step rejected: {', '.join(rejected)}",
                               **common)
-        # AND: one certainly-below detector rules the alarm out; OR (and one detector alone): all must be.
+        # The alarm is ruled out when fewer detectors than the votes may still exceed: AND needs one certainly below,
+        # OR and max (and one detector alone) all of them.
         certainly_below = [s.complete and not e for s, e in zip(scores, exceeded)]
-        if not (any(certainly_below) if self.combine == "and" else all(certainly_below)):
+        if len(scores) - sum(certainly_below) >= self.votes:
             incomplete = [s.detector for s in scores if not s.complete]
             return AlarmState(state=UNKNOWN, latched=False,
                               reason=f"window holds a missing step: {', '.join(incomplete)}", **common)
@@ -361,8 +389,9 @@ class AlarmFuser:
     def _without_step(self, now_ns: int, reason: str) -> AlarmState:
         """UNKNOWN about no fused step (step 0, no scores). Never latched: the latch fires at a fused step, and
         :attr:`last` holds that step's state until the latch is cleared."""
+        count = len(self.detectors)
         return AlarmState(
-            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=False, obs_exceeded=False,
-            act_exceeded=False, eta_obs=math.nan, gamma_obs=math.nan, eta_act=math.nan, gamma_act=math.nan,
-            combine=self.combined, reason=reason, stamp_ns=now_ns,
+            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=False,
+            detectors=self.detectors, exceeded=(False,) * count, windowed=(math.nan,) * count,
+            thresholds=(math.nan,) * count, votes=self.votes, combine=self.combined, reason=reason, stamp_ns=now_ns,
         )

@@ -26,6 +26,7 @@ BUSY = "busy"
 OUT_OF_RANGE = "out_of_range"
 NON_FINITE_SCORE = "non_finite_score"
 UNKNOWN_DETECTOR = "unknown_detector"
+SIGNAL_MISSING = "signal_missing"
 STEP_GAP = "step_gap"
 BEYOND_MAX_STEPS = "beyond_max_steps"
 TASK_MISMATCH = "task_mismatch"
@@ -35,6 +36,7 @@ REASONS = (
     SHAPE, NON_FINITE, OVERSIZE, CALIBRATION_MISMATCH, NO_CALIBRATION, UNKNOWN_ROLLOUT, BUSY,
     DUPLICATE_STEP, OUT_OF_ORDER_STEP, NEGATIVE_STEP, ACTION_SPACE, NO_JOINT_STATE, INTERNAL, ENCODING,
     OUT_OF_RANGE, NON_FINITE_SCORE, UNKNOWN_DETECTOR, STEP_GAP, BEYOND_MAX_STEPS, TASK_MISMATCH, MALFORMED,
+    SIGNAL_MISSING,
 )
 #: The one image encoding the policies take (sensor_msgs/Image ``encoding``).
 RGB8 = "rgb8"
@@ -141,6 +143,22 @@ def vector(data: Sequence[float] | np.ndarray, size: int, what: str, max_abs_val
     if values.shape != (size,):
         raise InputRejected(SHAPE, f"{what} has {values.size} values, expected {size}")
     return _checked(values, max_abs_value, what)
+
+
+def signal(names: Sequence[str], values: Sequence[float] | np.ndarray, name: str,
+           max_elements: int = DEFAULT_MAX_ELEMENTS, max_abs_value: float = DEFAULT_MAX_ABS_VALUE) -> float:
+    """The value of signal ``name`` among a step's logged ``names`` / ``values``, or raise :class:`InputRejected`:
+    more values than ``max_elements``, names and values that do not pair up, the signal missing, a value that is
+    not finite or of magnitude above ``max_abs_value``."""
+    _size(max(len(names), len(values)), max_elements, "step signals")
+    if len(names) != len(values):
+        raise InputRejected(SHAPE, f"step signals have {len(names)} names and {len(values)} values")
+    try:
+        index = list(names).index(name)
+    except ValueError:
+        shown = ", ".join(sorted(map(str, names))[:8]) or "none"
+        raise InputRejected(SIGNAL_MISSING, f"step signals lack {name!r} (they have {shown})") from None
+    return float(_checked(np.asarray([values[index]], dtype=np.float64), max_abs_value, f"signal {name}")[0])
 
 
 def rgb8_image(data: bytes | array.array, height: int, width: int, encoding: str, step: int,

@@ -19,14 +19,16 @@ from pathlib import Path
 
 import foxglove.layouts as fl
 
-from fiper_ros.core.detectors import LABELS, RND_OE, SIDES
+from fiper_ros.core.detectors import ACE, LABELS, RND_OE
 from fiper_ros.data_paths import package_share
 from fiper_ros.interface.topics import ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, SCORE_ACE, SCORE_RND_OE
 
 #: Where the layout is kept, relative to the ``fiper_ros`` package folder (installed in its share directory).
 LAYOUT_FILE = Path("config") / "foxglove" / "fiper.layout.json"
 #: The score topic of each detector.
-SCORE_TOPICS = {RND_OE: SCORE_RND_OE, "ace": SCORE_ACE}
+SCORE_TOPICS = {RND_OE: SCORE_RND_OE, ACE: SCORE_ACE}
+#: The subscripts the paper gives FIPER's pair (``eta_O``, ``gamma_A``), written as the plots' labels do.
+SUBSCRIPTS = {RND_OE: "obs", ACE: "act"}
 #: ``FailureAlarm.state`` codes, as the state-transitions panel names and colours them.
 STATES = ((0, "OK", "#2ca02c"), (1, "ALARM", "#d62728"), (2, "UNKNOWN", "#7f7f7f"))
 CAMERA_TITLES = {CAMERA_WRIST: "wrist camera", CAMERA_THIRD: "third-person camera"}
@@ -52,7 +54,7 @@ An observation-only calibration has no ACE: its plot stays empty. docs/view.md h
 
 
 def _score_plot(detector: str) -> fl.PlotPanel:
-    topic, side = SCORE_TOPICS[detector], SIDES[detector]
+    topic, side = SCORE_TOPICS[detector], SUBSCRIPTS[detector]
     label = LABELS[detector]
     return fl.PlotPanel(title=f"{label}: windowed score and threshold", config=fl.PlotConfig(
         paths=[fl.PlotSeries(value=f"{topic}.windowed_score", label=f"{label} windowed score (eta_{side})",
