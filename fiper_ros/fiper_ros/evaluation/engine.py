@@ -137,6 +137,8 @@ class SweepOutcome:
     """Threshold-free figures of every configuration on all test rollouts (:mod:`.early`): ``"auroc"`` and
     ``"q_auc"`` ``[tasks, seeds, groups]``, ``"pooled_auroc"`` and ``"pooled_q_auc"`` ``[seeds, groups]`` over
     every task's rollouts; NaN where a class is empty or a configuration has no statistic."""
+    early_seconds: float = 0.0
+    """Seconds spent on :attr:`early` (inside the sweep's time)."""
 
 
 @dataclass
@@ -271,11 +273,14 @@ def sweep_all(
     infinite: list[list[np.ndarray]] = [[] for _ in datasets]
     conformal: list[list[np.ndarray]] = [[] for _ in datasets]
     early: dict[str, list[np.ndarray]] = {name: [] for name in ("auroc", "q_auc", "pooled_auroc", "pooled_q_auc")}
+    early_seconds = 0.0
     tnr = METRICS.index("tnr")
     for seed in settings.seeds:
         swept_tasks = sweep_seed(datasets, scores, settings, seed, thresholds=dump is not None)
+        started = time.perf_counter()
         for name, values in zip(early, early_areas(datasets, scores, settings, seed, swept_tasks[datasets[0].task].groups)):
             early[name].append(values)
+        early_seconds += time.perf_counter() - started
         for t, dataset in enumerate(datasets):
             t_max = horizons(dataset, settings.method_settings.profile)
             swept = swept_tasks[dataset.task]
@@ -300,7 +305,7 @@ def sweep_all(
                         np.stack([np.stack(rows) for rows in conformal]),
                         {name: np.stack([np.stack(rows) for rows in per]) for name, per in rates.items()},
                         {name: [len(m) for m in members] for name, members in held_out.items()},
-                        {name: np.stack(values, axis=-2) for name, values in early.items()})
+                        {name: np.stack(values, axis=-2) for name, values in early.items()}, early_seconds)
 
 
 def task_statistics(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
@@ -350,8 +355,10 @@ def run_evaluation(
                                            outcome.metrics[report], settings.columns, settings.default_window,
                                            settings.default_kind, settings.select_aggregations, outcome.infinite,
                                            outcome.held_out[report])
+    selected = time.perf_counter()
     early = protocol_early(datasets, scores, settings, protocols)
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
+               "early_detection": outcome.early_seconds + time.perf_counter() - selected,
                **({} if writer is None else {"dump": writer.seconds}), "total": time.perf_counter() - start}
     LOG.info("evaluation: %d configurations x %d deltas, %.1f s", len(outcome.groups), len(settings.sweep.deltas),
              timings["total"])
