@@ -55,6 +55,7 @@ from fiper_ros.core.fusion import Combine  # noqa: E402
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets  # noqa: E402
 from fiper_ros.evaluation.dump import INDEX  # noqa: E402
+from fiper_ros.evaluation.early import DEFAULT_Q  # noqa: E402
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
 from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
 from fiper_ros.evaluation.external import ExternalScores, parse_scores  # noqa: E402
@@ -178,7 +179,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="one threshold per configuration pooled over the tasks (each task normalised by its own "
                             "shapes): for many tasks with few successes each; the promise is then over all tasks")
     protocol = parser.add_argument_group("protocol")
-    protocol.add_argument("--protocol", type=name_list(PROTOCOLS), default=("paper",))
+    protocol.add_argument("--protocol", type=name_list(PROTOCOLS), default=("paper",),
+                          help="comma list: paper (select and report on all test rollouts), clean (select on a "
+                               "validation half), loto (each task's configuration selected on the other tasks; two "
+                               "tasks or more)")
+    protocol.add_argument("--q-auc", type=float, default=DEFAULT_Q, metavar="Q",
+                          help="the q-AUC's early cut: each rollout's maximum over its first ceil(Q T_max) steps "
+                               f"(default {DEFAULT_Q:g})")
     protocol.add_argument("--seeds", type=int_list, default=(0,), help="e.g. 0-4")
     protocol.add_argument("--split-seed", type=int, default=0, help="clean protocol's validation split")
     protocol.add_argument("--select-cumulative", action="store_true",
@@ -269,7 +276,7 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           select_aggregations=("window", "max", "cumulative") if args.select_cumulative
                           else ("window", "max"),
                           progress=not args.quiet, combinations=combinations_from(args),
-                          combines=args.combo_combines, pooled=args.pool)
+                          combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc)
 
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:
@@ -290,7 +297,8 @@ def summary(result: EvaluationResult, markdown: Path) -> str:
     protocol = next(iter(result.protocols.values()))
     ranked = sorted(protocol.selected.values(), key=lambda r: -np.nan_to_num(r.average()[0][0], nan=-np.inf))
     label = result.settings.catalogue()[ranked[0].method].label
-    best = f"best TWA {label} {ranked[0].average()[0][0]:.3f} ({config_text(ranked[0].group)}"
+    config = "chosen per task" if ranked[0].per_task_choice else config_text(ranked[0].group)
+    best = f"best TWA {label} {ranked[0].average()[0][0]:.3f} ({config}"
     floor = protocol.selected.get(ELAPSED)
     best += f", {gain(ranked[0], floor, None)[0]:+.3f} over the elapsed time)" if floor is not None else ")"
     t = result.timings

@@ -18,6 +18,14 @@ detection times; TWA is accumulated rollout by rollout in the given order (``(1 
 positive, ``1 / #N`` for a true negative) and halved, an empty class adding nothing; ``twa_pos`` and
 ``twa_neg`` are the halves with 0 for an empty class. Every one of these is then rounded to 6 decimals as
 ``round`` rounds a numpy float (``np.round``: scaled by ``1e6``, ``rint``, scaled back) and cast to float32.
+
+Early detection, threshold-free (the measure of the failure-prediction literature beside TWA): a rollout's
+statistic is the maximum of its (windowed) score over its steps (:func:`rollout_peaks`), or over its first
+``ceil(q T_max)`` steps only (:func:`early_cut`; ``T_max`` the longest rollout of its task in the test set, a
+rollout shorter than the cut-off counting all its steps), and :func:`auroc` is the area under the ROC curve of
+that statistic with failures as positives: the Mann-Whitney probability that a failure's statistic exceeds a
+success's, ties counting 1/2. No threshold enters it, so it says nothing about the false-alarm promise. It is
+undefined (NaN) when a class is empty.
 """
 
 from __future__ import annotations
@@ -134,3 +142,61 @@ def evaluate(
         "n_neg": n_neg,
         "dt_mode": dt_mode,
     }
+
+
+def early_cut(t_max: int, q: float) -> int:
+    """The q-AUC cut-off ``ceil(q T_max)``: how many first steps of every rollout the early statistic sees."""
+    if not 0.0 < q <= 1.0:
+        raise ValueError(f"q must be in (0, 1], got {q}")
+    if t_max < 1:
+        raise ValueError(f"t_max must be >= 1, got {t_max}")
+    return math.ceil(q * t_max)
+
+
+def rollout_peaks(curves: np.ndarray, lengths: Sequence[int] | np.ndarray, cut: int | None = None) -> np.ndarray:
+    """Each rollout's maximum over its first ``min(cut, T_i)`` steps (``cut=None``: all its ``T_i`` steps).
+
+    Args:
+        curves: ``[..., N, T]`` per-step values, rollout ``i`` defined at steps ``0..T_i-1`` (anything after).
+        lengths: ``T_i`` per rollout, ``1 <= T_i <= T``.
+        cut: The steps seen (:func:`early_cut`), ``>= 1``.
+
+    Returns:
+        ``[..., N]``; ``ValueError`` when a value seen is not finite (a non-finite score is never a statistic).
+    """
+    values = np.asarray(curves, dtype=np.float64)
+    steps = np.asarray(lengths, dtype=np.int64)
+    if steps.shape != values.shape[-2:-1] or (steps.size and (steps.min() < 1 or steps.max() > values.shape[-1])):
+        raise ValueError(f"lengths {steps.tolist()} do not fit curves of shape {values.shape}")
+    if cut is not None:
+        if cut < 1:
+            raise ValueError(f"cut must be >= 1, got {cut}")
+        steps = np.minimum(steps, cut)
+    seen = np.arange(values.shape[-1])[None, :] < steps[:, None]  # [N, T]
+    if not np.isfinite(values[..., seen]).all():
+        raise ValueError("a rollout's score is not finite: it has no peak")
+    return np.where(seen, values, -np.inf).max(axis=-1)
+
+
+def auroc(statistics: np.ndarray, failed: Sequence[bool] | np.ndarray) -> np.ndarray:
+    """AUROC of ``statistics [..., N]`` (higher: more likely a failure) against ``failed [N]``: per leading index,
+    ``(#{(i, j): s_i > s_j} + #{(i, j): s_i = s_j} / 2) / (P N)`` over failures ``i`` and successes ``j``
+    (Mann-Whitney, ties 1/2); NaN when there is no failure or no success. ``ValueError`` on a non-finite value."""
+    values = np.asarray(statistics, dtype=np.float64)
+    labels = np.asarray(failed, dtype=bool)
+    if labels.ndim != 1 or values.shape[-1:] != labels.shape:
+        raise ValueError(f"statistics of shape {values.shape} do not match {labels.shape[0]} outcomes")
+    if not np.isfinite(values).all():
+        raise ValueError("a statistic is not finite: no AUROC")
+    positives, negatives = int(labels.sum()), int((~labels).sum())
+    lead = values.shape[:-1]
+    if positives == 0 or negatives == 0:
+        return np.full(lead, math.nan)
+    flat = values.reshape(-1, labels.shape[0])
+    out = np.empty(flat.shape[0])
+    for row, scores in enumerate(flat):
+        successes = np.sort(scores[~labels])
+        below = np.searchsorted(successes, scores[labels], side="left")
+        tied = np.searchsorted(successes, scores[labels], side="right") - below
+        out[row] = (int(below.sum()) + 0.5 * int(tied.sum())) / (positives * negatives)
+    return out.reshape(lead)

@@ -9,7 +9,8 @@ Modules, one concept each:
 - :mod:`.cache`: the on-disk score cache and its keys.
 - :mod:`.threshold_grid`: core thresholds fitted for many deltas at once (bit-identical).
 - :mod:`.sweep`: windows x thresholds x deltas (x FIPER pairs and AND/OR) -> first-alarm steps.
-- :mod:`.protocol`: metrics, averaging over deltas, model selection, seeds, the clean split.
+- :mod:`.protocol`: metrics, averaging over deltas, model selection (paper, clean, leave one task out), seeds.
+- :mod:`.early`: threshold-free early detection: each configuration's statistic, its AUROC and q-AUC.
 - :mod:`.engine`: the whole run over tasks and seeds (scores -> sweep -> metrics -> protocols).
 - :mod:`.report`: ``results.md`` (Tables 1 and 2) and ``results.json``.
 - :mod:`.plots`: the PNG figures.
@@ -22,5 +23,5 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["cache", "data", "engine", "methods", "offline", "plots", "progress", "protocol", "report", "results",
+__all__ = ["cache", "data", "early", "engine", "methods", "offline", "plots", "progress", "protocol", "report", "results",
            "scoring", "sweep", "synthetic", "threshold_grid", "verdicts"]

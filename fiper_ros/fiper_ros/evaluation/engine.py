@@ -16,13 +16,14 @@ from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.dump import Dump
+from fiper_ros.evaluation.early import DEFAULT_Q, EarlyDetection, TaskStatistics, areas, early_detection
 from fiper_ros.evaluation.external import check_external
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
 from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSettings, method_of, pooled_methods,
                                           streams_of)
 from fiper_ros.evaluation.progress import Progress
-from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, ProtocolResult, alarm_metrics, run_protocol,
-                                           validation_split)
+from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, ProtocolResult, alarm_metrics, run_loto,
+                                           run_protocol, validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
 
@@ -50,6 +51,8 @@ class EngineSettings:
         pooled: Thresholds pooled over the tasks (each task normalised by its own shapes, one conformal factor
             over every task's conformal rollouts) for every method, instead of per task; normalisation kinds
             only (CP band, CP scaled).
+        q_auc: ``q`` of the q-AUC: each rollout's maximum over its first ``ceil(q T_max)`` steps
+            (:mod:`fiper_ros.evaluation.early`).
     """
 
     methods: tuple[str, ...] = tuple(METHODS)
@@ -66,6 +69,7 @@ class EngineSettings:
     combinations: tuple[Combination, ...] = ()
     combines: tuple[str, ...] = JOINT_COMBINE_DEFAULTS
     pooled: bool = False
+    q_auc: float = DEFAULT_Q
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
@@ -82,6 +86,8 @@ class EngineSettings:
             raise ValueError(f"protocols must be among {PROTOCOLS}, got {self.protocols}")
         if not self.seeds:
             raise ValueError("at least one seed is needed")
+        if not 0.0 < self.q_auc <= 1.0:
+            raise ValueError(f"--q-auc must be in (0, 1], got {self.q_auc:g}")
         if min(*self.seeds, self.split_seed) < 0:
             raise ValueError(f"seeds must be >= 0, got --seeds {','.join(map(str, self.seeds))} and --split-seed "
                              f"{self.split_seed}")
@@ -98,6 +104,11 @@ class EngineSettings:
     def catalogue(self) -> dict[str, Method]:
         """The table column of every method and combination name."""
         return {**METHODS, **{m: method_of(m) for m in self.methods}, **{c.name: c.method() for c in self.combinations}}
+
+    def combined_detectors(self) -> dict[str, tuple[str, ...]]:
+        """The detectors of every method swept as a combination: the combinations, and every method when pooled."""
+        pooled = pooled_methods(self.methods) if self.pooled else ()
+        return {c.name: c.detectors for c in (*pooled, *self.combinations)}
 
     def streams(self) -> list[str]:
         """Every stream the methods and combinations read."""
@@ -122,6 +133,12 @@ class SweepOutcome:
     conformal: np.ndarray
     held_out: dict[str, np.ndarray]
     id_successes: dict[str, list[int]]
+    early: dict[str, np.ndarray] = field(default_factory=dict)
+    """Threshold-free figures of every configuration on all test rollouts (:mod:`.early`): ``"auroc"`` and
+    ``"q_auc"`` ``[tasks, seeds, groups]``, ``"pooled_auroc"`` and ``"pooled_q_auc"`` ``[seeds, groups]`` over
+    every task's rollouts; NaN where a class is empty or a configuration has no statistic."""
+    early_seconds: float = 0.0
+    """Seconds spent on :attr:`early` (inside the sweep's time)."""
 
 
 @dataclass
@@ -136,6 +153,8 @@ class EvaluationResult:
     timings: dict[str, float]
     cache_hits: int = 0
     cache_misses: int = 0
+    early: dict[str, dict[str, EarlyDetection]] = field(default_factory=dict)
+    """Per protocol, every selected configuration's AUROC and q-AUC on the rollouts it is reported on."""
 
     @property
     def tasks(self) -> list[str]:
@@ -167,6 +186,9 @@ def check_evaluation(datasets: Sequence[Dataset], settings: EngineSettings) -> N
     tasks = [d.task for d in datasets]
     if len(set(tasks)) != len(tasks):
         raise DatasetError(f"task names must be distinct, got {tasks}")
+    if "loto" in settings.protocols and len(tasks) < 2:
+        raise DatasetError(f"--protocol loto leaves one task out at a time: it needs two tasks or more, got "
+                           f"{len(tasks)} ({', '.join(tasks)})")
     streams = settings.streams()
     for dataset in datasets:
         check_dataset(dataset, settings.method_settings, streams)
@@ -250,9 +272,15 @@ def sweep_all(
     rates: dict[str, list[list[np.ndarray]]] = {name: [[] for _ in datasets] for name in held_out}
     infinite: list[list[np.ndarray]] = [[] for _ in datasets]
     conformal: list[list[np.ndarray]] = [[] for _ in datasets]
+    early: dict[str, list[np.ndarray]] = {name: [] for name in ("auroc", "q_auc", "pooled_auroc", "pooled_q_auc")}
+    early_seconds = 0.0
     tnr = METRICS.index("tnr")
     for seed in settings.seeds:
         swept_tasks = sweep_seed(datasets, scores, settings, seed, thresholds=dump is not None)
+        started = time.perf_counter()
+        for name, values in zip(early, early_areas(datasets, scores, settings, seed, swept_tasks[datasets[0].task].groups)):
+            early[name].append(values)
+        early_seconds += time.perf_counter() - started
         for t, dataset in enumerate(datasets):
             t_max = horizons(dataset, settings.method_settings.profile)
             swept = swept_tasks[dataset.task]
@@ -276,7 +304,27 @@ def sweep_all(
                         np.stack([np.stack(rows) for rows in infinite]),
                         np.stack([np.stack(rows) for rows in conformal]),
                         {name: np.stack([np.stack(rows) for rows in per]) for name, per in rates.items()},
-                        {name: [len(m) for m in members] for name, members in held_out.items()})
+                        {name: [len(m) for m in members] for name, members in held_out.items()},
+                        {name: np.stack(values, axis=-2) for name, values in early.items()}, early_seconds)
+
+
+def task_statistics(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+                    settings: EngineSettings, seed: int) -> list[TaskStatistics]:
+    """Per task, the threshold-free statistics of one seed's configurations (:mod:`.early`)."""
+    base = settings.calibration_settings(seed).threshold_settings()
+    return [TaskStatistics(scores[(d.task, seed)], base, settings.q_auc) for d in datasets]
+
+
+def early_areas(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+                settings: EngineSettings, seed: int, groups: Sequence[Group]) -> tuple[np.ndarray, ...]:
+    """AUROC and q-AUC of every configuration on every task's test rollouts ``[tasks, groups]`` and pooled over the
+    tasks ``[groups]`` (one seed)."""
+    combinations = settings.combined_detectors()
+    maxima = [statistics.peaks(groups, combinations) for statistics in task_statistics(datasets, scores, settings, seed)]
+    per_task = [areas(whole, early, d.failed) for (whole, early), d in zip(maxima, datasets)]
+    pooled = areas(np.concatenate([m[0] for m in maxima], axis=1), np.concatenate([m[1] for m in maxima], axis=1),
+                   np.concatenate([d.failed for d in datasets]))
+    return (np.stack([a[0] for a in per_task]), np.stack([a[1] for a in per_task]), pooled[0], pooled[1])
 
 
 def run_evaluation(
@@ -298,16 +346,40 @@ def run_evaluation(
     swept = time.perf_counter()
     protocols: dict[str, ProtocolResult] = {}
     for protocol in settings.protocols:
-        selection, report = ("all", "all") if protocol == "paper" else ("validation", "report")
+        selection, report = SUBSETS[protocol]
+        if protocol == "loto":
+            protocols[protocol] = run_loto(outcome.groups, outcome.metrics[report], settings.columns,
+                                           settings.select_aggregations, outcome.infinite, outcome.held_out[report])
+            continue
         protocols[protocol] = run_protocol(protocol, outcome.groups, outcome.metrics[selection],
                                            outcome.metrics[report], settings.columns, settings.default_window,
                                            settings.default_kind, settings.select_aggregations, outcome.infinite,
                                            outcome.held_out[report])
+    selected = time.perf_counter()
+    early = protocol_early(datasets, scores, settings, protocols)
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
+               "early_detection": outcome.early_seconds + time.perf_counter() - selected,
                **({} if writer is None else {"dump": writer.seconds}), "total": time.perf_counter() - start}
     LOG.info("evaluation: %d configurations x %d deltas, %.1f s", len(outcome.groups), len(settings.sweep.deltas),
              timings["total"])
     first = settings.seeds[0]
     return EvaluationResult(settings, list(datasets), outcome, protocols,
                             {d.task: scores[(d.task, first)] for d in datasets}, timings,
-                            cache.hits if cache else 0, cache.misses if cache else 0)
+                            cache.hits if cache else 0, cache.misses if cache else 0, early)
+
+
+def protocol_early(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+                   settings: EngineSettings, protocols: dict[str, ProtocolResult]) -> dict[str, dict[str, EarlyDetection]]:
+    """Per protocol, every selected configuration's AUROC and q-AUC on the test rollouts the protocol reports on
+    (the clean protocol's report half), each task's under its own configuration where it was chosen per task."""
+    statistics = {seed: task_statistics(datasets, scores, settings, seed) for seed in settings.seeds}
+    combinations = settings.combined_detectors()
+    out: dict[str, dict[str, EarlyDetection]] = {}
+    for name, protocol in protocols.items():
+        report = SUBSETS[name][1]
+        subsets = ([validation_split(d.failed, settings.split_seed)[1] for d in datasets] if report == "report"
+                   else [None] * len(datasets))
+        out[name] = {method: early_detection(statistics, [chosen.group_of(t) for t in range(len(datasets))],
+                                             [d.failed for d in datasets], subsets, combinations)
+                     for method, chosen in protocol.selected.items()}
+    return out

@@ -13,6 +13,10 @@ Protocols:
   across tasks (and seeds); that configuration is reported per task on the same test rollouts.
 - ``"clean"``: the same selection on a validation half of every task's test rollouts (a seeded split,
   stratified by outcome), reported on the disjoint other half.
+- ``"loto"`` (leave one task out): for every task, the same selection on the other tasks' test rollouts (their
+  mean TWA), reported on that task's test rollouts: no number of a task rests on a choice that read its labels.
+  It needs two tasks or more. The task's calibration successes do enter the choice, as in every protocol: a
+  configuration whose threshold is +inf at every delta on the reported task is never chosen for it.
 
 A fixed default configuration (window and threshold type given, FIPER ``w/w`` with AND) is reported
 too. A method with a single configuration (the elapsed-time baseline) is reported with it in both. With
@@ -41,7 +45,10 @@ from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.sweep import FIPER, Group
 
 METRICS = ("twa", "acc", "dt", "tpr", "tnr")
-PROTOCOLS = ("paper", "clean")
+PROTOCOLS = ("paper", "clean", "loto")
+#: Per protocol, the subset of every task's test rollouts a configuration is selected on and the one it is reported
+#: on (:class:`~fiper_ros.evaluation.engine.SweepOutcome`); ``"loto"`` selects on the other tasks' subset.
+SUBSETS = {"paper": ("all", "all"), "clean": ("validation", "report"), "loto": ("all", "all")}
 
 
 def nanmean(values: np.ndarray, axis: int | tuple[int, ...]) -> np.ndarray:
@@ -102,6 +109,18 @@ class MethodResult:
     """``[tasks, seeds, deltas]``: the configuration's threshold is +inf there (its metrics are NaN)."""
     false_alarms: np.ndarray
     """``[tasks, seeds, deltas]``: false-alarm rate on the held-out ID successes (NaN: none, or +inf)."""
+    task_groups: tuple[Group, ...] = ()
+    """Per task its own configuration, where a protocol chooses per task (``"loto"``; ``group`` is then the first
+    task's); empty: ``group`` on every task."""
+
+    def group_of(self, task: int) -> Group:
+        """The configuration reported on ``task``."""
+        return self.task_groups[task] if self.task_groups else self.group
+
+    @property
+    def per_task_choice(self) -> bool:
+        """Whether the configuration was chosen per task (:attr:`task_groups`)."""
+        return bool(self.task_groups)
 
     @property
     def values(self) -> np.ndarray:
@@ -205,3 +224,44 @@ def run_protocol(
                     else:
                         combined[(method, combine, kind)] = best
     return ProtocolResult(protocol, selected, default, combine_kind, scores, combined)
+
+
+def run_loto(groups: Sequence[Group], metrics: np.ndarray, methods: Sequence[str],
+             select_aggregations: Sequence[str] = ("window", "max"), infinite: np.ndarray | None = None,
+             held_out: np.ndarray | None = None) -> ProtocolResult:
+    """The leave-one-task-out protocol: for every task ``t``, :func:`run_protocol` selects on the other tasks' rows
+    of ``metrics`` (``[tasks, seeds, groups, deltas, 5]``) and reports on row ``t``; the per-task results are
+    joined into one :class:`ProtocolResult` whose :class:`MethodResult` carry each task's configuration
+    (:attr:`MethodResult.task_groups`). ``selection_twa`` is each method's mean over the tasks of the TWA its
+    choice had on the other tasks. No fixed default (it is the paper protocol's: nothing is selected).
+
+    ``infinite`` and ``held_out`` as for :func:`run_protocol`. A configuration with no finite delta on some task
+    and seed of the others or of ``t`` itself (calibration successes only) is never chosen for ``t``."""
+    tasks = metrics.shape[0]
+    if tasks < 2:
+        raise ValueError(f"the leave-one-task-out protocol needs two tasks or more, got {tasks}")
+    shape = metrics.shape[:-1]
+    infinite = np.zeros(shape, dtype=bool) if infinite is None else infinite
+    held_out = np.full(shape, np.nan) if held_out is None else held_out
+    folds: list[ProtocolResult] = []
+    for task in range(tasks):
+        others = [t for t in range(tasks) if t != task]
+        selection = metrics[others].copy()
+        selection[:, :, infinite[others].all(axis=3).any(axis=(0, 1))] = np.nan  # never selected
+        # no fixed default: window 0 is no configuration
+        folds.append(run_protocol("loto", groups, selection, metrics[[task]], methods, 0, "", select_aggregations,
+                                  infinite[[task]], held_out[[task]]))
+
+    def joined(parts: list[MethodResult]) -> MethodResult:
+        return MethodResult(parts[0].method, parts[0].group, np.concatenate([p.per_delta for p in parts]),
+                            np.concatenate([p.infinite for p in parts]),
+                            np.concatenate([p.false_alarms for p in parts]), tuple(p.group for p in parts))
+
+    def per_task(choice: list[dict]) -> dict:
+        return {key: joined([fold[key] for fold in choice]) for key in choice[0] if all(key in f for f in choice)}
+
+    scores = {m: float(nanmean(np.array([f.selection_twa.get(m, np.nan) for f in folds]), axis=0))
+              for m in folds[0].selection_twa}
+    return ProtocolResult("loto", per_task([f.selected for f in folds]), {},
+                          per_task([f.combine_kind for f in folds]), scores,
+                          per_task([f.combinations for f in folds]))

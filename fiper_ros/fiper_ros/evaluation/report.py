@@ -10,7 +10,10 @@ some of the deltas (the others +inf) or some of the tasks carries ``‡`` and a 
 which. With the elapsed-time baseline among the methods, every table shows each method's TWA minus the
 baseline's (per seed, then mean ± std). The promise table sets the false-alarm rate on the held-out ID
 successes beside delta, with its binomial standard error ``sqrt(p (1 - p) / n)``, flagged ``⚠`` when above
-``delta + 2 sigma``, and the TPR at that delta.
+``delta + 2 sigma``, and the TPR at that delta. Every protocol's section says which protocol its numbers come from;
+under the leave-one-task-out protocol each task's row names the configuration chosen for it. The early-detection
+table gives every selected configuration's threshold-free AUROC and q-AUC (:mod:`.early`) per task and pooled over
+the tasks; a cell without one reads why (one class empty, or no statistic), it is never averaged away.
 """
 
 from __future__ import annotations
@@ -24,10 +27,11 @@ import numpy as np
 
 from fiper_ros.core.detectors import info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
+from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.engine import EvaluationResult
 from fiper_ros.evaluation.methods import ELAPSED, METHODS
-from fiper_ros.evaluation.protocol import METRICS, MethodResult, ProtocolResult, nanmean, nanstd
-from fiper_ros.evaluation.sweep import CUMULATIVE, Group
+from fiper_ros.evaluation.protocol import METRICS, SUBSETS, MethodResult, ProtocolResult, nanmean, nanstd
+from fiper_ros.evaluation.sweep import CUMULATIVE, FIPER, Group
 
 LABELS = {"twa": "TWA ↑", "acc": "Acc. ↑", "dt": "DT ↓", "tpr": "TPR ↑", "tnr": "TNR ↑"}
 KIND_LABELS = {"cp_band": "CP band", "cp_constant": "CP constant", "time_varying": "time-var.",
@@ -42,6 +46,15 @@ SPLIT_TEXT = {
 }
 POOR = 0.4
 PARTIAL = "‡"
+#: Where each protocol's numbers come from (the heading of its section).
+PROTOCOL_TITLES = {
+    "paper": "paper protocol (selection and report on all test rollouts)",
+    "clean": "clean protocol (selection on a validation half, report on the disjoint half)",
+    "loto": "leave-one-task-out protocol (each task's configuration selected on the other tasks' test rollouts, "
+            "reported on its own)",
+}
+#: Whose ID successes the promise table counts, per protocol.
+HELD_OUT_TEXT = {"paper": "all test rollouts'", "clean": "the report half's", "loto": "all test rollouts'"}
 FLAG = "⚠"
 TWA = METRICS.index("twa")
 
@@ -82,7 +95,7 @@ class Cells:
         """``"inf (M=12 < 19)"`` when every delta of ``task`` is +inf, else ``None``."""
         if not chosen.infinite[task].all():
             return None
-        return f"inf (M={self.behind(chosen.group, task)} < {minimum_conformal_set(max(self.deltas))})"
+        return f"inf (M={self.behind(chosen.group_of(task), task)} < {minimum_conformal_set(max(self.deltas))})"
 
     def partial_note(self, chosen: MethodResult, task: int) -> str | None:
         """The line explaining a task cell averaged over only its finite deltas, else ``None``."""
@@ -92,7 +105,8 @@ class Cells:
         skipped = [d for d, bad in zip(self.deltas, infinite) if bad]
         return (f"{self.result.tasks[task]}: averaged over delta "
                 f"{_deltas_text([d for d, bad in zip(self.deltas, infinite) if not bad])} only; +inf at delta "
-                f"{_deltas_text(skipped)} (M={self.behind(chosen.group, task)} < {minimum_conformal_set(max(skipped))})")
+                f"{_deltas_text(skipped)} (M={self.behind(chosen.group_of(task), task)} < "
+                f"{minimum_conformal_set(max(skipped))})")
 
     def average_note(self, chosen: MethodResult) -> str | None:
         """The line explaining a task average that leaves out a task with no finite delta, else ``None``."""
@@ -184,10 +198,10 @@ def table1(result: EvaluationResult, chosen: dict[str, MethodResult]) -> str:
     floor = chosen.get(ELAPSED)
     header = ["Task", "Metric", *(catalogue[m].label for m in methods)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines.append("| Best w | | " + " | ".join(window_text(chosen[m].group) for m in methods) + " |")
-    lines.append("| Best threshold | | " + " | ".join(
-        KIND_LABELS[chosen[m].group.kind] + (f", {chosen[m].group.combine.upper()}" if chosen[m].group.combine else "")
-        for m in methods) + " |")
+    per_task_choice = any(chosen[m].per_task_choice for m in methods)
+    if not per_task_choice:
+        lines.append("| Best w | | " + " | ".join(window_text(chosen[m].group) for m in methods) + " |")
+        lines.append("| Best threshold | | " + " | ".join(threshold_text(chosen[m].group) for m in methods) + " |")
     notes: list[tuple[str, str]] = []
     per_task = {m: chosen[m].per_task() for m in methods}
     averages = {m: chosen[m].average() for m in methods}
@@ -201,11 +215,15 @@ def table1(result: EvaluationResult, chosen: dict[str, MethodResult]) -> str:
             means = np.stack([per_task[m][0][t] for m in methods])
             stds = np.stack([per_task[m][1][t] for m in methods])
             replaced = [cells.inf_text(chosen[m], t) for m in methods]
+            if per_task_choice:
+                lines.append(f"| {name} | chosen | " + " | ".join(config_text(chosen[m].group_of(t)) for m in methods)
+                             + " |")
         cell_notes = [cells.notes(chosen[m], t) for m in methods]
         notes += [(n, catalogue[m].label) for m, ns in zip(methods, cell_notes) for n in ns]
         marks = [PARTIAL if ns and r is None else "" for ns, r in zip(cell_notes, replaced)]
         for i, (metric, (row, bold)) in enumerate(_metric_row(means, stds, seeds, marks, replaced).items()):
-            lines.append(f"| {name if i == 0 else ''} | {LABELS[metric]} | " + " | ".join(_emphasise(row, bold)) + " |")
+            named = i == 0 and not (per_task_choice and t is not None)  # else the "chosen" row names the task
+            lines.append(f"| {name if named else ''} | {LABELS[metric]} | " + " | ".join(_emphasise(row, bold)) + " |")
         if floor is not None:
             lines.append(f"| | TWA − {METHODS[ELAPSED].label} | " + " | ".join(
                 _signed(*gain(chosen[m], floor, t), seeds) for m in methods) + " |")
@@ -252,18 +270,33 @@ def _voting_table(result: EvaluationResult, protocol: ProtocolResult,
         if floor is not None:
             values.append(_signed(*gain(c, floor, None), seeds))
         lead = [catalogue[method].label] if named else []
-        lines.append("| " + " | ".join([*lead, combine.upper(), KIND_LABELS[kind], window_text(c.group), *values]) + " |")
+        lines.append("| " + " | ".join([*lead, combine.upper(), KIND_LABELS[kind], chosen_window(result, c), *values])
+                     + " |")
     return "\n".join(lines + _legend(notes))
 
 
-def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], pooled: bool = False) -> str:
+def threshold_text(group: Group) -> str:
+    """E.g. ``"time-var., AND"``."""
+    return KIND_LABELS[group.kind] + (f", {group.combine.upper()}" if group.combine else "")
+
+
+def chosen_window(result: EvaluationResult, chosen: MethodResult) -> str:
+    """The window of a configuration, per task where it was chosen per task (``"sorting 5; push_t 8"``)."""
+    if not chosen.per_task_choice:
+        return window_text(chosen.group)
+    return "; ".join(f"{task} {window_text(chosen.group_of(t))}" for t, task in enumerate(result.tasks))
+
+
+def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], pooled: bool = False,
+                   task: int = 0) -> str:
     """What a configuration promises about false alarms on new successes (docs/method.md, "What each
-    threshold guarantees"): the bound, or why there is none; ``streams`` are the configuration's detectors.
-    External scores were fitted on what their user knows: the bound then holds only if that model saw no
-    calibration rollout."""
-    if chosen.group.kind not in GUARANTEED_KINDS:
+    threshold guarantees"): the bound, or why there is none; ``streams`` are the configuration's detectors, ``task``
+    the task whose configuration it is where it was chosen per task. External scores were fitted on what their user
+    knows: the bound then holds only if that model saw no calibration rollout."""
+    group = chosen.group_of(task)
+    if group.kind not in GUARANTEED_KINDS:
         return "none (per-step quantile)"
-    bound = f"{len(streams)}δ (OR)" if chosen.group.combine == "or" else "δ"
+    bound = f"{len(streams)}δ (OR)" if group.combine == "or" else "δ"
     bound += " over all tasks (pooled)" if pooled else ""
     if all(not info(s).fitted for s in streams) or split == "split":
         text = f"≤ {bound}"  # nothing we fitted saw the conformal rollouts
@@ -299,7 +332,7 @@ def promise_rows(result: EvaluationResult, chosen: MethodResult, task: int, held
 def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
     """Every method's selected configuration: false alarms on held-out ID successes beside delta."""
     cells = Cells(result)
-    held_out = "all" if protocol.protocol == "paper" else "report"
+    held_out = SUBSETS[protocol.protocol][1]
     shown = _shown_deltas(cells.deltas)
     floor = protocol.selected.get(ELAPSED)
     extra = [f"TWA − {METHODS[ELAPSED].label}"] if floor is not None else []
@@ -317,7 +350,7 @@ def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
             for delta in shown:
                 row = by_delta[delta]
                 if row["infinite"]:
-                    values.append(f"inf (M={cells.behind(chosen.group, t)} < {minimum_conformal_set(delta)})")
+                    values.append(f"inf (M={cells.behind(chosen.group_of(t), t)} < {minimum_conformal_set(delta)})")
                 elif math.isnan(row["rate"]):
                     values.append("–")
                 else:
@@ -325,12 +358,53 @@ def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
                                   f" / {row['tpr']:.2f}")
             above = [row["delta"] for row in rows if row["above"]]
             first = t == 0
+            own = first or chosen.per_task_choice  # a configuration chosen per task is named on every row
             lines.append("| " + " | ".join([
-                catalogue[method].label if first else "", config_text(chosen.group) if first else "",
-                guarantee_text(chosen, split, catalogue[method].streams, result.settings.pooled) if first else "",
+                catalogue[method].label if first else "", config_text(chosen.group_of(t)) if own else "",
+                guarantee_text(chosen, split, catalogue[method].streams, result.settings.pooled, t) if own else "",
                 task, str(rows[0]["n"]), *values,
                 _deltas_text(above) if above else "none",
                 *([_signed(*gain(chosen, floor, t), seeds)] if floor is not None else [])]) + " |")
+    return "\n".join(lines)
+
+
+def _area_cell(values: np.ndarray, seeds: int, why: str | None) -> str:
+    """An AUROC cell: ``mean ± std`` over seeds, or why there is none (never left blank or averaged away)."""
+    if why is not None:
+        return why
+    return _cell(float(nanmean(values, axis=0)), float(nanstd(values, axis=0)), seeds, False)
+
+
+def _area_gap(figures: EarlyDetection, task: int | None) -> str | None:
+    """Why a task's (``None``: the pooled) AUROC is undefined, else ``None``."""
+    if not figures.defined:
+        return "n/a (no statistic)"
+    failures, successes = figures.classes.sum(axis=0) if task is None else figures.classes[task]
+    if failures and successes:
+        return None
+    return "null (no failures)" if not failures else "null (no successes)"
+
+
+def early_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
+    """Every selected configuration's AUROC / q-AUC per task and pooled over the tasks (mean ± std over seeds)."""
+    early = result.early.get(protocol.protocol, {})
+    if not early:
+        return "_No configuration was selected._"
+    catalogue = result.settings.catalogue()
+    seeds = len(result.settings.seeds)
+    header = ["Method", "Config", *(f"{task} AUROC / q-AUC" for task in result.tasks), "Pooled AUROC / q-AUC"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for method, figures in early.items():
+        chosen = protocol.selected[method]
+        config = ("chosen per task (Table 1)" if chosen.per_task_choice else config_text(chosen.group))
+        cells = []
+        for t in range(len(result.tasks)):
+            why = _area_gap(figures, t)
+            cells.append(why or f"{_area_cell(figures.auroc[t], seeds, None)} / {_area_cell(figures.q_auc[t], seeds, None)}")
+        why = _area_gap(figures, None)
+        cells.append(why or f"{_area_cell(figures.pooled_auroc, seeds, None)} / "
+                            f"{_area_cell(figures.pooled_q_auc, seeds, None)}")
+        lines.append("| " + " | ".join([catalogue[method].label, config, *cells]) + " |")
     return "\n".join(lines)
 
 
@@ -390,11 +464,12 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   "every average and selection):", *summary]
     lines.append("")
     for name, protocol in result.protocols.items():
-        title = ("paper protocol (selection and report on all test rollouts)" if name == "paper"
-                 else "clean protocol (selection on a validation half, report on the disjoint half)")
-        held = "all test rollouts'" if name == "paper" else "the report half's"
-        lines += [f"## Table 1: failure prediction, {title}", "",
-                  "Each method's window and threshold type maximise the mean TWA across tasks.", "",
+        title, held = PROTOCOL_TITLES[name], HELD_OUT_TEXT[name]
+        chosen = ("Each task's configuration (per method: window and threshold type) maximises the mean TWA across "
+                  "the other tasks; the task's own labels are never read (its calibration successes are: a "
+                  "configuration whose threshold is +inf at every delta there is not chosen)." if name == "loto"
+                  else "Each method's window and threshold type maximise the mean TWA across tasks.")
+        lines += [f"## Table 1: failure prediction, {title}", "", chosen, "",
                   table1(result, protocol.selected), "",
                   f"## Table 2: FIPER operator and threshold type, {name} protocol (task average)", "",
                   table2(result, protocol), "",
@@ -406,7 +481,16 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   f"FA: the fraction of {held} ID-scenario successes alarmed (mean over seeds) ± its binomial "
                   f"standard error; {FLAG}: above δ + 2σ. TPR: over all failures, at the same δ. Guarantee: "
                   "docs/method.md, 'What each threshold guarantees'.", "",
-                  promise_table(result, protocol), ""]
+                  promise_table(result, protocol), "",
+                  f"## Early detection (threshold-free), {name} protocol", "",
+                  "AUROC: of each rollout's maximum of the configuration's windowed score (a combination's and "
+                  "FIPER's: of the combined normalised statistic); q-AUC: of its maximum over the first "
+                  f"ceil({s.q_auc:g} T_max) steps (T_max: the task's longest test rollout). Ties count 1/2; mean ± std "
+                  "over seeds, on the rollouts this protocol reports on; pooled: every task's rollouts in one AUROC. "
+                  "Both are threshold-free, so they say nothing about the false-alarm promise (the table above).", "",
+                  early_table(result, protocol), ""]
+        if name == "loto":
+            lines += ["The fixed default configuration selects nothing: it is the paper protocol's.", ""]
         if protocol.default:
             lines += [f"## Fixed default configuration, {name} protocol "
                       f"(w = {s.default_window}, {KIND_LABELS[s.default_kind]}, FIPER AND)", "",
@@ -428,18 +512,42 @@ def _clean(value: Any) -> Any:
     return value
 
 
-def _method_json(result: EvaluationResult, chosen: MethodResult, held_out: str, floor: MethodResult | None) -> dict[str, Any]:
+def _config_json(group: Group) -> dict[str, str]:
+    return {"window": group.window, "threshold": group.kind, "combine": group.combine}
+
+
+def _early_json(figures: EarlyDetection, tasks: list[str]) -> dict[str, Any]:
+    """AUROC and q-AUC per task and pooled: mean, std and per seed (``null`` where undefined, with the reason)."""
+
+    def area(values: np.ndarray, why: str | None) -> dict[str, Any]:
+        return {"mean": float(nanmean(values, axis=0)), "std": float(nanstd(values, axis=0)), "seeds": values,
+                **({"undefined": why} if why else {})}
+
+    return {"tasks": {task: {"auroc": area(figures.auroc[t], _area_gap(figures, t)),
+                             "q_auc": area(figures.q_auc[t], _area_gap(figures, t)),
+                             "failures": int(figures.classes[t, 0]), "successes": int(figures.classes[t, 1])}
+                      for t, task in enumerate(tasks)},
+            "pooled": {"auroc": area(figures.pooled_auroc, _area_gap(figures, None)),
+                       "q_auc": area(figures.pooled_q_auc, _area_gap(figures, None))}}
+
+
+def _method_json(result: EvaluationResult, chosen: MethodResult, held_out: str, floor: MethodResult | None,
+                 early: EarlyDetection | None = None) -> dict[str, Any]:
     cells = Cells(result)
     mean, std = chosen.per_task()
     average_mean, average_std = chosen.average()
     split = result.settings.method_settings.split
+    streams = result.settings.catalogue()[chosen.method].streams
     return {
-        "config": {"window": chosen.group.window, "threshold": chosen.group.kind, "combine": chosen.group.combine},
-        "guarantee": guarantee_text(chosen, split, result.settings.catalogue()[chosen.method].streams,
-                                    result.settings.pooled),
-        "tasks": {task: {**{m: {"mean": mean[t, i], "std": std[t, i], "seeds": chosen.values[t, :, i]}
+        "config": "per task" if chosen.per_task_choice else _config_json(chosen.group),
+        "guarantee": guarantee_text(chosen, split, streams, result.settings.pooled),
+        **({"early_detection": _early_json(early, result.tasks)} if early is not None else {}),
+        "tasks": {task: {**({"config": _config_json(chosen.group_of(t)),
+                             "guarantee": guarantee_text(chosen, split, streams, result.settings.pooled, t)}
+                            if chosen.per_task_choice else {}),
+                         **{m: {"mean": mean[t, i], "std": std[t, i], "seeds": chosen.values[t, :, i]}
                             for i, m in enumerate(METRICS)},
-                         "conformal_rollouts": cells.behind(chosen.group, t),
+                         "conformal_rollouts": cells.behind(chosen.group_of(t), t),
                          "infinite_deltas": [d for d, bad in zip(cells.deltas, chosen.infinite[t].any(axis=0)) if bad],
                          "held_out_false_alarms": promise_rows(result, chosen, t, held_out),
                          **({"twa_gain_over_elapsed": dict(zip(("mean", "std"), gain(chosen, floor, t)))}
@@ -456,23 +564,28 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
     s = result.settings
     protocols = {}
     for name, protocol in result.protocols.items():
-        held_out = "all" if name == "paper" else "report"
+        held_out = SUBSETS[name][1]
         floor = protocol.selected.get(ELAPSED)
+        early = result.early.get(name, {})
 
-        def entries(chosen: dict[Any, MethodResult]) -> dict[str, Any]:
-            return {"/".join(k) if isinstance(k, tuple) else k: _method_json(result, r, held_out, floor)
-                    for k, r in chosen.items()}
+        def entries(chosen: dict[Any, MethodResult], figures: dict[str, EarlyDetection] | None = None) -> dict[str, Any]:
+            return {"/".join(k) if isinstance(k, tuple) else k:
+                    _method_json(result, r, held_out, floor, (figures or {}).get(k)) for k, r in chosen.items()}
 
-        protocols[name] = {"selected": entries(protocol.selected), "selection_twa": protocol.selection_twa,
+        protocols[name] = {"selected": entries(protocol.selected, early), "selection_twa": protocol.selection_twa,
                            "default": entries(protocol.default),
                            "fiper_combine_threshold": entries(protocol.combine_kind),
                            "combinations": entries(protocol.combinations)}
     seed_mean = nanmean(result.metrics["all"], axis=1)
     deltas = list(s.sweep.deltas)
     infinite = result.sweep.infinite.any(axis=1)  # [tasks, groups, deltas], over seeds
+    areas = {name: nanmean(values, axis=values.ndim - 2) for name, values in result.sweep.early.items()}  # seed means
     sweep = [
         {"method": g.method, "window": g.window, "threshold": g.kind, "combine": g.combine,
          "metrics": {task: {m: seed_mean[t, i, :, k] for k, m in enumerate(METRICS)} for t, task in enumerate(result.tasks)},
+         "early_detection": {"auroc": {task: areas["auroc"][t, i] for t, task in enumerate(result.tasks)},
+                             "q_auc": {task: areas["q_auc"][t, i] for t, task in enumerate(result.tasks)},
+                             "pooled_auroc": areas["pooled_auroc"][i], "pooled_q_auc": areas["pooled_q_auc"][i]},
          "infinite_deltas": {task: [d for d, bad in zip(deltas, infinite[t, i]) if bad]
                              for t, task in enumerate(result.tasks) if infinite[t, i].any()}}
         for i, g in enumerate(result.groups)
@@ -487,7 +600,7 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
                      "combination_combines": list(s.combines), "pooled": s.pooled,
                      "windows": list(s.sweep.windows), "cumulative": s.sweep.cumulative, "deltas": list(s.sweep.deltas),
                      "thresholds": list(s.sweep.kinds), "combines": list(s.sweep.combines), "pairs": s.sweep.pairs,
-                     "protocols": list(s.protocols), "split_seed": s.split_seed,
+                     "protocols": list(s.protocols), "split_seed": s.split_seed, "q_auc": s.q_auc,
                      "calibration_split": s.method_settings.split_settings(),
                      "external_scores": {e.stream: {"file": str(e.path), "sha256": e.sha256}
                                          for e in s.method_settings.external},
