@@ -23,6 +23,8 @@ LOCAL = "local"
 #: node address, which is 127.0.0.1 only while Ray's multi-node mode is off (the network rule: nothing of the
 #: project listens off loopback); no usage reports leave the machine.
 LOCAL_ENV = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0", "RAY_USAGE_STATS_ENABLED": "0"}
+#: The address of every server of a local instance.
+LOOPBACK = "127.0.0.1"
 #: How often one task may lose its worker or node before the command fails.
 MAX_LOST = 3
 
@@ -78,6 +80,11 @@ def connected(address: str, cpus: int | None = None) -> Iterator[Cluster]:
         ray.init(**options)
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as error:
         raise ClusterError(f"cannot join the Ray cluster at {address}: {first_line(error)}") from error
+    node_address = ray.util.get_node_ip_address()
+    if address == LOCAL and node_address != LOOPBACK:
+        ray.shutdown()
+        raise ClusterError(f"the local Ray instance took the address {node_address}, not {LOOPBACK}: ray was "
+                           "imported before fiper_ros.cluster set its environment")
     try:
         resources = ray.cluster_resources()
         yield Cluster(address, int(resources.get("CPU", 0)), sum(node["Alive"] for node in ray.nodes()))
@@ -158,7 +165,7 @@ class TaskPool(Generic[K]):
     def completed(self) -> Iterator[tuple[K, Any]]:
         """``(key, result)`` of every started task, in the order they finish."""
         while self._refs or self._ready:
-            if not self._ready:
+            while not self._ready:  # a lost task is run again: the fetch may bring nothing
                 self._fetch()
             key = next(iter(self._ready))
             self._calls.pop(key)
