@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import tempfile
+import time
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -46,14 +47,16 @@ def _policy(model_hash: str, model: list[Any]) -> Policy:
 
 
 def episode_task(model_hash: str, model: list[Any], scenario: str, seed: int, batch: int,
-                 max_policy_steps: int | None, threads: int) -> tuple[EpisodeResult, str]:
+                 max_policy_steps: int | None, threads: int) -> tuple[EpisodeResult, str, float]:
     """One episode on a Ray worker (``model``: the reference of the model's files, in a list so that Ray hands
-    over the reference, not the files), and the id of the node that ran it."""
+    over the reference, not the files), the id of the node that ran it and the episode's own seconds."""
     import ray  # noqa: PLC0415
 
     torch.set_num_threads(threads)
-    result = run_episode(_policy(model_hash, model), scenario, seed, batch=batch, max_policy_steps=max_policy_steps)
-    return result, ray.get_runtime_context().get_node_id()
+    policy = _policy(model_hash, model)
+    started = time.perf_counter()
+    result = run_episode(policy, scenario, seed, batch=batch, max_policy_steps=max_policy_steps)
+    return result, ray.get_runtime_context().get_node_id(), time.perf_counter() - started
 
 
 def _describe(key: tuple[str, int]) -> str:
@@ -80,6 +83,8 @@ class RayRunner(InProcessRunner):
         self._tasks: TaskPool[tuple[str, int]] = TaskPool(episode_task, _describe)
         #: The nodes that ran the episodes taken so far.
         self.nodes: set[str] = set()
+        #: The own seconds of each episode taken (run_episode on its worker, without Ray's part).
+        self.episode_seconds: list[float] = []
 
     def _args(self, scenario: str, seed: int) -> tuple[Any, ...]:
         return (self.setup.policy_hash, self._model, scenario, seed, self.setup.batch, self.setup.max_policy_steps,
@@ -99,10 +104,11 @@ class RayRunner(InProcessRunner):
         """The episode's result from the cluster (started now if it was not)."""
         self._tasks.submit((scenario, seed), *self._args(scenario, seed))
         try:
-            result, node = self._tasks.result((scenario, seed))
+            result, node, seconds = self._tasks.result((scenario, seed))
         except ClusterError as error:
             raise BagError(str(error)) from None
         self.nodes.add(node)
+        self.episode_seconds.append(seconds)
         return result
 
     def status(self) -> str:

@@ -164,6 +164,11 @@ def test_optional_dependencies_are_imported_lazily_by_their_modules_only() -> No
     assert wrong == []
 
 
+def test_the_modules_allowed_an_optional_import_exist() -> None:
+    names = {name for name, _ in modules()}
+    assert {m for allowed in OPTIONAL_IMPORTS.values() for m in allowed} - names == set()
+
+
 def test_the_optional_import_rule_sees_module_level_and_lazy_imports(tmp_path: Path) -> None:
     source = tmp_path / "m.py"
     source.write_text("import os\nimport ray.util\nif os:\n    from ray import get\n"
