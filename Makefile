@@ -2,7 +2,7 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test mutants demo study bench-core bench-eval bench-nodes bench-policy bench-soak lock clean distclean
+.PHONY: help setup test mutants demo study bench-core bench-eval bench-nodes bench-policy bench-soak bench-scale lock clean distclean
 
 help:
 	@echo "make demo        the main job: sim bridge, policy and FIPER nodes live, 2 rollouts (runs/demo/)"
@@ -14,6 +14,7 @@ help:
 	@echo "make bench-eval  speed of the evaluation engine (scores, full sweep) on synthetic data"
 	@echo "make bench-nodes start-up, memory, end-to-end latency and throughput of the node suite over DDS"
 	@echo "make bench-policy cost of a policy step (embedding, B sampled chunks) of each shipped policy"
+	@echo "make bench-scale collection as Ray tasks: time per episode, Ray overhead, 2 workers vs 1 (docs/scale.md)"
 	@echo "make bench-soak  an hour of the demo's node set: memory, alarm latency per 5 min (MINUTES=10: per minute)"
 	@echo "make lock        regenerate requirements.lock from requirements.in"
 	@echo "make clean       remove colcon build/install/log; make distclean also removes the venv"
@@ -45,6 +46,9 @@ bench-nodes: setup
 
 bench-policy: setup
 	@$(RUN) python -m fiper_ros.bench.policy_bench
+
+bench-scale: setup
+	@$(RUN) python -m fiper_ros.bench.scale_bench
 
 bench-soak: setup
 	@$(RUN) python -m fiper_ros.bench.soak_bench --minutes $(or $(MINUTES),60)

@@ -113,14 +113,17 @@ class InProcessRunner:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
+    def result(self, scenario: str, seed: int) -> EpisodeResult:
+        """The episode, run in this process or taken from the worker that ran it."""
+        if self._pool is None:
+            return run_episode(self.policy, scenario, seed, batch=self.setup.batch,
+                               max_policy_steps=self.setup.max_policy_steps)
+        self._start(scenario, seed)
+        return self._started.pop((scenario, seed)).result()
+
     def run(self, scenario: str, seed: int, path: Path, fields: dict[str, Any]) -> RanEpisode:
         """Run the episode (or take it from the worker that ran it); its bag is written by ``write``."""
-        if self._pool is None:
-            result = run_episode(self.policy, scenario, seed, batch=self.setup.batch,
-                                 max_policy_steps=self.setup.max_policy_steps)
-        else:
-            self._start(scenario, seed)
-            result = self._started.pop((scenario, seed)).result()
+        result = self.result(scenario, seed)
         assert result.rollout is not None  # run_episode records by default
         rollout = replace(result.rollout, metadata={**result.rollout.metadata, "max_steps": self.max_steps})
         rollout_id = collected_rollout_id(scenario, seed)

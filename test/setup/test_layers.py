@@ -22,7 +22,7 @@ PACKAGES = {"fiper_ros": ROOT / "fiper_ros" / "fiper_ros", "sim_bridge": ROOT / 
 
 #: Lowest first. A unit may import the units of the layers below its own.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("fiper_ros", "core", "interface", "dds", "shm", "data_paths"),  # the method; the wire; the platform
+    ("fiper_ros", "core", "interface", "dds", "shm", "data_paths", "cluster"),  # the method; the wire; the platform
     ("runtime", "baselines", "view"),  # streaming rules without rclpy; the comparison methods; the live view
     ("bagio", "policy", "publishing"),  # bag I/O without rclpy; the generative policies; a policy's publishing side
     ("converters", "evaluation", "nodes"),  # foreign data -> rollouts; offline evaluation; the rclpy shells
@@ -32,6 +32,13 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("cli", "bench", "examples"),  # the fiper entry point; benchmarks; example user code
 )
 LEVEL = {unit: level for level, units in enumerate(LAYERS) for unit in units}
+#: Optional dependencies: the only modules that may import each, and only inside a function, so that importing any
+#: module (a node, the core, a command that was not asked for it) never loads it. ``ray``: the parallel offline
+#: work on a Ray cluster (docs/scale.md).
+OPTIONAL_IMPORTS: dict[str, tuple[str, ...]] = {
+    "ray": ("fiper_ros.cluster", "sim_bridge.ray_runner", "fiper_ros.commands.replay_fleet",
+            "fiper_ros.bench.scale_bench"),
+}
 #: Units that must import without rclpy (the pure core, the streaming rules, bag I/O, evaluation, the live view).
 RCLPY_FREE = ("core", "runtime", "bagio", "converters", "evaluation", "view")
 
@@ -132,6 +139,41 @@ def test_no_import_cycles_between_modules() -> None:
         if name not in index:
             visit(name)
     assert cycles == []
+
+
+def optional_imports(path: Path) -> list[tuple[str, bool]]:
+    """``(top-level package, inside a function)`` of every import in ``path`` of a package of
+    :data:`OPTIONAL_IMPORTS`."""
+    found = []
+
+    def visit(node: ast.AST, in_function: bool) -> None:
+        names = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                 else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+        found.extend((top, in_function) for top in {n.split(".")[0] for n in names} if top in OPTIONAL_IMPORTS)
+        for child in ast.iter_child_nodes(node):
+            visit(child, in_function or isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)))
+
+    visit(ast.parse(path.read_text(), str(path)), False)
+    return found
+
+
+def test_optional_dependencies_are_imported_lazily_by_their_modules_only() -> None:
+    wrong = sorted({f"{name} imports {package}" + ("" if lazy else " at module level")
+                    for name, path in modules() for package, lazy in optional_imports(path)
+                    if name not in OPTIONAL_IMPORTS[package] or not lazy})
+    assert wrong == []
+
+
+def test_the_modules_allowed_an_optional_import_exist() -> None:
+    names = {name for name, _ in modules()}
+    assert {m for allowed in OPTIONAL_IMPORTS.values() for m in allowed} - names == set()
+
+
+def test_the_optional_import_rule_sees_module_level_and_lazy_imports(tmp_path: Path) -> None:
+    source = tmp_path / "m.py"
+    source.write_text("import os\nimport ray.util\nif os:\n    from ray import get\n"
+                      "def f():\n    import ray\n    from os import path\n")
+    assert optional_imports(source) == [("ray", False), ("ray", False), ("ray", True)]
 
 
 @pytest.mark.parametrize("unit", RCLPY_FREE)

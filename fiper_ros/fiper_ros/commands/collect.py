@@ -12,7 +12,8 @@ a resumed folder holds the same rollouts as an uninterrupted run. ``DIR/collect.
 rollouts (:mod:`fiper_ros.bagio.collect_index`). In-process, ``--jobs N`` runs the next ``N`` episodes in
 ``N`` worker processes while this process writes the index and the bags in seed order, so the folder is
 the one a single process writes; with ``--successes`` a worker may run an episode past the M-th success,
-which is thrown away.
+which is thrown away. ``--ray [ADDRESS]`` runs the episodes as Ray tasks (:class:`sim_bridge.ray_runner.RayRunner`)
+on a local instance or an existing cluster (:mod:`fiper_ros.cluster`, docs/scale.md) and writes the same folder.
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,7 @@ from typing import Any, Protocol
 import torch
 import yaml
 from sim_bridge.collect_runner import InProcessRunner
+from sim_bridge.ray_runner import RayRunner
 from sim_bridge.scenarios import TASK_NAMES, get_scenario
 
 from fiper_ros.bagio.atomic import remove
@@ -38,6 +40,7 @@ from fiper_ros.bagio.collect_index import (INDEX_FILE, IN_PROCESS, ROS, CollectI
                                            RanEpisode)
 from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.bagio.reader import METADATA, find_bags
+from fiper_ros.cluster import LOCAL, ClusterError, connected
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.evaluation.offline import calibration_for, policy_layout
 from fiper_ros.policy.dataset import files_hash
@@ -180,8 +183,11 @@ class Runner(Protocol):
 class Collector:
     """Runs (through a :class:`Runner`) and records the episodes of one ``fiper collect`` into one folder."""
 
-    def __init__(self, runner: Runner, out: Path, index: CollectIndex, *, seed: int, target: Target) -> None:
+    def __init__(self, runner: Runner, out: Path, index: CollectIndex, *, seed: int, target: Target,
+                 status: Callable[[], str] | None = None) -> None:
         self.runner = runner
+        #: The runner's part of the progress line (the Ray cluster's task counts), if it has one.
+        self.status = status
         self.out = out
         self.index = index
         self.seed = seed
@@ -245,9 +251,10 @@ class Collector:
             episodes += 1
             successes += entry.success
             timing = f"{entry.seconds:.1f} s, ETA {self.eta(scenarios)}" if ran else "bag exists, skipped"
+            cluster = f" | ray: {self.status()}" if self.status is not None else ""
             print(f"[{scenario} {episodes}/{self.target.max_episodes}] seed {seed}: "
                   f"{'success' if entry.success else 'failure'}, {entry.policy_steps} policy steps | "
-                  f"successes {successes}{goal} | {timing}", file=sys.stderr, flush=True)
+                  f"successes {successes}{goal} | {timing}{cluster}", file=sys.stderr, flush=True)
         return episodes, successes
 
 
@@ -275,6 +282,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest on a shared machine)")
     parser.add_argument("--jobs", type=int, default=1,
                         help="in-process: run this many episodes at once in worker processes (one per core)")
+    parser.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
+                        help="in-process: run the episodes as Ray tasks; without ADDRESS on a local Ray instance "
+                             "bound to 127.0.0.1 (--jobs N: N CPUs, default all cores), with 'auto', HOST:PORT or "
+                             "ray://HOST:10001 on that cluster (docs/scale.md); the folder is the one --jobs 1 writes")
     parser.add_argument("--ros", action="store_true",
                         help="run the episodes through the live node suite (sim bridge + policy node over DDS, "
                              "each its own process) and record each from DDS, instead of in-process")
@@ -325,10 +336,19 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
             stack: ExitStack) -> Runner:
     """The runner of ``--ros`` (entered into ``stack``: it stops its suite; ``detectors``: those of the calibration,
     whose scoring nodes run) or the in-process one."""
+    if setup.runner == IN_PROCESS and args.ray is not None:
+        if args.jobs != 1 and args.ray != LOCAL:
+            raise BagError(f"--jobs sets the CPUs of a local Ray instance: the cluster at {args.ray} has its own")
+        stack.enter_context(connected(args.ray, args.jobs if args.jobs != 1 else None))
+        ray_runner = RayRunner(model.policy, setup, model_dir, args.threads)
+        stack.callback(ray_runner.close)
+        return ray_runner
     if setup.runner == IN_PROCESS:
         runner = InProcessRunner(model.policy, setup, args.jobs, model_dir, args.threads)
         stack.callback(runner.close)
         return runner
+    if args.ray is not None:
+        raise BagError("--ray runs episodes as Ray tasks: --ros runs them through the one node suite")
     if args.jobs != 1:
         raise BagError("--jobs runs episodes in worker processes: --ros runs them through the one node suite")
     from fiper_ros.client.live_collect import LiveSettings, RosRunner  # noqa: PLC0415 - rclpy only with --ros
@@ -370,12 +390,13 @@ def run(args: argparse.Namespace) -> int:
             index.add_run(settings)
             index.save(args.out)
             runner = _runner(args, model_dir, model, setup, detectors, stack)
-            collector = Collector(runner, args.out, index, seed=args.seed, target=target)
+            collector = Collector(runner, args.out, index, seed=args.seed, target=target,
+                                  status=runner.status if isinstance(runner, RayRunner) else None)
             print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}, "
                   f"{setup.runner}) into {args.out}", file=sys.stderr, flush=True)
             started = time.monotonic()
             counts = {scenario: collector.scenario(scenario, scenarios) for scenario in scenarios}
-    except BagError as error:
+    except (BagError, ClusterError) as error:
         return fail("collect", error)
     for scenario, (episodes, successes) in counts.items():
         print(f"{scenario}: {episodes} rollouts (seeds {args.seed}-{args.seed + episodes - 1}), {successes} "

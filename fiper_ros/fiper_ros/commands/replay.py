@@ -21,6 +21,7 @@ from fiper_ros.client.replay import (NODE_NAME, Player, find_calibration, played
                                      suite_subscribers)
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, replay_config
+from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
@@ -92,8 +93,13 @@ def _offline(bags: list[Path], directory: Path, args: argparse.Namespace) -> dic
 
     started = time.monotonic()
     calibration = checked_calibration(directory, bags)
-    fk = options.fk_of(options.robot_from(args))
-    results = [r for bag in bags for r in predict_bag(bag, calibration, fk)]
+    if args.ray is not None:
+        from fiper_ros.commands.replay_fleet import predict_bags  # noqa: PLC0415 - Ray only with --ray
+
+        results = predict_bags(bags, calibration, options.robot_from(args), args.ray)
+    else:
+        fk = options.fk_of(options.robot_from(args))
+        results = [r for bag in bags for r in predict_bag(bag, calibration, fk)]
     for result in results:
         print(rollout_line(result))
     return {"rollouts": results, "missing": [], "seconds": time.monotonic() - started,
@@ -114,6 +120,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                                    "for an observation-only calibration, observation_only")
     suite.add_argument("--no-launch", action="store_true", help="play into a suite already running in this domain")
     suite.add_argument("--offline", action="store_true", help="compute the alarms with the core, without DDS")
+    parser.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
+                        help="with --offline: one Ray task per bag, on a local instance (no ADDRESS) or the cluster at "
+                             "ADDRESS (docs/scale.md)")
     parser.add_argument("--all-topics", action="store_true", help="with --no-launch: also play recorded outputs")
     parser.add_argument("--domain", type=int, help="ROS domain (default: a free one when launching, else ROS_DOMAIN_ID)")
     parser.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the suite's subscribers")
@@ -147,6 +156,8 @@ def run(args: argparse.Namespace) -> int:
         return fail("replay", "--rate and --clock-hz must be > 0")
     if args.report is not None and args.report.is_dir():
         return fail("replay", f"--report {args.report} is a directory: give a file name")
+    if args.ray is not None and not args.offline:
+        return fail("replay", "--ray runs the offline replay as Ray tasks: it needs --offline")
     if args.view and (args.no_launch or args.offline):
         return fail("replay", "--view goes with the suite replay launches: beside a running suite, run fiper view")
     try:
