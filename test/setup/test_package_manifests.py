@@ -19,7 +19,7 @@ ROSDEP_KEYS = {"numpy": "python3-numpy", "yaml": "python3-yaml", "matplotlib": "
                "pandas": "python3-pandas", "PIL": "python3-pil", "pinocchio": "pinocchio"}
 #: Third-party modules without a rosdep key -> their pip package, which README.md names.
 PIP_ONLY = {"torch": "torch", "rosbags": "rosbags", "mcap": "mcap", "pyarrow": "pyarrow", "mujoco": "mujoco",
-            "foxglove": "foxglove-sdk"}
+            "foxglove": "foxglove-sdk", "ray": "ray"}
 #: Imports not declared on purpose: fiper_ros's sim tools import sim_bridge, which exec_depends on fiper_ros
 #: (colcon cannot order the cycle; both come from this repository).
 UNDECLARED = {("fiper_ros", "sim_bridge")}

@@ -31,7 +31,7 @@ from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.engine import EvaluationResult
 from fiper_ros.evaluation.methods import ELAPSED, METHODS
 from fiper_ros.evaluation.protocol import METRICS, SUBSETS, MethodResult, ProtocolResult, nanmean, nanstd
-from fiper_ros.evaluation.sweep import CUMULATIVE, FIPER, Group
+from fiper_ros.evaluation.sweep import CUMULATIVE, Group
 
 LABELS = {"twa": "TWA ↑", "acc": "Acc. ↑", "dt": "DT ↓", "tpr": "TPR ↑", "tnr": "TNR ↑"}
 KIND_LABELS = {"cp_band": "CP band", "cp_constant": "CP constant", "time_varying": "time-var.",
