@@ -43,6 +43,10 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
             "/fiper/alarm", "/fiper/rollout_events", "/camera/wrist/image_raw", "/sim/action"} <= topics
     calibration = load_calibration(ROOT / "models/sorting/calibration")
     assert calibration.threshold("rnd_oe").kind == calibration.threshold("ace").kind == "cp_band"  # the paper's default
+    assert calibration.settings.combine == "max"  # RND-OE or ACE above the thresholds of one conformal factor
+    # Earlier than the pair's AND by at least 5 policy steps: with the AND of the same thresholds' kind this rollout
+    # alarmed at step 27 (ACE's exceedance), one step before the halt ended it (docs/results.md, issue #44).
+    assert ood["alarm_step"] <= 27 - 5, ood["alarm_step"]
     offline = {r.rollout_id: r for r in predict_bag(out / "bag", calibration)}
     for live in (in_dist, ood):
         oracle = offline[live["rollout_id"]]
