@@ -2,12 +2,13 @@
 SHELL := /bin/bash
 RUN := source ./env.sh &&
 
-.PHONY: help setup test mutants demo study bench-core bench-eval bench-nodes bench-policy bench-soak bench-scale lock clean distclean
+.PHONY: help setup test lint mutants demo study bench-core bench-eval bench-nodes bench-policy bench-soak bench-scale lock clean distclean
 
 help:
 	@echo "make demo        the main job: sim bridge, policy and FIPER nodes live, 2 rollouts (runs/demo/)"
 	@echo "make study       the FIPER-vs-baselines study on sim rollouts (long; docs/results.md)"
 	@echo "make test        set up the workspace if needed, then run the whole test suite"
+	@echo "make lint        ruff over fiper_ros, sim_bridge, test and tools (ruff.toml; make test checks it too)"
 	@echo "make mutants     mutation testing of core/ and runtime/ (resumable; FILES=core/fusion.py for one file)"
 	@echo "make setup       venv with pinned wheels, Debian packages, colcon build (idempotent)"
 	@echo "make bench-core  latency of the FIPER core (ACE, RND-OE, fusion)"
@@ -24,6 +25,9 @@ setup:
 
 test: setup
 	@bash tools/run_tests.sh
+
+lint: setup
+	@$(RUN) ruff check fiper_ros sim_bridge test tools
 
 # Not part of make test: minutes per file (docs/testing.md, "Mutation testing"). JOBS: mutants at once.
 mutants: setup

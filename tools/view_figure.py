@@ -16,16 +16,16 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from fiper_ros.bagio.rollout_bags import read_rollouts  # noqa: E402
-from fiper_ros.core.calibration import load_calibration  # noqa: E402
-from fiper_ros.core.detectors import ACE, RND_OE  # noqa: E402
-from fiper_ros.core.monitor import predict_rollout  # noqa: E402
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN  # noqa: E402
-from fiper_ros.interface.topics import score_topic  # noqa: E402
-from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore  # noqa: E402
+from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.core.calibration import load_calibration
+from fiper_ros.core.detectors import ACE, RND_OE
+from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.interface.messages import ALARM, OK, UNKNOWN
+from fiper_ros.interface.topics import score_topic
+from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore
 
 ROOT = Path(__file__).resolve().parents[1]
 SET = ROOT / "bags" / "sorting_sim"

@@ -6,6 +6,7 @@ tells which Sorting block each sampled path heads for (the demonstrations' mode:
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,6 +14,9 @@ from fiper_ros.policy.noise import sampling_generator
 from fiper_ros.policy.policy import Policy
 
 from .env import make_env
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 SORTING_COLORS = {"red": "tab:red", "blue": "tab:blue"}
 
@@ -39,15 +43,15 @@ def block_choice(state: dict, chunks: np.ndarray) -> np.ndarray:
     return np.argmax(np.stack(scores, axis=1), axis=1)
 
 
-def _square(ax, center: np.ndarray, half: float, yaw: float, **style) -> None:
-    from matplotlib.patches import Polygon
+def _square(ax: Axes, center: np.ndarray, half: float, yaw: float, **style: Any) -> None:
+    from matplotlib.patches import Polygon  # noqa: PLC0415
 
     corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
     rotation = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
     ax.add_patch(Polygon(center[:2] + corners @ rotation.T, closed=True, **style))
 
 
-def _draw_scene(ax, task: str, state: dict) -> None:
+def _draw_scene(ax: Axes, task: str, state: dict) -> None:
     if task == "sorting":
         for color, mpl in SORTING_COLORS.items():
             _square(ax, np.asarray(state["boxes"][color]), state["box_half"], 0.0, fill=False, ec=mpl, lw=2, ls="--")
@@ -63,10 +67,10 @@ def _draw_scene(ax, task: str, state: dict) -> None:
 
 def plot_multimodality(policy: Policy, seeds: list[int], out: str | Path) -> Path:
     """Write a figure with one top-view panel per seed (x forward, y left) of the sampled TCP paths."""
-    import matplotlib
+    import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415
 
     if policy.config.action_space != "ee_position":
         raise ValueError("the top-view plot needs planar ee_position actions")

@@ -100,7 +100,7 @@ def test_the_snapshot_after_a_latched_alarm_is_one_bag_that_replays(tmp_path: Pa
     try:
         suite.wait_active()
         drv = suite.driver
-        assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2  # noqa: SLF001
+        assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2
                                 and drv.embeddings.get_subscription_count() >= 2
                                 and drv.batches.get_subscription_count() >= 2
                                 and drv.events.get_subscription_count() >= 4, timeout=30), stop(proc)

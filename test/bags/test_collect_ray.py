@@ -110,7 +110,7 @@ def _raises(value: int) -> int:
 
 def test_the_task_pool_runs_a_lost_task_again_and_fails_in_one_line(tmp_path: Path) -> None:
     with connected(LOCAL, cpus=1) as cluster:
-        import ray  # noqa: PLC0415 - after connected: it sets Ray's environment first
+        import ray  # after connected: it sets Ray's environment first
 
         ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this test file
         assert (cluster.address, cluster.cpus, cluster.nodes) == (LOCAL, 1, 1)

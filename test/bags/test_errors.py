@@ -169,7 +169,7 @@ def test_evaluate_reads_an_unfinished_bag(damage: str, recorded_bag: Path, tmp_p
             "--split", "same"]
     assert main([*argv, "--out", str(out / "results")]) == 0
     err = capsys.readouterr().err
-    assert f"fiper evaluate: warning: " in err and f"('fiper bag recover {bag}' finishes the bag)" in err, err
+    assert "fiper evaluate: warning: " in err and f"('fiper bag recover {bag}' finishes the bag)" in err, err
     assert (out / "results" / "results.md").is_file()
 
 

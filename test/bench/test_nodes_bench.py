@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from fiper_ros.bench.nodes_bench import loss_counters, where_lost
 
 
@@ -33,20 +35,20 @@ def test_a_run_is_told_by_the_differences() -> None:
         "buffer of unmatched steps; a step counts once per score evicted) and dropped 0 (the other score never came)")
 
 
-def test_a_get_state_request_left_unanswered_is_asked_again(ros_domain: int, monkeypatch) -> None:
+def test_a_get_state_request_left_unanswered_is_asked_again(ros_domain: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """A benchmark run once waited 120 s for a reply that never came, every node ACTIVE (docs/benchmarks.md); the
     driver now asks again after GET_STATE_TIMEOUT_S. Here the server sits on its first request past the start-up
     timeout and answers the next at once: without the second request the driver would time out."""
-    import threading  # noqa: PLC0415
+    import threading
 
-    import rclpy  # noqa: PLC0415
-    from lifecycle_msgs.msg import State  # noqa: PLC0415
-    from lifecycle_msgs.srv import GetState  # noqa: PLC0415
-    from rclpy.callback_groups import ReentrantCallbackGroup  # noqa: PLC0415
-    from rclpy.context import Context  # noqa: PLC0415
-    from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
+    import rclpy
+    from lifecycle_msgs.msg import State
+    from lifecycle_msgs.srv import GetState
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.context import Context
+    from rclpy.executors import MultiThreadedExecutor
 
-    from fiper_ros.bench import nodes_bench  # noqa: PLC0415
+    from fiper_ros.bench import nodes_bench
 
     monkeypatch.setattr(nodes_bench, "STARTUP_TIMEOUT_S", 8.0)
     context = Context()

@@ -167,9 +167,9 @@ def test_the_histogram_the_sorted_codes_and_the_tuples_give_the_same_entropies_t
     # step's score would depend on how many cells its batch spans.
     index, n_bins = indices
     cells = int(n_bins.prod(axis=0).max())
-    histogram = ace._histogram_entropies(index, n_bins, cells)  # noqa: SLF001
-    assert np.array_equal(histogram, ace._sorted_entropies(index, n_bins))  # noqa: SLF001
-    assert np.array_equal(histogram, ace._tuple_entropies(index))  # noqa: SLF001
+    histogram = ace._histogram_entropies(index, n_bins, cells)
+    assert np.array_equal(histogram, ace._sorted_entropies(index, n_bins))
+    assert np.array_equal(histogram, ace._tuple_entropies(index))
 
 
 def test_a_step_spanning_more_cells_than_the_histogram_takes_is_sorted_to_the_same_entropy() -> None:
@@ -177,7 +177,7 @@ def test_a_step_spanning_more_cells_than_the_histogram_takes_is_sorted_to_the_sa
     actions = rng.normal(size=(64, 4, 3)) * np.array([1.0, 10.0, 100.0])  # some steps beyond 4 cells per sample
     cell = np.full(3, 0.05)
     x = np.moveaxis(np.moveaxis(actions, -1, 0), -2, -1).reshape(3, -1, 64)
-    sorted_always = ace._grouped_entropies(x, cell, 0.01, histogram_cells=0)  # noqa: SLF001
+    sorted_always = ace._grouped_entropies(x, cell, 0.01, histogram_cells=0)
     assert np.array_equal(step_entropies(actions, cell, 0.01), sorted_always)
     assert step_entropies(actions, cell, 0.01).sum() == pytest.approx(_brute_force(actions, cell, 0.01), abs=1e-9)
 
@@ -270,7 +270,7 @@ def _float32_steps(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, float]:
 @given(_float32_steps())
 def test_reference_bins_are_np_arange_and_np_digitize_in_float32(steps: tuple[np.ndarray, np.ndarray, float]) -> None:
     x, cell, buffer = steps
-    index, _, undefined, _ = ace._authors_bins(x.copy(), cell, buffer)  # noqa: SLF001
+    index, _, undefined, _ = ace._authors_bins(x.copy(), cell, buffer)
     assert not undefined.any()
     for d in range(x.shape[0]):
         for g in range(x.shape[1]):

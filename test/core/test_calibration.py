@@ -228,7 +228,7 @@ def test_split_conformal_keeps_the_promise_where_same_data_breaks_it() -> None:
     """Proposition 1 on held-out successes, over seeded trials, with a score model that overfits on purpose
     (an RND-OE predictor trained far past the point of memorising 40 rollouts of noise): fitted and
     calibrated on the same successes its thresholds come out too low; split, the rate stays at delta."""
-    from fiper_ros.core.rnd_oe import RNDConfig  # noqa: PLC0415
+    from fiper_ros.core.rnd_oe import RNDConfig
 
     memoriser = RNDConfig(trunk=(64,), head=(64,), out_dim=8, max_epochs=60, lr=1e-2, patience=1000)
     delta, rates = 0.1, {"same": [], "split": []}
@@ -331,7 +331,7 @@ def test_a_joint_combine_is_the_core_combination_of_the_detectors_curves(calibra
 
 
 def _saved(calibration: Calibration) -> Path:
-    import tempfile  # noqa: PLC0415
+    import tempfile
 
     directory = Path(tempfile.mkdtemp()) / "calibration"
     calibration.save(directory)

@@ -132,7 +132,7 @@ def test_save_load_and_scoring_without_torch(fitted: tuple[LogpZO, list[Rollout]
         """)
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 0, result.stderr
-    assert eval(result.stdout) == expected.tolist()  # noqa: S307 - our own child's repr of floats
+    assert eval(result.stdout) == expected.tolist()  # our own child's repr of floats
 
 
 def test_bad_input_is_refused_in_one_line(fitted: tuple[LogpZO, list[Rollout], list[Rollout]]) -> None:

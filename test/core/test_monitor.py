@@ -211,9 +211,9 @@ def test_a_detector_that_reads_the_step_before_marks_the_step_after_a_gap_incomp
     """Action consistency compares a step's chunk with the one before: the step after a lost one has no previous
     chunk (score 0, a lower bound), so the windows holding its score are incomplete: one step more than for a
     detector that reads its own step alone."""
-    from helpers.core_data import TINY_RND  # noqa: PLC0415
+    from helpers.core_data import TINY_RND
 
-    from fiper_ros.core.calibration import CalibrationSettings, calibrate  # noqa: PLC0415
+    from fiper_ros.core.calibration import CalibrationSettings, calibrate
 
     fitted = calibrate(calibration_rollouts, CalibrationSettings(rnd=TINY_RND, detectors=(RND_OE, "consistency"),
                                                                  window=2, delta=0.2))

@@ -10,7 +10,7 @@ from fiper_ros.dds import DOMAIN_RANGE, allocate_domain, domains_in_use
 
 def test_a_domain_a_live_process_uses_is_never_allocated() -> None:
     taken = [d for d in DOMAIN_RANGE if str(d) != os.environ.get("ROS_DOMAIN_ID")][:len(DOMAIN_RANGE) - 3]
-    sleepers = [subprocess.Popen(["sleep", "60"],  # noqa: S603, S607
+    sleepers = [subprocess.Popen(["sleep", "60"],
                                  env=os.environ | {"ROS_DOMAIN_ID": str(d)}) for d in taken]
     try:
         busy = domains_in_use()

@@ -43,7 +43,7 @@ def _ignoring_sigint() -> None:
 
 def test_the_cli_restores_an_inherited_ignored_sigint_first() -> None:
     """Fails on the cli before ``interruptible``: the child's SIGINT stayed ignored."""
-    done = subprocess.run([sys.executable, "-c", AFTER_THE_CLI], preexec_fn=_ignoring_sigint,  # noqa: PLW1509
+    done = subprocess.run([sys.executable, "-c", AFTER_THE_CLI], preexec_fn=_ignoring_sigint,
                           capture_output=True, text=True, check=True, timeout=60)
     assert done.stdout.splitlines()[-1] == "True", done.stdout
 
@@ -68,7 +68,7 @@ def test_interruptible_restores_only_an_ignored_sigint_and_only_in_the_main_thre
 
 def test_interrupt_group_waits_until_the_process_takes_sigint() -> None:
     """Fails on a plain killpg: the SIGINT sent while the child still ignores it is lost, and it sleeps 30 s."""
-    child = subprocess.Popen([sys.executable, "-c", LATE_HANDLER], preexec_fn=_ignoring_sigint,  # noqa: PLW1509, S603
+    child = subprocess.Popen([sys.executable, "-c", LATE_HANDLER], preexec_fn=_ignoring_sigint,  # noqa: PLW1509
                              start_new_session=True, stderr=subprocess.PIPE, text=True)
     try:
         assert ignores_sigint(child.pid)
@@ -84,9 +84,9 @@ def test_interrupt_group_waits_until_the_process_takes_sigint() -> None:
 
 
 def test_a_process_that_is_gone_or_a_zombie_ignores_nothing() -> None:
-    child = subprocess.Popen([sys.executable, "-c", "pass"], preexec_fn=_ignoring_sigint)  # noqa: PLW1509, S603
+    child = subprocess.Popen([sys.executable, "-c", "pass"], preexec_fn=_ignoring_sigint)  # noqa: PLW1509
     deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and not open(f"/proc/{child.pid}/status").read().count("State:\tZ"):
+    while time.monotonic() < deadline and not Path(f"/proc/{child.pid}/status").read_text().count("State:\tZ"):
         time.sleep(0.01)  # exited, not reaped yet: a zombie
     assert not ignores_sigint(child.pid)
     child.wait()

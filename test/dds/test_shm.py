@@ -87,7 +87,7 @@ def cleaner_processes(count: int, seconds: float) -> list[subprocess.Popen[str]]
             "end = time.monotonic() + float(sys.argv[1])\nremoved = []\n"
             "while time.monotonic() < end:\n    removed += clean_stale().removed\nprint(json.dumps(removed))\n")
     command = [sys.executable, "-c", code, str(seconds)]
-    return [subprocess.Popen(command, stdout=subprocess.PIPE, text=True) for _ in range(count)]  # noqa: S603
+    return [subprocess.Popen(command, stdout=subprocess.PIPE, text=True) for _ in range(count)]
 
 
 def test_group_files_pairs_segments_and_ports_with_their_lock_files() -> None:
@@ -166,7 +166,7 @@ def test_the_launcher_reports_and_removes_stale_files_before_starting_nodes(tmp_
         dead = owned_files(victim.pid)
         sigkill(victim)
     config = write_launch(tmp_path / "launch.yaml", node_entry("supervisor_node"))
-    launch = subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],  # noqa: S603
+    launch = subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "launch", str(config)],
                               env=ros_env(ros_domain), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                               start_new_session=True)
     lines: list[str] = []

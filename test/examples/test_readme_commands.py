@@ -258,7 +258,7 @@ class Scratch:
             (self.root / "readme_block.py").write_text(python_block(command))
             command = "python readme_block.py"
         script = command if command == ". ./env.sh" else f". ./env.sh && exec {command}"
-        proc = subprocess.Popen(["bash", "-c", script], cwd=self.root, env=self.env,  # noqa: S603, S607
+        proc = subprocess.Popen(["bash", "-c", script], cwd=self.root, env=self.env,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         lines: list[str] = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # type: ignore[arg-type]
@@ -292,7 +292,7 @@ class Scratch:
             assert proc.poll() is None and time.monotonic() < deadline, (command, "".join(lines)[-4000:])
             time.sleep(0.1)
         if entry.feed:
-            fed = subprocess.run(["bash", "-c", f". ./env.sh && {entry.feed}"],  # noqa: S603, S607
+            fed = subprocess.run(["bash", "-c", f". ./env.sh && {entry.feed}"],
                                  cwd=self.root, env=self.env, capture_output=True, text=True, timeout=TIMEOUT_S)
             assert fed.returncode == 0, (entry.feed, fed.stdout[-3000:], fed.stderr[-3000:])
         for beside in entry.meanwhile:

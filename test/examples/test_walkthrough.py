@@ -36,7 +36,7 @@ def test_the_readme_walkthrough_runs_as_written(tmp_path: Path, ros_domain: int)
         (tmp_path / name).symlink_to(ROOT / name)
     script = walkthrough()
     assert script.startswith(". ./env.sh\n") and "fiper launch" in script and "--summary" in script
-    proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=tmp_path, env=ros_env(ros_domain),  # noqa: S603, S607
+    proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=tmp_path, env=ros_env(ros_domain),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # type: ignore[arg-type]

@@ -269,7 +269,7 @@ LIVE_INFO = BagInfo(task="synthetic", calibration_hash="c0ffee", source="fiper r
 def live_stream(chunks: int) -> list[tuple[str, int, bytes]]:
     """``(topic, log time, CDR)`` of :func:`write_and_die`: a START, then ``chunks`` chunks' worth of steps and
     :data:`OPEN_STEPS` more."""
-    from helpers.stream import start_cdr, step_cdr  # noqa: PLC0415 - the stream helpers import the DDS harness
+    from helpers.stream import start_cdr, step_cdr  # the stream helpers import the DDS harness
 
     rollout = make_rollout(7, length=STEPS_PER_CHUNK * chunks + OPEN_STEPS)
     stream = [("/fiper/rollout_events", 1_000, start_cdr(9))]
@@ -281,10 +281,10 @@ def live_stream(chunks: int) -> list[tuple[str, int, bytes]]:
 def write_and_die(path: str, chunks: int) -> None:
     """Write :func:`live_stream` as a live bag, closing ``chunks`` chunks of :data:`STEPS_PER_CHUNK` steps each (the
     first holds the START too), then die by SIGKILL with :data:`OPEN_STEPS` steps in the open chunk."""
-    import os  # noqa: PLC0415
-    import signal  # noqa: PLC0415
+    import os
+    import signal
 
-    from fiper_ros.bagio.chunks import LiveChunks  # noqa: PLC0415
+    from fiper_ros.bagio.chunks import LiveChunks
 
     writer = BagWriter(Path(path), live=LiveChunks(seconds=3600.0, megabytes=100.0))
     writer.info = LIVE_INFO

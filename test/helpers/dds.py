@@ -25,7 +25,7 @@ def ros_env(domain: int) -> dict[str, str]:
 
 def spawn_python(args: Sequence[str], domain: int, **kwargs: object) -> subprocess.Popen[str]:
     """Start ``python ARGS`` in its own process group, in ``domain``, text mode, output piped."""
-    return subprocess.Popen(  # noqa: S603 - test helper runs our own scripts
+    return subprocess.Popen(  # test helper runs our own scripts
         [sys.executable, *args],
         env=ros_env(domain),
         stdout=subprocess.PIPE,

@@ -43,7 +43,7 @@ class Launch:
     def __init__(self, config: Path, domain: int, arguments: dict[str, str] | None = None,
                  cwd: Path | None = None, env: dict[str, str] | None = None) -> None:
         named = [f"{name}:={value}" for name, value in (arguments or {}).items()]
-        self.proc = subprocess.Popen(  # noqa: S603
+        self.proc = subprocess.Popen(
             [sys.executable, "-m", "fiper_ros.cli", "launch", str(config), *named, "--grace", "5"],
             cwd=cwd, env=ros_env(domain) | {PARENT_PID_ENV: str(os.getpid())} | (env or {}), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True, start_new_session=True)

@@ -127,9 +127,9 @@ class Suite:
 
     def __init__(self, domain: int, calibration_dir: str, extra: Iterable[Parameter] = (),
                  fusion: Iterable[Parameter] = ()) -> None:
-        from fiper_ros.nodes.ace_node import AceNode  # noqa: PLC0415
-        from fiper_ros.nodes.fusion_node import FusionNode  # noqa: PLC0415
-        from fiper_ros.nodes.rnd_oe_node import RndOeNode  # noqa: PLC0415
+        from fiper_ros.nodes.ace_node import AceNode
+        from fiper_ros.nodes.fusion_node import FusionNode
+        from fiper_ros.nodes.rnd_oe_node import RndOeNode
 
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)

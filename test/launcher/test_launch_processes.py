@@ -87,7 +87,7 @@ class ScriptSpec(NodeSpec):
 
     script: str = ""
 
-    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:  # noqa: ARG002
+    def command(self, params_dir: Path, enclave: bool = False) -> list[str]:
         return [sys.executable, "-c", self.script]
 
 

@@ -68,11 +68,11 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
                     and batches.get_subscription_count() >= 1 and events.get_subscription_count() >= 1)
         events.publish(rollout_event_msg(7, RolloutEvent.EVENT_START, 0, task="stacking"))
         joints.publish(_joint_state(100 * MS, q[0]))
-        assert spin(lambda: ace._joints.latest_stamp == 100 * MS)  # noqa: SLF001
+        assert spin(lambda: ace._joints.latest_stamp == 100 * MS)
 
         # 1. the batch of 200 ms comes before the joint state of 200 ms: it waits, then uses that state
         batches.publish(action_batch_msg(7, 0, 200 * MS, velocities[0], 4, "joint_velocity"))
-        assert spin(lambda: len(ace._gate) == 1)  # noqa: SLF001
+        assert spin(lambda: len(ace._gate) == 1)
         # Three reports of the node saying the batch waits (one in flight may still say 0, from before it
         # came): it stayed held over two diagnostics periods while the gate's 50 ms timer ran, and no
         # report after the first of them says it was released without its joint state.
@@ -86,9 +86,9 @@ def test_a_batch_is_scored_from_the_joint_state_of_its_stamp_even_if_that_arrive
 
         # 2. an END behind a waiting batch waits too, so the batch still belongs to its rollout
         batches.publish(action_batch_msg(7, 1, 300 * MS, velocities[1], 4, "joint_velocity"))
-        assert spin(lambda: len(ace._gate) == 1)  # noqa: SLF001
+        assert spin(lambda: len(ace._gate) == 1)
         events.publish(rollout_event_msg(7, RolloutEvent.EVENT_END, 0, outcome=RolloutEvent.OUTCOME_SUCCESS))
-        assert spin(lambda: len(ace._gate) == 2)  # noqa: SLF001
+        assert spin(lambda: len(ace._gate) == 2)
         joints.publish(_joint_state(400 * MS, q[2]))  # a later control step's state opens the gate
         assert spin(lambda: (7, 1) in scores and ace.gate.active is None)
         assert scores[7, 1].score == np.float32(monitor.update(1, (velocities[1], q[1])).score)  # latest <= 300 ms

@@ -35,7 +35,7 @@ def start(package: str, name: str, cwd: Path, domain: int, namespace: str, param
     args = [str(executable(package, name)), "--ros-args", "-r", f"__ns:={namespace}"]
     for key, value in parameters.items():
         args += ["-p", f"{key}:={value}"]
-    return subprocess.Popen(args, cwd=cwd, env=ros_env(domain), stdout=subprocess.PIPE,  # noqa: S603
+    return subprocess.Popen(args, cwd=cwd, env=ros_env(domain), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
 

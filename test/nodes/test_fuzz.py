@@ -292,7 +292,7 @@ class ScoringLedger:
 
     def __init__(self, node: Any, *then: Callable[[Score], None], held: Callable[[], int] = lambda: 0) -> None:
         self.node = node
-        self.published = record(node._score_pub, self._on_score, *then)  # noqa: SLF001
+        self.published = record(node._score_pub, self._on_score, *then)
         """The Scores the node published (each also passed to ``then``)."""
         self.held = held
         """How many inputs the node holds besides its START wait buffer (the joint-state gate)."""
@@ -323,7 +323,7 @@ class ScoringLedger:
         assert len(self.content_ok) == len(finite) + node.rejected.total() - self.other_rejections + waiting, \
             (len(self.content_ok), len(finite), node.rejected, waiting)
         assert len(node.gate.waiting) <= node.gate.waiting.max_items
-        assert node.gate.waiting._size <= node.gate.waiting.max_size  # noqa: SLF001
+        assert node.gate.waiting._size <= node.gate.waiting.max_size
 
 
 # the pipeline -----------------------------------------------------------------------------------------
@@ -340,7 +340,7 @@ class Pipeline:
             buffer_size=FUSION_BUFFER, start_wait_s=60.0), **NODE_KWARGS))
         self.contract = PipelineContract({"rnd_oe": calibration.settings.window_of("rnd_oe"),
                                           "ace": calibration.settings.window_of("ace")}, calibration.settings.combine)
-        self.alarms = record(self.fusion._alarm_pub, self.contract.on_alarm)  # noqa: SLF001
+        self.alarms = record(self.fusion._alarm_pub, self.contract.on_alarm)
         fusion_in = callbacks(self.fusion)
         self.ledgers = {}
         for node in (self.rnd, self.ace):
@@ -370,7 +370,7 @@ class Pipeline:
             ledger.check()
         fusion = self.fusion
         assert set(fusion.rejected) <= set(REASONS), fusion.rejected
-        assert len(fusion.fuser._pending) <= FUSION_BUFFER  # noqa: SLF001
+        assert len(fusion.fuser._pending) <= FUSION_BUFFER
         assert len(fusion.fuser.gate.waiting) <= fusion.fuser.gate.waiting.max_items
         assert set(fusion.rates) <= {f"scores/{d}" for d in DETECTORS}, sorted(fusion.rates)
 
@@ -423,7 +423,7 @@ def test_the_scoring_and_fusion_nodes_survive_any_input_and_never_say_ok_for_a_r
                 pipeline.event(draw_event(data.draw, pipeline.rnd.gate))
             elif kind == "timer":
                 note("timer")
-                pipeline.fusion._on_timer()  # noqa: SLF001
+                pipeline.fusion._on_timer()
                 for node in pipeline.nodes():
                     node.publish_diagnostics()
             elif kind == "step":  # a policy step: an embedding and a batch of one (rollout_id, step)
@@ -466,7 +466,7 @@ def draw_score(draw: st.DrawFn, fusion: FusionNode, detector: str | None = None,
     fuser = fusion.fuser
     if address is None:
         rollout_id = fuser.rollout_id if fuser.rollout_id is not None and draw(MOSTLY) else draw(ROLLOUT_IDS)
-        address = rollout_id, draw_step(draw, fuser._next_step if rollout_id == fuser.rollout_id else 0)  # noqa: SLF001
+        address = rollout_id, draw_step(draw, fuser._next_step if rollout_id == fuser.rollout_id else 0)
     windowed, threshold = draw(_WINDOWED), draw(_THRESHOLD)
     exceeded = bool(np.float32(windowed) > np.float32(threshold)) if draw(MOSTLY) else draw(st.booleans())
     msg = Score(rollout_id=address[0], step=address[1], detector=detector or draw(_DETECTOR), score=draw(_SCORE),
@@ -521,7 +521,7 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
     fusion = bring_up(FusionNode(context=context, namespace="/fiper", parameter_overrides=node_params(
         buffer_size=FUSION_BUFFER, start_wait_s=60.0), **NODE_KWARGS))
     contract = FusionContract(fusion.fuser.combine)
-    alarms = record(fusion._alarm_pub, contract.on_alarm)  # noqa: SLF001
+    alarms = record(fusion._alarm_pub, contract.on_alarm)
     inputs = callbacks(fusion)
     on_event = inputs["/fiper/rollout_events"]
 
@@ -549,13 +549,13 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
                 contract.on_event(msg)
                 on_event(msg)
             elif kind == "timer":
-                fusion._on_timer()  # noqa: SLF001
+                fusion._on_timer()
                 fusion.publish_diagnostics()
             elif kind == "reset":
                 note("reset")
                 contract.on_reset()
                 request = ResetAlarm.Request(requester="test_fuzz", reason="a fuzzed reset")
-                assert fusion._on_reset(request, ResetAlarm.Response()).success  # noqa: SLF001
+                assert fusion._on_reset(request, ResetAlarm.Response()).success
             elif kind == "score":
                 send(draw_score(data.draw, fusion))
             else:  # the two Scores of one step, in either order
@@ -564,7 +564,7 @@ def test_the_fusion_node_survives_any_score_and_keeps_the_contract(context: Cont
                 send(draw_score(data.draw, fusion, DETECTORS[1 - DETECTORS.index(first.detector)],
                                 (first.rollout_id, first.step)))
             assert set(fusion.rejected) <= set(REASONS), fusion.rejected
-            assert len(fusion.fuser._pending) <= FUSION_BUFFER  # noqa: SLF001
+            assert len(fusion.fuser._pending) <= FUSION_BUFFER
             assert len(fusion.fuser.gate.waiting) <= fusion.fuser.gate.waiting.max_items
             assert set(fusion.rates) <= {f"scores/{d}" for d in DETECTORS}, sorted(fusion.rates)
         # afterwards: the Scores of valid rollouts, as the scoring nodes would publish them, are judged as offline
@@ -653,7 +653,7 @@ def test_the_joint_velocity_ace_node_survives_any_batch_and_joint_state(context:
     ace = bring_up(AceNode(context=context, namespace="/fiper", parameter_overrides=node_params(
         calibration_dir=str(STACKING), urdf_path=str(URDF_PATH), joint_state_wait_s=10.0, max_elements=MAX_ELEMENTS,
         start_wait_s=60.0, start_wait_max_elements=START_WAIT_VALUES), **NODE_KWARGS))
-    gate = ace._gate._queue  # noqa: SLF001
+    gate = ace._gate._queue
     # The gate holds batches (as the wire codec's views) and the events that came after one.
     ledger = ScoringLedger(ace, held=lambda: sum(not isinstance(item[3], RolloutEvent) for item in gate))
     scores = ledger.published
@@ -666,30 +666,30 @@ def test_the_joint_velocity_ace_node_survives_any_batch_and_joint_state(context:
                 note(f"event {msg.event} of rollout {msg.rollout_id}")
                 topics["/fiper/rollout_events"](msg)
             elif kind == "timer":
-                ace._release()  # noqa: SLF001 - the gate's timer callback
+                ace._release()  # the gate's timer callback
                 ace.publish_diagnostics()
             elif kind == "joints":
                 msg, fate = draw_joint_state(data.draw)
                 note(f"joint state {list(msg.name)} {list(msg.position)} at {stamp_ns(msg.header.stamp)}: {fate}")
-                joints = ace._joints  # noqa: SLF001
-                history = joints._stamps[:], [id(q) for q in joints._positions]  # noqa: SLF001
+                joints = ace._joints
+                history = joints._stamps[:], [id(q) for q in joints._positions]
                 topics["/joint_states"](msg)
                 ledger.other_rejections += fate == "reject"  # the ledger's count checks it was rejected
                 taken = joints.at(stamp_ns(msg.header.stamp))
                 if fate == "take":
                     assert taken is not None and list(taken) == [dict(zip(msg.name, msg.position))[j] for j in CHAIN]
                 else:
-                    assert (joints._stamps, [id(q) for q in joints._positions]) == history, fate  # noqa: SLF001
+                    assert (joints._stamps, [id(q) for q in joints._positions]) == history, fate
             else:
                 msg, ok = draw_batch(data.draw, ace.gate, f"m{n}", space="joint_velocity", rows=VELOCITIES)
                 msg.header.stamp = data.draw(_POOLED_STAMP) if data.draw(MOSTLY) else msg.header.stamp
-                known = ace._joints.at(stamp_ns(msg.header.stamp)) is not None  # noqa: SLF001
+                known = ace._joints.at(stamp_ns(msg.header.stamp)) is not None
                 note(f"m{n}: batch of rollout {msg.rollout_id} step {msg.step} at {stamp_ns(msg.header.stamp)}: "
                      f"{'valid' if ok else 'bad'}{'' if known else ', no joint state yet'}")
                 ledger.sent(msg.header.frame_id, ok if known or not ok else None)
                 topics["/fiper/action_chunks"](msg)
             ledger.check()
-            assert len(ace._joints) <= ace._joints.capacity  # noqa: SLF001
+            assert len(ace._joints) <= ace._joints.capacity
         assert ace.trigger_deactivate() == TransitionCallbackReturn.SUCCESS  # releases every batch the gate holds
         assert not gate and ace.trigger_activate() == TransitionCallbackReturn.SUCCESS
         ledger.check()
@@ -726,7 +726,7 @@ SUPERVISOR_INPUTS = st.sampled_from(["alarm", "alarm", "alarm", "event", "clock"
 
 def draw_alarm(draw: st.DrawFn, supervisor: SupervisorNode) -> FailureAlarm:
     """A FailureAlarm of arbitrary fields, mostly of the rollout the supervisor follows."""
-    followed = supervisor.logic._running  # noqa: SLF001
+    followed = supervisor.logic._running
     rollout_id = followed if followed is not None and draw(MOSTLY) else draw(ROLLOUT_IDS)
     msg = FailureAlarm(rollout_id=rollout_id, step=draw(st.one_of(st.integers(0, 30), UINT32)),
                        state=draw(_ALARM_STATE),
@@ -757,7 +757,7 @@ def test_the_supervisor_survives_any_alarm_and_halts_on_the_first_alarm_of_a_rol
                 note(f"event {msg.event} of rollout {msg.rollout_id}")
                 topics["/fiper/rollout_events"](msg)
             else:
-                supervisor._on_clock()  # noqa: SLF001 - its timer's callback
+                supervisor._on_clock()  # its timer's callback
             assert len(supervisor.halts) <= HALTED_MEMORY
             assert len(supervisor.halts) <= before + 1, "more than one halt for one message"
             halted = [h.rollout_id for h in supervisor.halts if not h.reason.startswith("no alarm message")]
@@ -822,7 +822,7 @@ def test_a_joint_state_of_fewer_positions_than_names_is_rejected(context: Contex
     try:
         msg = JointState(name=CHAIN, position=list(Q0[:-1]))
         callbacks(ace)["/joint_states"](msg)
-        assert ace.rejected == {"shape": 1} and len(ace._joints) == 0  # noqa: SLF001
+        assert ace.rejected == {"shape": 1} and len(ace._joints) == 0
     finally:
         ace.destroy_node()
 

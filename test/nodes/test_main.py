@@ -6,6 +6,8 @@ import textwrap
 import threading
 import time
 
+import pytest
+
 import rclpy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
@@ -150,14 +152,14 @@ def test_sigterm_shuts_down_once_and_ignores_the_next(ros_domain: int) -> None:
     a second SIGTERM (the launcher's stop, then the parent-death signal) ran the handler's ``shut_down`` again
     inside that wait, for ever. The handler now shuts down once and ignores further SIGTERMs (the old
     handler, a lambda, stayed installed)."""
-    import os  # noqa: PLC0415
+    import os
 
-    from fiper_ros.nodes import main  # noqa: PLC0415
+    from fiper_ros.nodes import main
 
     previous = signal.getsignal(signal.SIGTERM)
     rclpy.init(domain_id=ros_domain)
     try:
-        signal.signal(signal.SIGTERM, main._on_sigterm)  # noqa: SLF001
+        signal.signal(signal.SIGTERM, main._on_sigterm)
         os.kill(os.getpid(), signal.SIGTERM)
         deadline = time.monotonic() + 10
         while rclpy.ok() and time.monotonic() < deadline:  # the handler runs between bytecodes of this thread
@@ -171,7 +173,8 @@ def test_sigterm_shuts_down_once_and_ignores_the_next(ros_domain: int) -> None:
         rclpy.try_shutdown()
 
 
-def test_a_node_process_on_the_events_executor_keeps_firing_its_timers(ros_domain: int, monkeypatch) -> None:
+def test_a_node_process_on_the_events_executor_keeps_firing_its_timers(ros_domain: int,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     """Issue #24: rclpy's EventsExecutor.spin() busy-waits in this wheel and never dispatches a timer after the
     first events (docs/benchmarks.md); run_node spins it in bounded slices, so the timer fires again and again
     and SIGINT ends the process."""
@@ -187,8 +190,8 @@ def test_a_node_process_on_the_events_executor_keeps_firing_its_timers(ros_domai
     assert "tick 5" in out
 
 
-def test_sigterm_stops_a_node_on_the_events_executor_without_failing_a_callback(ros_domain: int,
-                                                                               monkeypatch) -> None:
+def test_sigterm_stops_a_node_on_the_events_executor_without_failing_a_callback(
+        ros_domain: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """The SIGTERM handler runs at the start of a callback while an EventsExecutor spins; shutting the context
     down there failed that callback (a FATAL "Exception in 'timers' callback: ... context is invalid" at every
     SIGTERM). Now the spin loop ends after the callback, and the node is destroyed and the process exits 0."""

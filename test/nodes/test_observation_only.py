@@ -31,9 +31,9 @@ FAST = [Parameter("diagnostics_period_s", value=0.1), Parameter("configure_retry
 
 
 def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) -> None:
-    from fiper_ros.nodes.ace_node import AceNode  # noqa: PLC0415
-    from fiper_ros.nodes.fusion_node import FusionNode  # noqa: PLC0415
-    from fiper_ros.nodes.rnd_oe_node import RndOeNode  # noqa: PLC0415
+    from fiper_ros.nodes.ace_node import AceNode
+    from fiper_ros.nodes.fusion_node import FusionNode
+    from fiper_ros.nodes.rnd_oe_node import RndOeNode
 
     directory = make_calibration(tmp_path / "calibration", detectors=OBSERVATION_ONLY)
     calibration = load_calibration(directory)

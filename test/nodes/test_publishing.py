@@ -79,7 +79,7 @@ def test_start_steps_and_end_on_the_wire(ends: Ends) -> None:
     assert [fiper.step(embedding, chunks), fiper.step(embedding, chunks + 1)] == [0, 1]
     fiper.end(success=False)
     assert fiper.rollout_id is None
-    second = fiper.start(7)
+    assert fiper.start(7) == 7
     assert fiper.step(embedding, chunks, stamp_ns=123) == 0
     fiper.end(success=None)
     assert ends.spin_until(lambda: len(ends.received[EVENTS]) == 4 and len(ends.received[ACTIONS]) == 3)
@@ -224,14 +224,14 @@ def test_a_reader_of_the_alarm_that_reports_must_have_matched_the_fusion_node(en
     """``fiper launch --summary`` (and ``fiper record``) report their alarm subscription's matches: a policy waits
     until they have matched the fusion node's KEEP_LAST(1) publisher, else the first verdicts are lost to them
     (the walkthrough's summary missed the first steps of its first rollout)."""
-    from fiper_msgs.msg import FailureAlarm  # noqa: PLC0415
+    from fiper_msgs.msg import FailureAlarm
 
     alarm = ends.listener.create_publisher(FailureAlarm, "/fiper/alarm", qos.ALARM_PUB)
     assert ends.spin_until(lambda: ends.node.count_publishers("/fiper/alarm") == 1)
     summary = "/fiper_launch_summary"
     # what its /diagnostics said (the report's keys as client.capture.report_matches writes them)
-    ends.fiper._reports[summary] = {"matched_publishers./fiper/alarm": "0"}  # noqa: SLF001
+    ends.fiper._reports[summary] = {"matched_publishers./fiper/alarm": "0"}
     assert f"{summary} to match 1 publishers of /fiper/alarm (has 0)" in ends.fiper.missing(suite=False)
-    ends.fiper._reports[summary] = {"matched_publishers./fiper/alarm": "1"}  # noqa: SLF001
+    ends.fiper._reports[summary] = {"matched_publishers./fiper/alarm": "1"}
     assert ends.fiper.missing(suite=False) == []
     ends.listener.destroy_publisher(alarm)

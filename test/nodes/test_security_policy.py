@@ -282,7 +282,7 @@ def test_a_node_that_does_more_than_its_grants_is_found(monkeypatch: pytest.Monk
 
 
 def test_each_enclave_is_its_node_and_every_name_is_absolute() -> None:
-    root = ET.parse(POLICY).getroot()  # noqa: S314 - our own file
+    root = ET.parse(POLICY).getroot()  # our own file
     enclaves = root.findall("enclaves/enclave")
     assert enclaves
     for enclave in enclaves:

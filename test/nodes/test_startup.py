@@ -97,7 +97,7 @@ def test_a_node_process_uses_the_profile_and_logs_its_start_up(ros_domain: int) 
     """The fusion node, started as a console script would be (no profile variable set): it names the profile,
     Fast DDS reads it without an error, and the node says ACTIVE with its seconds since exec."""
     env = env_without_profile(ros_domain)
-    process = subprocess.Popen(  # noqa: S603
+    process = subprocess.Popen(
         [sys.executable, "-m", "fiper_ros.nodes.fusion_node", "--ros-args", "-r", "__ns:=/fiper",
          "-p", f"calibration_dir:={CALIBRATION}"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)

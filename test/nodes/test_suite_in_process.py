@@ -160,8 +160,8 @@ def test_the_last_step_of_a_rollout_is_judged_even_when_its_end_overtakes_it(sui
 
 
 def test_a_rollout_of_another_task_than_the_calibrations_is_never_judged_ok(suite: Suite) -> None:
-    from fiper_msgs.msg import RolloutEvent  # noqa: PLC0415
-    from fiper_ros.interface.conversions import rollout_event_msg  # noqa: PLC0415
+    from fiper_msgs.msg import RolloutEvent
+    from fiper_ros.interface.conversions import rollout_event_msg
 
     assert load_calibration(suite.rnd_oe.get_parameter("calibration_dir").value).named_tasks == ("synthetic",)
     rollout = make_rollout(307)

@@ -45,7 +45,7 @@ class Bench:
     """The supervisor, an alarm publisher named as the suite's fusion node, and the supervisor's /diagnostics."""
 
     def __init__(self, domain: int) -> None:
-        from fiper_ros.nodes.supervisor_node import SupervisorNode  # noqa: PLC0415
+        from fiper_ros.nodes.supervisor_node import SupervisorNode
 
         self.listener = Listener(domain, "test_halt")
         self.context = self.listener.context

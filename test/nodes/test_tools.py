@@ -33,7 +33,7 @@ NAN = math.nan
 
 
 def _fiper(args: list[str], domain: int) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", *args], env=ros_env(domain),  # noqa: S603
+    return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", *args], env=ros_env(domain),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
 
@@ -112,7 +112,7 @@ def test_echo_brief_of_scores_and_other_types() -> None:
     with pytest.raises(ValueError, match="--brief formats fiper_msgs/msg/FailureAlarm and fiper_msgs/msg/Score, not "
                                          "std_msgs/msg/String"):
         Printer("std_msgs/msg/String", brief=True)
-    from std_msgs.msg import String  # noqa: PLC0415
+    from std_msgs.msg import String
 
     strings = Printer("std_msgs/msg/String", changes=True)
     assert [strings.text(String(data=d)) for d in ("a", "a", "b")] == ["data: 'a'\n---", None, "data: 'b'\n---"]
@@ -125,7 +125,7 @@ def test_echo_changes_on_the_alarm_stream_of_a_live_suite(suite: Suite, ros_doma
     echo = _fiper(["echo", "/fiper/alarm", "--changes", "--brief", "--wait", "30"], ros_domain)
     drv = suite.driver
     try:
-        assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2, 30)  # noqa: SLF001
+        assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2, 30)
         suite.run(make_rollout(320, fail=True), rollout_id=21)  # ends with END
         ended = len(drv.alarms)
         assert suite.spin_until(lambda: sum(m.heartbeat for m in drv.alarms[ended:]) >= 3, 10)

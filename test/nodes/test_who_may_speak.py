@@ -70,7 +70,7 @@ def _publishers(suite: Suite, topic: str) -> list[str]:
 @pytest.fixture
 def supervised(suite: Suite) -> Iterator[tuple[Suite, object, list[float]]]:
     """The in-process suite with the example supervisor (deadline 0.5 s) and a halt service that records calls."""
-    from fiper_ros.nodes.supervisor_node import SupervisorNode  # noqa: PLC0415
+    from fiper_ros.nodes.supervisor_node import SupervisorNode
 
     halts: list[float] = []
 

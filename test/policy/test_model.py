@@ -1,6 +1,8 @@
 """Policy building blocks: shapes, dtypes, determinism, one batched pass, normalisation, save/load."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -65,7 +67,7 @@ def test_normalisation_round_trip() -> None:
     torch.testing.assert_close(norm.unnormalize(y), x, atol=1e-5, rtol=1e-5)
 
 
-def test_save_load_round_trip(tmp_path) -> None:
+def test_save_load_round_trip(tmp_path: Path) -> None:
     policy = tiny_policy("pusht", seed=2)
     policy.save(tmp_path, {"note": "test"})
     loaded = Policy.load(tmp_path)

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from fiper_ros.bench import policy_bench
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -17,6 +19,6 @@ def test_bench_times_embed_and_sample_of_each_model_found(tmp_path: Path) -> Non
     assert all(0 < p50 <= p99 for _, _, p50, p99 in rows)
 
 
-def test_bench_exits_non_zero_without_models(tmp_path: Path, capsys) -> None:
+def test_bench_exits_non_zero_without_models(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert policy_bench.main(["--models", str(tmp_path)]) == 1
     assert "no policy model" in capsys.readouterr().err

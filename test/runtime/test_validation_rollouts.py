@@ -172,7 +172,7 @@ _VALUES = st.lists(st.one_of(st.floats(width=32), st.sampled_from([math.nan, mat
 def test_the_one_pass_check_says_what_the_two_checks_said(values: list[float], max_abs: float, dtype: type) -> None:
     array = np.asarray(values, dtype=dtype)
     try:
-        validation._checked(array, max_abs, "values")  # noqa: SLF001
+        validation._checked(array, max_abs, "values")
         verdict = "ok"
     except InputRejected as error:
         verdict = error.reason

@@ -6,11 +6,12 @@ import pytest
 
 from sim_bridge.env import make_env
 from sim_bridge.scenarios import SCENARIOS, TASK_NAMES, get_scenario, knob_values
+from sim_bridge.tasks import TaskEnv
 
 CASES = [(task, name) for task in TASK_NAMES for name in SCENARIOS[task] if name != "id"]
 
 
-def _fingerprint(env) -> dict[str, np.ndarray]:
+def _fingerprint(env: TaskEnv) -> dict[str, np.ndarray]:
     m = env.model
     return {
         "geom_size": m.geom_size.copy(), "geom_pos": m.geom_pos.copy(), "geom_friction": m.geom_friction.copy(),

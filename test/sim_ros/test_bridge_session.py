@@ -134,7 +134,7 @@ def test_a_policy_step_cap_ends_rollouts_as_a_timeout_after_the_last_command() -
 
 
 def test_start_on_activate_and_deactivate(ros_domain: int) -> None:
-    from sim_bridge.bridge_node import NODE_CLASS  # noqa: PLC0415
+    from sim_bridge.bridge_node import NODE_CLASS
 
     context = Context()
     rclpy.init(context=context, domain_id=ros_domain)

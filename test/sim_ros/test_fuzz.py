@@ -115,7 +115,7 @@ class PolicyLedger:
         self.node = node
         self.embeddings = record(node.fiper.embeddings)
         self.batches = record(node.fiper.batches)
-        self.commands = record(node._command_pub)  # noqa: SLF001
+        self.commands = record(node._command_pub)
         self.valid_parts: dict[int, set[str]] = {}
         self.steps: dict[int, int] = {}
         self.checked = 0
@@ -168,7 +168,7 @@ def test_the_policy_node_survives_any_observation_and_acts_only_on_valid_ones(
                 msg = draw_policy_event(data.draw, node, stamp)
                 note(f"event {msg.event} of rollout {msg.rollout_id} at {stamp}")
                 topics["/fiper/rollout_events"](msg)
-                node._on_started_step()  # noqa: SLF001 - the guard condition's callback: a waiting tick's step
+                node._on_started_step()  # the guard condition's callback: a waiting tick's step
             elif kind == "diagnostics":
                 node.publish_diagnostics()
             else:
@@ -192,7 +192,7 @@ def test_the_policy_node_survives_any_observation_and_acts_only_on_valid_ones(
         # afterwards: a valid rollout is acted on exactly as a fresh PolicySession acts on it
         oracle = PolicySession(node.policy, None, lambda error: None)
         topics["/fiper/rollout_events"](rollout_event_msg(VALID_ID, RolloutEvent.EVENT_START, VALID_STAMP))
-        node._on_started_step()  # noqa: SLF001
+        node._on_started_step()
         oracle.start(VALID_ID, VALID_STAMP)
         first = len(ledger.embeddings)
         for t in range(3):
@@ -283,8 +283,8 @@ def test_the_sim_bridge_survives_any_command_and_then_simulates_as_the_sim(conte
     node = bring_up(BridgeNode(context=context, parameter_overrides=node_params(
         images=False, realtime_factor=0.0, sim_time=True, publish_rate_hz=0.0, observation_resend_s=0.0),
         **NODE_KWARGS))
-    events = record(node._event_pub)  # noqa: SLF001
-    proprio = record(node._proprio_pub)  # noqa: SLF001
+    events = record(node._event_pub)
+    proprio = record(node._proprio_pub)
     on_action = callbacks(node)["/sim/action"]
     try:
         for _ in range(data.draw(st.integers(1, 30), label="messages")):
@@ -296,15 +296,15 @@ def test_the_sim_bridge_survives_any_command_and_then_simulates_as_the_sim(conte
                                                seed=data.draw(UINT64))
                 running = node.session.rollout
                 task = request.task or (running.task if running is not None else "sorting")
-                response = node._on_reset(request, ResetRollout.Response())  # noqa: SLF001 - the service callback
+                response = node._on_reset(request, ResetRollout.Response())  # the service callback
                 note(f"reset {request.task!r}/{request.scenario!r} seed {request.seed}: {response.message}")
                 assert response.success == known_scenario(task, request.scenario or "id"), response.message
             elif kind == "halt":
                 note("halt")
-                assert node._on_halt(Trigger.Request(), Trigger.Response()).success  # noqa: SLF001
+                assert node._on_halt(Trigger.Request(), Trigger.Response()).success
             elif kind == "timer":
-                if node._step_timer is not None:  # noqa: SLF001 - the step timer's callback, once it exists
-                    node._on_step_timer()  # noqa: SLF001
+                if node._step_timer is not None:  # the step timer's callback, once it exists
+                    node._on_step_timer()
             else:
                 msg, ok = draw_command(data.draw, node)
                 rollout = node.session.rollout
@@ -318,11 +318,11 @@ def test_the_sim_bridge_survives_any_command_and_then_simulates_as_the_sim(conte
                 assert accepted == ok and new.total() == (0 if ok else 1), (ok, node.rejected - rejected)
             assert set(node.rejected) <= set(REASONS), node.rejected
             env = node.session.env
-            assert env is None or len(node.session._pending) <= env.horizon  # noqa: SLF001
+            assert env is None or len(node.session._pending) <= env.horizon
             check_events(events)
         # afterwards: a rollout is simulated exactly as the simulation itself does it
         seed = 2**33 + 5
-        response = node._on_reset(ResetRollout.Request(task="sorting", scenario="id", seed=seed),  # noqa: SLF001
+        response = node._on_reset(ResetRollout.Request(task="sorting", scenario="id", seed=seed),
                                   ResetRollout.Response())
         assert response.success, response.message
         shadow = make_env("sorting", "id", seed, images=False)
@@ -337,7 +337,7 @@ def test_the_sim_bridge_survives_any_command_and_then_simulates_as_the_sim(conte
                 for _ in range(10):
                     if len(proprio) > ticks:
                         break
-                    node._on_step_timer()  # noqa: SLF001
+                    node._on_step_timer()
                 for action in chunk.astype(np.float64):
                     shadow.step(action)
                 assert len(proprio) == ticks + 1

@@ -239,7 +239,7 @@ def test_a_foxglove_client_gets_what_the_suite_published_beside_a_stalled_and_a_
 
 
 def test_fiper_view_refuses_a_taken_port_in_one_line(ros_domain: int) -> None:
-    import socket  # noqa: PLC0415
+    import socket
 
     with socket.socket() as holder:
         holder.bind(("127.0.0.1", 0))

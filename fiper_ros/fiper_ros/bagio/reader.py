@@ -74,7 +74,7 @@ class BagReader:
         try:
             self._reader = AnyReader([self._data])
             self._reader.open()
-        except Exception as error:  # noqa: BLE001 - any rosbags/MCAP failure is a bad bag
+        except Exception as error:  # any rosbags/MCAP failure is a bad bag
             self._reader = None
             raise BagError(f"{self.path}: cannot open the bag ({type(error).__name__}: {error})") from error
         try:
@@ -147,7 +147,7 @@ class BagReader:
         try:
             for connection, log_time, raw in self.reader.messages(connections=connections):
                 yield BagMessage(connection.topic, connection.msgtype, int(log_time), bytes(raw))
-        except Exception as error:  # noqa: BLE001 - corrupt chunk data (truncation is refused on opening)
+        except Exception as error:  # corrupt chunk data (truncation is refused on opening)
             raise BagError(f"{self.path}: corrupt MCAP data ({type(error).__name__}: {error})") from error
 
     def check_data(self) -> None:
@@ -161,6 +161,6 @@ class BagReader:
         :meth:`check_schema` found equal to ours for the schema topics: a failure is corrupt data)."""
         try:
             return self.reader.deserialize(message.raw, message.msgtype)
-        except Exception as error:  # noqa: BLE001 - a message that does not match its type
+        except Exception as error:  # a message that does not match its type
             raise BagError(f"{self.path}: corrupt MCAP data: a {message.msgtype} message on {message.topic} at "
                            f"{message.log_time_ns} ns does not decode ({error})") from error

@@ -85,7 +85,7 @@ def _definition(schema: Schema, where: str) -> tuple[str, str]:
     try:
         store.register(get_types_from_msg(msgdef, schema.name))
         return msgdef, store.hash_rihs01(schema.name)
-    except Exception as error:  # noqa: BLE001 - a definition rosbags cannot parse is damage
+    except Exception as error:  # a definition rosbags cannot parse is damage
         raise BagError(f"{where}: unreadable definition of {schema.name} ({type(error).__name__}: {error})") from error
 
 

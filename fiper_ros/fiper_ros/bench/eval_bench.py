@@ -14,18 +14,18 @@ import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see fiper_ros.commands.evaluate
 
-import argparse  # noqa: E402
-import logging  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
 
-from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
-from fiper_ros.evaluation.data import Dataset  # noqa: E402
-from fiper_ros.evaluation.engine import EngineSettings, score_all, sweep_all  # noqa: E402
-from fiper_ros.evaluation.protocol import run_protocol  # noqa: E402
-from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
+from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
+from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.engine import EngineSettings, score_all, sweep_all
+from fiper_ros.evaluation.protocol import run_protocol
+from fiper_ros.evaluation.synthetic import TASKS, make_task
 
 TARGET_SWEEP_S = 60.0
 

@@ -14,7 +14,6 @@ import sys
 from collections import deque
 from pathlib import Path
 
-import numpy as np
 import torch
 from sim_bridge.env import make_env
 from sim_bridge.scenarios import TASK_NAMES

@@ -18,7 +18,6 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import torch
 
@@ -93,7 +92,7 @@ def main() -> None:
     for cpus in (1, 2):
         command = [sys.executable, "-m", "fiper_ros.bench.scale_bench", "--task", args.task, "--episodes",
                    str(args.episodes), "--ray-cpus", str(cpus), *(["--batch", str(args.batch)] if args.batch else [])]
-        ray[cpus] = json.loads(subprocess.run(command, check=True, capture_output=True, text=True).stdout)
+        ray[cpus] = json.loads(subprocess.run(command, check=True, capture_output=True, text=True).stdout)  # noqa: S603
     episode = sum(own) / len(own)
     per_episode = {cpus: ray[cpus]["wall_s"] / args.episodes for cpus in ray}
     # on one worker, at the same time: the wall per episode less the episodes' own time on the worker

@@ -7,11 +7,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402 - after the backend choice
-from matplotlib.figure import Figure  # noqa: E402
+import matplotlib.pyplot as plt  # after the backend choice
+from matplotlib.figure import Figure
 
-from fiper_ros.client.trace import RolloutTrace  # noqa: E402
-from fiper_ros.core.detectors import ACE, RND_OE, judged_by  # noqa: E402
+from fiper_ros.client.trace import RolloutTrace
+from fiper_ros.core.detectors import ACE, RND_OE, judged_by
 
 TITLES = {RND_OE: "RND-OE: windowed observation score (eq. 2)", ACE: "ACE: windowed action-chunk entropy (eq. 5)"}
 #: Inches of figure height per panel, and for the title and the step axis.

@@ -29,7 +29,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -48,9 +48,6 @@ from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class
 from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, CLOCK, EMBEDDING, EVENTS, INPUT_TOPICS,
                                         STEP_SIGNALS, TOPICS, topic_spec)
-
-if TYPE_CHECKING:
-    from fiper_ros.core.calibration import Calibration
 
 #: The node of ``fiper replay`` (in the root namespace; its SROS2 enclave, docs/security.md).
 NODE_NAME = "fiper_replay"

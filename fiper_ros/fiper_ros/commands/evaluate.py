@@ -35,39 +35,39 @@ import os
 # matrix products). Only effective when numpy is not imported yet, as under ``fiper evaluate``.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import logging  # noqa: E402
-import sys  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from contextlib import ExitStack  # noqa: E402
-from dataclasses import replace  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import logging
+import sys
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import replace
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from fiper_ros.bagio.atomic import atomic_files, check_directory  # noqa: E402
-from fiper_ros.bagio.errors import BagError, fail  # noqa: E402
-from fiper_ros.commands import options  # noqa: E402
-from fiper_ros.core.calibration import SPLITS  # noqa: E402
-from fiper_ros.core.combination import SHAPE_KINDS  # noqa: E402
-from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw  # noqa: E402
-from fiper_ros.core.fusion import Combine  # noqa: E402
-from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache  # noqa: E402
-from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets  # noqa: E402
-from fiper_ros.evaluation.dump import INDEX  # noqa: E402
-from fiper_ros.evaluation.early import DEFAULT_Q  # noqa: E402
-from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation  # noqa: E402
-from fiper_ros.evaluation.engine import check_evaluation  # noqa: E402
-from fiper_ros.evaluation.external import ExternalScores, parse_scores  # noqa: E402
-from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS  # noqa: E402
-from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, default_combinations,  # noqa: E402
+from fiper_ros.bagio.atomic import atomic_files, check_directory
+from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.commands import options
+from fiper_ros.core.calibration import SPLITS
+from fiper_ros.core.combination import SHAPE_KINDS
+from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
+from fiper_ros.core.fusion import Combine
+from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
+from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
+from fiper_ros.evaluation.dump import INDEX
+from fiper_ros.evaluation.early import DEFAULT_Q
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation
+from fiper_ros.evaluation.engine import check_evaluation
+from fiper_ros.evaluation.external import ExternalScores, parse_scores
+from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS
+from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, default_combinations,
                                           observation_methods, parse_combination, signal_methods)
-from fiper_ros.evaluation.methods import ELAPSED  # noqa: E402
-from fiper_ros.evaluation.protocol import PROTOCOLS  # noqa: E402
-from fiper_ros.evaluation.report import config_text, gain, write_reports  # noqa: E402
-from fiper_ros.evaluation.sweep import DELTAS, MAX_POOL_WINDOWS, PAIR_GRIDS, SweepSettings  # noqa: E402
-from fiper_ros.evaluation.synthetic import TASKS, make_task  # noqa: E402
-from fiper_ros.evaluation.threshold_grid import GRID_KINDS  # noqa: E402
+from fiper_ros.evaluation.methods import ELAPSED
+from fiper_ros.evaluation.protocol import PROTOCOLS
+from fiper_ros.evaluation.report import config_text, gain, write_reports
+from fiper_ros.evaluation.sweep import DELTAS, MAX_POOL_WINDOWS, PAIR_GRIDS, SweepSettings
+from fiper_ros.evaluation.synthetic import TASKS, make_task
+from fiper_ros.evaluation.threshold_grid import GRID_KINDS
 
 LOG = logging.getLogger(__name__)
 
@@ -337,7 +337,7 @@ def run(args: argparse.Namespace) -> int:
             with atomic_files(args.out) as staging:
                 figures: list[str] = []
                 if not args.no_plots:
-                    from fiper_ros.evaluation.plots import write_figures  # matplotlib only when plotting
+                    from fiper_ros.evaluation.plots import write_figures  # noqa: PLC0415 - matplotlib
 
                     figures = write_figures(result, staging)
                 markdown, _ = write_reports(result, staging, figures)

@@ -19,7 +19,7 @@ from fiper_ros.policy.config import PRESETS
 
 
 def _train(args: argparse.Namespace) -> int:
-    from fiper_ros.policy.train import train
+    from fiper_ros.policy.train import train  # noqa: PLC0415
 
     overrides = {"epochs": args.epochs} if args.epochs is not None else {}
     config = PRESETS[args.task].with_overrides(**overrides)
@@ -31,9 +31,9 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from sim_bridge.policy_evaluation import EvaluationResult, evaluate, save_rollouts
-    from fiper_ros.policy.policy import Policy
-    from sim_bridge.closed_loop import EpisodeResult
+    from sim_bridge.policy_evaluation import EvaluationResult, evaluate, save_rollouts  # noqa: PLC0415
+    from fiper_ros.policy.policy import Policy  # noqa: PLC0415
+    from sim_bridge.closed_loop import EpisodeResult  # noqa: PLC0415
 
     policy = Policy.load(args.model or f"models/{args.task}")
     if policy.config.task != args.task:
@@ -57,8 +57,8 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from sim_bridge.multimodality import plot_multimodality
-    from fiper_ros.policy.policy import Policy
+    from sim_bridge.multimodality import plot_multimodality  # noqa: PLC0415
+    from fiper_ros.policy.policy import Policy  # noqa: PLC0415
 
     policy = Policy.load(args.model or f"models/{args.task}")
     out = args.out or f"docs/img/policy_multimodality_{args.task}.png"
@@ -67,9 +67,9 @@ def _plot(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from fiper_ros.policy.dataset import episode_files
-    from fiper_ros.policy.fit import open_loop_fit
-    from fiper_ros.policy.policy import Policy
+    from fiper_ros.policy.dataset import episode_files  # noqa: PLC0415
+    from fiper_ros.policy.fit import open_loop_fit  # noqa: PLC0415
+    from fiper_ros.policy.policy import Policy  # noqa: PLC0415
 
     policy = Policy.load(args.model or f"models/{args.task}")
     files = episode_files(args.demos)

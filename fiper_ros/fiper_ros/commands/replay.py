@@ -11,7 +11,7 @@ import tempfile
 import time
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fiper_ros.bagio.atomic import atomic_output
 from fiper_ros.bagio.errors import BagError, fail
@@ -27,6 +27,9 @@ from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.evaluation.verdicts import in_sample, in_sample_warning, rollout_line, table, tally
 from fiper_ros.interface.topics import INPUT_TOPICS
+
+if TYPE_CHECKING:
+    from fiper_ros.core.calibration import Calibration
 
 
 def _play_all(args: argparse.Namespace, bags: list[Path], directory: Path | None) -> dict[str, Any]:

@@ -151,11 +151,11 @@ def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TI
                 if time.monotonic() > deadline:
                     states = {n.get_fully_qualified_name(): _state(n) for n in nodes}
                     raise TimeoutError(f"the nodes did not all become active in {timeout_s:g} s: {states}")
-                executor.spin_once(timeout_sec=0.02)
+                executor.spin_once(timeout_sec=0.02)  # noqa: F821 - called before the `del` below
 
         spin(lambda: all(_state(n) == "active" for n in nodes))
         expected = {spec.fqn: node_grants(spec) for spec in specs}
-        return settled_grants(nodes[0], expected, lambda: executor.spin_once(timeout_sec=0.02))
+        return settled_grants(nodes[0], expected, lambda: executor.spin_once(timeout_sec=0.02))  # noqa: F821
     finally:
         while nodes:
             executor.remove_node(nodes[-1])

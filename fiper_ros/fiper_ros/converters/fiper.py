@@ -54,7 +54,7 @@ def _load(path: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     try:
         with path.open("rb") as stream:
             content = pickle.load(stream)  # noqa: S301 - trusted sources only (documented)
-    except Exception as error:  # noqa: BLE001 - any unpickling failure is a bad file
+    except Exception as error:  # any unpickling failure is a bad file
         raise BagError(f"{path}: not a readable pickle ({type(error).__name__}: {error})") from error
     if not isinstance(content, dict) or not isinstance(content.get("rollout"), list):
         raise BagError(f"{path}: not a FIPER rollout pickle (expected a dict with a 'rollout' list)")

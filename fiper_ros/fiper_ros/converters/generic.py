@@ -145,7 +145,7 @@ def _parquet_records(path: Path, rel: str, keys: Keys, budget: Budget) -> Iterat
     yield from _table_records(path, rel, keys, set(columns), column)
 
 
-def _arrow_array(column: Any) -> np.ndarray:  # noqa: ANN401 - a pyarrow ChunkedArray
+def _arrow_array(column: Any) -> np.ndarray:  # a pyarrow ChunkedArray
     """A parquet column as one numpy array: nested list columns of equal lengths become its trailing axes."""
     import pyarrow  # noqa: PLC0415
     import pyarrow.compute  # noqa: PLC0415
@@ -202,7 +202,7 @@ def _pickle_records(path: Path, rel: str, keys: Keys, budget: Budget) -> Iterato
     try:
         with path.open("rb") as stream:
             content = pickle.load(stream)  # noqa: S301 - trusted sources only (documented)
-    except Exception as error:  # noqa: BLE001 - any unpickling failure is a bad file
+    except Exception as error:  # any unpickling failure is a bad file
         raise BagError(f"{path}: not a readable pickle ({type(error).__name__}: {error})") from error
     items = [content] if isinstance(content, dict) else content
     if not isinstance(items, list) or not all(isinstance(item, dict) for item in items):
@@ -233,7 +233,7 @@ def source_files(src: Path) -> list[Path]:
     return files
 
 
-def _one_value(record: Record, field: str, keys: Keys) -> Any:  # noqa: ANN401 - a label of any type
+def _one_value(record: Record, field: str, keys: Keys) -> Any:  # a label of any type
     """A per-rollout field: one value, or the same value on every step."""
     value = record.fields[getattr(keys, field)]
     array = np.asarray(value, dtype=object if isinstance(value, (list, tuple)) else None)
@@ -249,7 +249,7 @@ def _one_value(record: Record, field: str, keys: Keys) -> Any:  # noqa: ANN401 -
     return values.pop()
 
 
-def _plain(value: Any) -> Any:  # noqa: ANN401
+def _plain(value: Any) -> Any:
     """A hashable Python value (NaN as None: a missing label)."""
     if isinstance(value, float) and value != value:
         return None

@@ -46,7 +46,7 @@ def _frame(path: Path):  # noqa: ANN202 - pandas DataFrame
 
     try:
         frame = pandas.read_pickle(path)  # noqa: S301 - trusted sources only (documented)
-    except Exception as error:  # noqa: BLE001 - any unpickling failure is a bad file
+    except Exception as error:  # any unpickling failure is a bad file
         raise BagError(f"{path}: not a readable pickle ({type(error).__name__}: {error})") from error
     if not isinstance(frame, pandas.DataFrame):
         raise BagError(f"{path}: not a pandas DataFrame but {type(frame).__name__}")

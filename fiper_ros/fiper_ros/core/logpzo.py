@@ -107,7 +107,7 @@ class LogpZO(EmbeddingDetector):
         """Flow matching on every step's embedding of the rollouts with ``success is True`` (others ignored; at
         least one); torch trains (:func:`fiper_ros.core.logpzo_train.train_velocity`), deterministic for a seed
         on a given machine."""
-        from fiper_ros.core.logpzo_train import train_velocity  # torch only where a model is trained
+        from fiper_ros.core.logpzo_train import train_velocity  # noqa: PLC0415 - torch only where a model is trained
 
         good = successful(list(rollouts))
         if not good:

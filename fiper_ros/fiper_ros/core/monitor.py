@@ -78,7 +78,7 @@ class DetectorMonitor:
         self._next = 0
         self._complete_from: float = 0
 
-    def _check(self, value: Any) -> None:  # noqa: ANN401
+    def _check(self, value: Any) -> None:
         """The input's shape against the calibration's layout: an embedding ``[E]``, a batch ``[B, H, D]``."""
         layout = self._layout
         if self._reads == "embedding" and np.shape(value) != (layout.embedding_dim,):
@@ -139,7 +139,7 @@ class DetectorMonitor:
         if step != self._next:
             raise MonitorError(f"expected policy step {self._next}, got {step} (call reset() for a new rollout)")
 
-    def update(self, step: int, value: Any) -> StepScore:  # noqa: ANN401 - what the detector reads (scorers)
+    def update(self, step: int, value: Any) -> StepScore:  # what the detector reads (scorers)
         """Score the input of policy step ``step``: an embedding ``[E]``, an action batch ``[B, H, D]`` with the
         measured joint position (``(actions, q)``), a logged value, or nothing (the elapsed time)."""
         self._expect(step)
@@ -177,7 +177,7 @@ class RolloutPrediction:
     first_alarm_step: int | None
 
 
-def rollout_value(rollout: Rollout, detector: str, step: int) -> Any:  # noqa: ANN401 - what the detector reads
+def rollout_value(rollout: Rollout, detector: str, step: int) -> Any:  # what the detector reads
     """What ``detector`` reads at ``step`` of a recorded rollout (as a node receives it)."""
     reads = info(detector).reads
     if reads == "embedding":

@@ -81,7 +81,7 @@ class ScoreStream(StepStream):
         super().__init__()
         self._score = score
 
-    def update(self, step: int, value: Any) -> float:  # noqa: ANN401 - what the detector reads (module docstring)
+    def update(self, step: int, value: Any) -> float:  # what the detector reads (module docstring)
         """``s(step)`` of the value the detector reads at policy step ``step`` (the expected one)."""
         self._expect(step)
         score = self._score(step, value)
@@ -125,7 +125,7 @@ class _Stateless(Scorer):
     """A scorer whose step score reads only that step: the streaming form is the per-step function."""
 
     @abstractmethod
-    def score_one(self, step: int, value: Any) -> float:  # noqa: ANN401 - what the detector reads
+    def score_one(self, step: int, value: Any) -> float:  # what the detector reads
         """The score of one step."""
 
     def stream(self, fk: ForwardKinematics | None = None) -> ScoreStream:
@@ -227,7 +227,7 @@ class _Wrapped(StepStream):
     """A detector's own streaming form (its step order and what it keeps of earlier steps), its scores passed
     through ``finish`` (the profile's epsilon); ``read`` picks the detector's input of a step's value."""
 
-    def __init__(self, inner: Any, read: Callable[[Any], Any], finish: Callable[[np.ndarray], np.ndarray]) -> None:  # noqa: ANN401
+    def __init__(self, inner: Any, read: Callable[[Any], Any], finish: Callable[[np.ndarray], np.ndarray]) -> None:
         super().__init__()
         self.inner = inner
         self.history = inner.history
@@ -244,7 +244,7 @@ class _Wrapped(StepStream):
     def skip_to(self, step: int) -> None:
         self.inner.skip_to(step)
 
-    def update(self, step: int, value: Any) -> float:  # noqa: ANN401
+    def update(self, step: int, value: Any) -> float:
         """``s(step)`` of the detector's input at ``step`` (the expected one)."""
         return float(self._finish(np.float64(self.inner.update(step, self._read(value)))))
 
@@ -291,7 +291,7 @@ class ElapsedScorer(_Stateless):
     def scores(self, rollout: Rollout, fk: ForwardKinematics | None = None) -> np.ndarray:
         return np.ones(rollout.length)
 
-    def score_one(self, step: int, value: Any) -> float:  # noqa: ANN401 - nothing is read
+    def score_one(self, step: int, value: Any) -> float:  # nothing is read
         return 1.0
 
 

@@ -23,19 +23,19 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt  # the backend must be chosen first
+import numpy as np
 
-from fiper_ros.core.fusion import alarms_over_rollout  # noqa: E402
-from fiper_ros.core.thresholds import Threshold, fit_threshold  # noqa: E402
-from fiper_ros.core.window import aggregate  # noqa: E402
-from fiper_ros.evaluation.cache import StreamScores  # noqa: E402
-from fiper_ros.evaluation.data import CATEGORIES  # noqa: E402
-from fiper_ros.evaluation.engine import EvaluationResult  # noqa: E402
-from fiper_ros.evaluation.methods import METHODS  # noqa: E402
-from fiper_ros.evaluation.protocol import METRICS, nanmean  # noqa: E402
-from fiper_ros.evaluation.report import KIND_LABELS, LABELS, config_text, data_text, middle_delta  # noqa: E402
-from fiper_ros.evaluation.sweep import FIPER, Group  # noqa: E402
+from fiper_ros.core.fusion import alarms_over_rollout
+from fiper_ros.core.thresholds import Threshold, fit_threshold
+from fiper_ros.core.window import aggregate
+from fiper_ros.evaluation.cache import StreamScores
+from fiper_ros.evaluation.data import CATEGORIES
+from fiper_ros.evaluation.engine import EvaluationResult
+from fiper_ros.evaluation.methods import METHODS
+from fiper_ros.evaluation.protocol import METRICS, nanmean
+from fiper_ros.evaluation.report import KIND_LABELS, LABELS, config_text, data_text, middle_delta
+from fiper_ros.evaluation.sweep import FIPER, Group
 
 IMPACT_WINDOW = 15
 

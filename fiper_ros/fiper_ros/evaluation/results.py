@@ -25,7 +25,7 @@ class StepResult:
     windowed: tuple[float | None, ...]
 
     @classmethod
-    def of_alarm(cls, msg: Any) -> StepResult:  # noqa: ANN401 - a FailureAlarm message (or its wire view)
+    def of_alarm(cls, msg: Any) -> StepResult:  # a FailureAlarm message (or its wire view)
         """The result a FailureAlarm message carries."""
         return cls(state_name(msg.state), tuple(bool(e) for e in msg.exceeded), tuple(as_float32(v) for v in msg.eta))
 

@@ -111,7 +111,7 @@ def step_signals_cdr(rollout_id: int, step: int, stamp: int, signals: Mapping[st
                                          values=np.asarray(list(signals.values()), dtype=np.float64)))
 
 
-def signals_of(msg: Any) -> dict[str, float]:  # noqa: ANN401 - a StepSignals message or view
+def signals_of(msg: Any) -> dict[str, float]:  # a StepSignals message or view
     """A StepSignals message (or its wire view) as ``{name: value}``; :class:`ValueError` if names and values
     differ in number or a name repeats."""
     names, values = list(msg.names), np.asarray(msg.values, dtype=np.float64)

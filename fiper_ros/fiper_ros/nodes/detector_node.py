@@ -50,7 +50,7 @@ class DetectorNode(FiperNode):
     #: A preset's detector; ``""``: the ``detector`` parameter names it.
     preset: str = ""
 
-    def __init__(self, name: str = "detector_node", **kwargs: Any) -> None:  # noqa: ANN401 - rclpy's Node kwargs
+    def __init__(self, name: str = "detector_node", **kwargs: Any) -> None:  # rclpy's Node kwargs
         super().__init__(name, **kwargs)
         self.declare_parameter("detector", self.preset, describe(
             "the detector scored: rnd_oe, ace, logpzo, pca_kmeans, progress, consistency, elapsed or signal_<name> "
@@ -173,7 +173,7 @@ class DetectorNode(FiperNode):
         return monitor
 
     # input ------------------------------------------------------------------------------------------
-    def to_value(self, msg: Any) -> Any:  # noqa: ANN401 - a message in, what the detector reads out
+    def to_value(self, msg: Any) -> Any:  # a message in, what the detector reads out
         """Validate ``msg`` and return what the detector reads at its step; raise InputRejected."""
         layout = self.calibration.layout
         if self.reads == "embedding":
@@ -186,7 +186,7 @@ class DetectorNode(FiperNode):
             return self.batch(msg), None
         return None  # the elapsed time reads the step alone
 
-    def batch(self, msg: ActionChunkBatch) -> Any:  # noqa: ANN401 - the checked batch [B, H, D]
+    def batch(self, msg: ActionChunkBatch) -> Any:  # the checked batch [B, H, D]
         """An action batch checked on its own and against the calibration's layout."""
         actions = validation.action_batch(floats_of(msg.data), msg.batch_size, msg.horizon, msg.action_dim,
                                           msg.exec_steps, self.max_elements, self.max_abs_value)
@@ -214,7 +214,7 @@ class DetectorNode(FiperNode):
             if record is not None:
                 self.get_logger().info(f"{self.detector}: {record.summary()}")
 
-    def _on_input(self, msg: Any) -> None:  # noqa: ANN401 - a message of the detector's input type
+    def _on_input(self, msg: Any) -> None:  # a message of the detector's input type
         now = self.now_ns()
         self.tick(self.input_topic, now)
         self._expire_waiting(now)
@@ -228,10 +228,10 @@ class DetectorNode(FiperNode):
         for expired in self.gate.expire(now_ns):
             self._reject_unknown(expired, "no START within start_wait_s")
 
-    def _reject_unknown(self, msg: Any, why: str) -> None:  # noqa: ANN401
+    def _reject_unknown(self, msg: Any, why: str) -> None:
         self.reject(InputRejected(UNKNOWN_ROLLOUT, f"rollout {msg.rollout_id} step {msg.step}: {why}"))
 
-    def _score_input(self, msg: Any) -> None:  # noqa: ANN401
+    def _score_input(self, msg: Any) -> None:
         started = self.timed()
         try:
             if self.calibration is None:
@@ -260,11 +260,11 @@ class DetectorNode(FiperNode):
             record.alarm_step = result.step
         self._publish(msg, result, self.record_latency(started))
 
-    def score(self, step: int, value: Any) -> StepScore:  # noqa: ANN401
+    def score(self, step: int, value: Any) -> StepScore:
         """Run the monitor on one validated input."""
         return self.monitor.update(step, value)
 
-    def _publish(self, msg: Any, result: StepScore, latency_ms: float) -> None:  # noqa: ANN401
+    def _publish(self, msg: Any, result: StepScore, latency_ms: float) -> None:
         self._score_pub.publish(SCORE.encode(SCORE.view(
             header=msg.header, rollout_id=msg.rollout_id, step=msg.step, detector=self.detector, score=result.score,
             windowed_score=result.windowed, threshold=result.threshold, exceeded=bool(result.exceeded),
@@ -284,7 +284,7 @@ class DetectorNode(FiperNode):
         return values
 
 
-def _size(msg: Any) -> int:  # noqa: ANN401
+def _size(msg: Any) -> int:
     """How many values a waiting message holds (what the START gate's size bound counts)."""
     for field in ("data", "values"):  # an embedding's or a batch's data (a numpy view of the wire), a signal's values
         value = getattr(msg, field, None)

@@ -14,7 +14,7 @@ class RndOeNode(DetectorNode):
 
     preset = RND_OE
 
-    def __init__(self, **kwargs: Any) -> None:  # noqa: ANN401 - rclpy's Node kwargs
+    def __init__(self, **kwargs: Any) -> None:  # rclpy's Node kwargs
         super().__init__("rnd_oe_node", **kwargs)
 
 

@@ -35,7 +35,7 @@ def task_directory(directory: Path, calibration_tasks: tuple[str, ...], task: st
 class CalibrationMismatch(CalibrationError):
     """Live data does not match the calibration (e.g. another policy, robot or task)."""
 
-    def __init__(self, field_name: str, expected: Any, got: Any) -> None:  # noqa: ANN401 - any compared value
+    def __init__(self, field_name: str, expected: Any, got: Any) -> None:  # any compared value
         super().__init__(f"calibration mismatch for {field_name}: expected {expected}, got {got}")
         self.field = field_name
         self.expected = expected

@@ -104,7 +104,7 @@ def _layout(data: dict[str, Any]) -> Layout:
 
 
 def _scorer(detector: str, directory: Path, entry: dict[str, Any], settings: CalibrationSettings,
-            layout: Layout) -> Any:  # noqa: ANN401 - a Scorer
+            layout: Layout) -> Any:  # a Scorer
     """A detector's fitted scorer from its files (RND-OE's description checked first: any later failure is the
     weights')."""
     if detector == RND_OE:
@@ -143,7 +143,7 @@ def _load_rnd(directory: Path, settings: CalibrationSettings, embedding_dim: int
         from fiper_ros.core.rnd_train import read_legacy  # noqa: PLC0415 - torch only to convert format 1
 
         return read_legacy(directory, embedding_dim, settings.rnd, settings.seed)
-    except Exception as error:  # noqa: BLE001 - numpy, zipfile and torch raise OSError, ValueError, pickle errors...
+    except Exception as error:  # numpy, zipfile and torch raise OSError, ValueError, pickle errors...
         cause = error.__cause__ if isinstance(error, RNDError) and error.__cause__ is not None else error
         detail = re.split(r"(?<=\.)\s|\n", str(cause).strip(), maxsplit=1)[0]
         raise CalibrationError(f"{path}: not readable RND-OE weights (damaged, or not written by fiper calibrate: "
