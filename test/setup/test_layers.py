@@ -37,7 +37,7 @@ LEVEL = {unit: level for level, units in enumerate(LAYERS) for unit in units}
 #: work on a Ray cluster (docs/scale.md).
 OPTIONAL_IMPORTS: dict[str, tuple[str, ...]] = {
     "ray": ("fiper_ros.cluster", "sim_bridge.ray_runner", "fiper_ros.commands.replay_fleet",
-            "fiper_ros.bench.scale_bench"),
+            "fiper_ros.bench.scale_bench", "fiper_ros.evaluation.distributed"),
 }
 #: Units that must import without rclpy (the pure core, the streaming rules, bag I/O, evaluation, the live view).
 RCLPY_FREE = ("core", "runtime", "bagio", "converters", "evaluation", "view")

@@ -25,6 +25,8 @@ action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
 ``--scores NAME=FILE`` evaluates per-step scores computed elsewhere (:mod:`fiper_ros.evaluation.external`) as the
 method ``external_<NAME>``, alone and in the default combination, like a built-in method. ``--dump DIR`` writes
 every configuration's thresholds per step and first alarm per rollout (:mod:`fiper_ros.evaluation.dump`).
+``--ray [ADDRESS]`` computes the scores as Ray tasks (:mod:`fiper_ros.evaluation.distributed`) on a local instance
+(``--ray-cpus N`` CPUs) or an existing cluster, to the same results (docs/scale.md).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ import numpy as np
 
 from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.cluster import LOCAL, ClusterError
 from fiper_ros.commands import options
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
@@ -211,6 +214,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write every configuration's thresholds per step and first alarm per rollout: one "
                              f".npz per task and seed and {INDEX} naming the configurations (docs/evaluation.md)")
     output.add_argument("--quiet", action="store_true", help="no progress lines")
+    cluster = parser.add_argument_group("cluster")
+    cluster.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
+                         help="compute the scores as Ray tasks, one per task, seed and stream; without ADDRESS on a "
+                              "local Ray instance bound to 127.0.0.1, with 'auto', HOST:PORT or ray://HOST:10001 on "
+                              "that cluster (docs/scale.md); the results are those of the single-process run")
+    cluster.add_argument("--ray-cpus", type=int, default=None, metavar="N",
+                         help="CPUs of the local Ray instance of --ray (default: all cores)")
 
 
 def datasets_from(args: argparse.Namespace) -> list[Dataset]:
@@ -309,6 +319,18 @@ def summary(result: EvaluationResult, markdown: Path) -> str:
             f"-> {markdown}")
 
 
+def check_cluster(args: argparse.Namespace) -> None:
+    """Refuse ``--ray-cpus`` without a local Ray instance (:class:`ValueError`)."""
+    if args.ray_cpus is None:
+        return
+    if args.ray is None:
+        raise ValueError("--ray-cpus sets the CPUs of the local Ray instance of --ray: give --ray too")
+    if args.ray != LOCAL:
+        raise ValueError(f"--ray-cpus sets the CPUs of a local Ray instance: the cluster at {args.ray} has its own")
+    if args.ray_cpus < 1:
+        raise ValueError(f"--ray-cpus must be >= 1, got {args.ray_cpus}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the evaluation; 0 on success, 2 on bad input."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -322,6 +344,7 @@ def run(args: argparse.Namespace) -> int:
         settings = settings_from(args, external)
         options.fk_of(settings.method_settings.robot)
         check_evaluation(datasets, settings)
+        check_cluster(args)
     except (DatasetError, BagError, ValueError) as error:
         return fail("evaluate", error)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
@@ -333,7 +356,7 @@ def run(args: argparse.Namespace) -> int:
         # Written beside --out (and --dump) and moved in when complete: a failed run leaves no partial results.
         with ExitStack() as dumped:
             dump = None if args.dump is None else dumped.enter_context(atomic_files(args.dump))
-            result = run_evaluation(datasets, settings, cache, dump)
+            result = run_evaluation(datasets, settings, cache, dump, args.ray, args.ray_cpus)
             with atomic_files(args.out) as staging:
                 figures: list[str] = []
                 if not args.no_plots:
@@ -341,6 +364,8 @@ def run(args: argparse.Namespace) -> int:
 
                     figures = write_figures(result, staging)
                 markdown, _ = write_reports(result, staging, figures)
+    except (DatasetError, ClusterError) as error:  # found by a Ray task: the data's or the cluster's reason
+        return fail("evaluate", error)
     finally:
         threshold_log.setLevel(previous)
     print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))

@@ -15,6 +15,7 @@ from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
+from fiper_ros.evaluation.distributed import score_on_ray
 from fiper_ros.evaluation.dump import Dump
 from fiper_ros.evaluation.early import DEFAULT_Q, EarlyDetection, TaskStatistics, areas, early_detection
 from fiper_ros.evaluation.external import check_external
@@ -196,11 +197,20 @@ def check_evaluation(datasets: Sequence[Dataset], settings: EngineSettings) -> N
 
 
 def score_all(
-    datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None
+    datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None, address: str | None = None,
+    cpus: int | None = None,
 ) -> tuple[dict[tuple[str, int], dict[str, StreamScores]], float]:
-    """Scores of every (task, seed); returns them and the seconds spent computing (not reading) them."""
+    """Scores of every (task, seed); returns them and the seconds spent computing (not reading) them. With an
+    ``address`` (:mod:`fiper_ros.cluster`; ``cpus``: of a local instance) the streams are computed as Ray tasks
+    (:func:`~fiper_ros.evaluation.distributed.score_on_ray`), to the same scores."""
     streams = settings.streams()
     progress = Progress("scores", len(datasets) * len(settings.seeds), settings.progress)
+    if address is not None:
+        try:
+            return score_on_ray(datasets, streams, settings.method_settings, settings.seeds, cache, settings.threads,
+                                progress, address, cpus)
+        finally:
+            progress.close()
     out: dict[tuple[str, int], dict[str, StreamScores]] = {}
     computing = 0.0
     for dataset in datasets:
@@ -328,13 +338,15 @@ def early_areas(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[
 
 
 def run_evaluation(
-    datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None = None, dump: Path | None = None
+    datasets: Sequence[Dataset], settings: EngineSettings, cache: ScoreCache | None = None, dump: Path | None = None,
+    address: str | None = None, cpus: int | None = None,
 ) -> EvaluationResult:
     """Scores, sweep, metrics and protocols for ``datasets`` (distinct task names); with ``dump`` a directory that
-    receives every configuration's thresholds and first alarms (:mod:`fiper_ros.evaluation.dump`)."""
+    receives every configuration's thresholds and first alarms (:mod:`fiper_ros.evaluation.dump`); with ``address``
+    the scores computed on that Ray cluster (:func:`score_all`), the results the same."""
     check_evaluation(datasets, settings)
     start = time.perf_counter()
-    scores, computing = score_all(datasets, settings, cache)
+    scores, computing = score_all(datasets, settings, cache, address, cpus)
     scored = time.perf_counter()
     writer = None if dump is None else Dump(
         dump, {"profile": settings.method_settings.profile,

@@ -203,6 +203,61 @@ def split_scores(fit: Fitter, dataset: Dataset, split: CalibrationSplit, fitted:
             for name, score in deployed.items()}
 
 
+def stream_keys(dataset: Dataset, streams: Sequence[str], settings: MethodSettings, seed: int) -> dict[str, str]:
+    """The score cache's key of every stream of ``dataset`` and ``seed``."""
+    data_digest, version = dataset.digest(), code_version()
+    joint_space = dataset.action_space != "ee_position"
+    return {s: cache_key(data_digest, s, settings.stream_settings(s, joint_space), settings.stream_seed(s, seed),
+                         version)
+            for s in streams}
+
+
+def cached_streams(dataset: Dataset, streams: Sequence[str], settings: MethodSettings, seed: int,
+                   cache: ScoreCache | None) -> tuple[dict[str, str], dict[str, RolloutScores]]:
+    """The cache key of every stream of ``dataset`` and ``seed`` (empty without a cache) and the scores the cache
+    holds."""
+    if cache is None:
+        return {}, {}
+    keys = stream_keys(dataset, streams, settings, seed)
+    found = {s: cache.get(keys[s]) for s in streams}
+    return keys, {s: scores for s, scores in found.items() if scores is not None}
+
+
+def score_stream(dataset: Dataset, stream: str, settings: MethodSettings, seed: int, threads: int = 1
+                 ) -> tuple[RolloutScores, float]:
+    """One stream's scores of ``dataset`` for ``seed``, computed (no cache) with models fitted as the split of
+    ``seed`` says (:func:`calibration_split`); returns them and the seconds spent.
+
+    Raises:
+        DatasetError: The split or the stream cannot serve ``dataset``.
+    """
+    split = calibration_split(dataset, settings, seed)
+    start = time.perf_counter()
+    with torch_threads(threads):
+        # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
+        own = split if fitted(stream) else calibration_split(
+            dataset, replace(settings, split="same", shape_folds=0), seed)
+        fitter = (baseline_fitter(stream, settings, seed) if stream in BASELINES
+                  else external_fitter(stream, settings) if info(stream).reads == "external"
+                  else detector_fitter(stream, dataset, settings, seed))
+        scores = split_scores(fitter, dataset, own, fitted(stream))[stream]
+    seconds = time.perf_counter() - start
+    LOG.info("%s %s seed %d (%s split): scores in %.1f s", dataset.task, stream, seed, split.mode, seconds)
+    return scores, seconds
+
+
+def separated_streams(dataset: Dataset, streams: Sequence[str], settings: MethodSettings, seed: int,
+                      raw: dict[str, RolloutScores], computed: dict[str, str], cache: ScoreCache | None
+                      ) -> dict[str, StreamScores]:
+    """``raw`` scores of ``streams`` separated by the split of ``seed``, in the order of ``streams``, after the
+    ``computed`` ones (stream -> cache key) went into ``cache``."""
+    if cache is not None:
+        for stream, key in computed.items():
+            cache.put(key, raw[stream])
+    split = calibration_split(dataset, settings, seed)
+    return {s: StreamScores.of(raw[s], split) for s in streams}
+
+
 def compute_streams(
     dataset: Dataset,
     streams: list[str],
@@ -211,40 +266,16 @@ def compute_streams(
     cache: ScoreCache | None = None,
     threads: int = 1,
 ) -> tuple[dict[str, StreamScores], dict[str, float]]:
-    """Scores of ``streams`` for one dataset and seed, from the cache where possible, separated by the
-    split of ``seed`` (:func:`calibration_split`).
+    """Scores of ``streams`` for one dataset and seed, from the cache where possible (:func:`cached_streams`), else
+    computed (:func:`score_stream`), separated by the split of ``seed`` (:func:`separated_streams`).
 
     Returns the scores and the seconds spent computing each stream (0 for cache hits).
     """
-    split = calibration_split(dataset, settings, seed)
-    data_digest = dataset.digest() if cache is not None else ""
-    version = code_version() if cache is not None else ""
-    joint_space = dataset.action_space != "ee_position"
-    keys = {s: cache_key(data_digest, s, settings.stream_settings(s, joint_space), settings.stream_seed(s, seed),
-                         version)
-            for s in streams}
-    raw: dict[str, RolloutScores] = {}
-    seconds: dict[str, float] = {}
-    for stream in streams:
-        cached = cache.get(keys[stream]) if cache is not None else None
-        if cached is not None:
-            raw[stream], seconds[stream] = cached, 0.0
+    calibration_split(dataset, settings, seed)  # a split that cannot be drawn stops before the cache is read
+    keys, raw = cached_streams(dataset, streams, settings, seed, cache)
+    seconds = dict.fromkeys(raw, 0.0)
     missing = [s for s in streams if s not in raw]
-    with torch_threads(threads):
-        for stream in missing:
-            start = time.perf_counter()
-            # Nothing is fitted for an unfitted stream: every split scores it alike, so it is scored once.
-            own = split if fitted(stream) else calibration_split(
-                dataset, replace(settings, split="same", shape_folds=0), seed)
-            fitter = (baseline_fitter(stream, settings, seed) if stream in BASELINES
-                      else external_fitter(stream, settings) if info(stream).reads == "external"
-                      else detector_fitter(stream, dataset, settings, seed))
-            raw[stream] = split_scores(fitter, dataset, own, fitted(stream))[stream]
-            seconds[stream] = time.perf_counter() - start
-    if cache is not None:
-        for stream in missing:
-            cache.put(keys[stream], raw[stream])
     for stream in missing:
-        LOG.info("%s %s seed %d (%s split): scores in %.1f s", dataset.task, stream, seed, split.mode,
-                 seconds[stream])
-    return {s: StreamScores.of(raw[s], split) for s in streams}, seconds
+        raw[stream], seconds[stream] = score_stream(dataset, stream, settings, seed, threads)
+    computed = {s: keys[s] for s in missing if keys}
+    return separated_streams(dataset, streams, settings, seed, raw, computed, cache), seconds

@@ -1,0 +1,115 @@
+"""The scores of an evaluation as Ray tasks (``fiper evaluate --ray [ADDRESS]``): one task per (task, seed, stream)
+the cache does not hold, each running :func:`~fiper_ros.evaluation.scoring.score_stream` (the function of the
+single-process run) on a local instance or an existing cluster (:mod:`fiper_ros.cluster`).
+
+Every dataset and the method settings go once to the cluster's object store; the driver reads and writes the score
+cache and gathers the results by key, so the scores, and every number computed from them, are the single-process
+run's. A task whose data the stream cannot serve returns its :class:`~fiper_ros.evaluation.data.DatasetError`,
+which the driver raises as the single-process run would; any other failure is one line naming the task
+(:class:`~fiper_ros.cluster.ClusterError`).
+"""
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+from fiper_ros.cluster import LOCAL, TaskPool, connected
+from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores
+from fiper_ros.evaluation.data import Dataset, DatasetError
+from fiper_ros.evaluation.methods import MethodSettings
+from fiper_ros.evaluation.progress import Progress
+from fiper_ros.evaluation.scoring import score_stream, separated_streams, stream_keys
+
+#: A score task: (task, seed, stream).
+Key = tuple[str, int, str]
+
+
+def stream_task(shared: list[Any], stream: str, seed: int, threads: int) -> tuple[RolloutScores, float] | DatasetError:
+    """:func:`score_stream` on a Ray worker (``shared``: the references of the dataset and the method settings in
+    the object store, in a list so that Ray hands over the references); a :class:`DatasetError` is returned, for
+    the driver to raise."""
+    import ray  # noqa: PLC0415 - the worker of a Ray task has it
+
+    dataset, settings = ray.get(shared)
+    try:
+        return score_stream(dataset, stream, settings, seed, threads)
+    except DatasetError as error:
+        return error
+
+
+def score_on_ray(datasets: Sequence[Dataset], streams: Sequence[str], settings: MethodSettings, seeds: Sequence[int],
+                 cache: ScoreCache | None, threads: int, progress: Progress, address: str = LOCAL,
+                 cpus: int | None = None) -> tuple[dict[tuple[str, int], dict[str, StreamScores]], float]:
+    """Scores of every (task, seed) as :func:`~fiper_ros.evaluation.engine.score_all` computes them, the streams the
+    cache does not hold as Ray tasks of the cluster at ``address`` (``cpus``: of a local instance); returns them
+    and the seconds the tasks spent computing. ``progress`` advances once per (task, seed).
+
+    Raises:
+        DatasetError: A task's data cannot be scored (the single-process run's message).
+        ClusterError: The cluster cannot be reached, or a task failed otherwise (one line).
+    """
+    units = [(d, seed) for d in datasets for seed in seeds]
+    keys = {(d.task, seed): {} if cache is None else stream_keys(d, streams, settings, seed) for d, seed in units}
+    raw: dict[tuple[str, int], dict[str, RolloutScores]] = {unit: {} for unit in keys}
+    missing: dict[tuple[str, int], list[str]] = {unit: [] for unit in keys}
+    # a key an earlier (task, seed) misses is computed once and read back from the cache, as the serial run does
+    later: dict[tuple[str, int], list[str]] = {unit: [] for unit in keys}
+    first: dict[str, tuple[str, int]] = {}  # cache key -> the (task, seed) whose task computes it
+    for unit, own in keys.items():
+        for stream in streams:
+            if own and own[stream] in first:
+                later[unit].append(stream)
+                continue
+            found = None if cache is None else cache.get(own[stream])
+            if found is not None:
+                raw[unit][stream] = found
+                continue
+            missing[unit].append(stream)
+            if own:
+                first[own[stream]] = unit
+    left = Counter({unit: len(names) for unit, names in missing.items()})
+    for unit in [u for u in raw if not left[u]]:
+        progress.advance(note=f"{unit[0]} seed {unit[1]} (cached)")
+    computing = 0.0
+    if sum(left.values()):  # no cluster for a run the cache serves
+        computing = _compute(datasets, settings, seeds, threads, missing, raw, left, progress, address, cpus)
+    out: dict[tuple[str, int], dict[str, StreamScores]] = {}
+    for dataset, seed in units:
+        unit = (dataset.task, seed)
+        for stream in later[unit]:  # put by an earlier (task, seed)'s separated_streams
+            found = None if cache is None else cache.get(keys[unit][stream])
+            raw[unit][stream] = found if found is not None else raw[first[keys[unit][stream]]][stream]
+        computed = {s: keys[unit][s] for s in missing[unit] if keys[unit]}
+        out[unit] = separated_streams(dataset, streams, settings, seed, raw[unit], computed, cache)
+    return out, computing
+
+
+def _compute(datasets: Sequence[Dataset], settings: MethodSettings, seeds: Sequence[int], threads: int,
+             missing: dict[tuple[str, int], list[str]], raw: dict[tuple[str, int], dict[str, RolloutScores]],
+             left: Counter[tuple[str, int]], progress: Progress, address: str, cpus: int | None) -> float:
+    """The ``missing`` streams of every (task, seed) as Ray tasks, their scores into ``raw``; returns the seconds
+    the tasks spent."""
+    computing = 0.0
+    with connected(address, cpus):
+        import ray  # noqa: PLC0415 - after connected, which sets Ray's environment
+
+        shared_settings = ray.put(settings)
+        tasks: TaskPool[Key] = TaskPool(stream_task, lambda key: f"task {key[0]!r} seed {key[1]} {key[2]}")
+        for dataset in datasets:
+            shared = [ray.put(dataset), shared_settings]
+            for seed in seeds:
+                for stream in missing[(dataset.task, seed)]:
+                    tasks.submit((dataset.task, seed, stream), shared, stream, seed, threads)
+        try:
+            for (task, seed, stream), value in tasks.completed():
+                if isinstance(value, DatasetError):
+                    raise value
+                raw[(task, seed)][stream], seconds = value
+                computing += seconds
+                left[(task, seed)] -= 1
+                if not left[(task, seed)]:
+                    progress.advance(note=f"{task} seed {seed} | ray: {tasks.status()}")
+        finally:
+            tasks.close()
+    return computing
