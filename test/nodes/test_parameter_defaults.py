@@ -19,6 +19,7 @@ import rclpy
 import yaml
 from rclpy.context import Context
 from rclpy.exceptions import ParameterUninitializedException
+from rclpy.parameter import Parameter
 
 from fiper_ros.launcher.config import load_launch, node_module
 from fiper_ros.nodes import container
@@ -236,3 +237,26 @@ def test_a_docs_table_with_a_wrong_default_is_caught(tmp_path: Path, defaults: D
     assert doc_problems(doc, "The table:", (), defaults) == [
         "doc.md: allow_reset (fiper_ros.nodes.fusion_node): says `false`, the default is True",
         "doc.md: no_such (fiper_ros.nodes.supervisor_node): not a parameter"]
+
+
+#: Parameters rclpy itself applies when they are set.
+APPLIED_BY_RCLPY = {"use_sim_time"}
+
+
+def test_no_parameter_accepts_a_set_that_nothing_applies(defaults: Defaults) -> None:
+    """No node applies a parameter set at run time, so each is read-only: ``ros2 param set`` is refused with a
+    reason, never accepted and ignored (``use_sim_time`` aside: rclpy applies it)."""
+    modules = sorted({spec.module for path in LAUNCH_FILES for spec in load_launch(path).nodes
+                      if spec.module != container.__name__} | {"fiper_ros.nodes.detector_node"})
+    assert {"fiper_ros.nodes.fusion_node", "fiper_ros.nodes.detector_node", "sim_bridge.bridge_node"} <= set(modules)
+    for module in modules:
+        defaults.of(module, "use_sim_time")  # builds the node
+        node = defaults.nodes[module]
+        names = [n for n in node.list_parameters([], 0).names
+                 if n not in APPLIED_BY_RCLPY and not n.startswith("qos_overrides.")]
+        assert names, module
+        writable = [n for n, d in zip(names, node.describe_parameters(names)) if not d.read_only]
+        assert writable == [], (module, writable)
+        name = names[0]
+        (result,) = node.set_parameters([Parameter(name, value=node.get_parameter(name).value)])
+        assert not result.successful and "read-only" in result.reason, (module, name, result.reason)

@@ -48,9 +48,11 @@ def own_topic(topic: str) -> bool:
     return not topic.startswith(INFRASTRUCTURE_TOPICS) and not topic.endswith("/transition_event")
 
 
-def describe(description: str, *, read_only: bool = False, low: float | None = None, high: float | None = None,
+def describe(description: str, *, read_only: bool = True, low: float | None = None, high: float | None = None,
              integer: bool = False) -> ParameterDescriptor:
-    """A parameter descriptor with an optional range."""
+    """A parameter descriptor with an optional range. Read-only unless asked otherwise: the nodes read their
+    parameters at construction or configure and apply none live (no set-parameters callback), so a
+    ``ros2 param set`` is refused with a reason rather than accepted and ignored."""
     descriptor = ParameterDescriptor(description=description, read_only=read_only)
     if low is not None and high is not None:
         if integer:
