@@ -117,7 +117,7 @@ def test_an_ace_score_is_refused_and_no_state_waits_for_one() -> None:
 
 @pytest.mark.parametrize(("detectors", "reason"), [
     ((), "declare each detector once, at least one, got [(]none[)]"),
-    (("rnd_oe", "rnd_oe"), "declare each detector once, at least one, got rnd_oe, rnd_oe"),
+    (("rnd_oe", "rnd_oe"), "declare each detector once, at least one, got rnd_oe,rnd_oe"),
     (("rnd_oe", "nope"), "unknown detector 'nope'")])
 def test_an_unsupported_detector_set_is_refused(detectors: tuple[str, ...], reason: str) -> None:
     with pytest.raises(ValueError, match=reason):

@@ -15,7 +15,7 @@ from typing import Any
 
 import yaml
 
-from fiper_ros.core.detectors import DETECTORS, check_pair_format, in_fusion_order
+from fiper_ros.core.detectors import DETECTORS, check_once, check_pair_format, in_fusion_order
 
 FORMAT_VERSION = 3
 """The format this code writes: any declared detectors, each task's models and thresholds, the combine."""
@@ -89,9 +89,7 @@ def detectors_of(content: dict[str, Any], path: Path) -> tuple[str, ...]:
         names = settings.get("detectors", DETECTORS)
         if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
             raise ValueError(f"detectors must be a list of names, got {names!r}")
-        if not names or len(set(names)) != len(names):
-            raise ValueError(f"declare each detector once, at least one, got {','.join(names) or '(none)'}")
-        return in_fusion_order(names)
+        return in_fusion_order(check_once(names))
     except (TypeError, ValueError) as error:
         raise CalibrationError(f"{path}: malformed entry ({one_line(error)})") from error
 
@@ -99,9 +97,7 @@ def detectors_of(content: dict[str, Any], path: Path) -> tuple[str, ...]:
 def declared_detectors(directory: str | Path) -> tuple[str, ...]:
     """The detectors the calibration in ``directory`` declares; :class:`CalibrationError` (one line naming the
     file) if it is missing or unreadable."""
-    check_files(Path(directory), (CALIBRATION_FILE,))
-    path = Path(directory) / CALIBRATION_FILE
-    return detectors_of(read_yaml(path), path)
+    return declared(directory).detectors
 
 
 @dataclass(frozen=True)

@@ -108,6 +108,14 @@ PAIR_FORMAT_SETS: tuple[tuple[str, ...], ...] = (DETECTORS, OBSERVATION_ONLY)
 LABELS = {name: detector.label for name, detector in INFO.items()}
 
 
+def check_once(names: Iterable[str]) -> tuple[str, ...]:
+    """``names`` as a declared set: each detector once, at least one; ``ValueError`` otherwise."""
+    given = tuple(names)
+    if not given or len(set(given)) != len(given):
+        raise ValueError(f"declare each detector once, at least one, got {','.join(given) or '(none)'}")
+    return given
+
+
 def in_fusion_order(names: Iterable[str]) -> tuple[str, ...]:
     """``names`` in the fusion's order: the known detectors in :data:`INFO`'s order, then the others (logged
     signals) in the order given."""

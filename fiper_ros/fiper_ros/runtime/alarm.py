@@ -30,7 +30,7 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
-from fiper_ros.core.detectors import DETECTORS, info
+from fiper_ros.core.detectors import DETECTORS, check_once, info
 from fiper_ros.core.fusion import Combine, exceeds, fuse_votes
 from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
 from fiper_ros.runtime.rollout_gate import RolloutGate
@@ -163,9 +163,7 @@ class AlarmFuser:
                  detectors: tuple[str, ...] = DETECTORS, start_wait_ns: int = 1_000_000_000) -> None:
         if deadline_periods < 0 or deadline_floor_ns < 0 or deadline_ns <= 0:
             raise ValueError("deadline_ns must be > 0, deadline_periods and deadline_floor_ns >= 0")
-        if not detectors or len(set(detectors)) != len(detectors):
-            raise ValueError(f"declare each detector once, at least one, got {', '.join(detectors) or '(none)'}")
-        for name in detectors:
+        for name in check_once(detectors):
             info(name)
         self.detectors = tuple(detectors)
         self.rule = Combine.parse(combine)

@@ -11,7 +11,7 @@ from fiper_ros.core.ace import check_alpha
 from fiper_ros.core.calibration_file import CalibrationError
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.consistency import ConsistencySettings
-from fiper_ros.core.detectors import ACE, CONSISTENCY, DETECTORS, PROGRESS, RND_OE, in_fusion_order, info
+from fiper_ros.core.detectors import ACE, CONSISTENCY, DETECTORS, PROGRESS, RND_OE, check_once, in_fusion_order, info
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
@@ -36,9 +36,7 @@ def _ordered(detectors: tuple[str, ...]) -> tuple[str, ...]:
     """The declared detectors, each once, in the fusion's order (:func:`~fiper_ros.core.detectors.in_fusion_order`)."""
     for name in detectors:
         check_declared(name)
-    if len(set(detectors)) != len(detectors) or not detectors:
-        raise ValueError(f"declare each detector once, at least one, got {','.join(detectors) or '(none)'}")
-    return in_fusion_order(detectors)
+    return in_fusion_order(check_once(detectors))
 
 
 @dataclass(frozen=True)
