@@ -23,6 +23,9 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
     why = "\n".join(line for line in log.splitlines() if "halting" in line or "ended:" in line) + run.stdout[-2000:]
     assert in_dist["outcome"] == "success" and in_dist["alarm_step"] is None, why
     assert ood["outcome"] == "failure" and ood["alarm_step"] is not None
+    # what judged, said with the calibration's combine (the pair under max is not FIPER's AND)
+    assert summary["judged_by"] == "RND-OE and ACE (max)" and "judged by RND-OE and ACE (max)" in run.stdout
+    assert in_dist["judged_by"] == ood["judged_by"] == "RND-OE and ACE (max)"  # from the fusion node's alarms
     # The supervisor halted the robot on the alarm: the bridge says why the rollout ended. The monitor scores
     # step t beside the policy computing step t + 1 (as on a robot), so the halt lands in step t + 1 or t + 2
     # (26 steps after an alarm at step 25); how far the policy gets meanwhile is a race that load can

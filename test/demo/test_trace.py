@@ -21,8 +21,8 @@ DEMO_YAML = Path(__file__).resolve().parents[2] / "fiper_ros" / "launch" / "demo
 
 
 def scored(steps: int, alarm: int | None = None, outcome: str = "failure",
-           detectors: tuple[str, ...] = DETECTORS) -> RolloutTrace:
-    trace = RolloutTrace("harmful OOD", "box_pos", 7, rollout_id=(1 << 32) | 7, detectors=detectors)
+           detectors: tuple[str, ...] = DETECTORS, combine: str = "and") -> RolloutTrace:
+    trace = RolloutTrace("harmful OOD", "box_pos", 7, rollout_id=(1 << 32) | 7, detectors=detectors, combine=combine)
     for step in range(steps):
         trace.scores[RND_OE].add(step, 0.5 * step, 2.0, 0.5 * step > 2.0)
         if ACE in detectors:
@@ -78,6 +78,17 @@ def test_summary_dict_carries_both_series() -> None:
     assert data["detectors"] == ["rnd_oe", "ace"] and data["judged_by"] == "RND-OE and ACE"
 
 
+@pytest.mark.parametrize(("combine", "judged"), [
+    ("and", "RND-OE and ACE"), ("max", "RND-OE and ACE (max)"), ("or", "RND-OE and ACE (or)"),
+    ("", "RND-OE and ACE (combine not known)"),
+])
+def test_the_summary_says_how_the_fusion_node_combined_the_pair(combine: str, judged: str) -> None:
+    trace = scored(3, alarm=2)
+    trace.combine = combine  # as the driver takes it from the alarms (FailureAlarm.combine)
+    data = trace.to_dict()
+    assert data["combine"] == combine and data["judged_by"] == judged
+
+
 def test_an_observation_only_trace_keeps_and_waits_for_rnd_oe_alone() -> None:
     trace = scored(4, alarm=3, detectors=OBSERVATION_ONLY)
     assert set(trace.scores) == {RND_OE}
@@ -97,15 +108,18 @@ def test_figure_is_written(tmp_path: Path) -> None:
     assert png.stat().st_size > 10_000
 
 
-@pytest.mark.parametrize(("detectors", "titles", "judged"), [
-    (DETECTORS, ["RND-OE: windowed observation score (eq. 2)", "ACE: windowed action-chunk entropy (eq. 5)"],
-     "judged by RND-OE and ACE"),
-    (OBSERVATION_ONLY, ["RND-OE: windowed observation score (eq. 2)"],
+PAIR_TITLES = ["RND-OE: windowed observation score (eq. 2)", "ACE: windowed action-chunk entropy (eq. 5)"]
+
+
+@pytest.mark.parametrize(("detectors", "combine", "titles", "judged"), [
+    (DETECTORS, "and", PAIR_TITLES, "judged by RND-OE and ACE"),
+    (DETECTORS, "max", PAIR_TITLES, "judged by RND-OE and ACE (max)"),
+    (OBSERVATION_ONLY, "", ["RND-OE: windowed observation score (eq. 2)"],
      "judged by RND-OE alone (observation-only: no ACE)"),
 ])
 def test_the_figure_draws_the_declared_detectors_and_says_which_are_absent(
-        detectors: tuple[str, ...], titles: list[str], judged: str, tmp_path: Path) -> None:
-    trace = scored(8, alarm=5, detectors=detectors)
+        detectors: tuple[str, ...], combine: str, titles: list[str], judged: str, tmp_path: Path) -> None:
+    trace = scored(8, alarm=5, detectors=detectors, combine=combine)
     figure = trace_figure(trace, "sorting")
     try:
         assert [axis.get_title() for axis in figure.axes] == titles

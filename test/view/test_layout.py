@@ -13,16 +13,20 @@ from ament_index_python.packages import get_package_share_directory
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.interface.messages import message_class
-from fiper_ros.interface.topics import CAMERAS, DIAGNOSTICS, EVENTS, TOPICS
+from fiper_ros.core.detectors import CALIBRATED
+from fiper_ros.interface.topics import CAMERAS, DIAGNOSTICS, EVENTS, TOPICS, score_topic
 from fiper_ros.nodes.view_node import JSON_TOPICS
 from fiper_ros.view.layout import LAYOUT_FILE, layout_json, main, topics_of
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 SHIPPED = ROOT / "fiper_ros" / LAYOUT_FILE
 #: What the suite publishes: its outputs, the policy's rollout events, every node's diagnostics, the sim's cameras.
-PUBLISHED = {t for t, spec in TOPICS.items() if not spec.input} | {EVENTS, DIAGNOSTICS, *CAMERAS}
+#: Every detector a calibration may declare has its score topic (the suite's detector nodes).
+SCORES = [score_topic(d) for d in CALIBRATED]
+PUBLISHED = {t for t, spec in TOPICS.items() if not spec.input} | {EVENTS, DIAGNOSTICS, *CAMERAS, *SCORES}
 #: Message type of every published topic that is not a camera.
-TYPES = {t: spec.msgtype for t, spec in TOPICS.items()} | {DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"}
+TYPES = {t: spec.msgtype for t, spec in TOPICS.items()} | {DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"} | \
+    {t: "fiper_msgs/msg/Score" for t in SCORES}
 
 
 def _panels(node: Any) -> Iterator[dict[str, Any]]:
@@ -60,10 +64,10 @@ def test_the_shipped_layout_is_valid_json_and_what_the_generator_makes(tmp_path:
 
 def test_it_refers_only_to_topics_the_suite_publishes_and_the_view_serves_and_to_fields_they_have() -> None:
     layout = json.loads(SHIPPED.read_text())
-    served = {name if name.startswith("/") else f"/fiper/{name}" for name in JSON_TOPICS} | set(CAMERAS)
+    served = {name if name.startswith("/") else f"/fiper/{name}" for name in JSON_TOPICS} | set(CAMERAS) | set(SCORES)
     used = topics_of(layout)
     assert used <= PUBLISHED and used <= served, (used - PUBLISHED, used - served)
-    assert used >= {"/fiper/scores/rnd_oe", "/fiper/scores/ace", "/fiper/alarm", DIAGNOSTICS, *CAMERAS}
+    assert used >= {*SCORES, "/fiper/alarm", DIAGNOSTICS, *CAMERAS}
     for path in _paths(layout):
         topic, field = path.split(".", 1)
         assert field.split(".")[0] in message_class(TYPES[topic]).get_fields_and_field_types(), path
@@ -80,7 +84,7 @@ def test_it_has_the_panels_the_view_is_for() -> None:
     for panel in panels:
         by_type.setdefault(panel["panelType"], []).append(panel)
     plots = [[p["value"] for p in panel["config"]["paths"]] for panel in by_type["Plot"]]
-    assert plots == [[f"{t}.windowed_score", f"{t}.threshold"] for t in ("/fiper/scores/rnd_oe", "/fiper/scores/ace")]
+    assert plots == [[f"{t}.windowed_score", f"{t}.threshold"] for t in SCORES]  # FIPER's pair first, then the others
     (states,) = by_type["StateTransitions"]
     alarm = states["config"]["paths"][0]
     assert alarm["value"] == "/fiper/alarm.state"

@@ -36,12 +36,15 @@ from sensor_msgs.msg import Image
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import STATE_NAMES
-from fiper_ros.interface.topics import ALARM, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.core.detectors import CALIBRATED
+from fiper_ros.interface.topics import (ALARM, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE,
+                                       score_topic)
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 BAGS = ROOT / "bags" / "pushchair_synthetic" / "test_rollouts"  # 10 rollouts; calibration/ next to them
 SCORES = (SCORE_RND_OE, SCORE_ACE)
-SERVED = {*SCORES, ALARM, EVENTS, DIAGNOSTICS, *CAMERAS}
+#: Every detector's scores are served by default (a suite of any detector set is seen), not only FIPER's pair's.
+SERVED = {*(score_topic(d) for d in CALIBRATED), ALARM, EVENTS, DIAGNOSTICS, *CAMERAS}
 IMAGE_HZ = 50.0
 #: The view's queue per client in this test (messages).
 BACKLOG = 64

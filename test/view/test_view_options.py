@@ -6,15 +6,19 @@ from __future__ import annotations
 import argparse
 import os
 import socket
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from helpers.dds import ros_env
 
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.cli import main
 from fiper_ros.client.suite_process import installed_launch, replay_config
 from fiper_ros.commands import options
+from fiper_ros.commands.view import ros_arguments
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.launcher.config import load_launch
 
@@ -82,3 +86,15 @@ def test_commands_refuse_a_view_they_cannot_serve_in_one_line(taken_port: int,
     assert main(["replay", str(ROOT / "bags" / "pushchair_synthetic"), "--offline", "--view"]) == 2
     assert capsys.readouterr().err == "fiper replay: --view goes with the suite replay launches: beside a running " \
                                       "suite, run fiper view\n"
+
+
+def test_the_view_serves_the_detectors_asked_and_names_one_no_suite_scores_in_one_line(ros_domain: int) -> None:
+    argv = ros_arguments(argparse.Namespace(namespace="/fiper", host="127.0.0.1", port=0, backlog=8,
+                                            detectors="rnd_oe,signal_x"))
+    assert argv[-2:] == ["-p", "detectors:=[rnd_oe,signal_x]"]
+    run = subprocess.run([sys.executable, "-m", "fiper_ros.cli", "view", "--port", "0", "--detectors", "rnd_oe,bogus"],
+                         env=ros_env(ros_domain), capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.strip().splitlines()[-1] == (
+        "fiper view: parameter detectors: 'bogus' is not a detector a suite scores (rnd_oe, ace, logpzo, pca_kmeans, "
+        "progress, consistency, elapsed or signal_<name>)")

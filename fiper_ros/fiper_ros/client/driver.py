@@ -146,6 +146,7 @@ class Driver:
             return
 
         def apply(trace: RolloutTrace) -> None:
+            trace.combine = msg.combine
             state = state_name(msg)
             if state == "UNKNOWN":
                 trace.unknown_steps.add(msg.step)

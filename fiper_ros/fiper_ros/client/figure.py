@@ -34,7 +34,7 @@ def trace_figure(trace: RolloutTrace, task: str) -> Figure:
     axes[-1, 0].set_xlabel("policy step")
     outcome = trace.outcome or "did not end"
     figure.suptitle(f"{task} / {trace.scenario} seed {trace.seed} ({trace.label}): {outcome}; {trace.verdict()}\n"
-                    f"judged by {judged_by(trace.detectors)}", fontsize=9)
+                    f"judged by {judged_by(trace.detectors, trace.combine)}", fontsize=9)
     figure.tight_layout()
     return figure
 

@@ -38,8 +38,8 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import (SuiteProcess, detector_topics, installed_launch, scoring_modules,
-                                            suite_arguments, suite_topics)
+from fiper_ros.client.suite_process import (SuiteProcess, declared_of, detector_topics, installed_launch,
+                                            scoring_modules, suite_arguments, suite_topics)
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.dds import allocate_domain
@@ -163,7 +163,8 @@ class RosRunner:
         recorder, driver = operator(session, suite, self.settings)
         self._stack.callback(recorder.abort)
         names = ", ".join(spec.name for spec in config.nodes)
-        judged = f"; judged by {judged_by(self.settings.detectors)}" if self.scored else ""
+        combine = declared_of(self.settings.calibration).combine if self.scored else ""
+        judged = f"; judged by {judged_by(self.settings.detectors, combine)}" if self.scored else ""
         print(f"starting {names} in ROS domain {domain} (loopback only){judged} ...", file=sys.stderr, flush=True)
         with self._reported():
             driver.wait_ready([spec.fqn for spec in config.nodes], READY_TIMEOUT_S)

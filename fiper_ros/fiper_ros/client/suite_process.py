@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.core.calibration_file import CalibrationError, declared_detectors
+from fiper_ros.core.calibration_file import CalibrationError, Declared, declared
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
@@ -56,14 +56,19 @@ def detector_module(detector: str) -> str:
     return DETECTOR_MODULES.get(detector, GENERIC_MODULE)
 
 
-def detectors_of(directory: Path | None) -> tuple[str, ...]:
-    """The detectors the calibration in ``directory`` declares (FIPER's pair without one), read without loading
-    its score models; :class:`BagError` (one line naming the file) for a missing or unreadable calibration and one
-    that declares no (or no supported) detector set."""
+def declared_of(directory: Path | None) -> Declared:
+    """The detectors the calibration in ``directory`` declares and how it combines them (FIPER's pair under
+    ``and`` without one), read without loading its score models; :class:`BagError` (one line naming the file) for a
+    missing or unreadable calibration and one that declares no (or no supported) detector set."""
     try:
-        return DETECTORS if directory is None else declared_detectors(directory)
+        return Declared(DETECTORS, "and") if directory is None else declared(directory)
     except CalibrationError as error:
         raise BagError(str(error)) from error
+
+
+def detectors_of(directory: Path | None) -> tuple[str, ...]:
+    """The detectors of :func:`declared_of`."""
+    return declared_of(directory).detectors
 
 
 def scoring_modules(detectors: tuple[str, ...]) -> tuple[str, ...]:

@@ -56,6 +56,8 @@ class RolloutTrace:
         rollout_id: The bridge's id, once the reset answered.
         detectors: The detectors the calibration declares, which judge the rollout.
         scores: Per declared detector.
+        combine: How the fusion node combined them, as its alarms say (``FailureAlarm.combine``; ``""`` before
+            the first alarm, and for one detector alone).
         alarm_step: First policy step whose FailureAlarm state was ALARM.
         alarm_text: That alarm as printed (the declared scores against their thresholds).
         unknown_steps: Steps reported UNKNOWN.
@@ -72,6 +74,7 @@ class RolloutTrace:
     rollout_id: int = 0
     detectors: tuple[str, ...] = DETECTORS
     scores: dict[str, ScoreSeries] = field(init=False)
+    combine: str = ""
     alarm_step: int | None = None
     alarm_text: str = ""
     unknown_steps: set[int] = field(default_factory=set)
@@ -112,7 +115,8 @@ class RolloutTrace:
                 "outcome": self.outcome, "alarm_step": self.alarm_step, "alarm": self.alarm_text,
                 "policy_steps": self.steps_started, "scored_steps": self.scored_steps(),
                 "unknown_steps": sorted(self.unknown_steps), "verdict": self.verdict(),
-                "detectors": list(self.detectors), "judged_by": judged_by(self.detectors),
+                "detectors": list(self.detectors), "combine": self.combine,
+                "judged_by": judged_by(self.detectors, self.combine),
                 **{name: series(name) for name in self.detectors}}
 
 

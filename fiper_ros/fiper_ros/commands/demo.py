@@ -33,7 +33,7 @@ from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed,
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, suite_arguments, suite_topics
+from fiper_ros.client.suite_process import SuiteProcess, declared_of, installed_launch, suite_arguments, suite_topics
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.commands import options
 from fiper_ros.core.detectors import judged_by
@@ -160,7 +160,8 @@ def run_demo(args: argparse.Namespace) -> int:
     if not (model / "policy.yaml").is_file():
         print(f"fiper demo: no policy at {model} (see docs/policies.md and docs/results.md)", file=sys.stderr)
         return 2
-    detectors = detectors_of(calibration)  # one line for a calibration that declares none (or is not there)
+    declared = declared_of(calibration)  # one line for a calibration that declares none (or is not there)
+    detectors, judged = declared.detectors, judged_by(declared.detectors, declared.combine)
     out = (args.out or Path("runs/demo") / datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")).resolve()
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
@@ -195,7 +196,7 @@ def run_demo(args: argparse.Namespace) -> int:
                 recorder.start(out / "bag")
                 try:
                     print(f"starting {', '.join(spec.name for spec in config.nodes)}; judged by "
-                          f"{judged_by(detectors)} ...", flush=True)
+                          f"{judged} ...", flush=True)
                     driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=plain_nodes(config))
                     print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
                     for plan in plans:
@@ -216,13 +217,14 @@ def run_demo(args: argparse.Namespace) -> int:
         png = plot_trace(trace, out / f"rollout_{trace.scenario}_{trace.seed}.png", args.task)
         print(f"  {png}", flush=True)
     summary = {"task": args.task, "model": str(model), "calibration": str(calibration), "detectors": list(detectors),
-               "judged_by": judged_by(detectors), "seconds": round(time.monotonic() - started, 1),
+               "combine": declared.combine,
+               "judged_by": judged, "seconds": round(time.monotonic() - started, 1),
                "rollouts": [t.to_dict() for t in traces], "problems": problems}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     for trace in traces:
         print(f"{trace.label:>16}: {trace.scenario} seed {trace.seed}: {trace.outcome or 'no end'}, "
               f"{trace.steps_started} policy steps; {trace.verdict()}")
-    print(f"judged by {judged_by(detectors)}; demo took {summary['seconds']} s; results in {out}")
+    print(f"judged by {judged}; demo took {summary['seconds']} s; results in {out}")
     for problem in problems:
         print(f"fiper demo: FAILED: {problem}", file=sys.stderr)
     return 1 if problems else 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 
 from fiper_ros.bagio.errors import fail
+from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, ViewError, port_problem
 
 
@@ -21,6 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"WebSocket port (default {DEFAULT_PORT}; 0: "
                                                                        "any free port, printed)")
     parser.add_argument("--namespace", default="/fiper", help="the suite's namespace (default /fiper)")
+    parser.add_argument("--detectors", default=",".join(CALIBRATED), metavar="A,B,...",
+                        help="detectors whose scores are served (default: every detector a calibration may declare; "
+                             "a logged signal is signal_<name>)")
     parser.add_argument("--backlog", type=int, default=DEFAULT_BACKLOG,
                         help=f"messages queued per client before the oldest is dropped (default {DEFAULT_BACKLOG})")
 
@@ -28,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def ros_arguments(args: argparse.Namespace) -> list[str]:
     """The view node's command line for ``args``."""
     return ["fiper view", "--ros-args", "-r", f"__ns:={args.namespace}", "-p", f"host:={args.host}",
-            "-p", f"port:={args.port}", "-p", f"backlog:={args.backlog}"]
+            "-p", f"port:={args.port}", "-p", f"backlog:={args.backlog}", "-p", f"detectors:=[{args.detectors}]"]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,5 +46,5 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         return serve(ros_arguments(args))
-    except ViewError as error:  # the port was taken in the meantime
+    except ViewError as error:  # the port was taken in the meantime, or a detector is unknown
         return fail("view", error)

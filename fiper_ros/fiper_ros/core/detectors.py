@@ -25,6 +25,11 @@ READS = ("embedding", "actions", "signal", "step", "external")
 ELAPSED = "elapsed"
 PROGRESS = "progress"
 CONSISTENCY = "consistency"
+LOGPZO = "logpzo"
+PCA_KMEANS = "pca_kmeans"
+#: Detectors a calibration may declare (besides the logged signals ``signal_<name>``), in the order the fusion
+#: reports them: FIPER's pair first.
+CALIBRATED = (RND_OE, ACE, LOGPZO, PCA_KMEANS, PROGRESS, CONSISTENCY, ELAPSED)
 #: A logged per-step signal ``name`` is the stream ``signal_<name>``.
 SIGNAL_PREFIX = "signal_"
 #: A user's external per-step scores ``name`` are the stream ``external_<name>``.
@@ -61,8 +66,8 @@ class DetectorInfo:
 INFO: dict[str, DetectorInfo] = {d.name: d for d in (
     DetectorInfo(RND_OE, "RND-OE", "embedding"),
     DetectorInfo(ACE, "ACE", "actions"),
-    DetectorInfo("logpzo", "logpZO", "embedding"),
-    DetectorInfo("pca_kmeans", "PCA-kmeans", "embedding"),
+    DetectorInfo(LOGPZO, "logpZO", "embedding"),
+    DetectorInfo(PCA_KMEANS, "PCA-kmeans", "embedding"),
     DetectorInfo("rnd_a", "RND-A", "actions"),
     DetectorInfo("stac", "STAC", "actions", fitted=False),
     DetectorInfo(PROGRESS, "progress", "embedding"),
@@ -134,9 +139,11 @@ def check_pair_format(names: Iterable[str]) -> tuple[str, ...]:
     return ordered
 
 
-def judged_by(detectors: Iterable[str], combine: str = "and") -> str:
-    """Which detectors judge, for people: ``"RND-OE and ACE"``, ``"RND-OE alone (observation-only: no ACE)"``,
-    or ``"RND-OE, progress and elapsed time (max)"``."""
+def judged_by(detectors: Iterable[str], combine: str) -> str:
+    """Which detectors judge and how their decisions combine, for people: ``"RND-OE and ACE"`` (FIPER's pair under
+    ``and``, eq. 7), ``"RND-OE alone (observation-only: no ACE)"``, ``"RND-OE and ACE (max)"`` or ``"RND-OE, progress
+    and elapsed time (kth:2)"``. ``combine`` is the calibration's (``""``: not known, e.g. no alarm seen yet; one
+    detector alone ignores it)."""
     given = tuple(detectors)
     labels = [info(d).label for d in given]
     if given == OBSERVATION_ONLY:
@@ -145,4 +152,5 @@ def judged_by(detectors: Iterable[str], combine: str = "and") -> str:
         return f"{labels[0]} alone"
     if given == DETECTORS and combine == "and":
         return " and ".join(labels)
-    return f"{', '.join(labels[:-1])} and {labels[-1]} ({combine})"
+    how = combine or "combine not known"
+    return f"{', '.join(labels[:-1])} and {labels[-1]} ({how})"

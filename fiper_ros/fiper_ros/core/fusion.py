@@ -69,7 +69,10 @@ class Combine:
 
 
 def exceeds(eta: np.ndarray | float, gamma: np.ndarray | float) -> np.ndarray | bool:
-    """``eta > gamma`` (eqs. 3 and 6's decision functions ``F_O``, ``F_A``)."""
+    """``eta > gamma`` (eqs. 3 and 6's decision functions ``F_O``, ``F_A``), in float64 for Python floats (the
+    fusion node's one step, without numpy's per-call cost) and element-wise for arrays."""
+    if type(eta) is float and type(gamma) is float:
+        return eta > gamma
     return np.greater(eta, gamma)
 
 
@@ -80,6 +83,8 @@ def fuse(exceeded_obs: np.ndarray | bool, exceeded_act: np.ndarray | bool, combi
 
 def fuse_votes(exceeded: Sequence[np.ndarray | bool], votes: int) -> np.ndarray | bool:
     """Element-wise: at least ``votes`` of the decisions are True."""
+    if all(type(e) is bool for e in exceeded):  # one step's decisions (the fusion node), without numpy's cost
+        return sum(exceeded) >= votes
     stacked = np.asarray(exceeded, dtype=bool)
     return np.count_nonzero(stacked, axis=0) >= votes if stacked.ndim > 1 else bool(np.count_nonzero(stacked) >= votes)
 

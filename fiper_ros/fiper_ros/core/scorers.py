@@ -27,7 +27,8 @@ import numpy as np
 
 from fiper_ros.core.ace import action_ranges, cell_size
 from fiper_ros.core.consistency import ActionConsistency, ConsistencySettings
-from fiper_ros.core.detectors import ACE, CONSISTENCY, ELAPSED, PROGRESS, RND_OE, SIGNAL_PREFIX, info
+from fiper_ros.core.detectors import (ACE, CALIBRATED, CONSISTENCY, ELAPSED, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE,
+                                      SIGNAL_PREFIX, info)
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
 from fiper_ros.core.logpzo import LogpZO, LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeans, PCAKMeansConfig
@@ -37,12 +38,6 @@ from fiper_ros.core.rnd_oe import RNDOE, ProgressCallback, RNDConfig
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scores import act_score, act_scores, finite, obs_score, obs_scores, rollout_positions
 from fiper_ros.core.step_stream import StepStream
-
-LOGPZO = "logpzo"
-PCA_KMEANS = "pca_kmeans"
-#: Detectors a calibration may declare (besides the logged signals ``signal_<name>``), in the order the fusion
-#: reports them: FIPER's pair first.
-CALIBRATED = (RND_OE, ACE, LOGPZO, PCA_KMEANS, PROGRESS, CONSISTENCY, ELAPSED)
 
 
 @dataclass(frozen=True)

@@ -133,7 +133,7 @@ def check_split(dataset: Dataset, settings: MethodSettings) -> None:
 
 
 def detector_fitter(stream: str, dataset: Dataset, settings: MethodSettings, seed: int) -> Fitter:
-    """A detector a calibration can declare (:data:`fiper_ros.core.scorers.CALIBRATED`, a logged signal) fitted on
+    """A detector a calibration can declare (:data:`fiper_ros.core.detectors.CALIBRATED`, a logged signal) fitted on
     the successes given exactly as :func:`fiper_ros.core.calibration.calibrate` fits it (:func:`fit_scorer`: the
     profile's epsilon, ACE's ranges over the calibration failures too where the profile takes them); its
     whole-rollout scores."""

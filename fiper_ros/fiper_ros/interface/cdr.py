@@ -147,7 +147,8 @@ class Codec:
     def __init__(self, msg_class: type) -> None:
         self.msg_class = msg_class
         self.type_name = _type_name(msg_class)
-        env: dict[str, Any] = {"U": _U32, "Z": _ZEROS, "F": _float32, "CdrError": CdrError, "np": np}
+        env: dict[str, Any] = {"U": _U32, "Z": _ZEROS, "F": _float32, "CdrError": CdrError, "np": np,
+                               "PACK": struct.pack, "PACK_ERRORS": (struct.error, OverflowError)}
         self._compile(msg_class, env)
         key = _key(msg_class)
         self.view: type = env[f"V_{key}"]
@@ -232,7 +233,15 @@ class Codec:
             # A sequence's elements follow its uint32 length: only 8-byte ones may need padding (arrays: any).
             realign = size > (1 if fixed else 4)
             read = f"v_{name} = np.frombuffer(b, {dtype}, n, o); o += {size} * n"
-            write = f"a = np.ascontiguousarray(v.{name}, {dtype})\nparts.append(a.tobytes()); o += {size} * n"
+            # A list or tuple (what the nodes build per message) is packed by ``struct`` without numpy's per-call
+            # cost; what struct refuses (a float beyond float32, a float for an integer) takes numpy's conversion.
+            code = _BASIC[item.typename][0]
+            write = (f"a = v.{name}\n"
+                     + _block("if type(a) is list or type(a) is tuple:",
+                              _block("try:", f"e = PACK(f'<{{n}}{code}', *a)")
+                              + "\n" + _block("except PACK_ERRORS:", f"e = np.ascontiguousarray(a, {dtype}).tobytes()"))
+                     + "\n" + _block("else:", f"e = np.ascontiguousarray(a, {dtype}).tobytes()")
+                     + f"\nparts.append(e); o += {size} * n")
             src.dec.append(_block("if n:", f"o += -o & {size - 1}\n{read}" if realign else read)
                            + "\n" + _block("else:", f"v_{name} = np.zeros(0, {dtype})"))
             src.enc.append(_block("if n:", f"{_pad(size)}\n{write}" if realign else write))

@@ -86,6 +86,7 @@ class FusionNode(FiperNode):
         self.lost: set[str] = set()
         self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
         self._last_publish_ns = 0
+        self._heartbeat_ns = 0
         self._last_published: tuple[int, str, str] | None = None
         self._inputs: list[Any] = []
         self._timer: Any = None
@@ -120,6 +121,7 @@ class FusionNode(FiperNode):
                                  f"{own.combine!r}: set combine {FROM_CALIBRATION!r}, or calibrate for it")
             detectors, combine = own.detectors, own.combine
         self._declare_streams(detectors)
+        self._heartbeat_ns = int(self.get_parameter("heartbeat_s").value * 1e9)
         self.fuser = AlarmFuser("and" if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
                                 int(self.get_parameter("deadline_floor_s").value * 1e9), detectors,
@@ -229,23 +231,10 @@ class FusionNode(FiperNode):
         if self.fuser is None:
             return
         now = self.now_ns()
-        state = self.fuser.check(now, frozenset(self.lost))
-        quiet = now - self._last_publish_ns >= self.repeat_ns()
-        if state is None and self.fuser.suspicion:
-            state = self.fuser.current(now)
+        state = self.fuser.heartbeat(now, self._heartbeat_ns, self._last_publish_ns, self._last_published,
+                                     frozenset(self.lost))
         if state is not None:
-            state = self.fuser.doubted(state)
-            if quiet or self._last_published != (state.rollout_id, state.state, state.reason):
-                self.publish(state, now, heartbeat=True)  # a stream just went stale, lost or in doubt: at once
-        elif quiet:
-            self.publish(self.fuser.current(now), now, heartbeat=True)
-
-    def repeat_ns(self) -> int:
-        """Silence after which the current state is published again: ``heartbeat_s``, or one measured policy
-        period during a rollout if that is shorter, so a supervisor hears the suite every period."""
-        heartbeat = int(self.get_parameter("heartbeat_s").value * 1e9)
-        period = self.fuser.period.period_ns() if self.fuser.active_rollout is not None else None
-        return heartbeat if period is None else max(1, min(heartbeat, period))
+            self.publish(state, now, heartbeat=True)
 
     def _on_reset(self, request: ResetAlarm.Request, response: ResetAlarm.Response) -> ResetAlarm.Response:
         refusal = reset_refusal(self.get_parameter("allow_reset").value, request.requester, request.reason)

@@ -1,8 +1,9 @@
 """View node (``fiper view``): serves the suite's topics of its namespace live on a Foxglove WebSocket
 (docs/view.md).
 
-It subscribes to ``scores/rnd_oe``, ``scores/ace``, ``alarm`` and ``rollout_events`` (relative: in its
-namespace), ``/diagnostics`` and the ``cameras`` (absolute), and serves each on a channel of the same name
+It subscribes to ``scores/<detector>`` of each of its ``detectors`` (every detector a calibration may declare, by
+default: a suite of any detector set is seen), ``alarm`` and ``rollout_events`` (relative: in its namespace),
+``/diagnostics`` and the ``cameras`` (absolute), and serves each on a channel of the same name
 (:mod:`fiper_ros.view.server`, bound to ``host`` = 127.0.0.1 by default): JSON with a JSON Schema for the
 suite's messages and the diagnostics, ``foxglove.RawImage`` for the images, so that Foxglove's Plot, State
 Transitions, Image and Diagnostics panels show them without set-up (``fiper_ros/config/foxglove/fiper.layout.json``).
@@ -33,16 +34,16 @@ from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_ros.interface import qos
-from fiper_ros.interface.topics import ALARM, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE, relative
+from fiper_ros.core.detectors import CALIBRATED, info
+from fiper_ros.interface.topics import ALARM, CAMERAS, DIAGNOSTICS, EVENTS, relative, score_topic
 from fiper_ros.nodes.base import describe, diagnostic_array
 from fiper_ros.nodes.main import run_node
 from fiper_ros.view.layout import installed_layout
 from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, HOW_TO_OPEN, ViewError, ViewServer
 
-#: The JSON topics the node serves (relative: in its namespace), their message class and subscription QoS.
+#: The JSON topics the node serves besides the scores (relative: in its namespace), their message class and
+#: subscription QoS.
 JSON_TOPICS: dict[str, tuple[type, QoSProfile]] = {
-    relative(SCORE_RND_OE): (Score, qos.SCORE_SUB),
-    relative(SCORE_ACE): (Score, qos.SCORE_SUB),
     relative(ALARM): (FailureAlarm, qos.ALARM_EVERY),
     relative(EVENTS): (RolloutEvent, qos.EVENT),
     DIAGNOSTICS: (DiagnosticArray, qos.DIAGNOSTICS),
@@ -64,6 +65,9 @@ class ViewNode(Node):
         self.declare_parameter("backlog", DEFAULT_BACKLOG, describe(
             "messages queued per client; a client that does not keep up loses the oldest", read_only=True, low=1,
             high=100000, integer=True))
+        self.declare_parameter("detectors", list(CALIBRATED), describe(
+            "detectors whose score topics (scores/<detector>) are served; a logged signal is signal_<name>",
+            read_only=True))
         self.declare_parameter("cameras", list(CAMERAS), describe("sensor_msgs/Image topics served (absolute)",
                                                                   read_only=True))
         self.declare_parameter("diagnostics_period_s", 1.0,
@@ -74,7 +78,8 @@ class ViewNode(Node):
         self.server: ViewServer | None = None
         #: Every topic served (resolved) -> its message class and subscription QoS.
         self.streams: dict[str, tuple[type, QoSProfile]] = {
-            self.resolve_topic_name(name): spec for name, spec in JSON_TOPICS.items()}
+            self.resolve_topic_name(relative(score_topic(d))): (Score, qos.SCORE_SUB) for d in self._detectors()}
+        self.streams |= {self.resolve_topic_name(name): spec for name, spec in JSON_TOPICS.items()}
         self._cameras = [self.resolve_topic_name(name) for name in self.get_parameter("cameras").value]
         self.streams |= {topic: (Image, qos.VIEW_IMAGE) for topic in self._cameras}
         self._readers: dict[str, Subscription] = {}
@@ -88,6 +93,20 @@ class ViewNode(Node):
         self._start = self.create_timer(0.0, self._serve, clock=steady)
         if self._on_demand:
             self.create_timer(SYNC_PERIOD_S, self._sync, clock=steady)
+
+    def _detectors(self) -> list[str]:
+        """The ``detectors`` parameter, each a detector a calibration may declare (:class:`ViewError` naming one that
+        is not)."""
+        names = [str(name) for name in self.get_parameter("detectors").value]
+        for name in names:
+            try:
+                scored = name in CALIBRATED or info(name).reads == "signal"
+            except ValueError:
+                scored = False
+            if not scored:
+                raise ViewError(f"parameter detectors: {name!r} is not a detector a suite scores ("
+                                 f"{', '.join(CALIBRATED)} or signal_<name>)")
+        return names
 
     def _serve(self) -> None:
         """Start the server (once, when the node first spins: building the node binds no port)."""

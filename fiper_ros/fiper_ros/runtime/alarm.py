@@ -376,6 +376,30 @@ class AlarmFuser:
             return self._without_step(now_ns, reason)
         return replace(self.last, state=ALARM if self.latched else UNKNOWN, reason=reason, stamp_ns=now_ns)
 
+    def repeat_ns(self, heartbeat_ns: int) -> int:
+        """Silence after which the current state is published again: ``heartbeat_ns``, or one measured policy
+        period during a rollout if that is shorter, so that a supervisor hears the suite every period."""
+        period = self.period.period_ns() if self.active_rollout is not None else None
+        return heartbeat_ns if period is None else max(1, min(heartbeat_ns, period))
+
+    def heartbeat(self, now_ns: int, heartbeat_ns: int, silent_since_ns: int, published: tuple[int, str, str] | None,
+                  lost: frozenset[str] = frozenset()) -> AlarmState | None:
+        """What a periodic check publishes (as a heartbeat: no new step's decision), if anything.
+
+        A stream that went stale or ``lost``, or doubt about the score streams, is said at once: its state (an
+        UNKNOWN, or the latched ALARM, :meth:`check`; doubt :meth:`doubted`) whenever it differs from what was
+        ``published`` last (``(rollout_id, state, reason)``); else the current state is repeated once the node was
+        silent for :meth:`repeat_ns` since ``silent_since_ns`` (so silence itself means the monitor is gone).
+        ``None``: nothing to publish now."""
+        quiet = now_ns - silent_since_ns >= self.repeat_ns(heartbeat_ns)
+        state = self.check(now_ns, lost)
+        if state is None and self.suspicion:
+            state = self.current(now_ns)
+        if state is not None:
+            state = self.doubted(state)
+            return state if quiet or published != (state.rollout_id, state.state, state.reason) else None
+        return self.current(now_ns) if quiet else None
+
     def current(self, now_ns: int) -> AlarmState:
         """The state to repeat when nothing new happened: the latest fused state while its rollout runs or its
         ALARM latches (also after the END), else an UNKNOWN about no step."""

@@ -3,8 +3,9 @@ layout classes of the ``foxglove-sdk`` (``foxglove.layouts``).
 
 One layout for the live view (``fiper view``) and for bags (``fiper record``, the demo's): it names the suite's
 topics in the default namespace ``/fiper`` and the fields of its messages, which Foxglove reads alike from a
-JSON channel of the view and from the CDR messages of a bag. Per detector a plot of the windowed score and its
-threshold; the alarm state as state transitions (OK / ALARM / UNKNOWN named, with the rollout id); the latest
+JSON channel of the view and from the CDR messages of a bag. Per detector a calibration may declare a plot of the
+windowed score and its threshold (FIPER's pair side by side in the first tab, every other detector in a tab of its
+own); the alarm state as state transitions (OK / ALARM / UNKNOWN named, with the rollout id); the latest
 alarm's reason; both cameras; the nodes' diagnostics; and a note on what each panel shows.
 
 Regenerate it after a change here (a test fails until then)::
@@ -19,14 +20,14 @@ from pathlib import Path
 
 import foxglove.layouts as fl
 
-from fiper_ros.core.detectors import ACE, LABELS, RND_OE
+from fiper_ros.core.detectors import ACE, CALIBRATED, LABELS, RND_OE
 from fiper_ros.data_paths import package_share
-from fiper_ros.interface.topics import ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, score_topic
 
 #: Where the layout is kept, relative to the ``fiper_ros`` package folder (installed in its share directory).
 LAYOUT_FILE = Path("config") / "foxglove" / "fiper.layout.json"
-#: The score topic of each detector.
-SCORE_TOPICS = {RND_OE: SCORE_RND_OE, ACE: SCORE_ACE}
+#: The score topic of each detector a calibration may declare, FIPER's pair first.
+SCORE_TOPICS = {detector: score_topic(detector) for detector in CALIBRATED}
 #: The subscripts the paper gives FIPER's pair (``eta_O``, ``gamma_A``), written as the plots' labels do.
 SUBSCRIPTS = {RND_OE: "obs", ACE: "act"}
 #: ``FailureAlarm.state`` codes, as the state-transitions panel names and colours them.
@@ -37,8 +38,9 @@ ABOUT = """\
 ### What you see
 
 **Scores** (one plot per detector): the windowed score (RND-OE on the policy's observation embeddings, eq. 2;
-ACE on its sampled action chunks, eq. 5) and the calibrated threshold of the same step. A score above its
-threshold *exceeds*.
+ACE on its sampled action chunks, eq. 5; in the other tabs each further detector a calibration may declare) and
+the calibrated threshold of the same step. A score above its threshold *exceeds*. The alarm's combine says how
+the exceedances count: *and* needs all, *or* and *max* one, *kth:K* K of them.
 
 **Alarm**: the fused decision of every policy step on `/fiper/alarm`. OK: no failure predicted. ALARM: the
 detectors exceed as the fusion rule asks (both, with `and`: eq. 7); it stays ALARM for the rest of the rollout.
@@ -49,13 +51,14 @@ exceeded (and)*.
 **Cameras**: what the policy sees (the sim bridge's cameras; empty when none publishes).
 **Diagnostics**: every node's health, one line each.
 
-An observation-only calibration has no ACE: its plot stays empty. docs/view.md has the details.
+A detector the calibration does not declare has no scores: its plot stays empty (ACE's, for an observation-only
+calibration). docs/view.md has the details.
 """
 
 
 def _score_plot(detector: str) -> fl.PlotPanel:
-    topic, side = SCORE_TOPICS[detector], SUBSCRIPTS[detector]
-    label = LABELS[detector]
+    topic, label = SCORE_TOPICS[detector], LABELS[detector]
+    side = SUBSCRIPTS.get(detector, detector)
     return fl.PlotPanel(title=f"{label}: windowed score and threshold", config=fl.PlotConfig(
         paths=[fl.PlotSeries(value=f"{topic}.windowed_score", label=f"{label} windowed score (eta_{side})",
                              color="#1f77b4", line_size=1.5),
@@ -90,7 +93,10 @@ def build() -> fl.Layout:
             title="node health", config=fl.DiagnosticsSummaryConfig(topic_to_render=DIAGNOSTICS, sort_by_level=True))),
         fl.TabItem(title="what you see", content=fl.MarkdownPanel(title="what you see",
                                                                   config=fl.MarkdownConfig(markdown=ABOUT)))])
-    left = _column(*(_score_plot(d) for d in SCORE_TOPICS), _alarm_states(), reason, sizes=(3, 3, 2, 1))
+    pair = _column(_score_plot(RND_OE), _score_plot(ACE), sizes=(1, 1))
+    scores = fl.TabContainer(tabs=[fl.TabItem(title=f"{LABELS[RND_OE]} and {LABELS[ACE]}", content=pair), *(
+        fl.TabItem(title=LABELS[d], content=_score_plot(d)) for d in SCORE_TOPICS if d not in (RND_OE, ACE))])
+    left = _column(scores, _alarm_states(), reason, sizes=(6, 2, 1))
     right = _column(*cameras, health, sizes=(2, 2, 3))
     return fl.Layout(content=fl.SplitContainer(direction="row", items=[fl.SplitItem(proportion=3, content=left),
                                                                       fl.SplitItem(proportion=2, content=right)]))

@@ -11,14 +11,15 @@ from fiper_ros.core.ace import check_alpha
 from fiper_ros.core.calibration_file import CalibrationError
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.consistency import ConsistencySettings
-from fiper_ros.core.detectors import ACE, CONSISTENCY, DETECTORS, PROGRESS, RND_OE, check_once, in_fusion_order, info
+from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
+                                      in_fusion_order, info)
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import Profile, get_profile
 from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
-from fiper_ros.core.scorers import LOGPZO, PCA_KMEANS, DetectorOptions, check_declared
+from fiper_ros.core.scorers import DetectorOptions, check_declared
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.core.window import MODES
 
@@ -44,7 +45,7 @@ class CalibrationSettings:
     """Hyperparameters of one calibration.
 
     Attributes:
-        detectors: The detectors calibrated and combined (:data:`fiper_ros.core.scorers.CALIBRATED` and logged
+        detectors: The detectors calibrated and combined (:data:`fiper_ros.core.detectors.CALIBRATED` and logged
             signals ``signal_<name>``): FIPER's pair by default, ``("rnd_oe",)`` observation-only.
         window: Every detector's window in policy steps (``w`` of eqs. 2 and 5), unless ``windows`` names it.
         windows: Per-detector windows (``{"rnd_oe": 8, "ace": 50}``: ``w_O`` and ``w_A``).
