@@ -48,8 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.bagio.atomic import atomic_files, check_directory
-from fiper_ros.bagio.errors import BagError, fail
-from fiper_ros.cluster import LOCAL, ClusterError
+from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
@@ -334,19 +333,16 @@ def check_cluster(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the evaluation; 0 on success, 2 on bad input."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        check_directory(args.out)
-        for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
-            check_directory(directory)
-        datasets = datasets_from(args)
-        external = parse_scores(args.scores)
-        args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
-        settings = settings_from(args, external)
-        options.fk_of(settings.method_settings.robot)
-        check_evaluation(datasets, settings)
-        check_cluster(args)
-    except (DatasetError, BagError, ValueError) as error:
-        return fail("evaluate", error)
+    check_directory(args.out)
+    for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
+        check_directory(directory)
+    datasets = datasets_from(args)
+    external = parse_scores(args.scores)
+    args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
+    settings = settings_from(args, external)
+    options.fk_of(settings.method_settings.robot)
+    check_evaluation(datasets, settings)
+    check_cluster(args)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
     # +inf CP thresholds (ceil((M+1)(1-delta)) > M for the smallest deltas) are expected in a sweep.
     threshold_log = logging.getLogger("fiper_ros.core.thresholds")
@@ -364,8 +360,6 @@ def run(args: argparse.Namespace) -> int:
 
                     figures = write_figures(result, staging)
                 markdown, _ = write_reports(result, staging, figures)
-    except (DatasetError, ClusterError) as error:  # found by a Ray task: the data's or the cluster's reason
-        return fail("evaluate", error)
     finally:
         threshold_log.setLevel(previous)
     print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))
