@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from fiper_ros.commands.errors import UsageError
 from fiper_ros.cli import main
 from fiper_ros.client.suite_process import installed_launch, replay_config
 from fiper_ros.commands import options
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.launcher.config import load_launch
 
