@@ -1,10 +1,15 @@
 """ament_python package of the FIPER failure-prediction suite."""
+import re
 from glob import glob
 from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "fiper_ros"
+#: The project's version, written once: ``__version__`` of ``fiper_ros/__init__.py`` (read, not imported: the
+#: package's dependencies need not be there to build it). Each package.xml repeats it, which a test checks.
+VERSION = re.search(r'^__version__ = "([^"]+)"$', (Path(__file__).parent / PACKAGE / "__init__.py").read_text(),
+                    re.M).group(1)
 #: The shipped policies and calibrations (``fiper_ros/models`` links to the checkout's ``models/``), installed in the
 #: share directory, where relative model and calibration paths are looked up (fiper_ros/data_paths.py).
 MODELS = "models"
@@ -26,7 +31,7 @@ def tree(folder: str) -> list[tuple[str, list[str]]]:
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version=VERSION,
     packages=find_packages(exclude=["test"]),
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),

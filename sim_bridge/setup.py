@@ -1,13 +1,18 @@
 """ament_python package of the MuJoCo Franka stand-in."""
+import re
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "sim_bridge"
+#: The version of its package.xml (the project's one version, ``fiper_ros.__version__``, which a test checks; this
+#: package builds without fiper_ros's sources).
+VERSION = re.search(r"<version>([^<]+)</version>", (Path(__file__).parent / "package.xml").read_text()).group(1)
 
 setup(
     name=PACKAGE,
-    version="0.1.0",
+    version=VERSION,
     packages=find_packages(exclude=["test"]),
     package_data={PACKAGE: ["assets/**/*"]},
     include_package_data=True,

@@ -21,11 +21,11 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import find_bags
 from fiper_ros.commands.options import add_robot_arguments
 from fiper_ros.commands.options import fk_of, robot_from
 from fiper_ros.core.calibration import guarantee, promised_rate
+from fiper_ros.errors import FiperError
 from fiper_ros.evaluation.offline import bag_layout, calibration_for, predict_bag
 
 
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         calibration = calibration_for(args.calibration, [bag_layout(bag) for bag in bags[:1]])
         fk = fk_of(robot_from(args))
         results = [r for bag in bags for r in predict_bag(bag, calibration, fk)]
-    except BagError as error:
+    except FiperError as error:
         print(f"heldout: {error}", file=sys.stderr)
         return 1
     counts = tally(results)

@@ -1,17 +1,27 @@
 """The ``fiper`` command: one entry point for the suite's tools.
 
 Each sub-command lives in its own module and is imported only when it runs, so ``fiper --help`` is
-fast and a missing part of the environment is reported as a clear message, not a traceback.
+fast and a missing part of the environment is reported as a clear message, not a traceback. This is the one
+place a user error is caught: a :class:`~fiper_ros.errors.FiperError` a command raises is printed on one line
+(:func:`fail`, exit status :data:`EXIT_USAGE`) and a :class:`~fiper_ros.errors.FiperWarning` on one line
+(:func:`warn`); any other exception is a bug and shows its traceback.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import sys
-from collections.abc import Callable, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import TextIO
 
 from fiper_ros import __version__
 from fiper_ros.dds import interruptible
+from fiper_ros.errors import FiperError, FiperWarning, one_line
+
+#: Exit status of a command refused because of its input (bad bag, calibration, arguments).
+EXIT_USAGE = 2
 
 #: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``; one whose
 #: ``INTERMIXED`` is true has its options parsed anywhere among its positional arguments.
@@ -32,6 +42,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "view": ("fiper_ros.commands.view", "serve the running suite live to Foxglove (WebSocket, 127.0.0.1:8765)"),
 }
 
+#: A sub-command's parser may set this default (``set_defaults``) to the name its reports give, e.g. ``bag recover``.
+LABEL = "fiper_command"
+
 #: Modules whose absence means the workspace was not set up or not sourced.
 _ENVIRONMENT_MODULES = {"rclpy", "fiper_msgs", "torch", "numpy", "mujoco", "pinocchio", "rosbags", "mcap", "yaml"}
 
@@ -39,6 +52,36 @@ NOT_SET_UP = (
     "fiper: the workspace environment is incomplete ({missing} cannot be imported).\n"
     "fiper: run 'make setup' in the repository, then '. ./env.sh' (or use bin/fiper, which sources it)."
 )
+
+
+def fail(command: str, error: object) -> int:
+    """Print ``fiper COMMAND: ERROR`` on one line to stderr and return :data:`EXIT_USAGE`."""
+    print(f"fiper {command}: {one_line(error)}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def warn(command: str, text: object) -> None:
+    """Print ``fiper COMMAND: warning: TEXT`` on one line to stderr (the command goes on)."""
+    print(f"fiper {command}: warning: {one_line(text)}", file=sys.stderr, flush=True)
+
+
+@contextmanager
+def warnings_of(command: list[str]) -> Iterator[None]:
+    """Every :class:`~fiper_ros.errors.FiperWarning` raised inside, each time, printed by :func:`warn` as
+    ``fiper COMMAND``, ``command[0]`` read when the warning comes; other warnings as Python shows them."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", FiperWarning)
+        shown = warnings.showwarning
+
+        def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: TextIO | None = None, line: str | None = None) -> None:
+            if issubclass(category, FiperWarning):
+                warn(command[0], message)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
 
 
 def _load(name: str) -> tuple[Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], int], bool]:
@@ -64,11 +107,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         build_parser().parse_args(argv)  # prints help, version or the usage error, and exits
         return 2
     name = argv[0]
+    label = [name]  # what the one-line reports name: ``bag recover`` once the action is parsed
     try:
-        add_arguments, run, intermixed = _load(name)
-        sub_parser = argparse.ArgumentParser(prog=f"fiper {name}", description=COMMANDS[name][1])
-        add_arguments(sub_parser)
-        return run((sub_parser.parse_intermixed_args if intermixed else sub_parser.parse_args)(argv[1:]))
+        with warnings_of(label):
+            add_arguments, run, intermixed = _load(name)
+            sub_parser = argparse.ArgumentParser(prog=f"fiper {name}", description=COMMANDS[name][1])
+            add_arguments(sub_parser)
+            args = (sub_parser.parse_intermixed_args if intermixed else sub_parser.parse_args)(argv[1:])
+            label[0] = getattr(args, LABEL, name)
+            return run(args)
+    except FiperError as error:
+        return fail(label[0], error)
     except ModuleNotFoundError as exc:
         top = (exc.name or "").split(".")[0]
         if top not in _ENVIRONMENT_MODULES:

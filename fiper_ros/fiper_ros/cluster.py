@@ -17,6 +17,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
+from fiper_ros.errors import FiperError
+
 #: ``--ray`` without an address: a new Ray instance on this machine, stopped at the end.
 LOCAL = "local"
 #: Environment of a local instance, set before ``ray`` is imported. Ray binds every server of a node to its
@@ -31,7 +33,7 @@ MAX_LOST = 3
 K = TypeVar("K", bound=Hashable)
 
 
-class ClusterError(ValueError):
+class ClusterError(FiperError):
     """The cluster cannot be reached, or a task failed: the message is one line, for ``fiper COMMAND: ...``."""
 
 

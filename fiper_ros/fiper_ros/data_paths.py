@@ -22,6 +22,8 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
+from fiper_ros.errors import FiperError
+
 #: Extra directories searched for relative model and calibration paths, after the package share.
 MODELS_ENV = "FIPER_MODELS"
 #: The package whose share directory holds the shipped ``models/``.
@@ -30,7 +32,7 @@ PACKAGE = "fiper_ros"
 SEARCH_RULE = f"a relative path: from the working directory, else the installed {PACKAGE} share, else ${MODELS_ENV}"
 
 
-class DataPathNotFound(FileNotFoundError):
+class DataPathNotFound(FiperError):
     """A model or calibration path exists in none of the places of the search rule."""
 
 

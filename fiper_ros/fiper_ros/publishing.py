@@ -42,6 +42,7 @@ from rclpy.node import Node
 
 from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent, StepSignals
 from fiper_ros.core.rollout import ACTION_SPACES, RolloutError, check_signal_name
+from fiper_ros.errors import FiperError
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rollout_event_msg, step_signals_cdr
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
@@ -59,8 +60,9 @@ LIFECYCLE_STATE = "lifecycle_state"
 MAX_ROLLOUT_ID = 2**64 - 1
 
 
-class SuiteNotReady(RuntimeError):
-    """The suite did not match the policy's publishers in time; the message says what is missing."""
+class SuiteNotReady(FiperError, RuntimeError):
+    """The suite did not match the policy's publishers in time; the message says what is missing (a
+    ``RuntimeError`` too, which a policy author's code may catch)."""
 
 
 class FiperPublisher:

@@ -22,7 +22,8 @@ PACKAGES = {"fiper_ros": ROOT / "fiper_ros" / "fiper_ros", "sim_bridge": ROOT / 
 
 #: Lowest first. A unit may import the units of the layers below its own.
 LAYERS: tuple[tuple[str, ...], ...] = (
-    ("fiper_ros", "core", "interface", "dds", "shm", "data_paths", "cluster"),  # the method; the wire; the platform
+    ("fiper_ros", "errors"),  # the version; the root of the user errors (FiperError)
+    ("core", "interface", "dds", "shm", "data_paths", "cluster"),  # the method; the wire; the platform
     ("runtime", "baselines", "view"),  # streaming rules without rclpy; the comparison methods; the live view
     ("bagio", "policy", "publishing"),  # bag I/O without rclpy; the generative policies; a policy's publishing side
     ("converters", "evaluation", "nodes"),  # foreign data -> rollouts; offline evaluation; the rclpy shells

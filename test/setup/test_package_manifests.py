@@ -94,3 +94,18 @@ def test_a_package_with_launch_files_declares_what_ros2_launch_runs_them_with() 
         needed = {"launch_ros"} | ({"launch_yaml"} if any(f.suffix == ".yaml" for f in files) else set()) | (
             {"launch"} if any(f.suffix == ".py" for f in files) else set())
         assert needed <= declared(package), (package, sorted(needed - declared(package)))
+
+
+def test_one_version() -> None:
+    """``fiper_ros.__version__`` is the project's version: each package.xml (a ROS manifest, which cannot read a
+    file) repeats it, fiper_ros's setup.py reads it and sim_bridge's reads its package.xml, so the built packages
+    carry it too."""
+    from importlib.metadata import version
+
+    from fiper_ros import __version__
+
+    manifests = {path.parent.name: ET.parse(path).getroot().findtext("version") for path in ROOT.glob("*/package.xml")}
+    assert set(manifests) == {"fiper_ros", "fiper_msgs", "sim_bridge"}
+    assert manifests == dict.fromkeys(manifests, __version__)
+    assert {package: version(package) for package in PYTHON_PACKAGES} == dict.fromkeys(PYTHON_PACKAGES, __version__)
+    assert all('version="' not in (ROOT / package / "setup.py").read_text() for package in PYTHON_PACKAGES)

@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 from helpers.dds import ros_env
 
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.cli import main
 from fiper_ros.client.suite_process import installed_launch, replay_config
 from fiper_ros.commands import options
 from fiper_ros.commands.view import ros_arguments
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.launcher.config import load_launch
 
@@ -47,11 +47,11 @@ def test_the_view_options_become_launch_arguments_and_a_taken_port_a_one_line_er
     on = parsed([], on_by_default=True)  # fiper demo: on unless --no-view, on Foxglove's default port
     assert (on.view, on.view_port) == (True, 8765)
     assert options.view_arguments(parsed(["--no-view"], on_by_default=True)) == {}
-    with pytest.raises(BagError) as taken:
+    with pytest.raises(UsageError) as taken:
         options.view_arguments(parsed(["--view", "--view-port", str(taken_port)]))
     assert str(taken.value) == f"live view: port {taken_port} on 127.0.0.1 is taken (another live view, or a " \
                                "Foxglove bridge?): give another --view-port"
-    with pytest.raises(BagError, match="--view-port must be in 0..65535, got 70000"):
+    with pytest.raises(UsageError, match="--view-port must be in 0..65535, got 70000"):
         options.view_arguments(parsed(["--view", "--view-port", "70000"]))
 
 

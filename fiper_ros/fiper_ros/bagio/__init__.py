@@ -8,10 +8,12 @@ Bags are rosbag2 directories (``metadata.yaml`` + one MCAP file, format version 
 - :mod:`.schema`: ``custom_data`` (:class:`~.schema.BagInfo`), offered QoS, the typestore, CDR.
 - :mod:`.reader`, :mod:`.writer`, :mod:`.storage`: reading, writing, the files of a bag on disk.
 - :mod:`.chunks`: how a live bag goes to disk. :mod:`.atomic`: outputs that appear complete or not at all.
-- :mod:`.recover`: unfinished bags. :mod:`.errors`: the one error type and its one-line report.
+- :mod:`.recover`: unfinished bags. :mod:`.errors`: :class:`BagError`, the package's error.
 - :mod:`.rollout_bags`: rollouts <-> bags. :mod:`.collect_index`: the index of a ``fiper collect`` folder.
 """
 from __future__ import annotations
 
-__all__ = ["atomic", "chunks", "collect_index", "errors", "reader", "recover", "rollout_bags", "schema", "storage",
-           "writer"]
+from fiper_ros.bagio.errors import BagError
+
+__all__ = ["BagError", "atomic", "chunks", "collect_index", "errors", "reader", "recover", "rollout_bags", "schema",
+           "storage", "writer"]

@@ -25,11 +25,12 @@ from fiper_ros.bagio.storage import METADATA, bag_directories, check_mcap, read_
 from fiper_ros.interface.topics import TOPICS
 
 
-def find_bags(paths: Iterable[Path], *, strict: bool = True, command: str = "") -> list[Path]:
+def find_bags(paths: Iterable[Path], *, strict: bool = True) -> list[Path]:
     """The bags named by ``paths``: a bag directory itself, or every bag below a directory (sorted; hidden
     directories, such as a writer's staging, left out). An unfinished bag (MCAP data without
     ``metadata.yaml``, or an MCAP file that does not end) is refused with ``strict``; else it is recovered
-    into a temporary copy that :class:`BagReader` reads, with a one-line warning (``fiper COMMAND: ...``)."""
+    into a temporary copy that :class:`BagReader` reads, with a one-line :class:`~fiper_ros.errors.FiperWarning`
+    (``fiper COMMAND: warning: ...``)."""
     bags = bag_directories(paths)
     for bag in bags:
         reason = unfinished(bag)
@@ -37,7 +38,7 @@ def find_bags(paths: Iterable[Path], *, strict: bool = True, command: str = "") 
             continue
         if strict:
             raise BagError(f"{reason}; 'fiper bag recover {bag}' finishes it")
-        read_unfinished(bag, command)
+        read_unfinished(bag)
     return bags
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,10 +27,11 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from fiper_ros.bagio.atomic import remove, temporary_sibling
-from fiper_ros.bagio.errors import BagError, warn
+from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.bagio.storage import METADATA, Salvage, TruncatedMcap, check_mcap, read_metadata, storage_files
 from fiper_ros.bagio.writer import INFO_RECORD, ROSBAG2_KEY, ROSBAG2_RECORD, BagWriter, fsync_directory
+from fiper_ros.errors import FiperWarning
 
 
 def mcap_files(bag: Path) -> list[Path]:
@@ -205,10 +207,10 @@ def readable_copy(bag: Path) -> Path | None:
         return None  # what the bag is now is refused by its reader
 
 
-def read_unfinished(bag: Path, command: str) -> Recovery:
+def read_unfinished(bag: Path) -> Recovery:
     """Recover unfinished ``bag`` into a temporary directory (once per state of its files), which
-    :class:`~fiper_ros.bagio.reader.BagReader` then reads instead; warn in one line what is read
-    (``fiper COMMAND: warning: ...``)."""
+    :class:`~fiper_ros.bagio.reader.BagReader` then reads instead; a :class:`~fiper_ros.errors.FiperWarning` says
+    in one line what is read (``fiper COMMAND: warning: ...`` from the CLI)."""
     copy = _COPIES.get(Path(bag).resolve())
     if copy is None or copy.state != _state(bag):
         state = _state(bag)
@@ -220,6 +222,6 @@ def read_unfinished(bag: Path, command: str) -> Recovery:
             raise
         copy = _COPIES[Path(bag).resolve()] = _Copy(directory, Path(directory.name) / bag.name, recovery, state)
     recovery = copy.recovery
-    warn(command, f"{recovery.where()}: reading its {recovery.chunks} complete chunk(s), {recovery.messages} "
-                  f"messages ('fiper bag recover {bag}' finishes the bag)")
+    warnings.warn(f"{recovery.where()}: reading its {recovery.chunks} complete chunk(s), {recovery.messages} "
+                  f"messages ('fiper bag recover {bag}' finishes the bag)", FiperWarning, stacklevel=3)
     return recovery

@@ -11,9 +11,10 @@ import numpy as np
 import torch
 
 from fiper_ros.core.rollout import Rollout, successful
+from fiper_ros.errors import FiperError
 
 
-class BaselineError(ValueError):
+class BaselineError(FiperError):
     """A baseline cannot be fitted or applied."""
 
 

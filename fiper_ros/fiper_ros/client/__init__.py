@@ -11,5 +11,7 @@ black box, the bag player, the suite process a tool starts, and the operator tha
 """
 from __future__ import annotations
 
-__all__ = ["capture", "driver", "figure", "live_collect", "record", "replay", "ros_session", "snapshot",
-           "suite_process", "trace", "verdicts"]
+from fiper_ros.client.errors import ClientError
+
+__all__ = ["ClientError", "capture", "driver", "errors", "figure", "live_collect", "record", "replay", "ros_session",
+           "snapshot", "suite_process", "trace", "verdicts"]

@@ -23,6 +23,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetRollout
+from fiper_ros.client.errors import ClientError
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detector_topics
@@ -50,7 +51,7 @@ SETTLE_S = 10.0
 AlarmDisplay = Callable[[RolloutTrace, FailureAlarm], None]
 
 
-class SuiteFailed(RuntimeError):
+class SuiteFailed(ClientError):
     """A part of the live suite did not do its job.
 
     Args:

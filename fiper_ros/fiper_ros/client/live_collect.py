@@ -34,8 +34,8 @@ from sim_bridge.tasks import TASKS
 
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.collect_index import RanEpisode
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
+from fiper_ros.client.errors import ClientError
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import (SuiteProcess, declared_of, detector_topics, installed_launch,
@@ -94,13 +94,13 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     try:
         config = load_launch(source, arguments)
     except LaunchError as error:
-        raise BagError(f"launch file {source}: {error}") from error
+        raise LaunchError(f"launch file {source}: {error}") from error
     modules = scoring_modules(settings.detectors) if scored else ()
     keep = POLICY_NODES + tuple(spec.name for spec in config.nodes if spec.module in modules)
     names, present = {spec.name for spec in config.nodes}, {spec.module for spec in config.nodes}
     missing = (set(POLICY_NODES) - names) | (set(modules) - present)
     if missing:
-        raise BagError(f"launch file {source}: no {', '.join(sorted(missing))} node")
+        raise LaunchError(f"launch file {source}: no {', '.join(sorted(missing))} node")
     bridge = {"task": settings.task, "max_policy_steps": settings.max_policy_steps or 0}
     policy = {"batch": settings.batch, "torch_threads": settings.threads}
     ace = {"urdf_path": str(URDF_PATH)}  # the sim's arm: ACE's FK for joint-space (Stacking) actions
@@ -209,9 +209,9 @@ class RosRunner:
 
     @contextmanager
     def _reported(self) -> Iterator[None]:
-        """Turn a :class:`SuiteFailed` into a one-line :class:`BagError` that names the suite's output file."""
+        """Turn a :class:`SuiteFailed` into a one-line :class:`ClientError` that names the suite's output file."""
         try:
             yield
         except SuiteFailed as error:
             self.failed = True
-            raise BagError(f"{error}; the nodes' output: {self.work / 'suite.log'}") from error
+            raise ClientError(f"{error}; the nodes' output: {self.work / 'suite.log'}") from error

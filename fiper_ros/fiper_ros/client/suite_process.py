@@ -22,8 +22,7 @@ import threading
 from collections.abc import Mapping
 from pathlib import Path
 
-from fiper_ros.bagio.errors import BagError
-from fiper_ros.core.calibration_file import CalibrationError, Declared, declared
+from fiper_ros.core.calibration_file import Declared, declared
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
@@ -58,12 +57,9 @@ def detector_module(detector: str) -> str:
 
 def declared_of(directory: Path | None) -> Declared:
     """The detectors the calibration in ``directory`` declares and how it combines them (FIPER's pair under
-    ``and`` without one), read without loading its score models; :class:`BagError` (one line naming the file) for a
-    missing or unreadable calibration and one that declares no (or no supported) detector set."""
-    try:
-        return Declared(DETECTORS, "and") if directory is None else declared(directory)
-    except CalibrationError as error:
-        raise BagError(str(error)) from error
+    ``and`` without one), read without loading its score models; a ``CalibrationError`` (one line naming the file)
+    for a missing or unreadable calibration and one that declares no (or no supported) detector set."""
+    return Declared(DETECTORS, "and") if directory is None else declared(directory)
 
 
 def detectors_of(directory: Path | None) -> tuple[str, ...]:
@@ -88,10 +84,10 @@ def suite_arguments(calibration: Path, detectors: tuple[str, ...]) -> dict[str, 
     """The launch arguments that give the suite ``calibration`` (absolute) and the scoring nodes of ``detectors``
     (those it declares): ``calibration_dir``, ``rnd_oe:=false`` without RND-OE, ``observation_only:=true`` without
     ACE, ``<detector>:=true`` for each other detector and ``use_signal:=true signal:=NAME`` for a logged signal
-    (the suite's file runs one); :class:`BagError` for a set the file cannot run."""
+    (the suite's file runs one); :class:`LaunchError` for a set the file cannot run."""
     signals = [d.removeprefix(SIGNAL_PREFIX) for d in detectors if info(d).reads == "signal"]
     if len(signals) > 1:
-        raise BagError(f"the calibration declares {len(signals)} logged signals ({', '.join(signals)}); the suite's "
+        raise LaunchError(f"the calibration declares {len(signals)} logged signals ({', '.join(signals)}); the suite's "
                        "launch file runs the node of one: launch the others' detector nodes beside it")
     arguments = {"calibration_dir": str(calibration.resolve())}
     arguments |= {"rnd_oe": "false"} if RND_OE not in detectors else {}
@@ -128,7 +124,7 @@ def replay_config(launch: Path, calibration: Path, detectors: tuple[str, ...], o
     try:
         return dump_launch(replay_launch(launch, calibration, detectors, robot, arguments), out)
     except LaunchError as error:
-        raise BagError(f"launch file {launch}: {error}") from error
+        raise LaunchError(f"launch file {launch}: {error}") from error
 
 
 class SuiteProcess:

@@ -7,5 +7,7 @@ trains and evaluates the sim policies, outside ``fiper``.
 """
 from __future__ import annotations
 
-__all__ = ["bag", "calibrate", "collect", "convert", "demo", "doctor", "echo", "evaluate", "launch", "options",
-           "record", "replay", "samples", "security", "snapshot", "view"]
+from fiper_ros.commands.errors import UsageError
+
+__all__ = ["UsageError", "bag", "calibrate", "collect", "convert", "demo", "doctor", "echo", "errors", "evaluate",
+           "launch", "options", "record", "replay", "samples", "security", "snapshot", "view"]

@@ -31,10 +31,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fiper_ros.bagio.atomic import atomic_output, check_new
-from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import find_bags
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.converters.options import parse_channels
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
                                         upgrade_calibration)
@@ -130,7 +131,7 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
     """The calibration settings of the command line."""
     dims = None if args.action_dims is None else parse_channels(args.action_dims)
     if isinstance(dims, str):
-        raise BagError("--action-dims must be START:STOP")
+        raise UsageError("--action-dims must be START:STOP")
     try:
         rnd = RND_PRESETS[args.rnd_preset]()
         if args.max_epochs:
@@ -147,7 +148,7 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
                                    conformal_fraction=args.conformal_fraction, folds=args.folds,
                                    shape_folds=args.shape_folds, pooled=args.pool)
     except (CalibrationError, ValueError) as error:
-        raise BagError(str(error)) from error
+        raise UsageError(str(error)) from error
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -206,13 +207,10 @@ def run(args: argparse.Namespace) -> int:
     """``fiper calibrate``."""
     if args.upgrade is not None or not args.bags:
         return upgrade(args)
-    try:
-        settings = settings_from(args)
-        fk = options.fk_of(options.robot_from(args))
-        bags = find_bags(args.bags, strict=args.strict, command="calibrate")
-        calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
-    except BagError as error:
-        return fail("calibrate", error)
+    settings = settings_from(args)
+    fk = options.fk_of(options.robot_from(args))
+    bags = find_bags(args.bags, strict=args.strict)
+    calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
     shown = {k: v for k, v in settings.to_dict().items() if k not in ("rnd", "progress", "consistency", "logpzo",
                                                                         "pca_kmeans")}
     print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
@@ -232,18 +230,12 @@ def run(args: argparse.Namespace) -> int:
 
 def upgrade(args: argparse.Namespace) -> int:
     """``fiper calibrate --upgrade OLD -o NEW``: the calibration ``OLD`` of format 1 or 2 in the current format."""
-    try:
-        if args.upgrade is None or args.bags:
-            raise BagError("give either the bags to calibrate on or --upgrade OLD (a calibration to convert)")
-        check_new(args.out, args.force)
-        try:
-            calibration = upgrade_calibration(args.upgrade)
-        except CalibrationError as error:
-            raise BagError(str(error)) from error
-        with atomic_output(args.out, args.force) as staging:
-            calibration.save(staging)
-    except BagError as error:
-        return fail("calibrate", error)
+    if args.upgrade is None or args.bags:
+        raise UsageError("give either the bags to calibrate on or --upgrade OLD (a calibration to convert)")
+    check_new(args.out, args.force)
+    calibration = upgrade_calibration(args.upgrade)
+    with atomic_output(args.out, args.force) as staging:
+        calibration.save(staging)
     print(f"calibration {args.upgrade} converted to format {FORMAT_VERSION}: {args.out} written "
           f"(hash {calibration.content_hash})")
     return 0

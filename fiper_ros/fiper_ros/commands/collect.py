@@ -38,12 +38,14 @@ from sim_bridge.scenarios import TASK_NAMES, get_scenario
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.collect_index import (INDEX_FILE, IN_PROCESS, ROS, CollectIndex, CollectSetup, IndexEntry,
                                            RanEpisode)
-from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import METADATA, find_bags
-from fiper_ros.cluster import LOCAL, ClusterError, connected
+from fiper_ros.cluster import LOCAL, connected
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.evaluation.offline import calibration_for, policy_layout
 from fiper_ros.policy.dataset import files_hash
+from fiper_ros.policy.errors import PolicyError
 from fiper_ros.policy.policy import CONFIG_FILE, WEIGHTS_FILE, Policy
 
 LOCK_FILE = ".collect.lock"
@@ -108,15 +110,10 @@ def shown_path(path: Path) -> str:
 def load_model(directory: Path, task: str) -> Model:
     """Load a model folder (``policy.pt`` + ``policy.yaml``) and check that it is a ``task`` policy."""
     files = [directory / WEIGHTS_FILE, directory / CONFIG_FILE]
-    try:
-        policy = Policy.load(directory)
-        info = yaml.safe_load(files[1].read_text()).get("info") or {}
-    except FileNotFoundError as error:
-        raise BagError(f"{error}: not a policy model folder (train one first, docs/policies.md)") from error
-    except (OSError, ValueError, KeyError, RuntimeError, yaml.YAMLError) as error:
-        raise BagError(f"{directory}: cannot load the policy ({type(error).__name__}: {error})") from error
+    policy = Policy.load(directory)
+    info = yaml.safe_load(files[1].read_text()).get("info") or {}
     if policy.config.task != task:
-        raise BagError(f"{directory}: a {policy.config.task} policy, not {task}")
+        raise PolicyError(f"{directory}: a {policy.config.task} policy, not {task}")
     return Model(policy, shown_path(directory), files_hash(files), str(info.get("data_hash", "")))
 
 
@@ -299,15 +296,15 @@ def _target(args: argparse.Namespace) -> Target:
     """The per-scenario target of ``--episodes`` or ``--successes`` / ``--max-episodes``."""
     if args.successes is None:
         if args.max_episodes is not None:
-            raise BagError("--max-episodes caps --successes; with --episodes N give N only")
+            raise UsageError("--max-episodes caps --successes; with --episodes N give N only")
         if args.episodes < 1:
-            raise BagError(f"--episodes must be at least 1, got {args.episodes}")
+            raise UsageError(f"--episodes must be at least 1, got {args.episodes}")
         return Target(args.episodes)
     if args.successes < 1:
-        raise BagError(f"--successes must be at least 1, got {args.successes}")
+        raise UsageError(f"--successes must be at least 1, got {args.successes}")
     cap = args.max_episodes if args.max_episodes is not None else DEFAULT_EPISODES_PER_SUCCESS * args.successes
     if cap < args.successes:
-        raise BagError(f"--max-episodes {cap} is below --successes {args.successes}")
+        raise UsageError(f"--max-episodes {cap} is below --successes {args.successes}")
     return Target(cap, args.successes)
 
 
@@ -317,7 +314,7 @@ def _scenarios(task: str, names: Sequence[str]) -> list[str]:
         try:
             get_scenario(task, name)
         except KeyError as error:
-            raise BagError(error.args[0]) from error
+            raise UsageError(error.args[0]) from error
     return list(dict.fromkeys(names))
 
 
@@ -325,11 +322,11 @@ def _check_sizes(args: argparse.Namespace, episodes: int) -> None:
     """Refuse seeds outside ``uint32`` (the low half of a rollout id) and sizes below 1."""
     last = args.seed + episodes - 1
     if args.seed < 0 or last >= 2**32:
-        raise BagError(f"seeds must lie in 0 .. 2^32 - 1, got {args.seed} .. {last}")
+        raise UsageError(f"seeds must lie in 0 .. 2^32 - 1, got {args.seed} .. {last}")
     for option in ("batch", "max_policy_steps", "threads", "jobs"):
         value = getattr(args, option)
         if value is not None and value < 1:
-            raise BagError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
+            raise UsageError(f"--{option.replace('_', '-')} must be at least 1, got {value}")
 
 
 def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: CollectSetup, detectors: tuple[str, ...],
@@ -338,7 +335,7 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
     whose scoring nodes run) or the in-process one."""
     if setup.runner == IN_PROCESS and args.ray is not None:
         if args.jobs != 1 and args.ray != LOCAL:
-            raise BagError(f"--jobs sets the CPUs of a local Ray instance: the cluster at {args.ray} has its own")
+            raise UsageError(f"--jobs sets the CPUs of a local Ray instance: the cluster at {args.ray} has its own")
         stack.enter_context(connected(args.ray, args.jobs if args.jobs != 1 else None))
         ray_runner = RayRunner(model.policy, setup, model_dir, args.threads)
         stack.callback(ray_runner.close)
@@ -348,9 +345,9 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
         stack.callback(runner.close)
         return runner
     if args.ray is not None:
-        raise BagError("--ray runs episodes as Ray tasks: --ros runs them through the one node suite")
+        raise UsageError("--ray runs episodes as Ray tasks: --ros runs them through the one node suite")
     if args.jobs != 1:
-        raise BagError("--jobs runs episodes in worker processes: --ros runs them through the one node suite")
+        raise UsageError("--jobs runs episodes in worker processes: --ros runs them through the one node suite")
     from fiper_ros.client.live_collect import LiveSettings, RosRunner  # noqa: PLC0415 - rclpy only with --ros
 
     settings = LiveSettings(args.task, model_dir.resolve(), setup.batch, args.threads, setup.max_policy_steps,
@@ -361,43 +358,40 @@ def _runner(args: argparse.Namespace, model_dir: Path, model: Model, setup: Coll
 def _check_calibration(args: argparse.Namespace) -> None:
     """``--calibration`` only with ``--ros``."""
     if args.calibration is not None and not args.ros:
-        raise BagError("--calibration runs the scoring nodes: it needs --ros")
+        raise UsageError("--calibration runs the scoring nodes: it needs --ros")
 
 
 def run(args: argparse.Namespace) -> int:
     """``fiper collect``."""
-    try:
-        target = _target(args)
-        scenarios = _scenarios(args.task, args.scenarios)
-        _check_sizes(args, target.max_episodes)
-        _check_calibration(args)
-        torch.set_num_threads(args.threads)
-        model_dir = args.model or default_model(args.task)
-        model = load_model(model_dir, args.task)
-        detectors: tuple[str, ...] = ()
-        if args.calibration is not None:  # refused here with one line, not by scoring nodes that never configure
-            detectors = calibration_for(args.calibration, [policy_layout(model.policy.config, model_dir)]).detectors
-        setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
-                             args.max_policy_steps, ROS if args.ros else IN_PROCESS)
-        with locked(args.out), ExitStack() as stack:
-            index = open_index(args.out, setup, model)
-            for name in scenarios:
-                index.use_scenario(name, get_scenario(args.task, name).knobs)
-            settings = {"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
-                        "successes": args.successes, "max_episodes": target.max_episodes}
-            if args.calibration is not None:
-                settings |= {"calibration": shown_path(args.calibration), "detectors": list(detectors)}
-            index.add_run(settings)
-            index.save(args.out)
-            runner = _runner(args, model_dir, model, setup, detectors, stack)
-            collector = Collector(runner, args.out, index, seed=args.seed, target=target,
-                                  status=runner.status if isinstance(runner, RayRunner) else None)
-            print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}, "
-                  f"{setup.runner}) into {args.out}", file=sys.stderr, flush=True)
-            started = time.monotonic()
-            counts = {scenario: collector.scenario(scenario, scenarios) for scenario in scenarios}
-    except (BagError, ClusterError) as error:
-        return fail("collect", error)
+    target = _target(args)
+    scenarios = _scenarios(args.task, args.scenarios)
+    _check_sizes(args, target.max_episodes)
+    _check_calibration(args)
+    torch.set_num_threads(args.threads)
+    model_dir = args.model or default_model(args.task)
+    model = load_model(model_dir, args.task)
+    detectors: tuple[str, ...] = ()
+    if args.calibration is not None:  # refused here with one line, not by scoring nodes that never configure
+        detectors = calibration_for(args.calibration, [policy_layout(model.policy.config, model_dir)]).detectors
+    setup = CollectSetup(args.task, model.hash, args.split, args.batch or model.policy.config.sample_batch,
+                         args.max_policy_steps, ROS if args.ros else IN_PROCESS)
+    with locked(args.out), ExitStack() as stack:
+        index = open_index(args.out, setup, model)
+        for name in scenarios:
+            index.use_scenario(name, get_scenario(args.task, name).knobs)
+        settings = {"scenarios": scenarios, "seed": args.seed, "episodes": args.episodes,
+                    "successes": args.successes, "max_episodes": target.max_episodes}
+        if args.calibration is not None:
+            settings |= {"calibration": shown_path(args.calibration), "detectors": list(detectors)}
+        index.add_run(settings)
+        index.save(args.out)
+        runner = _runner(args, model_dir, model, setup, detectors, stack)
+        collector = Collector(runner, args.out, index, seed=args.seed, target=target,
+                              status=runner.status if isinstance(runner, RayRunner) else None)
+        print(f"collecting {args.task} {', '.join(scenarios)} with {model.path} (B = {setup.batch}, "
+              f"{setup.runner}) into {args.out}", file=sys.stderr, flush=True)
+        started = time.monotonic()
+        counts = {scenario: collector.scenario(scenario, scenarios) for scenario in scenarios}
     for scenario, (episodes, successes) in counts.items():
         print(f"{scenario}: {episodes} rollouts (seeds {args.seed}-{args.seed + episodes - 1}), {successes} "
               f"successes ({successes / episodes:.2f}) in {args.out / scenario}")

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from fiper_ros.bagio.atomic import atomic_output, check_new
-from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.rollout_bags import DEFAULT_START_NS, write_rollouts
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.converters import fiper as convert_fiper, generic as convert_generic, sentinel as convert_sentinel
@@ -166,17 +166,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``fiper convert``."""
-    try:
-        keys = Keys(**{name: getattr(args, f"{name}_key") for name in convert_generic.KEY_OPTIONS})
-        names = tuple(name.strip() for name in args.signal_names.split(",") if name.strip())
-        options = ConvertOptions(task=args.task, exec_steps=args.exec_steps, channels=parse_channels(args.channels),
-                                 action_space=args.action_space, control_hz=args.control_hz,
-                                 max_steps=args.max_steps, synthetic=args.synthetic, max_mb=args.max_mb,
-                                 keys=keys, signal_names=names, calibration_fraction=args.calibration_fraction,
-                                 split_seed=args.split_seed)
-        result = convert(args.format, args.src, args.out, options, args.force)
-    except BagError as error:
-        return fail("convert", error)
+    keys = Keys(**{name: getattr(args, f"{name}_key") for name in convert_generic.KEY_OPTIONS})
+    names = tuple(name.strip() for name in args.signal_names.split(",") if name.strip())
+    options = ConvertOptions(task=args.task, exec_steps=args.exec_steps, channels=parse_channels(args.channels),
+                             action_space=args.action_space, control_hz=args.control_hz,
+                             max_steps=args.max_steps, synthetic=args.synthetic, max_mb=args.max_mb,
+                             keys=keys, signal_names=names, calibration_fraction=args.calibration_fraction,
+                             split_seed=args.split_seed)
+    result = convert(args.format, args.src, args.out, options, args.force)
     for name, count in result.bags.items():
         print(f"{args.out / name}: {count} rollouts")
     if result.drawn:

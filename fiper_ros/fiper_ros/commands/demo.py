@@ -28,7 +28,7 @@ from pathlib import Path
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
-from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, state_name
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
@@ -36,11 +36,13 @@ from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, declared_of, installed_launch, suite_arguments, suite_topics
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.commands import options
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
+from fiper_ros.errors import FiperError
 from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, CLOCK, EMBEDDING, SIM_ACTION, SIM_PROPRIO
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
+from fiper_ros.launcher.config import LaunchConfig, dump_launch, load_launch
 from fiper_ros.shm import clean_stale
 
 #: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
@@ -169,7 +171,7 @@ def run_demo(args: argparse.Namespace) -> int:
     started = time.monotonic()
     try:
         view = options.view_arguments(args)
-    except BagError as error:  # the demo's main job goes on without it
+    except UsageError as error:  # the demo's main job goes on without it
         print(f"fiper demo: the live view is off: {error}", flush=True)
         view = {}
     config = demo_config(args.config or installed_launch("demo.launch.yaml"), model, calibration, detectors, view)
@@ -184,7 +186,7 @@ def run_demo(args: argparse.Namespace) -> int:
         suite = SuiteProcess(launch, domain, echo=args.verbose, log=out / "suite.log")
         try:
             check_calibration(model, calibration)  # while the nodes boot
-        except BagError:
+        except FiperError:
             suite.stop()
             if created:
                 remove(out)  # a refused demo leaves no run folder
@@ -249,8 +251,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``fiper demo``."""
-    try:
-        return run_demo(args)
-    except (LaunchError, BagError) as error:
-        return fail("demo", error)
+    return run_demo(args)
 

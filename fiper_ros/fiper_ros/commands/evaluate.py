@@ -48,9 +48,9 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.bagio.atomic import atomic_files, check_directory
-from fiper_ros.bagio.errors import BagError, fail
-from fiper_ros.cluster import LOCAL, ClusterError
+from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
@@ -273,7 +273,7 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
     """Engine settings from the parsed options (``--methods`` resolved by :func:`methods_for`, with the methods
     of the ``external`` scores of ``--scores``)."""
     if args.default_window not in args.windows:
-        raise ValueError(f"the default window {args.default_window} is not among the swept windows")
+        raise UsageError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
     method_settings = replace(method_settings, robot=options.robot_from(args), split=args.split,
                               shape_folds=args.shape_folds, external=external)
@@ -324,29 +324,29 @@ def check_cluster(args: argparse.Namespace) -> None:
     if args.ray_cpus is None:
         return
     if args.ray is None:
-        raise ValueError("--ray-cpus sets the CPUs of the local Ray instance of --ray: give --ray too")
+        raise UsageError("--ray-cpus sets the CPUs of the local Ray instance of --ray: give --ray too")
     if args.ray != LOCAL:
-        raise ValueError(f"--ray-cpus sets the CPUs of a local Ray instance: the cluster at {args.ray} has its own")
+        raise UsageError(f"--ray-cpus sets the CPUs of a local Ray instance: the cluster at {args.ray} has its own")
     if args.ray_cpus < 1:
-        raise ValueError(f"--ray-cpus must be >= 1, got {args.ray_cpus}")
+        raise UsageError(f"--ray-cpus must be >= 1, got {args.ray_cpus}")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the evaluation; 0 on success, 2 on bad input."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        check_directory(args.out)
-        for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
-            check_directory(directory)
-        datasets = datasets_from(args)
+    check_directory(args.out)
+    for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
+        check_directory(directory)
+    datasets = datasets_from(args)
+    try:  # the settings' own checks (methods, combinations, seeds, ...) raise ValueError: here they are the flags'
         external = parse_scores(args.scores)
         args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
         settings = settings_from(args, external)
         options.fk_of(settings.method_settings.robot)
         check_evaluation(datasets, settings)
-        check_cluster(args)
-    except (DatasetError, BagError, ValueError) as error:
-        return fail("evaluate", error)
+    except ValueError as error:
+        raise UsageError(str(error)) from error
+    check_cluster(args)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
     # +inf CP thresholds (ceil((M+1)(1-delta)) > M for the smallest deltas) are expected in a sweep.
     threshold_log = logging.getLogger("fiper_ros.core.thresholds")
@@ -364,8 +364,6 @@ def run(args: argparse.Namespace) -> int:
 
                     figures = write_figures(result, staging)
                 markdown, _ = write_reports(result, staging, figures)
-    except (DatasetError, ClusterError) as error:  # found by a Ray task: the data's or the cluster's reason
-        return fail("evaluate", error)
     finally:
         threshold_log.setLevel(previous)
     print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))

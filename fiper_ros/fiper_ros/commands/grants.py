@@ -24,11 +24,13 @@ from typing import Any
 import yaml
 
 from fiper_msgs.msg import ActionChunkBatch
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.data_paths import resolve_data_path
+from fiper_ros.errors import FiperError
 from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, CLOCK, DIAGNOSTICS,
                                         EMBEDDING, EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT,
                                         SIM_PROPRIO, SIM_RESET, STEP_SIGNALS, TOPICS, input_topic, relative,
@@ -47,7 +49,7 @@ LIFECYCLE_SERVICES = ("~/change_state", "~/get_available_states", "~/get_availab
 TRANSITION_EVENT = "~/transition_event"
 
 
-class UnknownNode(ValueError):
+class UnknownNode(UsageError):
     """A launch file names a node module this module has no rule for."""
 
 
@@ -239,7 +241,7 @@ def node_grants(spec: NodeSpec) -> Grants:
         raise UnknownNode(f"node {spec.fqn}: no grants known for module {spec.module} (write its enclave by hand)")
     try:
         return rule(effective_parameters(spec)).resolved(spec.fqn, spec.remaps)
-    except (LaunchError, OSError, ValueError) as error:
+    except (FiperError, OSError, ValueError) as error:
         raise LaunchError(f"node {spec.fqn}: {error}") from error
 
 

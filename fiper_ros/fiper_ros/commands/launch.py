@@ -6,15 +6,13 @@ declares it (``fiper.launch.yaml`` and what includes it), with the port checked 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.commands import options
 from fiper_ros.core.calibration_file import CALIBRATION_FILE, CalibrationError, read_yaml, split_of
 from fiper_ros.data_paths import DataPathNotFound, resolve_data_path
 from fiper_ros.dds import die_with_parent
-from fiper_ros.launcher.config import LaunchConfig, LaunchError, load_launch, parse_arguments
+from fiper_ros.launcher.config import LaunchConfig, load_launch, parse_arguments
 from fiper_ros.launcher.processes import run_in_process, run_processes, say
 from fiper_ros.shm import clean_stale
 
@@ -48,23 +46,15 @@ def show_arguments(config: LaunchConfig) -> str:
 def run(args: argparse.Namespace) -> int:
     """``fiper launch``."""
     die_with_parent()  # started by a demo or a test fixture: the suite goes with it
-    try:
-        view = options.view_arguments(args) if not args.show_args else {}
-        config = load_launch(args.file, parse_arguments(args.arguments) | view)
-    except (LaunchError, BagError) as error:
-        print(f"fiper launch: {error}", file=sys.stderr)
-        return 2
+    view = options.view_arguments(args) if not args.show_args else {}
+    config = load_launch(args.file, parse_arguments(args.arguments) | view)
     if args.show_args:
         print(show_arguments(config))
         return 0
     if view:
         print(f"[launch] {options.view_banner(args.view_port)}", flush=True)
     print(f"[launch] {clean_stale().summary()}", flush=True)
-    try:
-        return _run(config, args)
-    except LaunchError as error:  # found as the nodes start (a container's arguments, an entry without enclave)
-        print(f"fiper launch: {error}", file=sys.stderr)
-        return 2
+    return _run(config, args)  # a LaunchError found as the nodes start: a container's arguments, an entry without enclave
 
 
 def _run(config: LaunchConfig, args: argparse.Namespace) -> int:

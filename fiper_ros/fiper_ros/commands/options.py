@@ -18,7 +18,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, DEFAULT_CHUNK_S, LiveChunks
-from fiper_ros.bagio.errors import BagError
+from fiper_ros.commands.errors import UsageError
 
 if TYPE_CHECKING:
     from fiper_ros.core.kinematics import PinocchioFK, RobotModel
@@ -39,17 +39,17 @@ def robot_from(args: argparse.Namespace) -> RobotModel | None:
     control_dt = getattr(args, "control_dt", None)
     if args.urdf is None:
         if control_dt is not None:
-            raise BagError("--control-dt needs --urdf (joint velocities are mapped through the robot's FK)")
+            raise UsageError("--control-dt needs --urdf (joint velocities are mapped through the robot's FK)")
         return None
     if control_dt is not None and control_dt <= 0:
-        raise BagError(f"--control-dt must be > 0, got {control_dt}")
+        raise UsageError(f"--control-dt must be > 0, got {control_dt}")
     from fiper_ros.core.kinematics import RobotModel  # noqa: PLC0415 - numpy and pinocchio only where needed
 
     return RobotModel(args.urdf, args.ee_frame, control_dt)
 
 
 def fk_of(robot: RobotModel | None) -> PinocchioFK | None:
-    """The robot's FK, checked now (a missing URDF or frame is a :class:`BagError`)."""
+    """The robot's FK, checked now (a missing URDF or frame is a :class:`UsageError`)."""
     if robot is None:
         return None
     from fiper_ros.core.kinematics import KinematicsError  # noqa: PLC0415
@@ -57,7 +57,7 @@ def fk_of(robot: RobotModel | None) -> PinocchioFK | None:
     try:
         return robot.forward_kinematics()
     except KinematicsError as error:
-        raise BagError(str(error)) from error
+        raise UsageError(str(error)) from error
 
 
 def add_chunk_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,7 +70,7 @@ def add_chunk_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def chunks_from(args: argparse.Namespace) -> LiveChunks:
-    """The chunking of the command line (:class:`~fiper_ros.bagio.errors.BagError` unless both are > 0)."""
+    """The chunking of the command line (:class:`~fiper_ros.commands.errors.UsageError` unless both are > 0)."""
     return LiveChunks(args.chunk_s, args.chunk_mb)
 
 
@@ -99,16 +99,16 @@ def add_view_arguments(parser: argparse.ArgumentParser, on_by_default: bool = Fa
 
 def view_arguments(args: argparse.Namespace) -> dict[str, str]:
     """The launch arguments (``fiper.launch.yaml``) that add the live view asked for on the command line; none
-    without it. :class:`~fiper_ros.bagio.errors.BagError` for a port that cannot be served (one line, naming it)."""
+    without it. :class:`~fiper_ros.commands.errors.UsageError` for a port that cannot be served (one line, naming it)."""
     from fiper_ros.view.server import DEFAULT_HOST, port_problem  # noqa: PLC0415
 
     if not args.view:
         return {}
     if not 0 <= args.view_port <= 65535:
-        raise BagError(f"--view-port must be in 0..65535, got {args.view_port}")
+        raise UsageError(f"--view-port must be in 0..65535, got {args.view_port}")
     problem = port_problem(DEFAULT_HOST, args.view_port)
     if problem:
-        raise BagError(f"live view: {problem}: give another --view-port")
+        raise UsageError(f"live view: {problem}: give another --view-port")
     return {"view": "true", "view_port": str(args.view_port)}
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.client.record import record
 from fiper_ros.commands import options
 
@@ -21,9 +20,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """``fiper record``."""
-    try:
-        count = record(args.out, args.topics, args.duration, args.domain, args.force, options.chunks_from(args))
-    except BagError as error:
-        return fail("record", error)
+    count = record(args.out, args.topics, args.duration, args.domain, args.force, options.chunks_from(args))
     print(f"{args.out}: {count} messages")
     return 0

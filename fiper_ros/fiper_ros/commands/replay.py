@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fiper_ros.bagio.atomic import atomic_output
-from fiper_ros.bagio.errors import BagError, fail
+from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import BagReader, find_bags
 from fiper_ros.bagio.rollout_bags import ROLLOUT_GAP_NS
 from fiper_ros.client.replay import (NODE_NAME, Player, find_calibration, played_topics, readers_needed,
@@ -23,6 +23,7 @@ from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import SuiteProcess, detectors_of, installed_launch, replay_config
 from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.evaluation.verdicts import in_sample, in_sample_warning, rollout_line, table, tally
@@ -142,7 +143,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | None]:
     """The bags (each read once, so a bad one is refused before anything starts) and the calibration
     directory to use."""
-    bags = find_bags(args.bags, strict=args.strict, command="replay")
+    bags = find_bags(args.bags, strict=args.strict)
     for bag in bags:
         with BagReader(bag) as reader:
             reader.require_any(INPUT_TOPICS)
@@ -156,18 +157,15 @@ def _bags_and_calibration(args: argparse.Namespace) -> tuple[list[Path], Path | 
 def run(args: argparse.Namespace) -> int:
     """``fiper replay``."""
     if args.rate <= 0 or args.clock_hz <= 0:
-        return fail("replay", "--rate and --clock-hz must be > 0")
+        raise UsageError("--rate and --clock-hz must be > 0")
     if args.report is not None and args.report.is_dir():
-        return fail("replay", f"--report {args.report} is a directory: give a file name")
+        raise UsageError(f"--report {args.report} is a directory: give a file name")
     if args.ray is not None and not args.offline:
-        return fail("replay", "--ray runs the offline replay as Ray tasks: it needs --offline")
+        raise UsageError("--ray runs the offline replay as Ray tasks: it needs --offline")
     if args.view and (args.no_launch or args.offline):
-        return fail("replay", "--view goes with the suite replay launches: beside a running suite, run fiper view")
-    try:
-        bags, directory = _bags_and_calibration(args)
-        outcome = _offline(bags, directory, args) if args.offline else _play_all(args, bags, directory)
-    except BagError as error:
-        return fail("replay", error)
+        raise UsageError("--view goes with the suite replay launches: beside a running suite, run fiper view")
+    bags, directory = _bags_and_calibration(args)
+    outcome = _offline(bags, directory, args) if args.offline else _play_all(args, bags, directory)
     rate = outcome["steps"] / outcome["seconds"] if outcome["seconds"] > 0 else 0.0
     print(f"{len(outcome['rollouts'])} rollouts, {outcome['steps']} steps in {outcome['seconds']:.1f} s "
           f"({rate:.1f} steps/s); {len(outcome['missing'])} steps without an alarm")

@@ -10,8 +10,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fiper_ros.bagio.errors import BagError
-from fiper_ros.cluster import ClusterError, TaskPool, connected
+from fiper_ros.cluster import TaskPool, connected
 from fiper_ros.commands.options import fk_of
 from fiper_ros.evaluation.offline import predict_bag
 
@@ -34,24 +33,21 @@ def predict_bags(bags: list[Path], calibration: Calibration, robot: RobotModel |
     """:func:`predict_bag` of every bag as Ray tasks of the cluster at ``address``; the results in bag order.
 
     Raises:
-        BagError: The cluster cannot be reached, or a bag's task failed (its reason, in one line).
+        ClusterError: The cluster cannot be reached, or a bag's task failed (its reason, in one line).
     """
     results: dict[int, list[RolloutResult]] = {}
-    try:
-        with connected(address):
-            import ray  # noqa: PLC0415 - after connected, which sets Ray's environment
+    with connected(address):
+        import ray  # noqa: PLC0415 - after connected, which sets Ray's environment
 
-            shared = [ray.put(calibration)]
-            tasks: TaskPool[int] = TaskPool(bag_task, lambda index: f"bag {bags[index]}")
-            for index, bag in enumerate(bags):
-                tasks.submit(index, str(bag.resolve()), shared, robot)
-            try:
-                for index, rows in tasks.completed():
-                    results[index] = rows
-                    print(f"fiper replay: {len(results)}/{len(bags)} bags | ray: {tasks.status()}", file=sys.stderr,
-                          flush=True)
-            finally:
-                tasks.close()
-    except ClusterError as error:
-        raise BagError(str(error)) from None
+        shared = [ray.put(calibration)]
+        tasks: TaskPool[int] = TaskPool(bag_task, lambda index: f"bag {bags[index]}")
+        for index, bag in enumerate(bags):
+            tasks.submit(index, str(bag.resolve()), shared, robot)
+        try:
+            for index, rows in tasks.completed():
+                results[index] = rows
+                print(f"fiper replay: {len(results)}/{len(bags)} bags | ray: {tasks.status()}", file=sys.stderr,
+                      flush=True)
+        finally:
+            tasks.close()
     return [result for index in range(len(bags)) for result in results[index]]

@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fiper_ros.bagio.errors import BagError, fail
 from fiper_ros.client.snapshot import DEFAULT_MAX_MB, DEFAULT_OUT, snapshot
 from fiper_ros.commands import options
+from fiper_ros.commands.errors import UsageError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,12 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """``fiper snapshot``."""
     if args.before < 0 or args.after < 0 or args.max_mb <= 0:
-        return fail("snapshot", "--before and --after must be >= 0, --max-mb > 0")
-    try:
-        recorder = snapshot(args.out, args.topics, args.before, args.after, int(args.max_mb * 2**20),
-                            options.chunks_from(args), args.duration, args.domain)
-    except BagError as error:
-        return fail("snapshot", error)
+        raise UsageError("--before and --after must be >= 0, --max-mb > 0")
+    recorder = snapshot(args.out, args.topics, args.before, args.after, int(args.max_mb * 2**20),
+                        options.chunks_from(args), args.duration, args.domain)
     skipped = f"; {recorder.skipped} rise(s) skipped" if recorder.skipped else ""
     print(f"{recorder.written} snapshot(s) written to {args.out}{skipped}")
     return 0

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import argparse
 
-from fiper_ros.bagio.errors import fail
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import CALIBRATED
-from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, ViewError, port_problem
+from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, port_problem
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,13 +38,10 @@ def ros_arguments(args: argparse.Namespace) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     """``fiper view``."""
     if not 0 <= args.port <= 65535 or args.backlog < 1:
-        return fail("view", "--port must be in 0..65535 and --backlog >= 1")
+        raise UsageError("--port must be in 0..65535 and --backlog >= 1")
     problem = port_problem(args.host, args.port)
     if problem:
-        return fail("view", problem)
+        raise UsageError(problem)
     from fiper_ros.nodes.view_node import serve  # noqa: PLC0415 - rclpy only once the arguments are good
 
-    try:
-        return serve(ros_arguments(args))
-    except ViewError as error:  # the port was taken in the meantime, or a detector is unknown
-        return fail("view", error)
+    return serve(ros_arguments(args))  # a ViewError if the port was taken in the meantime or a detector is unknown

@@ -43,6 +43,7 @@ from fiper_ros.bagio.errors import BagError
 from fiper_ros.converters.options import EXEC_STEPS, Budget, ConvertOptions, Converted, Keys, select_channels
 from fiper_ros.core.data_split import NO_SPLIT
 from fiper_ros.core.rollout import ID_SCENARIO, SIGNAL_NAME, Rollout, RolloutError
+from fiper_ros.errors import FiperError
 
 SPLITS = ("calibration", "test")
 #: The option that names each key, for the error messages.
@@ -167,7 +168,7 @@ def _arrow_array(column: Any) -> np.ndarray:  # a pyarrow ChunkedArray
     return values.reshape(shape)
 
 
-class _ColumnError(ValueError):
+class _ColumnError(FiperError):
     """A parquet column that is no array (the caller names the file, rollout and key)."""
 
 

@@ -30,9 +30,13 @@ Modules, one concept each:
 - :mod:`.calibration_file`: reading ``calibration.yaml`` without torch (what a calibration declares).
 - :mod:`.calibration`: a calibration's settings, model, fitting and files (one module each).
 - :mod:`.monitor`: streaming and vectorised failure prediction.
+- :mod:`.errors`: :class:`CoreError`, what every error of the core derives from.
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "combination", "consistency", "data_split", "detector_model",
-           "detectors", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles",
-           "progress", "rnd_oe", "rollout", "scorers", "scores", "step_stream", "thresholds", "window"]
+from fiper_ros.core.errors import CoreError
+
+__all__ = ["CoreError", "ace", "calibration", "calibration_file", "combination", "consistency", "data_split",
+           "detector_model", "detectors", "errors", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor",
+           "pca", "pca_kmeans", "profiles", "progress", "rnd_oe", "rollout", "scorers", "scores", "step_stream",
+           "thresholds", "window"]

@@ -16,6 +16,7 @@ from typing import Any
 import yaml
 
 from fiper_ros.core.detectors import DETECTORS, check_once, check_pair_format, in_fusion_order
+from fiper_ros.core.errors import CoreError
 
 FORMAT_VERSION = 3
 """The format this code writes: any declared detectors, each task's models and thresholds, the combine."""
@@ -28,7 +29,7 @@ LEGACY_FORMAT_VERSION = 1
 CALIBRATION_FILE = "calibration.yaml"
 
 
-class CalibrationError(ValueError):
+class CalibrationError(CoreError):
     """A calibration cannot be fitted, read or used."""
 
 

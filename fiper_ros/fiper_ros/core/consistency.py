@@ -36,11 +36,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fiper_ros.core.detector_model import StoredModel, check_input
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.step_stream import StepStream
 
 
-class ConsistencyError(ValueError):
+class ConsistencyError(CoreError):
     """Bad input to the consistency detector (shape, NaN/inf, no overlap), bad settings or no successes."""
 
 

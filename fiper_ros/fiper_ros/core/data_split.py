@@ -23,6 +23,7 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from fiper_ros.core.calibration import CalibrationSettings, split_successes
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.rollout import Rollout
 
 #: The two splits of an evaluation's data, and the "split" of rollouts whose data gives none.
@@ -38,7 +39,7 @@ FRACTION_STEP = 0.01
 Item = TypeVar("Item")
 
 
-class DataSplitError(ValueError):
+class DataSplitError(CoreError):
     """A fraction that is no fraction, or that leaves a task too few calibration successes."""
 
 

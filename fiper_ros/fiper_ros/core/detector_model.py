@@ -20,6 +20,7 @@ from typing import Any, ClassVar, Self
 
 import numpy as np
 
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.rollout import Rollout
 
 #: Bytes a ``.npy`` member may hold beyond its data: the magic string and the header (numpy pads it to 64-byte
@@ -27,7 +28,7 @@ from fiper_ros.core.rollout import Rollout
 NPY_HEADER_BYTES = 4096
 
 
-class ModelFileError(ValueError):
+class ModelFileError(CoreError):
     """A detector model file is missing, unreadable or not the model its description names."""
 
 
@@ -188,7 +189,7 @@ class StoredModel:
             raise cls.error(str(error)) from error
         try:
             return cls.from_stored(description, arrays)
-        except (ValueError, KeyError, TypeError) as error:
+        except (CoreError, ValueError, KeyError, TypeError) as error:
             path = Path(directory) / f"{cls.name}.json"
             raise cls.error(f"{path}: not a {cls.name} model ({type(error).__name__}: {error})") from error
 

@@ -15,8 +15,10 @@ from typing import Protocol
 
 import numpy as np
 
+from fiper_ros.core.errors import CoreError
 
-class KinematicsError(ValueError):
+
+class KinematicsError(CoreError):
     """The kinematic model or the action layout is unusable."""
 
 

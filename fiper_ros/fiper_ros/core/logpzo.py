@@ -32,6 +32,7 @@ from typing import Any, ClassVar, Self
 import numpy as np
 
 from fiper_ros.core.detector_model import EmbeddingDetector, check_input
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.mlp import LayerSpec, MLPError, NumpyMLP
 from fiper_ros.core.rollout import Rollout, successful
 
@@ -39,7 +40,7 @@ from fiper_ros.core.rollout import Rollout, successful
 STD_FLOOR = 1e-6
 
 
-class LogpZOError(ValueError):
+class LogpZOError(CoreError):
     """Bad logpZO input (shape, NaN/inf), configuration, model files, or no successes to fit on."""
 
 

@@ -15,6 +15,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from fiper_ros.core.errors import CoreError
+
 LayerSpec = tuple[int, str | None]
 """``(out_features, activation)`` of one linear layer; activation ``"leaky_relu"``, ``"relu"`` or None."""
 
@@ -25,7 +27,7 @@ LEAKY_SLOPE = 0.01  # torch's nn.LeakyReLU default
 Parameters = Mapping[str, np.ndarray]
 
 
-class MLPError(ValueError):
+class MLPError(CoreError):
     """Parameters that do not match the network's layer specification."""
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from fiper_ros.core.calibration import Calibration, CalibrationMismatch
 from fiper_ros.core.detectors import info
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.fusion import exceeds, first_alarm, fuse_votes
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rollout import Rollout
@@ -35,7 +36,7 @@ from fiper_ros.core.step_stream import StepOrderError
 from fiper_ros.core.window import WindowAccumulator, aggregate
 
 
-class MonitorError(ValueError):
+class MonitorError(CoreError):
     """Out-of-order policy steps or malformed inputs."""
 
 

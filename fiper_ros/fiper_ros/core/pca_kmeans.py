@@ -26,13 +26,14 @@ from typing import Any, ClassVar, Self
 import numpy as np
 
 from fiper_ros.core.detector_model import EmbeddingDetector, check_input
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.pca import PCA
 from fiper_ros.core.rollout import Rollout, successful
 
 LOG = logging.getLogger(__name__)
 
 
-class PCAKMeansError(ValueError):
+class PCAKMeansError(CoreError):
     """Bad PCA-kmeans input (shape, NaN/inf), model files, or no successes to fit on."""
 
 

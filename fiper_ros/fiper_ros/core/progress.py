@@ -34,12 +34,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from fiper_ros.core.detector_model import StoredModel, check_input
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.pca import PCA
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.step_stream import StepStream
 
 
-class ProgressError(ValueError):
+class ProgressError(CoreError):
     """Bad input to the progress detector (shape, NaN/inf), bad settings or no successes to fit on."""
 
 

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.mlp import LayerSpec, MLPError, NumpyMLP, Parameters, parameter_shapes, state_digest
 
 WEIGHTS_FILE = "rnd_oe.npz"
@@ -38,7 +39,7 @@ LEGACY_WEIGHTS_FILE = "rnd_oe.pt"
 NETWORKS = ("target", "predictor")
 
 
-class RNDError(ValueError):
+class RNDError(CoreError):
     """Bad RND-OE input, configuration or model files."""
 
 

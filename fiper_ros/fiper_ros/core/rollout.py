@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.errors import CoreError
+
 ACTION_SPACES = ("ee_position", "joint_position", "joint_velocity")
 ID_SCENARIO = "id"
 NPZ_FORMAT_VERSION = 1
@@ -25,7 +27,7 @@ NPZ_FORMAT_VERSION = 1
 SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
-class RolloutError(ValueError):
+class RolloutError(CoreError):
     """A rollout or rollout file is malformed."""
 
 

@@ -29,6 +29,7 @@ from fiper_ros.core.ace import action_ranges, cell_size
 from fiper_ros.core.consistency import ActionConsistency, ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CALIBRATED, CONSISTENCY, ELAPSED, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE,
                                       SIGNAL_PREFIX, info)
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
 from fiper_ros.core.logpzo import LogpZO, LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeans, PCAKMeansConfig
@@ -112,7 +113,7 @@ class Scorer(ABC):
         return hashlib.sha256(json.dumps(self.entry(), sort_keys=True).encode()).hexdigest()
 
 
-class ScorerInputError(ValueError):
+class ScorerInputError(CoreError):
     """A rollout lacks what a detector reads (action batches, a logged signal)."""
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from fiper_ros.core.ace import step_entropies
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.kinematics import ActionProjection
 from fiper_ros.core.profiles import Profile
 from fiper_ros.core.rnd_oe import RNDOE
@@ -19,7 +20,7 @@ from fiper_ros.core.rollout import Rollout
 JOINT_POSITIONS_KEY = "joint_positions"
 
 
-class NonFiniteScore(ValueError):
+class NonFiniteScore(CoreError):
     """A per-step score is NaN or infinite: that step cannot be judged, and is never reported OK."""
 
 

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+from fiper_ros.core.errors import CoreError
 
-class StepOrderError(ValueError):
+
+class StepOrderError(CoreError):
     """A policy step out of order (a gap not declared with ``skip_to``, a repeat, a step of another rollout)."""
 
 

@@ -68,6 +68,8 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.errors import CoreError
+
 LOG = logging.getLogger(__name__)
 
 KINDS = ("cp_constant", "cp_band", "time_varying", "cp_scaled", "gaussian")
@@ -84,7 +86,7 @@ _AUTHORS_SMALL_SCALE = 1e-7
 _CEIL_TOLERANCE = 1e-9
 
 
-class ThresholdError(ValueError):
+class ThresholdError(CoreError):
     """Thresholds cannot be fitted or read."""
 
 

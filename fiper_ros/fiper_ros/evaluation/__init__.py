@@ -23,5 +23,7 @@ Modules, one concept each:
 """
 from __future__ import annotations
 
-__all__ = ["cache", "data", "early", "engine", "methods", "offline", "plots", "progress", "protocol", "report", "results",
-           "scoring", "sweep", "synthetic", "threshold_grid", "verdicts"]
+from fiper_ros.evaluation.errors import EvaluationError
+
+__all__ = ["EvaluationError", "cache", "data", "early", "engine", "errors", "methods", "offline", "plots", "progress",
+           "protocol", "report", "results", "scoring", "sweep", "synthetic", "threshold_grid", "verdicts"]

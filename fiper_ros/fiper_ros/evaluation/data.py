@@ -21,12 +21,13 @@ import numpy as np
 from fiper_ros.core.data_split import (DEFAULT_FRACTION, DEFAULT_SEED, NO_SPLIT, SPLITS, DataSplitError, TaskSplit,
                                        split_by_task)
 from fiper_ros.core.rollout import Rollout, RolloutError, RolloutSet, successful
+from fiper_ros.evaluation.errors import EvaluationError
 
 #: The four rollout categories of the paper's Fig. 3.
 CATEGORIES = ("Success-ID", "Success-OOD", "Fail-ID", "Fail-OOD")
 
 
-class DatasetError(ValueError):
+class DatasetError(EvaluationError):
     """A dataset cannot be read or is unusable for evaluation."""
 
 
@@ -159,7 +160,7 @@ def _bag_split(path: Path, strict: bool, sources: Sources) -> None:
     from fiper_ros.bagio.rollout_bags import read_rollouts  # noqa: PLC0415
 
     try:
-        for bag in find_bags([path], strict=strict, command="evaluate"):
+        for bag in find_bags([path], strict=strict):
             with BagReader(bag) as reader:
                 split = reader.info.split
             if split not in (*SPLITS, NO_SPLIT):

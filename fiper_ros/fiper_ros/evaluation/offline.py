@@ -13,14 +13,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import BagReader
 from fiper_ros.bagio.rollout_bags import layout_of, read_rollouts
 from fiper_ros.bagio.schema import BagInfo
-from fiper_ros.core.calibration import Calibration, CalibrationError, CalibrationMismatch, load_calibration
+from fiper_ros.core.calibration import Calibration, CalibrationMismatch, load_calibration
 from fiper_ros.core.detectors import info
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.monitor import RolloutPrediction, predict_rollout
+from fiper_ros.evaluation.errors import EvaluationError
 from fiper_ros.evaluation.results import RolloutResult, StepResult
 from fiper_ros.interface.messages import OUTCOME_NAMES
 from fiper_ros.policy.config import PolicyConfig
@@ -42,12 +42,12 @@ def policy_layout(config: PolicyConfig, model: Path) -> tuple[BagInfo, str]:
 
 
 def check_fits(calibration: Calibration, calibration_dir: Path, layout: BagInfo, what: str) -> None:
-    """Raise :class:`BagError` if ``layout``'s task, embedding size, action shape or action space differ
+    """Raise :class:`EvaluationError` if ``layout``'s task, embedding size, action shape or action space differ
     (fields the layout leaves empty are not checked), or if a declared detector reads the action batches and the
     layout has none."""
     if calibration.layout.has_actions and not layout.action_dim:
         readers = [info(d).label for d in calibration.detectors if info(d).reads == "actions"]
-        raise BagError(f"calibration {calibration_dir} declares {', '.join(calibration.detectors)}, but {what} has "
+        raise EvaluationError(f"calibration {calibration_dir} declares {', '.join(calibration.detectors)}, but {what} has "
                        f"no action batches for {' and '.join(readers)}: use an observation-only calibration (fiper "
                        "calibrate --detectors rnd_oe)")
     try:
@@ -56,15 +56,12 @@ def check_fits(calibration: Calibration, calibration_dir: Path, layout: BagInfo,
             horizon=layout.horizon or None, exec_steps=layout.exec_steps or None,
             action_space=layout.action_space or None, task=layout.task or None)
     except CalibrationMismatch as error:
-        raise BagError(f"calibration {calibration_dir} does not fit {what}: {error}") from error
+        raise EvaluationError(f"calibration {calibration_dir} does not fit {what}: {error}") from error
 
 
 def calibration_for(directory: Path, layouts: Sequence[tuple[BagInfo, str]]) -> Calibration:
     """The calibration in ``directory`` (refusal: one line naming the file), checked against ``layouts``."""
-    try:
-        calibration = load_calibration(directory)
-    except CalibrationError as error:
-        raise BagError(str(error)) from error
+    calibration = load_calibration(directory)  # a CalibrationError names the file
     for layout, what in layouts:
         check_fits(calibration, directory, layout, what)
     return calibration
@@ -78,9 +75,9 @@ def predict_bag(bag: Path, calibration: Calibration, fk: ForwardKinematics | Non
             calibration.check_compatible(task=rollout.task)
             prediction = predict_rollout(rollout, calibration, fk)
         except CalibrationMismatch as error:
-            raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}") from error
+            raise EvaluationError(f"{bag}: rollout {rollout.rollout_id}: {error}") from error
         except KinematicsError as error:
-            raise BagError(f"{bag}: rollout {rollout.rollout_id}: {error}; give the robot model with --urdf "
+            raise EvaluationError(f"{bag}: rollout {rollout.rollout_id}: {error}; give the robot model with --urdf "
                            "and --ee-frame") from error
         steps = fused_steps(prediction, int(rollout.rollout_id), calibration.settings.combine)
         results.append(RolloutResult(int(rollout.rollout_id), rollout.task, rollout.scenario,

@@ -38,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.errors import FiperError
+
 __all__ = ["CDR_LE", "CdrError", "Codec", "EncapsulationError", "codec"]
 
 #: The encapsulation header of little-endian plain CDR (the first 4 bytes of every serialized message).
@@ -56,7 +58,7 @@ _ZEROS = bytes(8)
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-class CdrError(ValueError):
+class CdrError(FiperError):
     """Bytes that are not a message of the codec's type in plain little-endian CDR."""
 
 

@@ -4,4 +4,6 @@ one OS process per node, or all in one). ``fiper launch`` is :mod:`fiper_ros.com
 """
 from __future__ import annotations
 
-__all__ = ["config", "overrides", "processes"]
+from fiper_ros.launcher.errors import LaunchError
+
+__all__ = ["LaunchError", "config", "errors", "overrides", "processes"]

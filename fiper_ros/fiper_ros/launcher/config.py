@@ -49,6 +49,7 @@ from typing import Any, Union
 
 import yaml
 
+from fiper_ros.launcher.errors import LaunchError
 from fiper_ros.launcher.substitutions import Context, SubstitutionError, has_substitution, substitute
 from fiper_ros.runtime.publishers import fully_qualified
 
@@ -75,10 +76,6 @@ SCALARS = (bool, int, float, str)
 
 ParameterEntry = Union[Path, Mapping[str, Any]]
 """One ``param`` entry of a node: a parameter file, or parameters by name."""
-
-
-class LaunchError(ValueError):
-    """The launch file is unusable (the message names the file, the entry and why, on one line)."""
 
 
 @dataclass(frozen=True)

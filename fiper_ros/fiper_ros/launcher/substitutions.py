@@ -15,6 +15,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Union
 
+from fiper_ros.launcher.errors import LaunchError
+
 #: Substitution name -> (fewest, most) arguments.
 SUPPORTED: dict[str, tuple[int, int]] = {"var": (1, 1), "env": (1, 2), "find-pkg-share": (1, 1), "dirname": (0, 0),
                                           "not": (1, 1), "and": (2, 2), "or": (2, 2)}
@@ -24,7 +26,7 @@ OPEN = "$("
 QUOTES = "'\""
 
 
-class SubstitutionError(ValueError):
+class SubstitutionError(LaunchError):
     """A launch-file text that cannot be parsed or evaluated (the message names the substitution and why)."""
 
 

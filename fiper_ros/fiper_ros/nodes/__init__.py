@@ -3,5 +3,7 @@ arrays to messages. One console script per node module (``ros2 run fiper_ros NAM
 """
 from __future__ import annotations
 
-__all__ = ["ace_node", "base", "detector_node", "fusion_node", "graph_watch", "main", "policy_node", "rnd_oe_node",
-           "supervisor_node", "view_node"]
+from fiper_ros.nodes.errors import NodeError
+
+__all__ = ["NodeError", "ace_node", "base", "detector_node", "errors", "fusion_node", "graph_watch", "main",
+           "policy_node", "rnd_oe_node", "supervisor_node", "view_node"]

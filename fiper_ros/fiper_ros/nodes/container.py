@@ -18,6 +18,7 @@ import sys
 
 from rclpy.utilities import remove_ros_args
 
+from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_nodes
 
 #: The nodes a container may hold: the suite's single-threaded nodes, each its executable's name.
@@ -26,7 +27,7 @@ NODES = ("rnd_oe_node", "ace_node", "fusion_node")
 USAGE_ERROR = 2
 
 
-class ContainerUsageError(ValueError):
+class ContainerUsageError(NodeError):
     """The container's command line names no node, an unknown one, one twice, or renames every node."""
 
 

@@ -20,6 +20,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent, Score, StepSignals
 from fiper_ros.core.calibration import Calibration, CalibrationMismatch, load_calibration
 from fiper_ros.core.detectors import SIGNAL_PREFIX, info
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.monitor import DetectorMonitor, StepScore
 from fiper_ros.core.scores import NonFiniteScore
@@ -250,7 +251,7 @@ class DetectorNode(FiperNode):
         self.monitor.skip_to(msg.step)  # steps that never arrived enter the window as missing
         try:
             result = self.score(msg.step, self.to_value(msg))
-        except (InputRejected, NonFiniteScore, ValueError) as error:
+        except (InputRejected, CoreError, ValueError) as error:
             # An admitted step that cannot be scored is published as missing (NaN score, lower-bound
             # window, complete=False), so the fusion node says UNKNOWN for it aloud, never OK by silence.
             self.reject(error if isinstance(error, InputRejected) else InputRejected(

@@ -6,5 +6,7 @@ observation embedding ``O^e`` FIPER monitors) and ``sample(embedding, B, generat
 """
 from __future__ import annotations
 
-__all__ = ["config", "dataset", "diffusion", "encoder", "fit", "flow_matching", "noise", "normalizer", "policy",
-           "session", "time_embedding", "train", "transformer", "unet1d"]
+from fiper_ros.policy.errors import PolicyError
+
+__all__ = ["PolicyError", "config", "dataset", "diffusion", "encoder", "errors", "fit", "flow_matching", "noise",
+           "normalizer", "policy", "session", "time_embedding", "train", "transformer", "unet1d"]

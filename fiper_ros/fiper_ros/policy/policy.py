@@ -9,6 +9,7 @@ API used by the evaluation runner and the later ROS ``policy_node``::
 from __future__ import annotations
 
 import logging
+import pickle
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from torch import nn
 from .config import PolicyConfig
 from .diffusion import Diffusion
 from .encoder import CAMERAS, ObservationEncoder, preprocess_images
+from .errors import PolicyError
 from .flow_matching import FlowMatching
 from .normalizer import RangeNormalizer
 from .transformer import ChunkTransformer
@@ -123,14 +125,22 @@ class Policy(nn.Module):
         """Read a policy written by :meth:`save` (eval mode).
 
         Raises:
-            FileNotFoundError: ``directory`` lacks ``policy.yaml`` or ``policy.pt`` (the message names them).
+            PolicyError: ``directory`` lacks ``policy.yaml`` or ``policy.pt`` (the message names them), or they
+                cannot be read as a policy of this code (the message names the folder and the reader's error).
         """
         directory = Path(directory)
         missing = [name for name in (CONFIG_FILE, WEIGHTS_FILE) if not (directory / name).is_file()]
         if missing:
-            raise FileNotFoundError(f"policy folder {directory.resolve()} lacks {' and '.join(missing)}")
-        document = yaml.safe_load((directory / CONFIG_FILE).read_text())
-        config = PolicyConfig.from_dict(document["config"])
-        policy = cls(config, RangeNormalizer(**document["action_stats"]), RangeNormalizer(**document["proprio_stats"]))
-        policy.load_state_dict(torch.load(directory / WEIGHTS_FILE, map_location="cpu", weights_only=True))
+            raise PolicyError(f"policy folder {directory.resolve()} lacks {' and '.join(missing)}: not a policy model "
+                              "folder (train one first, docs/policies.md)")
+        try:
+            document = yaml.safe_load((directory / CONFIG_FILE).read_text())
+            config = PolicyConfig.from_dict(document["config"])
+            policy = cls(config, RangeNormalizer(**document["action_stats"]),
+                         RangeNormalizer(**document["proprio_stats"]))
+            weights = torch.load(directory / WEIGHTS_FILE, map_location="cpu", weights_only=True)
+            policy.load_state_dict(weights)  # a RuntimeError for weights of another network
+        except (OSError, EOFError, yaml.YAMLError, pickle.UnpicklingError, KeyError, TypeError, ValueError,
+                RuntimeError) as error:
+            raise PolicyError(f"{directory}: cannot load the policy ({type(error).__name__}: {error})") from error
         return policy.eval()

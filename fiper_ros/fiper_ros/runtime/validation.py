@@ -7,6 +7,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from fiper_ros.errors import FiperError
+
 #: Rejection reasons, the keys of the nodes' "rejected" diagnostics.
 SHAPE = "shape"
 NON_FINITE = "non_finite"
@@ -52,7 +54,7 @@ DEFAULT_MAX_PENDING_ELEMENTS = 8 * DEFAULT_MAX_ELEMENTS
 DEFAULT_MAX_ABS_VALUE = 1e6
 
 
-class InputRejected(ValueError):
+class InputRejected(FiperError):
     """A message that must not be scored; ``reason`` is one of :data:`REASONS`."""
 
     def __init__(self, reason: str, detail: str) -> None:

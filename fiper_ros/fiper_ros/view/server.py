@@ -21,6 +21,7 @@ import foxglove
 from foxglove.channels import RawImageChannel
 from foxglove.websocket import ChannelView, Client, ServerListener
 
+from fiper_ros.errors import FiperError
 from fiper_ros.view.translate import json_schema, raw_image, to_json
 
 #: How Foxglove is pointed at the server, for the messages that print its address.
@@ -32,7 +33,7 @@ DEFAULT_PORT = 8765
 DEFAULT_BACKLOG = 256
 
 
-class ViewError(RuntimeError):
+class ViewError(FiperError):
     """The server cannot run (the message says why, on one line)."""
 
 

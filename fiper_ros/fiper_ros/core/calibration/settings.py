@@ -13,6 +13,7 @@ from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
                                       in_fusion_order, info)
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
@@ -110,7 +111,7 @@ class CalibrationSettings:
             self._check()
         except CalibrationError:
             raise
-        except (ValueError, TypeError) as error:
+        except (CoreError, ValueError, TypeError) as error:
             raise CalibrationError(str(error)) from error
 
     def _canonical_windows(self) -> None:

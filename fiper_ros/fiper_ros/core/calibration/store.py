@@ -30,6 +30,7 @@ from fiper_ros.core.calibration.settings import CalibrationSettings
 from fiper_ros.core.calibration_file import (CALIBRATION_FILE, FORMAT_VERSION, LEGACY_FORMAT_VERSION,
                                              PAIR_FORMAT_VERSION, CalibrationError, check_files, one_line, read_yaml)
 from fiper_ros.core.detectors import ACE, RND_OE
+from fiper_ros.core.errors import CoreError
 from fiper_ros.core.rnd_oe import CONFIG_FILE as RND_CONFIG_FILE
 from fiper_ros.core.rnd_oe import LEGACY_WEIGHTS_FILE as RND_LEGACY_WEIGHTS_FILE
 from fiper_ros.core.rnd_oe import RNDOE, RNDError
@@ -89,7 +90,7 @@ def _read(directory: Path, data: dict[str, Any]) -> Calibration:
         raise
     except KeyError as error:
         raise CalibrationError(f"{path}: missing entry {error}") from error
-    except (TypeError, ValueError, AttributeError) as error:  # ThresholdError, settings values, model files
+    except (CoreError, TypeError, ValueError, AttributeError) as error:  # ThresholdError, settings values, model files
         raise CalibrationError(f"{path}: malformed entry ({one_line(error)})") from error
     # The entries must give back the file's content and its hash.
     if stored != calibration.hash_of(data) or stored != calibration.content_hash:
@@ -112,7 +113,7 @@ def _scorer(detector: str, directory: Path, entry: dict[str, Any], settings: Cal
         return RndOeScorer(_load_rnd(directory, settings, layout.embedding_dim, FORMAT_VERSION), settings.profile_obj)
     try:
         return load_scorer(detector, directory, entry, settings.options(), layout.action_space, settings.profile_obj)
-    except ValueError as error:
+    except (CoreError, ValueError) as error:  # a model file's error, a value the scorer refuses
         raise CalibrationError(one_line(error)) from error
 
 
@@ -179,7 +180,7 @@ def _read_pair(directory: Path, data: dict[str, Any], version: int) -> Calibrati
         false_alarms = dict(data.get("false_alarm_estimate", {}))
     except KeyError as error:
         raise CalibrationError(f"{path}: missing entry {error}") from error
-    except (TypeError, ValueError) as error:  # ThresholdError, RNDConfig and settings values
+    except (CoreError, TypeError, ValueError) as error:  # ThresholdError, RNDConfig and settings values
         raise CalibrationError(f"{path}: malformed entry ({one_line(error)})") from error
     _check_description(directory, layout.embedding_dim, settings)
     rnd = _load_rnd(directory, settings, layout.embedding_dim, version)

@@ -1,0 +1,23 @@
+"""The root of the project's user errors (docs/architecture.md, "Errors").
+
+A :class:`FiperError` is a condition the user can fix: an input, a file, a flag, a configuration or the
+environment that the code refuses, with a one-line reason. ``fiper`` (:func:`fiper_ros.cli.main`) reports
+one on one line and exits 2. Every package's errors derive from it through that package's own class
+(``core.CoreError``, ``bagio.BagError``, ``launcher.LaunchError``, ``evaluation.EvaluationError``,
+``nodes.NodeError``, ``client.ClientError``, ...). A programming error (a broken invariant, a wrong argument
+of a function of this code) is an ordinary exception and is shown with its traceback.
+"""
+from __future__ import annotations
+
+
+class FiperError(Exception):
+    """A refusal the user can act on: the message says in one line what is wrong and where."""
+
+
+class FiperWarning(UserWarning):
+    """Something the user should know while a command goes on (``fiper COMMAND: warning: ...``)."""
+
+
+def one_line(text: object) -> str:
+    """``text`` with every run of whitespace (newlines included) as one space: how a report shows an error."""
+    return " ".join(str(text).split())
