@@ -62,7 +62,8 @@ def first_line(error: BaseException) -> str:
 def connected(address: str, cpus: int | None = None) -> Iterator[Cluster]:
     """Join the Ray cluster at ``address`` (``auto``, ``host:port``, ``ray://host:10001``) or, for :data:`LOCAL`,
     start an instance on this machine bound to 127.0.0.1 with ``cpus`` CPUs (default: all cores) and no
-    dashboard; leave it (and stop a local instance) at the end of the block.
+    dashboard; leave it (and stop a local instance) at the end of the block. Inside a block that joined already,
+    the cluster joined is used as it is and left by that block.
 
     Raises:
         ClusterError: Ray cannot reach ``address`` (or a local instance does not start).
@@ -71,6 +72,9 @@ def connected(address: str, cpus: int | None = None) -> Iterator[Cluster]:
         os.environ.update(LOCAL_ENV)
     import ray  # noqa: PLC0415 - only commands that ask for Ray load it
 
+    if ray.is_initialized():  # joined by an enclosing block (one command, one cluster): that block leaves it
+        yield Cluster(address, cluster_cpus(), sum(node["Alive"] for node in ray.nodes()))
+        return
     options: dict[str, Any] = {"logging_level": logging.ERROR, "log_to_driver": False}
     if address == LOCAL:
         options |= {"address": "local", "num_cpus": cpus, "include_dashboard": False}

@@ -1,5 +1,5 @@
 """Where a model or calibration folder named by a relative path is found: one rule for the nodes' parameters,
-the launch files and the ``fiper`` commands (#21), so that ``models/sorting/calibration`` works from any
+the launch files and the ``fiper`` commands, so that ``models/sorting/calibration`` works from any
 working directory.
 
 An absolute path is taken as it is (its loader names what is missing there). A relative path is looked up, in this order, and the first place where it

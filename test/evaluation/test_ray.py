@@ -1,4 +1,5 @@
-"""``fiper evaluate --ray``: the scores as Ray tasks on a local instance (2 CPUs), the single-process run's results."""
+"""``fiper evaluate --ray``: the scores and the sweep as Ray tasks on a local instance (2 CPUs), the single-process
+run's results."""
 from __future__ import annotations
 
 import json
@@ -38,26 +39,36 @@ def _ray_running() -> bool:
 
 
 def test_ray_writes_the_single_process_results_and_cache(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    serial_run = ["--quiet", "--out", str(tmp_path / "serial"), "--cache-dir", str(tmp_path / "serial_cache")]
+    serial_run = ["--quiet", "--out", str(tmp_path / "serial"), "--cache-dir", str(tmp_path / "serial_cache"),
+                  "--dump", str(tmp_path / "serial_dump")]
     assert main([*ARGV, *serial_run]) == 0
     capsys.readouterr()
     assert main([*ARGV, "--out", str(tmp_path / "ray"), "--cache-dir", str(tmp_path / "ray_cache"), "--ray",
-                 "--ray-cpus", "2"]) == 0
+                 "--ray-cpus", "2", "--dump", str(tmp_path / "ray_dump")]) == 0
     captured = capsys.readouterr()
     assert "scores [####################] 4/4" in captured.err and "| ray: 32 done, 0 running, 0 queued" in captured.err
+    assert "sweep [####################] 4/4" in captured.err and "| ray: 2 done, 0 running, 0 queued" in captured.err
     assert "(cache 4 hit(s), 32 miss(es))" in captured.out  # the serial run's counts
     serial, distributed = _results(tmp_path / "serial"), _results(tmp_path / "ray")
     assert serial["score_cache"] == {"hits": 4, "misses": 32}
     assert distributed == serial
     assert (tmp_path / "ray" / "results.md").read_text() == (tmp_path / "serial" / "results.md").read_text()
+    # the sweep's thresholds and first alarms, fitted in the seeds' Ray tasks: the same bytes
+    dumped = sorted(p.name for p in (tmp_path / "serial_dump").iterdir())
+    assert dumped == sorted(p.name for p in (tmp_path / "ray_dump").iterdir()) and "index.json" in dumped
+    for name in dumped:
+        assert (tmp_path / "ray_dump" / name).read_bytes() == (tmp_path / "serial_dump" / name).read_bytes(), name
     assert sorted(p.name for p in (tmp_path / "ray_cache").iterdir()) == \
         sorted(p.name for p in (tmp_path / "serial_cache").iterdir())
     assert not _ray_running()  # the local instance is stopped
-    # a run the cache serves starts no cluster (the progress line has no Ray counts)
+    # a run the cache serves computes no score on the cluster, only the sweep (one task per seed), to the same results
     assert main([*ARGV, "--out", str(tmp_path / "ray_cached"), "--cache-dir", str(tmp_path / "ray_cache"), "--ray"]) == 0
     captured = capsys.readouterr()
     assert "(cache 36 hit(s), 0 miss(es))" in captured.out
-    assert "push_t seed 1 (cached)" in captured.err and "ray:" not in captured.err
+    assert "push_t seed 1 (cached)" in captured.err and captured.err.count("| ray: ") == captured.err.count("sweep [")
+    assert {k: v for k, v in _results(tmp_path / "ray_cached").items() if k != "score_cache"} == \
+        {k: v for k, v in serial.items() if k != "score_cache"}
+    assert not _ray_running()
     # the cache written under Ray serves a single-process run to the same results
     assert main([*ARGV, "--quiet", "--out", str(tmp_path / "cached"), "--cache-dir", str(tmp_path / "ray_cache")]) == 0
     assert "(cache 36 hit(s), 0 miss(es))" in capsys.readouterr().out

@@ -12,8 +12,8 @@ from typing import Any
 from ament_index_python.packages import get_package_share_directory
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.interface.messages import message_class
 from fiper_ros.core.detectors import CALIBRATED
+from fiper_ros.interface.messages import message_class
 from fiper_ros.interface.topics import CAMERAS, DIAGNOSTICS, EVENTS, TOPICS, score_topic
 from fiper_ros.nodes.view_node import JSON_TOPICS
 from fiper_ros.view.layout import LAYOUT_FILE, layout_json, main, topics_of

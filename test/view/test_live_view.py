@@ -34,9 +34,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, Score
+from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import STATE_NAMES
-from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.interface.topics import (ALARM, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE,
                                        score_topic)
 

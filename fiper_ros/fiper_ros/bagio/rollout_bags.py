@@ -16,7 +16,7 @@ the batch's among all of the bag's (:mod:`fiper_ros.runtime.joint_history`; a li
 the states of the control steps that ran while the batch travelled, and may have logged a batch before
 the states stamped up to it).
 
-Observation-only data (issue #19): a rollout without action batches (``actions`` ``None``) is written
+Observation-only data: a rollout without action batches (``actions`` ``None``) is written
 without ActionChunkBatch messages, and a bag without the action topic is read as such rollouts (their
 ``exec_steps`` from ``custom_data``, else 1: it only spaces a written bag's steps).
 """

@@ -7,10 +7,10 @@ monotonic clock, same process). Measured per task shape: p50 / p99 latency at 10
 sustained rate (steps/s) at which every step's alarm arrives and the backlog stays below 0.5 s; for each rate
 tried, its p50 / p99 and the CPU milliseconds per step of each suite process and of the driver (``/proc``: all
 threads, DDS's included), which say where the time goes; for the rate that is not sustained, where its steps went
-(the nodes' ``/diagnostics`` counters, :data:`LOSS_COUNTERS`). Every figure is printed with its ratio to issue #24's
-target. The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
+(the nodes' ``/diagnostics`` counters, :data:`LOSS_COUNTERS`). Every figure is printed with its ratio to its
+target (docs/benchmarks.md). The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
 
-Start-up (issue #24), per shape before the latency runs, each start repeated (:data:`NODE_STARTS`,
+Start-up, per shape before the latency runs, each start repeated (:data:`NODE_STARTS`,
 :data:`SUITE_STARTS`: DDS discovery takes a few ms or one to three seconds from one start to the next): each
 node started alone (its command line as ``fiper launch`` builds it), the seconds from its exec to ACTIVE by the
 node's own ``ACTIVE`` log line (:func:`fiper_ros.nodes.main.process_age_s`), and until the driver sees it ACTIVE
@@ -34,7 +34,7 @@ target rate through :mod:`fiper_ros.bench.null_suite`, the suite's topology with
 the suite's nodes, on its topics with its QoS, executor and wire codec, relaying). The suite's figures less the
 floor's are what the nodes' own work costs; a target below the floor cannot be met by the nodes on this machine.
 
-``--view`` runs the live view (``fiper view``, issue #22) beside the suite, with no client connected: the
+``--view`` runs the live view (``fiper view``) beside the suite, with no client connected: the
 figures with and without it say what the view costs the suite when nobody watches.
 """
 from __future__ import annotations
@@ -451,7 +451,7 @@ class Driver:
             while (wait_ns := start + step * period - time.monotonic_ns()) > 0:
                 self.executor.spin_once(timeout_sec=wait_ns / 1e9)
             stamp = (step + 1) * 100_000_000
-            # What FiperPublisher.step publishes, the suite's policy side (issue #25).
+            # What FiperPublisher.step publishes, the suite's policy side.
             emb = embedding_cdr(rollout_id, step, stamp, self.embedding)
             act = action_batch_cdr(rollout_id, step, stamp, self.actions, self.shape.exec_steps, "ee_position")
             sent[step] = time.monotonic_ns()

@@ -1,4 +1,4 @@
-"""The platform's floor for ``make bench-nodes`` (issue #24): the suite's topology with no work.
+"""The platform's floor for ``make bench-nodes``: the suite's topology with no work.
 
 Three node processes named as the suite's (``/fiper/rnd_oe_node``, ``/fiper/ace_node``, ``/fiper/fusion_node``), on
 the suite's topics with the suite's QoS (each score publisher's and the alarm publisher's MANUAL_BY_TOPIC liveliness

@@ -25,8 +25,8 @@ action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
 ``--scores NAME=FILE`` evaluates per-step scores computed elsewhere (:mod:`fiper_ros.evaluation.external`) as the
 method ``external_<NAME>``, alone and in the default combination, like a built-in method. ``--dump DIR`` writes
 every configuration's thresholds per step and first alarm per rollout (:mod:`fiper_ros.evaluation.dump`).
-``--ray [ADDRESS]`` computes the scores as Ray tasks (:mod:`fiper_ros.evaluation.distributed`) on a local instance
-(``--ray-cpus N`` CPUs) or an existing cluster, to the same results (docs/scale.md).
+``--ray [ADDRESS]`` computes the scores and the sweep as Ray tasks (:mod:`fiper_ros.evaluation.distributed`) on a
+local instance (``--ray-cpus N`` CPUs) or an existing cluster, to the same results (docs/scale.md).
 """
 
 from __future__ import annotations
@@ -216,7 +216,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument("--quiet", action="store_true", help="no progress lines")
     cluster = parser.add_argument_group("cluster")
     cluster.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
-                         help="compute the scores as Ray tasks, one per task, seed and stream; without ADDRESS on a "
+                         help="compute the scores as Ray tasks, one per task, seed and stream, and the sweep, one per "
+                              "seed; without ADDRESS on a "
                               "local Ray instance bound to 127.0.0.1, with 'auto', HOST:PORT or ray://HOST:10001 on "
                               "that cluster (docs/scale.md); the results are those of the single-process run")
     cluster.add_argument("--ray-cpus", type=int, default=None, metavar="N",

@@ -4,7 +4,7 @@ Live bags (``fiper record``, ``fiper snapshot``): how a live bag goes to disk (`
 :class:`~fiper_ros.bagio.chunks.LiveChunks`), i.e. how much a crash can lose. Reading commands (``fiper
 replay``, ``calibrate`` and ``evaluate``): whether an unfinished bag is taken (``--strict``). No heavy imports:
 ``fiper evaluate`` reads its options without the ROS message build, and ``fiper launch`` without numpy or
-pinocchio (the robot model is imported where one is built: the launcher's start-up, issue #24).
+pinocchio (the robot model is imported where one is built: the launcher's start-up).
 
 The robot model of the offline commands (``fiper calibrate``, ``evaluate``, ``replay``):
 

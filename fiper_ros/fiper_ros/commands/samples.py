@@ -15,7 +15,7 @@ cells (entropy rises), while its progress stalls until the step limit. Values ar
 precision to keep the bags small.
 
 ``python -m fiper_ros.commands.samples --observation-only BAG... --out DIR`` writes observation-only copies of
-bags instead (:func:`observation_only`: no action batches, no joint states; issue #19), e.g. of the
+bags instead (:func:`observation_only`: no action batches, no joint states), e.g. of the
 shipped sets for an observation-only calibration and replay.
 """
 from __future__ import annotations

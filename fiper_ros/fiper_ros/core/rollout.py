@@ -55,7 +55,7 @@ class Rollout:
         scenario: ``"id"`` or the name of an OOD scenario.
         embeddings: Observation embeddings, float32 ``[T, E]``.
         actions: Sampled action-chunk batches, float32 ``[T, B, H, D]``; ``None`` for a rollout recorded
-            without them (observation-only data: only RND-OE can score it, issue #19).
+            without them (observation-only data: only RND-OE can score it).
         exec_steps: Executed actions per chunk, ``h`` (Sec. 3).
         success: Final outcome, ``None`` if unknown.
         action_space: ``"ee_position"``, ``"joint_position"`` or ``"joint_velocity"``.

@@ -1,6 +1,8 @@
-"""The scores of an evaluation as Ray tasks (``fiper evaluate --ray [ADDRESS]``): one task per (task, seed, stream)
-the cache does not hold, each running :func:`~fiper_ros.evaluation.scoring.score_stream` (the function of the
-single-process run) on a local instance or an existing cluster (:mod:`fiper_ros.cluster`).
+"""The scores and the sweep of an evaluation as Ray tasks (``fiper evaluate --ray [ADDRESS]``): one task per (task,
+seed, stream) the cache does not hold, each running :func:`~fiper_ros.evaluation.scoring.score_stream` (the function
+of the single-process run), then one task per seed running the single-process run's sweep of that seed (every
+configuration's threshold fits and first alarms, :func:`~fiper_ros.evaluation.engine.sweep_seed`), on a local
+instance or an existing cluster (:mod:`fiper_ros.cluster`).
 
 Every dataset and the method settings go once to the cluster's object store; the driver reads and writes the score
 cache and gathers the results by key, so the scores, and every number computed from them, are the single-process
@@ -11,8 +13,8 @@ which the driver raises as the single-process run would; any other failure is on
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, TypeVar
 
 from fiper_ros.cluster import LOCAL, TaskPool, connected
 from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores
@@ -23,6 +25,8 @@ from fiper_ros.evaluation.scoring import score_stream, separated_streams, stream
 
 #: A score task: (task, seed, stream).
 Key = tuple[str, int, str]
+#: What one seed's sweep gives.
+Swept = TypeVar("Swept")
 
 
 def stream_task(shared: list[Any], stream: str, seed: int, threads: int) -> tuple[RolloutScores, float] | DatasetError:
@@ -113,3 +117,40 @@ def _compute(datasets: Sequence[Dataset], settings: MethodSettings, seeds: Seque
         finally:
             tasks.close()
     return computing
+
+
+def seed_task(sweep: Callable[..., Swept], shared: list[Any], seed: int, thresholds: bool) -> Swept:
+    """``sweep`` (the single-process run's sweep of one seed) on a Ray worker; ``shared``: the references of the
+    datasets, of the seed's scores and of the engine settings in the object store."""
+    import ray  # noqa: PLC0415 - the worker of a Ray task has it
+
+    datasets, scores, settings = ray.get(shared)
+    return sweep(datasets, scores, settings, seed, thresholds)
+
+
+def sweep_on_ray(sweep: Callable[..., Swept], datasets: Sequence[Dataset],
+                 scores: dict[tuple[str, int], dict[str, StreamScores]], settings: Any, seeds: Sequence[int],
+                 thresholds: bool, progress: Progress) -> dict[int, Swept]:
+    """``sweep(datasets, scores, settings, seed, thresholds)`` of every seed as one Ray task each, on the cluster
+    joined (inside :func:`~fiper_ros.cluster.connected`): the datasets and the settings go to the object store once,
+    each seed's scores once. ``progress`` advances once per (task, seed) as each seed's sweep finishes.
+
+    Raises:
+        ClusterError: A sweep failed (one line naming its seed).
+    """
+    import ray  # noqa: PLC0415 - inside connected, which set Ray's environment
+
+    shared_datasets, shared_settings = ray.put(list(datasets)), ray.put(settings)
+    tasks: TaskPool[int] = TaskPool(seed_task, lambda seed: f"the sweep of seed {seed}")
+    for seed in seeds:
+        own = {(d.task, seed): scores[(d.task, seed)] for d in datasets}
+        tasks.submit(seed, sweep, [shared_datasets, ray.put(own), shared_settings], seed, thresholds)
+    swept: dict[int, Swept] = {}
+    try:
+        for seed, value in tasks.completed():
+            swept[seed] = value
+            for dataset in datasets:
+                progress.advance(note=f"{dataset.task} seed {seed} | ray: {tasks.status()}")
+    finally:
+        tasks.close()
+    return swept

@@ -5,17 +5,19 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from fiper_ros.cluster import connected
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
-from fiper_ros.evaluation.distributed import score_on_ray
+from fiper_ros.evaluation.distributed import score_on_ray, sweep_on_ray
 from fiper_ros.evaluation.dump import Dump
 from fiper_ros.evaluation.early import DEFAULT_Q, EarlyDetection, TaskStatistics, areas, early_detection
 from fiper_ros.evaluation.external import check_external
@@ -264,9 +266,11 @@ def sweep_all(
     scores: dict[tuple[str, int], dict[str, StreamScores]],
     settings: EngineSettings,
     dump: Dump | None = None,
+    on_ray: bool = False,
 ) -> SweepOutcome:
     """Sweep every (task, seed) and evaluate the metrics on the subsets the protocols need; with ``dump``, write
-    every (task, seed)'s thresholds and first alarms there as the sweep goes."""
+    every (task, seed)'s thresholds and first alarms there as the sweep goes; ``on_ray``: each seed's sweep as a Ray
+    task of the cluster joined (:func:`~fiper_ros.evaluation.distributed.sweep_on_ray`), to the same sweep."""
     profile = get_profile(settings.method_settings.profile)
     dt_mode = profile.dt_mode
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
@@ -285,8 +289,10 @@ def sweep_all(
     early: dict[str, list[np.ndarray]] = {name: [] for name in ("auroc", "q_auc", "pooled_auroc", "pooled_q_auc")}
     early_seconds = 0.0
     tnr = METRICS.index("tnr")
+    by_seed = sweep_on_ray(sweep_seed, datasets, scores, settings, settings.seeds, dump is not None, progress) \
+        if on_ray else {}
     for seed in settings.seeds:
-        swept_tasks = sweep_seed(datasets, scores, settings, seed, thresholds=dump is not None)
+        swept_tasks = by_seed.pop(seed) if on_ray else sweep_seed(datasets, scores, settings, seed, dump is not None)
         started = time.perf_counter()
         for name, values in zip(early, early_areas(datasets, scores, settings, seed, swept_tasks[datasets[0].task].groups)):
             early[name].append(values)
@@ -308,7 +314,8 @@ def sweep_all(
                 rates[name][t].append(rate)
             infinite[t].append(swept.infinite)
             conformal[t].append(swept.conformal)
-            progress.advance(note=f"{dataset.task} seed {seed}: {len(groups)} configurations")
+            if not on_ray:  # (on Ray: as each seed's task finished)
+                progress.advance(note=f"{dataset.task} seed {seed}: {len(groups)} configurations")
     progress.close()
     return SweepOutcome(groups, {name: np.stack([np.stack(rows) for rows in per]) for name, per in metrics.items()},
                         np.stack([np.stack(rows) for rows in infinite]),
@@ -343,18 +350,21 @@ def run_evaluation(
 ) -> EvaluationResult:
     """Scores, sweep, metrics and protocols for ``datasets`` (distinct task names); with ``dump`` a directory that
     receives every configuration's thresholds and first alarms (:mod:`fiper_ros.evaluation.dump`); with ``address``
-    the scores computed on that Ray cluster (:func:`score_all`), the results the same."""
+    the scores and the sweep computed on that Ray cluster (:func:`score_all`, :func:`sweep_all`), the results the
+    same."""
     check_evaluation(datasets, settings)
     start = time.perf_counter()
-    scores, computing = score_all(datasets, settings, cache, address, cpus)
-    scored = time.perf_counter()
-    writer = None if dump is None else Dump(
-        dump, {"profile": settings.method_settings.profile,
-               "calibration_split": settings.method_settings.split_settings(), "deltas": list(settings.sweep.deltas)},
-        {name: method.streams for name, method in settings.catalogue().items()})
-    outcome = sweep_all(datasets, scores, settings, writer)
-    if writer is not None:
-        writer.close()
+    with nullcontext() if address is None else connected(address, cpus):  # one cluster for scores and sweep
+        scores, computing = score_all(datasets, settings, cache, address, cpus)
+        scored = time.perf_counter()
+        writer = None if dump is None else Dump(
+            dump, {"profile": settings.method_settings.profile,
+                   "calibration_split": settings.method_settings.split_settings(),
+                   "deltas": list(settings.sweep.deltas)},
+            {name: method.streams for name, method in settings.catalogue().items()})
+        outcome = sweep_all(datasets, scores, settings, writer, on_ray=address is not None)
+        if writer is not None:
+            writer.close()
     swept = time.perf_counter()
     protocols: dict[str, ProtocolResult] = {}
     for protocol in settings.protocols:

@@ -5,7 +5,7 @@ method but FIPER thresholds one stream; FIPER fuses the RND-OE and ACE streams w
 :class:`MethodSettings` holds every hyperparameter that changes a stream, so it is part of the
 score-cache key.
 
-The elapsed-time baseline (issue #19) is the floor every detector has to beat: its per-step score is 1,
+The elapsed-time baseline is the floor every detector has to beat: its per-step score is 1,
 so its cumulative sum at policy step ``t`` is ``t + 1``, the steps elapsed, and with the CP constant
 threshold it alarms at step ``k`` of every rollout longer than ``k``, ``k`` the conformal quantile of
 the calibration successes' lengths (calibrated as every other method, on the same conformal part). It

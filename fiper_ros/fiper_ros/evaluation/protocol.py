@@ -27,7 +27,7 @@ rollouts for delta) has no metrics (NaN): it is never part of an average over de
 configuration that has no finite delta on some task and seed is never selected. :class:`MethodResult`
 keeps which of its cells were infinite, so the report shows them.
 
-The promise (issue #19): for every reported configuration the false-alarm rate on the held-out ID
+The promise: for every reported configuration the false-alarm rate on the held-out ID
 successes (the test set's successful ID-scenario rollouts; with the clean protocol those of the report
 half) per delta, to set beside delta.
 """

@@ -10,7 +10,7 @@ rclpy (it builds the rclpy profiles from :mod:`.qos_spec`); the other modules ne
 - :mod:`.messages`: state and outcome names of the message codes, message classes by type name.
 - :mod:`.conversions`: message <-> numpy array conversions.
 - :mod:`.cdr`: the wire codec: messages as CDR bytes read and written without the generated classes (the nodes'
-  hot topics, issue #24).
+  hot topics).
 """
 from __future__ import annotations
 

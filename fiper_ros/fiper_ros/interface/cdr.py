@@ -1,4 +1,4 @@
-"""The suite's messages as CDR bytes, read and written without rclpy's Python message classes (issue #24).
+"""The suite's messages as CDR bytes, read and written without rclpy's Python message classes.
 
 rclpy turns every message it takes into an object of the generated class (a Python ``__init__`` and one property
 setter per field, a nested object per header and stamp, an ``array.array`` copy of every ``float32[]``) and every

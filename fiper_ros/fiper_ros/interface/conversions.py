@@ -80,7 +80,7 @@ def action_batch_msg(rollout_id: int, step: int, stamp: int, actions: np.ndarray
 
 def embedding_cdr(rollout_id: int, step: int, stamp: int, embedding: np.ndarray) -> bytes:
     """:func:`embedding_msg`'s message as the bytes a publisher takes (:mod:`fiper_ros.interface.cdr`): what a
-    policy publishes every step, without the generated class's per-field Python work (issue #24)."""
+    policy publishes every step, without the generated class's per-field Python work."""
     values = np.asarray(embedding, dtype=np.float32)
     return _EMBEDDING.encode(_EMBEDDING.view(header=header_view(stamp), rollout_id=rollout_id, step=step,
                                              data=values.ravel(), shape=values.shape))

@@ -294,7 +294,7 @@ def package_share(name: str) -> str:
 def _console_scripts(package: str) -> dict[str, str]:
     """``package``'s console scripts (its installed distribution's): name -> ``module:function``; empty if it is
     not installed. One distribution's metadata is read, not every installed one's (that took 0.12 s of the
-    launcher's start-up, issue #24)."""
+    launcher's start-up)."""
     try:
         points = distribution(package).entry_points
     except PackageNotFoundError:

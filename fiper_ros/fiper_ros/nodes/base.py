@@ -69,7 +69,7 @@ _KEY_VALUE_VIEW = codec(KeyValue).view
 
 def diagnostic_array(node: Node, level: bytes, message: str, values: dict[str, str]) -> bytes:
     """The one-status /diagnostics message of ``node`` (``name`` = ``fiper: <fully qualified name>``), serialized by
-    the wire codec (a publisher takes the bytes), as the suite's other messages are (issue #24)."""
+    the wire codec (a publisher takes the bytes), as the suite's other messages are."""
     name = node.get_fully_qualified_name()
     status = _STATUS_VIEW(level=level, name=f"fiper: {name}", message=message, hardware_id=name,
                           values=[_KEY_VALUE_VIEW(key, value) for key, value in values.items()])
@@ -196,7 +196,7 @@ class FiperNode(LifecycleNode):
                                  qos_profile: QoSProfile, **kwargs: Any) -> Subscription:
         """A subscription to ``topic`` that takes the CDR bytes (``raw=True``) and hands ``handler`` their view
         (:mod:`fiper_ros.interface.cdr`), read like the message: rclpy's message objects cost a node more than
-        its own work per message at high rates (issue #24). Bytes of another encapsulation than plain
+        its own work per message at high rates. Bytes of another encapsulation than plain
         little-endian CDR are read by rclpy; bytes that are no message of the type are rejected as
         ``malformed``."""
         wire = codec(msg_type)

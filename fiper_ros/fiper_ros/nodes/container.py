@@ -1,11 +1,9 @@
 """Several of the suite's nodes in one process: ``ros2 run fiper_ros container rnd_oe_node fusion_node --ros-args ...``.
 
 The nodes are created in the order given and spun by one EventsExecutor in the process's main thread
-(:func:`fiper_ros.nodes.main.run_nodes`), so a message between them costs no process wake-up: with RND-OE and the
-fusion node composed (``fiper.launch.yaml compose:=true``) the suite reached 1000 steps/s at PushT's shape in 1 of 3
-runs, as separate processes in none; since the wire codec, composed in 2 of 2, separate in 1 of 3 (docs/benchmarks.md
-"Composed nodes" and "The session's final code", issue #24). The price is isolation: a crash of one node ends the others, and a callback
-that hangs stops them all (the alarm's liveliness then lapses, which a supervisor sees; docs/nodes.md
+(:func:`fiper_ros.nodes.main.run_nodes`), so a message between them costs no process wake-up
+(``fiper.launch.yaml compose:=true``; what that buys at PushT's shape is measured in docs/benchmarks.md, "Composed
+nodes"). The price is isolation: a crash of one node ends the others, and a callback that hangs stops them all (the alarm's liveliness then lapses, which a supervisor sees; docs/nodes.md
 "Composed nodes"). Every node keeps its own name, parameters (a parameter file's entries by node name, or
 ``/**``), lifecycle and ``/diagnostics`` status; the ``--ros-args`` reach every node, so a remap of ``__node``
 without a node name before it (what a launch entry's ``name`` passes) is refused: it would give every node one

@@ -11,7 +11,7 @@ whose default action ends the process.
 A node started by ``fiper launch`` dies with it (``FIPER_PARENT_PID``: Linux's parent-death signal), so a
 killed launcher never leaves a stale suite speaking on the suite's topics.
 
-The executor (issue #24, docs/benchmarks.md "Nodes"): the scoring and fusion nodes spin rclpy's C++
+The executor (docs/benchmarks.md "Nodes"): the scoring and fusion nodes spin rclpy's C++
 ``EventsExecutor`` by default, the other single-threaded nodes rclpy's Python ``SingleThreadedExecutor``;
 ``FIPER_EXECUTOR=events`` or ``single`` chooses for every single-threaded node process. The EventsExecutor is
 spun in slices of :data:`EVENTS_SLICE_S` (``spin_once`` with a timeout), never by its untimed ``spin()``: in
@@ -54,7 +54,7 @@ rmw_fastrtps race can hang that teardown when a peer was killed a few seconds be
 EXIT_S = 3
 """Longest exit of a node process after its teardown: Python's finalization, then the C++ static destructors, where
 Fast DDS 2.14 can deadlock deleting a participant still left to its factory (a discovery thread waits for a lock
-that the exiting thread holds while it busy-waits for that thread's callback to end; 2026-12-03, docs/nodes.md).
+that the exiting thread holds while it busy-waits for that thread's callback to end; docs/nodes.md).
 Past it SIGALRM ends the process (the signal's default action)."""
 #: Environment variable that chooses the executor of every single-threaded node process: :data:`EXECUTOR_EVENTS` or
 #: :data:`EXECUTOR_SINGLE`.
@@ -81,7 +81,7 @@ def proc_stat(pid: int | str = "self") -> list[str]:
 
 def process_age_s() -> float:
     """Seconds since this process was started (its exec, from ``/proc``: to the kernel's clock tick, 10 ms): what
-    a node's ``ACTIVE`` log line reports, and ``make bench-nodes`` reads as the node's own start-up (issue #24)."""
+    a node's ``ACTIVE`` log line reports, and ``make bench-nodes`` reads as the node's own start-up."""
     started_ticks = int(proc_stat()[19])  # starttime, field 22 of proc(5)
     uptime_s = float(Path("/proc/uptime").read_text().split()[0])
     return uptime_s - started_ticks / os.sysconf("SC_CLK_TCK")

@@ -33,8 +33,8 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
-from fiper_ros.interface import qos
 from fiper_ros.core.detectors import CALIBRATED, info
+from fiper_ros.interface import qos
 from fiper_ros.interface.topics import ALARM, CAMERAS, DIAGNOSTICS, EVENTS, relative, score_topic
 from fiper_ros.nodes.base import describe, diagnostic_array
 from fiper_ros.nodes.main import run_node

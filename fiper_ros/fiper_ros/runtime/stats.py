@@ -34,7 +34,7 @@ class PeriodEstimator:
     The median keeps one slow step (a GC pause, a busy core) from moving it; a step gap counts as that
     many periods (the time is divided by the step difference). It is computed at the first :meth:`period_ns`
     after an interval arrived and kept until the next one: the fusion node's staleness check asks for it two or
-    three times per check at 50 Hz, and a step at 1000 steps/s need not pay for it either (issue #24, a numpy
+    three times per check at 50 Hz, and a step at 1000 steps/s need not pay for it either (a numpy
     median of the window cost some 25 us per call).
     """
 

@@ -81,7 +81,7 @@ def _bounded(values: np.ndarray, max_abs_value: float, what: str) -> np.ndarray:
 def _checked(values: np.ndarray, max_abs_value: float, what: str) -> np.ndarray:
     """``values`` if every one is finite and of magnitude at most ``max_abs_value``, else :class:`InputRejected`
     (``non_finite`` before ``out_of_range``). Two reductions decide a valid array (a NaN fails both comparisons,
-    an infinity one); only a rejected one is looked at again to say why (issue #24: the two checks took four
+    an infinity one); only a rejected one is looked at again to say why (the two checks took four
     passes and two temporary arrays per message)."""
     if values.size and not (math.isfinite(max_abs_value) and -max_abs_value <= values.min()
                             and values.max() <= max_abs_value):
