@@ -17,8 +17,8 @@ from helpers.dds import ros_env
 from fiper_ros.cli import main
 from fiper_ros.client.suite_process import installed_launch, replay_config
 from fiper_ros.commands import options
-from fiper_ros.commands.view import ros_arguments
 from fiper_ros.commands.errors import UsageError
+from fiper_ros.commands.view import ros_arguments
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.launcher.config import load_launch
 
