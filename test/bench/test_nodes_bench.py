@@ -74,7 +74,9 @@ def test_a_get_state_request_left_unanswered_is_asked_again(ros_domain: int, mon
         began = time.monotonic()
         driver.wait_active(["/fiper/slow_node"])
         assert len(requests) >= 2
-        assert requests[1] - requests[0] >= nodes_bench.GET_STATE_TIMEOUT_S
+        # asked again only after the timeout (sent at least GET_STATE_TIMEOUT_S after the first, which was sent after
+        # `began`; the arrivals' own gap may be shorter, when the first request was delivered late)
+        assert requests[1] - began >= nodes_bench.GET_STATE_TIMEOUT_S
         assert time.monotonic() - began < nodes_bench.STARTUP_TIMEOUT_S
     finally:
         release.set()

@@ -30,6 +30,7 @@ from fiper_ros.commands.security import (differences, mismatches, observe_all, p
 from fiper_ros.core.detectors import DETECTORS
 from fiper_ros.interface.topics import ARM_JOINT_NAMES, DIAGNOSTICS, TOPICS
 from fiper_ros.launcher.config import NodeSpec, dump_launch, load_launch
+from fiper_ros.launcher.errors import LaunchError
 from fiper_ros.launcher.processes import build_node
 
 ROOT = Path(os.environ["FIPER_ROOT"])
@@ -217,7 +218,7 @@ def test_a_nodes_grants_follow_its_calibration_its_parameters_its_namespace_and_
     assert bridge.publish & {"/camera/wrist/image_raw", "/clock"} == set() and bridge.reply >= {"/sim/reset"}
     with pytest.raises(grants.UnknownNode, match="my_pkg.my_node"):
         node_grants(spec("my_pkg.my_node", "mine"))
-    with pytest.raises(ValueError, match="calibration_dir is not set"):
+    with pytest.raises(LaunchError, match="calibration_dir is not set"):
         node_grants(spec("fiper_ros.nodes.ace_node", "ace_node"))  # ACE: its subscriptions need it
 
 

@@ -27,7 +27,7 @@ from fiper_msgs.msg import ActionChunkBatch
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.calibration_file import declared_detectors
-from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, info
+from fiper_ros.core.detectors import ACE, CALIBRATED, DETECTORS, RND_OE, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.errors import FiperError
@@ -217,10 +217,12 @@ def bridge_node(p: Mapping[str, Any]) -> Grants:
 
 
 def view_node(p: Mapping[str, Any]) -> Grants:
-    """``fiper_ros.nodes.view_node`` (the live view, a plain node): it only reads the suite's scores, alarm and
-    events, the diagnostics and its ``cameras``; it publishes its own diagnostics."""
+    """``fiper_ros.nodes.view_node`` (the live view, a plain node): it only reads the scores of its ``detectors``
+    (every detector a calibration may declare, by default), the alarm and events, the diagnostics and its
+    ``cameras``; it publishes its own diagnostics."""
     return ros_node(p) | Grants.of(publish=(DIAGNOSTICS,), subscribe=(
-        *(relative(score_topic(d)) for d in DETECTORS), relative(ALARM), relative(EVENTS), DIAGNOSTICS,
+        *(relative(score_topic(d)) for d in p.get("detectors", CALIBRATED)), relative(ALARM), relative(EVENTS),
+        DIAGNOSTICS,
         *p.get("cameras", CAMERAS)))
 
 
