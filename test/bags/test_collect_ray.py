@@ -169,7 +169,7 @@ def test_a_local_instance_listens_on_loopback_only_and_a_ctrl_c_leaves_a_resumab
         # Ctrl-C also reaches them (the process group); Ray 2.60's driver then once aborted inside Ray
         # (task_manager.cc "unexpected system state", exit 1: docs/scale.md).
         os.kill(proc.pid, signal.SIGINT)
-        assert proc.wait(60) == 130
+        assert proc.wait(60) == 130, log.read_text()[-3000:]  # the command's own words when it did not stop as asked
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
