@@ -47,6 +47,7 @@ class AceNode(DetectorNode):
         self.declare_parameter("joint_state_wait_s", 0.5,
                                describe("longest wait of a joint-velocity batch for the joint state of its stamp",
                                         read_only=True, low=0.0, high=10.0))
+        self._joint_names = tuple(str(name) for name in self.get_parameter("joint_names").value)
         self._joints = JointHistory()
         self._joint_sub: Any = None
         self._gate = StampGate(int(self.get_parameter("joint_state_wait_s").value * 1e9))
@@ -99,11 +100,11 @@ class AceNode(DetectorNode):
                                                         f"{len(msg.position)} positions"))
             return
         positions = dict(zip(msg.name, msg.position))
-        names = self.get_parameter("joint_names").value
+        names = self._joint_names
         if all(name in positions for name in names):
             try:
                 q = validation.vector([positions[name] for name in names], len(names), "joint state",
-                                      self.get_parameter("max_abs_value").value, np.float64)
+                                      self.max_abs_value, np.float64)
             except InputRejected as error:
                 self.reject(error)
                 return

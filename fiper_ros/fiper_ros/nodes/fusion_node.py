@@ -87,6 +87,7 @@ class FusionNode(FiperNode):
         self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
         self._last_publish_ns = 0
         self._heartbeat_ns = 0
+        self._allow_reset = bool(self.get_parameter("allow_reset").value)
         self._last_published: tuple[int, str, str] | None = None
         self._inputs: list[Any] = []
         self._timer: Any = None
@@ -237,7 +238,7 @@ class FusionNode(FiperNode):
             self.publish(state, now, heartbeat=True)
 
     def _on_reset(self, request: ResetAlarm.Request, response: ResetAlarm.Response) -> ResetAlarm.Response:
-        refusal = reset_refusal(self.get_parameter("allow_reset").value, request.requester, request.reason)
+        refusal = reset_refusal(self._allow_reset, request.requester, request.reason)
         if not refusal and self.fuser is None:
             refusal = "fusion node is not configured"
         if refusal:
