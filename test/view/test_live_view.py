@@ -36,7 +36,7 @@ from sensor_msgs.msg import Image
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.interface import qos
-from fiper_ros.interface.messages import STATE_NAMES
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import (ALARM, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE,
                                        score_topic)
 
@@ -225,7 +225,7 @@ def test_a_foxglove_client_gets_what_the_suite_published_beside_a_stalled_and_a_
     # ... and what the replay reports for each step (its decision: state and windowed score)
     report = json.loads((tmp_path / "report.json").read_text())
     decisions = [j for j in reader.received[ALARM] if not j["heartbeat"] and j["rollout_id"]]
-    assert [(j["rollout_id"], j["step"], STATE_NAMES[j["state"]], j["eta_obs"]) for j in decisions] == \
+    assert [(j["rollout_id"], j["step"], AlarmStateName.of_code(j["state"]), j["eta_obs"]) for j in decisions] == \
         [(r["rollout_id"], s["step"], s["state"], s["windowed"][0]) for r in report["rollouts"] for s in r["steps"]]
     first_alarms = [j["reason"] for j in decisions
                     if j["state"] == FailureAlarm.STATE_ALARM and not j["reason"].startswith("latched since")]

@@ -33,13 +33,14 @@ import numpy as np
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
 from fiper_ros.bench import EVERY_ALARM, memory_mb
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, state_name
+from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_launch
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.commands.demo import SUPERVISOR, Plan, demo_config, managed_nodes
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface import qos
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ACTIONS
 from fiper_ros.launcher.config import LaunchConfig, dump_launch
 from fiper_ros.shm import clean_stale
@@ -171,9 +172,9 @@ class Meter:
         latency = self.matcher.alarm((msg.rollout_id, msg.step), time.monotonic_ns())
         if latency is not None:
             self._answered(latency)
-        state = state_name(msg)
-        self.block.unknown += state == "UNKNOWN"
-        self.block.alarms += state == "ALARM" and trace.alarm_step == msg.step
+        state = AlarmStateName.of_code(msg.state)
+        self.block.unknown += state == AlarmStateName.UNKNOWN
+        self.block.alarms += state == AlarmStateName.ALARM and trace.alarm_step == msg.step
         self.tick()
 
     def rollout_done(self) -> None:

@@ -64,16 +64,11 @@ class SuiteFailed(ClientError):
         self.output = output
 
 
-def state_name(msg: FailureAlarm) -> str:
-    """``OK``, ``ALARM`` or ``UNKNOWN``."""
-    return messages.state_name(msg.state).upper()
-
-
 def alarm_line(msg: FailureAlarm) -> str:
     """One alarm decision on one line: each judged detector's windowed score against its threshold, the state."""
     scores = [f"{info(d).label} {eta:8.3f} / {gamma:8.3f} {'>' if exceeded else ' '}"
               for d, eta, gamma, exceeded in zip(msg.detectors, msg.eta, msg.gamma, msg.exceeded)]
-    return " | ".join([f"step {msg.step:3d}", *scores, state_name(msg)])
+    return " | ".join([f"step {msg.step:3d}", *scores, messages.AlarmStateName.of_code(msg.state).name])
 
 
 class Driver:
@@ -148,10 +143,10 @@ class Driver:
 
         def apply(trace: RolloutTrace) -> None:
             trace.combine = msg.combine
-            state = state_name(msg)
-            if state == "UNKNOWN":
+            state = messages.AlarmStateName.of_code(msg.state)
+            if state == messages.AlarmStateName.UNKNOWN:
                 trace.unknown_steps.add(msg.step)
-            elif state == "ALARM" and trace.alarm_step is None:
+            elif state == messages.AlarmStateName.ALARM and trace.alarm_step is None:
                 trace.alarm_step = msg.step
                 trace.alarm_text = alarm_line(msg)
             if self.display is not None:

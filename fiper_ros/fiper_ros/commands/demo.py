@@ -29,7 +29,7 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, state_name
+from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -41,6 +41,7 @@ from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.errors import FiperError
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, CLOCK, EMBEDDING, SIM_ACTION, SIM_PROPRIO
 from fiper_ros.launcher.config import LaunchConfig, dump_launch, load_launch
 from fiper_ros.shm import clean_stale
@@ -81,10 +82,10 @@ class Display:
 
     def alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
         """Show one alarm decision of ``trace``'s rollout."""
-        state, line = state_name(msg), alarm_line(msg)
-        if state == "UNKNOWN":
+        state, line = AlarmStateName.of_code(msg.state), alarm_line(msg)
+        if state == AlarmStateName.UNKNOWN:
             self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
-        elif state == "ALARM" and trace.alarm_step == msg.step:
+        elif state == AlarmStateName.ALARM and trace.alarm_step == msg.step:
             self.say(f"  ALARM  {line}\n         why: {msg.reason}")
         elif self.tty:
             print(f"\r  {line}", end="", flush=True)

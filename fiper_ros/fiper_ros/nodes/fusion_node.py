@@ -29,7 +29,7 @@ from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec
 from fiper_ros.interface.conversions import header_view, stamp_ns
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, outcome_name
+from fiper_ros.interface.messages import AlarmStateName, outcome_name
 from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
@@ -38,7 +38,6 @@ from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.rollout_gate import Route
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
-STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
 #: The FailureAlarm on the wire: the node publishes its bytes.
 ALARM_WIRE = codec(FailureAlarm)
 #: The ``combine`` parameter's value that takes the calibration's own combine.
@@ -84,7 +83,7 @@ class FusionNode(FiperNode):
             "empty: each declared detector's <detector>_node)", read_only=True))
         self.fuser: AlarmFuser | None = None
         self.lost: set[str] = set()
-        self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
+        self.states = dict.fromkeys(AlarmStateName, 0)
         self._last_publish_ns = 0
         self._heartbeat_ns = 0
         self._last_published: tuple[int, str, str] | None = None
@@ -259,13 +258,13 @@ class FusionNode(FiperNode):
         """Publish one FailureAlarm at ``now_ns`` (the node clock; ``heartbeat``: a repeat, not a new step's
         decision); never an OK while the scores cannot be attributed (a publisher that appeared
         since the last look is judged first)."""
-        if state.state == OK:
+        if state.state == AlarmStateName.OK:
             self.publisher_check.check_if_matched()
         state = self.fuser.doubted(state)
         (obs_exceeded, eta_obs, gamma_obs), (act_exceeded, eta_act, gamma_act) = state.of(RND_OE), state.of(ACE)
         self._alarm_pub.publish(ALARM_WIRE.encode(ALARM_WIRE.view(
             header=header_view(state.stamp_ns), rollout_id=state.rollout_id, step=state.step,
-            state=STATES[state.state], latched=state.latched, detectors=list(state.detectors),
+            state=state.state.code, latched=state.latched, detectors=list(state.detectors),
             eta=list(state.windowed), gamma=list(state.thresholds), exceeded=list(state.exceeded), votes=state.votes,
             obs_exceeded=obs_exceeded, act_exceeded=act_exceeded, eta_obs=eta_obs, gamma_obs=gamma_obs,
             eta_act=eta_act, gamma_act=gamma_act, combine=state.combine, reason=state.reason, heartbeat=heartbeat)))

@@ -22,7 +22,7 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.messages import state_name
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, DIAGNOSTICS, EVENTS, SIM_HALT
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
@@ -97,7 +97,7 @@ class SupervisorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
-        decision = self.logic.on_state(msg.rollout_id, state_name(msg.state), msg.reason, self._now(),
+        decision = self.logic.on_state(msg.rollout_id, AlarmStateName.of_code(msg.state), msg.reason, self._now(),
                                        msg.step, msg.heartbeat, self._steady.now().nanoseconds,
                                        stamp_ns(msg.header.stamp))
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:

@@ -22,6 +22,7 @@ import foxglove.layouts as fl
 
 from fiper_ros.core.detectors import ACE, CALIBRATED, LABELS, RND_OE
 from fiper_ros.data_paths import package_share
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, score_topic
 
 #: Where the layout is kept, relative to the ``fiper_ros`` package folder (installed in its share directory).
@@ -30,8 +31,8 @@ LAYOUT_FILE = Path("config") / "foxglove" / "fiper.layout.json"
 SCORE_TOPICS = {detector: score_topic(detector) for detector in CALIBRATED}
 #: The subscripts the paper gives FIPER's pair (``eta_O``, ``gamma_A``), written as the plots' labels do.
 SUBSCRIPTS = {RND_OE: "obs", ACE: "act"}
-#: ``FailureAlarm.state`` codes, as the state-transitions panel names and colours them.
-STATES = ((0, "OK", "#2ca02c"), (1, "ALARM", "#d62728"), (2, "UNKNOWN", "#7f7f7f"))
+#: The colour of each alarm state in the state-transitions panel (named there by its code's upper-case name).
+STATE_COLOURS = {AlarmStateName.OK: "#2ca02c", AlarmStateName.ALARM: "#d62728", AlarmStateName.UNKNOWN: "#7f7f7f"}
 CAMERA_TITLES = {CAMERA_WRIST: "wrist camera", CAMERA_THIRD: "third-person camera"}
 
 ABOUT = """\
@@ -69,8 +70,8 @@ def _score_plot(detector: str) -> fl.PlotPanel:
 
 def _alarm_states() -> fl.StateTransitionsPanel:
     states = fl.StateTransitionsRangeCustomStates(states=[
-        fl.StateTransitionsRangeCustomState(value=float(code), operator="=", label=label, color=color)
-        for code, label, color in STATES])
+        fl.StateTransitionsRangeCustomState(value=float(state.code), operator="=", label=state.name, color=color)
+        for state, color in STATE_COLOURS.items()])
     return fl.StateTransitionsPanel(title="alarm state", config=fl.StateTransitionsConfig(
         paths=[fl.StateTransitionsSeries(value=f"{ALARM}.state", label="alarm", custom_states=states),
                fl.StateTransitionsSeries(value=f"{ALARM}.rollout_id", label="rollout")],
