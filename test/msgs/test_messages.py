@@ -1,7 +1,8 @@
-"""The alarm state names of ``interface/messages.py`` against the ``fiper_msgs`` codes they stand for."""
+"""The names of ``interface/messages.py`` and ``core/fusion.py`` against the ``fiper_msgs`` constants they stand for."""
 from __future__ import annotations
 
 from fiper_msgs.msg import FailureAlarm
+from fiper_ros.core.fusion import CombineMode
 from fiper_ros.interface.messages import AlarmStateName
 
 
@@ -18,3 +19,8 @@ def test_a_state_is_named_by_its_code_and_an_unknown_code_is_unknown() -> None:
 def test_the_value_is_the_name_a_result_file_holds() -> None:
     assert [str(state) for state in AlarmStateName] == ["ok", "alarm", "unknown"]
     assert [state.name for state in AlarmStateName] == ["OK", "ALARM", "UNKNOWN"]
+
+
+def test_the_message_names_the_combine_modes_as_the_core_does() -> None:
+    assert (FailureAlarm.COMBINE_AND, FailureAlarm.COMBINE_OR, FailureAlarm.COMBINE_MAX) == \
+        (CombineMode.AND, CombineMode.OR, CombineMode.MAX)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from fiper_ros.core.calibration_file import Declared, declared
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
+from fiper_ros.core.fusion import CombineMode
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
 from fiper_ros.interface.topics import JOINT_STATES, TOPICS, input_topic, score_topic
@@ -59,7 +60,7 @@ def declared_of(directory: Path | None) -> Declared:
     """The detectors the calibration in ``directory`` declares and how it combines them (FIPER's pair under
     ``and`` without one), read without loading its score models; a ``CalibrationError`` (one line naming the file)
     for a missing or unreadable calibration and one that declares no (or no supported) detector set."""
-    return Declared(DETECTORS, "and") if directory is None else declared(directory)
+    return Declared(DETECTORS, CombineMode.AND.value) if directory is None else declared(directory)
 
 
 def detectors_of(directory: Path | None) -> tuple[str, ...]:

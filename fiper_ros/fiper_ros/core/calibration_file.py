@@ -17,6 +17,7 @@ import yaml
 
 from fiper_ros.core.detectors import DETECTORS, check_once, check_pair_format, in_fusion_order
 from fiper_ros.core.errors import CoreError
+from fiper_ros.core.fusion import CombineMode
 
 FORMAT_VERSION = 3
 """The format this code writes: any declared detectors, each task's models and thresholds, the combine."""
@@ -116,7 +117,7 @@ def declared(directory: str | Path) -> Declared:
     check_files(Path(directory), (CALIBRATION_FILE,))
     path = Path(directory) / CALIBRATION_FILE
     content = read_yaml(path)
-    return Declared(detectors_of(content, path), str(content["settings"].get("combine", "and")))
+    return Declared(detectors_of(content, path), str(content["settings"].get("combine", CombineMode.AND.value)))
 
 
 def merged_split(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

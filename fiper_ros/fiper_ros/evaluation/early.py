@@ -29,7 +29,7 @@ import numpy as np
 
 from fiper_ros.core.combination import SHAPE_KINDS, Shape, combined, fit_shape
 from fiper_ros.core.detectors import info
-from fiper_ros.core.fusion import Combine
+from fiper_ros.core.fusion import Combine, CombineMode
 from fiper_ros.core.metrics import auroc, early_cut, rollout_peaks
 from fiper_ros.core.thresholds import Threshold, ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
@@ -62,7 +62,7 @@ def statistic_of(group: Group, combinations: Mapping[str, tuple[str, ...]]) -> S
         detectors = combinations[group.method]
         labels = tuple(CUMULATIVE if info(d).aggregation else group.window for d in detectors)
         kinds: tuple[str | None, ...] = tuple(info(d).shape or group.kind for d in detectors)
-        return Statistic(detectors, labels, kinds, Combine.parse(group.combine or "max").votes(len(detectors)))
+        return Statistic(detectors, labels, kinds, Combine.parse(group.combine or CombineMode.MAX).votes(len(detectors)))
     if group.method == FIPER:
         if group.kind not in SHAPE_KINDS:
             return None

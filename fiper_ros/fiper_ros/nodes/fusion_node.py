@@ -25,6 +25,7 @@ from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
+from fiper_ros.core.fusion import CombineMode
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec
@@ -121,7 +122,7 @@ class FusionNode(FiperNode):
             detectors, combine = own.detectors, own.combine
         self._declare_streams(detectors)
         self._heartbeat_ns = int(self.get_parameter("heartbeat_s").value * 1e9)
-        self.fuser = AlarmFuser("and" if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
+        self.fuser = AlarmFuser(CombineMode.AND if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
                                 int(self.get_parameter("deadline_floor_s").value * 1e9), detectors,
                                 int(self.get_parameter("start_wait_s").value * 1e9))

@@ -31,7 +31,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, replace
 
 from fiper_ros.core.detectors import DETECTORS, check_once, info
-from fiper_ros.core.fusion import Combine, exceeds, fuse_votes
+from fiper_ros.core.fusion import Combine, CombineMode, exceeds, fuse_votes
 from fiper_ros.interface.messages import NO_ROLLOUT, AlarmStateName
 from fiper_ros.runtime.rollout_gate import RolloutGate
 from fiper_ros.runtime.rollout_tracker import RolloutRecord
@@ -158,7 +158,7 @@ class AlarmFuser:
     """Streaming votes of the declared detectors' scores matched per (rollout_id, step) (eq. 7, generalised), with
     latch and staleness."""
 
-    def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
+    def __init__(self, combine: str = CombineMode.AND, deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
                  deadline_periods: float = 0.0, deadline_floor_ns: int = 0,
                  detectors: tuple[str, ...] = DETECTORS, start_wait_ns: int = 1_000_000_000) -> None:
         if deadline_periods < 0 or deadline_floor_ns < 0 or deadline_ns <= 0:

@@ -14,7 +14,7 @@ from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
                                       in_fusion_order, info)
 from fiper_ros.core.errors import CoreError
-from fiper_ros.core.fusion import Combine
+from fiper_ros.core.fusion import Combine, CombineMode
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import Profile, get_profile
@@ -83,7 +83,7 @@ class CalibrationSettings:
     aggregation: str = "window"
     threshold: str = "cp_band"
     delta: float = 0.05
-    combine: str = "and"
+    combine: str = CombineMode.AND.value
     rnd: RNDConfig = field(default_factory=RNDConfig.small)
     alpha: float | None = None
     action_dims: tuple[int, int] | None = None
