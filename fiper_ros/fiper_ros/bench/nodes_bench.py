@@ -310,7 +310,7 @@ class Driver:
 
         from fiper_ros.interface import qos  # noqa: PLC0415
         from fiper_ros.interface.cdr import codec  # noqa: PLC0415
-        from fiper_ros.interface.topics import DIAGNOSTICS  # noqa: PLC0415
+        from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC  # noqa: PLC0415
         from fiper_ros.nodes.main import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
 
         self.shape = shape
@@ -335,7 +335,8 @@ class Driver:
         #: ``/diagnostics`` messages not read yet (bytes, arrival): read when asked for, not while a run is timed.
         self._unread: list[tuple[bytes, float]] = []
         self._diagnostics = codec(DiagnosticArray)
-        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS, raw=True)
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, qos.DIAGNOSTICS,
+                                      raw=True)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
         self.actions = rng.uniform(-1, 1, (shape.batch, shape.horizon, shape.action_dim)).astype(np.float32)

@@ -41,7 +41,7 @@ from fiper_ros.commands.demo import SUPERVISOR, Plan, demo_config, managed_nodes
 from fiper_ros.dds import allocate_domain
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import AlarmStateName
-from fiper_ros.interface.topics import ACTIONS
+from fiper_ros.interface.topics import ACTIONS_TOPIC
 from fiper_ros.launcher.config import LaunchConfig, dump_launch
 from fiper_ros.shm import clean_stale
 
@@ -145,7 +145,7 @@ class Meter:
         self.blocks: list[Block] = []
         self.block = Block(0, 0.0, block_s)
         self.matcher = StepMatcher(int(UNANSWERED_S * 1e9))
-        session.node.create_subscription(ActionChunkBatch, ACTIONS, self._on_batch, qos.INPUT)
+        session.node.create_subscription(ActionChunkBatch, ACTIONS_TOPIC, self._on_batch, qos.INPUT)
 
     def start(self, pids: dict[str, int]) -> None:
         """Start the first block now; ``pids``: process name -> id, whose memory each block reads."""

@@ -31,7 +31,7 @@ from fiper_ros.client.trace import RolloutEvents, RolloutTrace
 from fiper_ros.core.detectors import info
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EVENTS, SIM_RESET
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, SIM_RESET_SERVICE
 from fiper_ros.runtime.publishers import fully_qualified
 from fiper_ros.runtime.wiring import missing_matches
 
@@ -99,13 +99,13 @@ class Driver:
         self.events = RolloutEvents()
         #: The followed rollouts' traces, by rollout id.
         self.traces = self.events.traces
-        self._reset = node.create_client(ResetRollout, SIM_RESET)
-        node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
+        self._reset = node.create_client(ResetRollout, SIM_RESET_SERVICE)
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, qos.DIAGNOSTICS)
         for detector in detectors:
             node.create_subscription(Score, detector_topics(detector)[2], self._on_score, TRACE_QOS)
-        node.create_subscription(FailureAlarm, ALARM, self._on_alarm, TRACE_QOS)
-        node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
-        node.create_subscription(ActionChunkBatch, ACTIONS, self._on_actions, qos.INPUT)
+        node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, TRACE_QOS)
+        node.create_subscription(RolloutEvent, EVENTS_TOPIC, self._on_event, qos.EVENT)
+        node.create_subscription(ActionChunkBatch, ACTIONS_TOPIC, self._on_actions, qos.INPUT)
 
     # callbacks ----------------------------------------------------------------------------------------
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:

@@ -43,7 +43,7 @@ from fiper_ros.client.suite_process import (SuiteProcess, declared_of, detector_
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.dds import allocate_domain
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, INPUT_TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, INPUT_TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
@@ -187,9 +187,9 @@ class RosRunner:
             complete = driver.settle(lambda: self._landed(trace, steps, recorder, scored=True), SETTLE_S)
             if not complete and not self._landed(trace, steps, recorder, scored=False):  # scores: best effort
                 raise SuiteFailed(f"rollout {trace.rollout_id} ({scenario} seed {seed}): {steps} policy steps, "
-                                  f"but the bag got only {recorder.counts[EMBEDDING]} embeddings, "
-                                  f"{recorder.counts[ACTIONS]} action batches and {recorder.counts[EVENTS]} "
-                                  f"events within {SETTLE_S:g} s of its END")
+                                  f"but the bag got only {recorder.counts[EMBEDDING_TOPIC]} embeddings, "
+                                  f"{recorder.counts[ACTIONS_TOPIC]} action batches and "
+                                  f"{recorder.counts[EVENTS_TOPIC]} events within {SETTLE_S:g} s of its END")
             driver.spin(CATCH_UP_S)
 
         def write() -> None:
@@ -204,8 +204,8 @@ class RosRunner:
         step that comes after the END it saw, so the last scores may never come."""
         counts = recorder.counts
         scores = tuple(detector_topics(d)[2] for d in trace.detectors) if scored else ()
-        stepwise = (EMBEDDING, ACTIONS, *scores)
-        return trace.ended and counts[EVENTS] >= 2 and all(counts[topic] >= steps for topic in stepwise)
+        stepwise = (EMBEDDING_TOPIC, ACTIONS_TOPIC, *scores)
+        return trace.ended and counts[EVENTS_TOPIC] >= 2 and all(counts[topic] >= steps for topic in stepwise)
 
     @contextmanager
     def _reported(self) -> Iterator[None]:

@@ -27,7 +27,7 @@ from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
 from fiper_ros.core.fusion import CombineMode
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
-from fiper_ros.interface.topics import JOINT_STATES, TOPICS, input_topic, score_topic
+from fiper_ros.interface.topics import JOINT_STATES_TOPIC, TOPICS, input_topic, score_topic
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
@@ -48,7 +48,7 @@ DETECTOR_ARGUMENTS = ("logpzo", "pca_kmeans", "progress", "consistency", "elapse
 
 def detector_topics(detector: str) -> tuple[str, tuple[str, ...], str]:
     """Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores."""
-    return input_topic(info(detector).reads), (JOINT_STATES,) if detector == ACE else (), score_topic(detector)
+    return input_topic(info(detector).reads), (JOINT_STATES_TOPIC,) if detector == ACE else (), score_topic(detector)
 
 
 def detector_module(detector: str) -> str:

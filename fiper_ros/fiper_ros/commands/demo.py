@@ -42,7 +42,8 @@ from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
 from fiper_ros.dds import allocate_domain
 from fiper_ros.errors import FiperError
 from fiper_ros.interface.messages import AlarmStateName
-from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, CLOCK, EMBEDDING, SIM_ACTION, SIM_PROPRIO
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, CLOCK_TOPIC,
+                                        EMBEDDING_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.launcher.config import LaunchConfig, dump_launch, load_launch
 from fiper_ros.shm import clean_stale
 
@@ -55,7 +56,7 @@ PLAIN = (SUPERVISOR, VIEW)
 #: The demo's own node, the operator's (in the root namespace; its SROS2 enclave, docs/security.md).
 NODE_NAME = "fiper_demo"
 #: Recorded besides the bag schema's topics.
-EXTRA_TOPICS = (CAMERA_WRIST, CAMERA_THIRD, SIM_PROPRIO, SIM_ACTION, CLOCK)
+EXTRA_TOPICS = (CAMERA_WRIST_TOPIC, CAMERA_THIRD_TOPIC, SIM_PROPRIO_TOPIC, SIM_ACTION_TOPIC, CLOCK_TOPIC)
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
 PROGRESS_EVERY = 5
 
@@ -205,7 +206,7 @@ def run_demo(args: argparse.Namespace) -> int:
                     for plan in plans:
                         traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
                     # a step published just before the END it crossed: both of its messages into the bag
-                    driver.settle(lambda: recorder.counts[EMBEDDING] == recorder.counts[ACTIONS], SETTLE_S)
+                    driver.settle(lambda: recorder.counts[EMBEDDING_TOPIC] == recorder.counts[ACTIONS_TOPIC], SETTLE_S)
                 except SuiteFailed as error:
                     problems.append(f"{error}; its last output:\n{error.output}" if error.output else str(error))
                 finally:

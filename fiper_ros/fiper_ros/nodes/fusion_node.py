@@ -31,7 +31,7 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec
 from fiper_ros.interface.conversions import header_view, stamp_ns
 from fiper_ros.interface.messages import AlarmStateName, outcome_name
-from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
+from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, RESET_ALARM_SERVICE, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
@@ -97,7 +97,7 @@ class FusionNode(FiperNode):
         )
         # Liveliness (a DDS lease, wall clock): a supervisor counts the live publishers of the alarm.
         self.create_timer(qos.ALARM_HEARTBEAT_S, self._alarm_pub.assert_liveliness, clock=self.steady)
-        self.create_service(ResetAlarm, RESET_ALARM, self._on_reset)
+        self.create_service(ResetAlarm, RESET_ALARM_SERVICE, self._on_reset)
         #: Reset requests, by outcome ("accepted", "refused").
         self.resets: Counter[str] = Counter()
         self._declare_streams(DETECTORS)
@@ -139,8 +139,8 @@ class FusionNode(FiperNode):
                 event_callbacks=self.subscription_events(topic, lambda info, d=detector: self._on_liveliness(d, info)),
             ))
         self._inputs.append(self.create_subscription(
-            RolloutEvent, relative(EVENTS), self._on_event, qos.EVENT,
-            event_callbacks=self.subscription_events(relative(EVENTS))))
+            RolloutEvent, relative(EVENTS_TOPIC), self._on_event, qos.EVENT,
+            event_callbacks=self.subscription_events(relative(EVENTS_TOPIC))))
         self._timer = self.create_timer(self.get_parameter("check_period_s").value, self._on_timer)
 
     def deactivate(self) -> None:
