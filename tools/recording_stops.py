@@ -33,10 +33,10 @@ from fiper_ros.bagio.schema import normalize_cdr
 from fiper_ros.bagio.storage import Salvage
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.dds import allocate_domain, local_env
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg
 from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, TOPICS
+from fiper_ros.platform.dds import allocate_domain, local_env
 
 #: The shapes of the shipped Sorting policy's messages: E = 128 (embedding), B = 32, H = 16, D = 3.
 E, B, H, D = 128, 32, 16, 3

@@ -34,7 +34,7 @@ from fiper_ros.interface.topics import (CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, 
                                         JOINT_STATES_TOPIC, SIM_ACTION_TOPIC, SIM_HALT_SERVICE, SIM_PROPRIO_TOPIC,
                                         SIM_RESET_SERVICE)
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
 
 from .bridge_session import FAILURE, JOINT_NAMES, PROPRIO_NAMES, SUCCESS, BridgeSession, Ended, Rollout

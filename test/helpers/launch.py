@@ -22,10 +22,10 @@ from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.dds import PARENT_PID_ENV, interrupt_group
 from fiper_ros.interface.topics import score_topic
 from fiper_ros.nodes.graph_watch import NOT_NAMED, PUBLISHERS_KEY
-from fiper_ros.nodes.main import TEARDOWN_S
+from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group
+from fiper_ros.platform.process import TEARDOWN_S
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 from helpers.dds import ros_env
 from helpers.spin import spin_until

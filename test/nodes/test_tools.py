@@ -20,9 +20,9 @@ import pytest
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.commands.echo import Printer
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import PARENT_PID_ENV, interrupt_group
 from fiper_ros.interface import qos
-from fiper_ros.nodes.main import DISCOVERY_PROFILE
+from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group
+from fiper_ros.platform.process import DISCOVERY_PROFILE
 from helpers.dds import ros_env, spawn_python, stop
 from helpers.launch import node_entry, suite_config, write_launch
 from helpers.suite import Driver, Suite

@@ -25,8 +25,8 @@ from fiper_msgs.msg import RolloutEvent
 from fiper_ros.interface.conversions import floats_of, stamp_ns
 from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 from fiper_ros.launcher.config import load_launch
-from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
+from fiper_ros.platform.process import stop_executor
 from fiper_ros.policy.encoder import CAMERAS
 from fiper_ros.policy.session import PolicyAction, PolicyStep
 

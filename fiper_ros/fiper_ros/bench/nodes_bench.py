@@ -8,12 +8,13 @@ sustained rate (steps/s) at which every step's alarm arrives and the backlog sta
 tried, its p50 / p99 and the CPU milliseconds per step of each suite process and of the driver (``/proc``: all
 threads, DDS's included), which say where the time goes; for the rate that is not sustained, where its steps went
 (the nodes' ``/diagnostics`` counters, :data:`LOSS_COUNTERS`). Every figure is printed with its ratio to its
-target (docs/benchmarks.md). The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
+target (docs/benchmarks.md). The nodes and the driver spin the executor :mod:`fiper_ros.platform.process` chooses
+(``FIPER_EXECUTOR``).
 
 Start-up, per shape before the latency runs, each start repeated (:data:`NODE_STARTS`,
 :data:`SUITE_STARTS`: DDS discovery takes a few ms or one to three seconds from one start to the next): each
 node started alone (its command line as ``fiper launch`` builds it), the seconds from its exec to ACTIVE by the
-node's own ``ACTIVE`` log line (:func:`fiper_ros.nodes.main.process_age_s`), and until the driver sees it ACTIVE
+node's own ``ACTIVE`` log line (:func:`fiper_ros.platform.process.process_age_s`), and until the driver sees it ACTIVE
 (it asks the node's lifecycle ``get_state`` service every 20 ms: discovery included, the figure's resolution),
 its peak RSS then (``VmHWM``); then the suite: the seconds from the exec of ``fiper launch`` until all three
 nodes are ACTIVE and discovered one another (the driver's inputs matched by the scoring nodes, the events by
@@ -59,14 +60,14 @@ from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.dds import allocate_domain, interrupt_group, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.nodes import container
 from fiper_ros.nodes.base import ACTIVE_LOG, ACTIVE_LOG_END
-from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
+from fiper_ros.platform.dds import allocate_domain, interrupt_group, local_env
+from fiper_ros.platform.process import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
+from fiper_ros.platform.shm import clean_stale
 from fiper_ros.runtime.publishers import fully_qualified
-from fiper_ros.shm import clean_stale
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
 #: included) within :data:`TARGET_SUITE_S`; alarm latency p99 at 10 Hz at most :data:`TARGET_P99_MS`; each node's
@@ -311,7 +312,7 @@ class Driver:
         from fiper_ros.interface import qos  # noqa: PLC0415
         from fiper_ros.interface.cdr import codec  # noqa: PLC0415
         from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC  # noqa: PLC0415
-        from fiper_ros.nodes.main import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
+        from fiper_ros.platform.process import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
 
         self.shape = shape
         self.context = Context()

@@ -3,7 +3,8 @@
 Three node processes named as the suite's (``/fiper/rnd_oe_node``, ``/fiper/ace_node``, ``/fiper/fusion_node``), on
 the suite's topics with the suite's QoS (each score publisher's and the alarm publisher's MANUAL_BY_TOPIC liveliness
 asserted from a steady timer at the suite's period), each spinning the suite's executor in the suite's process shell
-(:func:`fiper_ros.nodes.main.run_node`) and reading and writing bytes with the wire codec, as the suite's nodes do.
+(:func:`fiper_ros.platform.process.run_node`) and reading and writing bytes with the wire codec, as the suite's nodes
+do.
 The two relays publish a Score per input with the input's header, rollout and step, nothing computed; the fusion
 stand-in publishes an OK FailureAlarm once both Scores of a step have come. What the benchmark's driver measures
 through them is what rclpy and Fast DDS cost on this machine for the suite's three hops (driver -> scoring node ->
@@ -26,7 +27,7 @@ from fiper_ros.interface import qos, qos_spec
 from fiper_ros.interface.cdr import Codec, codec
 from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, NAMESPACE, relative,
                                         score_topic)
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 
 #: The relays, by detector: their input's type and topic (relative to :data:`NAMESPACE`, as the suite's nodes').
 INPUTS: dict[str, tuple[type, str]] = {"rnd_oe": (ObservationEmbedding, relative(EMBEDDING_TOPIC)),

@@ -38,12 +38,12 @@ from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_launch
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.commands.demo import SUPERVISOR, Plan, demo_config, managed_nodes
-from fiper_ros.dds import allocate_domain
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ACTIONS_TOPIC
 from fiper_ros.launcher.config import LaunchConfig, dump_launch
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import allocate_domain
+from fiper_ros.platform.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"
 #: Seconds after which a step's action-chunk batch without an alarm counts as unanswered.

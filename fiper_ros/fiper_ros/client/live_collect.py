@@ -42,10 +42,10 @@ from fiper_ros.client.suite_process import (SuiteProcess, declared_of, detector_
                                             scoring_modules, suite_arguments, suite_topics)
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
-from fiper_ros.dds import allocate_domain
 from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, INPUT_TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
+from fiper_ros.platform.dds import allocate_domain
 
 SOURCE = "fiper collect (sim, ROS)"
 #: The node of ``fiper collect --ros`` (in the root namespace; its SROS2 enclave, docs/security.md).

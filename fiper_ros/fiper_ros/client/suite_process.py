@@ -26,10 +26,10 @@ from fiper_ros.core.calibration_file import Declared, declared
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
 from fiper_ros.core.fusion import CombineMode
 from fiper_ros.core.kinematics import RobotModel
-from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
 from fiper_ros.interface.topics import JOINT_STATES_TOPIC, TOPICS, input_topic, score_topic
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
+from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group, local_env
 
 #: The scoring node's module of FIPER's pair (every other detector's is the generic detector node's); the fusion node.
 DETECTOR_MODULES = {RND_OE: "fiper_ros.nodes.rnd_oe_node", ACE: "fiper_ros.nodes.ace_node"}

@@ -1,6 +1,6 @@
 """``fiper demo`` (``make demo``): the whole suite live on the shipped Sorting model, as separate processes.
 
-The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.shm`), starts
+The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.platform.shm`), starts
 ``fiper launch`` on ``launch/demo.launch.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
 the example supervisor, each its own OS process) in a ROS domain of its own, then drives it like an
 operator would from this process: it waits until every node is active, resets the bridge into one
@@ -39,13 +39,13 @@ from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
-from fiper_ros.dds import allocate_domain
 from fiper_ros.errors import FiperError
 from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, CLOCK_TOPIC,
                                         EMBEDDING_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.launcher.config import LaunchConfig, dump_launch, load_launch
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import allocate_domain
+from fiper_ros.platform.shm import clean_stale
 
 #: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
 #: node that must report ``lifecycle_state: active`` on /diagnostics before the first reset).

@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException  # noqa: PLC0415
 
     from fiper_ros.client.ros_session import enclave_args  # noqa: PLC0415
-    from fiper_ros.nodes.main import use_discovery_profile  # noqa: PLC0415
+    from fiper_ros.platform.process import use_discovery_profile  # noqa: PLC0415
 
     use_discovery_profile()
     rclpy.init(args=enclave_args(NODE_NAME))

@@ -33,7 +33,7 @@ exits, forwards Ctrl-C / SIGTERM (SIGINT, then SIGKILL after a grace period) and
 own. Every node process dies with the launcher (``FIPER_PARENT_PID``). With ``ROS_SECURITY_ENABLE=true`` each
 node process runs in its own SROS2 enclave, named as the node (docs/security.md). ``--in-process`` runs all
 nodes in one process on a multi-threaded executor (one DDS participant: one enclave for all). Before any node
-starts, the launcher removes the Fast DDS shared-memory files that dead processes left (:mod:`fiper_ros.shm`).
+starts, the launcher removes the Fast DDS shared-memory files that dead processes left (:mod:`fiper_ros.platform.shm`).
 """
 from __future__ import annotations
 

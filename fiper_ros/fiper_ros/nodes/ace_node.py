@@ -23,7 +23,7 @@ from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ARM_JOINT_NAMES, JOINT_STATES_TOPIC
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector_node import DetectorNode
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.joint_history import JointHistory, StampGate
 from fiper_ros.runtime.validation import InputRejected

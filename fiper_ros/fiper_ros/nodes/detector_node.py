@@ -31,7 +31,7 @@ from fiper_ros.interface.conversions import floats_of
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import EVENTS_TOPIC, input_topic, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.rollout_gate import RolloutGate, Route
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,

@@ -33,7 +33,7 @@ from fiper_ros.interface.conversions import header_view, stamp_ns
 from fiper_ros.interface.messages import AlarmStateName, outcome_name
 from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, RESET_ALARM_SERVICE, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.rollout_gate import Route

@@ -31,7 +31,7 @@ from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, EMBEDDING_TOPIC,
                                         EVENTS_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.session import PolicySession, PolicyStep

@@ -26,7 +26,7 @@ from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, SIM_HALT_SERVICE
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.runtime.halt_delivery import HaltDelivery
 from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic

@@ -38,7 +38,7 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_TOPICS, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, relative,
                                         score_topic)
 from fiper_ros.nodes.base import describe, diagnostic_array
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.view.layout import installed_layout
 from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, HOW_TO_OPEN, ViewError, ViewServer
 
