@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from fiper_msgs.msg import FailureAlarm
-from fiper_ros.core.fusion import CombineMode
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.interface.messages import AlarmStateName
 
 

@@ -23,8 +23,8 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from fiper_ros.core.calibration_file import Declared, declared
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
-from fiper_ros.core.fusion import CombineMode
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.interface.topics import JOINT_STATES_TOPIC, TOPICS, input_topic, score_topic
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch

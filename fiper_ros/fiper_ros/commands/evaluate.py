@@ -53,8 +53,9 @@ from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
+from fiper_ros.core.combine_mode import COMBINES
 from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
-from fiper_ros.core.fusion import COMBINES, Combine
+from fiper_ros.core.fusion import Combine
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX

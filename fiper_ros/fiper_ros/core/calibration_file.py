@@ -15,9 +15,9 @@ from typing import Any
 
 import yaml
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import DETECTORS, check_once, check_pair_format, in_fusion_order
 from fiper_ros.core.errors import CoreError
-from fiper_ros.core.fusion import CombineMode
 
 FORMAT_VERSION = 3
 """The format this code writes: any declared detectors, each task's models and thresholds, the combine."""

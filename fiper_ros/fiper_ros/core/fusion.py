@@ -14,37 +14,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from enum import StrEnum
 
 import numpy as np
 
-
-class CombineMode(StrEnum):
-    """How the declared detectors vote (its value is the name a calibration, a flag and ``FailureAlarm.combine``
-    write): ``and`` every one (eq. 7), ``or`` one, each with a threshold calibrated at delta on its own; ``max``
-    one and ``kth`` (written ``kth:K``) K, over thresholds that share one conformal factor (*joint*:
-    :mod:`fiper_ros.core.combination`)."""
-
-    AND = "and"
-    OR = "or"
-    MAX = "max"
-    KTH = "kth"
-
-    @property
-    def joint(self) -> bool:
-        """Whether the detectors share one conformal factor (``max``, ``kth``)."""
-        return self in (CombineMode.MAX, CombineMode.KTH)
-
-    @property
-    def written(self) -> str:
-        """The mode as a combine is written: ``kth:K`` for :attr:`KTH`, else the value."""
-        return f"{self.value}:K" if self is CombineMode.KTH else self.value
-
-
-#: Combines with a threshold per detector, each calibrated at delta on its own (AND: delta, OR: N x delta).
-COMBINES = tuple(mode.value for mode in CombineMode if not mode.joint)
-#: Combines with one conformal factor over the normalised detectors (:mod:`fiper_ros.core.combination`).
-JOINT_COMBINES = tuple(mode.value for mode in CombineMode if mode.joint)
+from fiper_ros.core.combine_mode import CombineMode
 
 
 @dataclass(frozen=True)

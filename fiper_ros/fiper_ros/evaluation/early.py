@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from fiper_ros.core.combination import SHAPE_KINDS, Shape, combined, fit_shape
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
-from fiper_ros.core.fusion import Combine, CombineMode
+from fiper_ros.core.fusion import Combine
 from fiper_ros.core.metrics import auroc, early_cut, rollout_peaks
 from fiper_ros.core.thresholds import Threshold, ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores

@@ -30,8 +30,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fiper_ros.core.combination import SHAPE_KINDS, Shape, fit_shape
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
-from fiper_ros.core.fusion import Combine, CombineMode
+from fiper_ros.core.fusion import Combine
 from fiper_ros.core.thresholds import Threshold, ThresholdSettings, _quantile
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.methods import Combination

@@ -26,7 +26,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # the backend must be chosen first
 import numpy as np
 
-from fiper_ros.core.fusion import CombineMode, alarms_over_rollout
+from fiper_ros.core.combine_mode import CombineMode
+from fiper_ros.core.fusion import alarms_over_rollout
 from fiper_ros.core.thresholds import Threshold, fit_threshold
 from fiper_ros.core.window import aggregate
 from fiper_ros.evaluation.cache import StreamScores

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fiper_ros.core.fusion import CombineMode
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.metrics import evaluate
 from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.sweep import FIPER, Group

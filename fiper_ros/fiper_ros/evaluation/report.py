@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
-from fiper_ros.core.fusion import CombineMode
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
 from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.engine import EvaluationResult

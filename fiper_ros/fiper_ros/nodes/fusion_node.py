@@ -24,8 +24,8 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
-from fiper_ros.core.fusion import CombineMode
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec

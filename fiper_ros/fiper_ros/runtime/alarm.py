@@ -30,8 +30,9 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import DETECTORS, check_once, info
-from fiper_ros.core.fusion import Combine, CombineMode, exceeds, fuse_votes
+from fiper_ros.core.fusion import Combine, exceeds, fuse_votes
 from fiper_ros.interface.messages import NO_ROLLOUT, AlarmStateName
 from fiper_ros.runtime.rollout_gate import RolloutGate
 from fiper_ros.runtime.rollout_tracker import RolloutRecord

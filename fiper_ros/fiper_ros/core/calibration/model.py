@@ -12,8 +12,8 @@ import yaml
 
 from fiper_ros.core.calibration.settings import CalibrationSettings
 from fiper_ros.core.calibration_file import CALIBRATION_FILE, FORMAT_VERSION, CalibrationError, merged_split
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
-from fiper_ros.core.fusion import CombineMode
 from fiper_ros.core.profiles import Profile
 from fiper_ros.core.scorers import Scorer
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, Threshold

@@ -10,11 +10,12 @@ from typing import Any
 from fiper_ros.core.ace import check_alpha
 from fiper_ros.core.calibration_file import CalibrationError
 from fiper_ros.core.combination import SHAPE_KINDS
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
                                       in_fusion_order, info)
 from fiper_ros.core.errors import CoreError
-from fiper_ros.core.fusion import Combine, CombineMode
+from fiper_ros.core.fusion import Combine
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import Profile, get_profile
