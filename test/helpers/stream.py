@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
-from helpers.suite import STEP_NS, Driver
+from helpers.suite import STEP_NS, PolicySideNode
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import serialize_message
@@ -21,13 +21,13 @@ from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOP
 
 
 class Policy:
-    """The test's publisher side: the suite-harness Driver plus a FailureAlarm publisher."""
+    """The test's publisher side: the suite-harness PolicySideNode plus a FailureAlarm publisher."""
 
     def __init__(self, domain: int) -> None:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.executor = SingleThreadedExecutor(context=self.context)
-        self.driver = Driver(self.context)
+        self.driver = PolicySideNode(self.context)
         self.alarm = self.driver.create_publisher(FailureAlarm, "alarm", qos.ALARM)
         self.executor.add_node(self.driver)
         self._publishers = {EMBEDDING_TOPIC: self.driver.embeddings, ACTIONS_TOPIC: self.driver.batches,

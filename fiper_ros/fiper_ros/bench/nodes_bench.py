@@ -251,7 +251,7 @@ class Startup:
     peak_mb: float
 
 
-def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
+def node_startup(spec: NodeSpec, driver: PolicyStepDriver, domain: int) -> Startup:
     """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE (a container:
     its last node)."""
     with tempfile.TemporaryDirectory() as work:  # its parameter files, read at its start, and its output
@@ -278,7 +278,7 @@ def _created(output: IO[bytes]) -> float:
     raise RuntimeError(f"the plain node printed no 'created' line in {PLAIN_OUTPUT_LINES} lines")
 
 
-def plain_discovery(driver: Driver, domain: int, starts: int) -> list[float]:
+def plain_discovery(driver: PolicyStepDriver, domain: int, starts: int) -> list[float]:
     """Seconds from a plain rclpy node's creation (:data:`PLAIN_NODE`, a new process each start) until the driver's
     graph shows its publisher: DDS discovery alone, without any code of ours."""
     seconds = []
@@ -298,7 +298,7 @@ def plain_discovery(driver: Driver, domain: int, starts: int) -> list[float]:
     return seconds
 
 
-class Driver:
+class PolicyStepDriver:
     """Publishes policy steps and times their alarms."""
 
     def __init__(self, shape: Shape, domain: int) -> None:
@@ -479,7 +479,7 @@ class Driver:
 
 def bench_startup(shape: Shape, config: Path, domain: int, starts: int = NODE_STARTS) -> dict[str, list[Startup]]:
     """Each node of the launch YAML ``config`` started alone, one after the other, ``starts`` rounds."""
-    driver = Driver(shape, domain)
+    driver = PolicyStepDriver(shape, domain)
     nodes = load_launch(config).nodes
     try:
         rounds = [[node_startup(spec, driver, domain) for spec in nodes] for _ in range(starts)]
@@ -498,10 +498,10 @@ def steps_at(rate: float) -> int:
     return max(100, int(rate * 2))
 
 
-def rate_run(driver: Driver, pids: dict[str, int], rollout_id: int,
+def rate_run(driver: PolicyStepDriver, pids: dict[str, int], rollout_id: int,
              rate: float) -> tuple[np.ndarray, int, float, dict[str, float]]:
-    """One run of :func:`steps_at` steps at ``rate``: :meth:`Driver.run`'s latencies, missing steps and backlog, and
-    the CPU milliseconds per step of each process of ``pids``."""
+    """One run of :func:`steps_at` steps at ``rate``: :meth:`PolicyStepDriver.run`'s latencies, missing steps and
+    backlog, and the CPU milliseconds per step of each process of ``pids``."""
     before = {name: cpu_seconds(pid) for name, pid in pids.items()}
     steps = steps_at(rate)
     latencies, missing, backlog = driver.run(rollout_id, steps, rate)
@@ -527,7 +527,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
         work = Path(tmp)
         config = _suite_config(shaped_calibration(shape, work / "calibration"), work, compose)
         startup = bench_startup(shape, config, domain)
-        driver = Driver(shape, domain)
+        driver = PolicyStepDriver(shape, domain)
         plain = plain_discovery(driver, domain, PLAIN_STARTS)
         env = local_env(domain) | ({PROFILE_ENV: str(profile / shape.name)} if profile else {})
         fqns = [fqn for spec in load_launch(config).nodes for fqn in spec_fqns(spec)]
@@ -622,7 +622,7 @@ def bench_floor(shape: Shape, steps: int) -> dict[str, Any]:
     (:mod:`fiper_ros.bench.null_suite`): the latency at 10 Hz, and at the shape's target rate the lost steps, the
     backlog and the CPU per step of each process."""
     with allocate_domain() as domain:
-        driver = Driver(shape, domain)
+        driver = PolicyStepDriver(shape, domain)
         procs = {f"{role} stand-in": _start([sys.executable, "-m", null_suite.__name__, role], domain)
                  for role in null_suite.ROLES}
         try:

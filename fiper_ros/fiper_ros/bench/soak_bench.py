@@ -33,7 +33,7 @@ import numpy as np
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
 from fiper_ros.bench import EVERY_ALARM, memory_mb
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
+from fiper_ros.client.driver import SETTLE_S, SimSuiteDriver, SuiteFailed
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_launch
 from fiper_ros.client.trace import RolloutTrace
@@ -247,7 +247,7 @@ def run_soak(args: argparse.Namespace) -> int:
         try:
             with RosSession("fiper_soak", domain) as session:
                 meter = Meter(session, block_s)
-                driver = Driver(session, suite, "sorting", detectors, display=meter.on_alarm)
+                driver = SimSuiteDriver(session, suite, "sorting", detectors, display=meter.on_alarm)
                 driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=(SUPERVISOR,))
                 meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()})
                 print(f"soak: all nodes active; processes {meter.pids}", flush=True)

@@ -71,7 +71,7 @@ def alarm_line(msg: FailureAlarm) -> str:
     return " | ".join([f"step {msg.step:3d}", *scores, messages.AlarmStateName.of_code(msg.state).name])
 
 
-class Driver:
+class SimSuiteDriver:
     """Readiness, resets and rollouts of a live sim suite, in one rclpy session.
 
     Args:

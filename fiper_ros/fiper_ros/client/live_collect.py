@@ -10,7 +10,7 @@ the launcher and the collect with it. The suite starts on the first episode that
 is not collected yet, in a ROS domain of its own; its launch file and output go to ``DIR/.collect-ros/``
 (removed at the end unless the suite failed).
 
-Per episode: a bag is opened, the :class:`~fiper_ros.client.driver.Driver` resets the bridge into
+Per episode: a bag is opened, the :class:`~fiper_ros.client.driver.SimSuiteDriver` resets the bridge into
 ``(scenario, seed)`` and follows the rollout to its END, then waits until the rollout's messages landed
 in the bag; the collector indexes the episode and finishes the bag. One
 :class:`~fiper_ros.client.record.Recorder` serves all episodes, so its subscriptions never miss the start of
@@ -34,7 +34,7 @@ from sim_bridge.tasks import TASKS
 
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.collect_index import RanEpisode
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
+from fiper_ros.client.driver import SETTLE_S, SimSuiteDriver, SuiteFailed
 from fiper_ros.client.errors import ClientError
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -108,12 +108,12 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
 
 
-def operator(session: RosSession, suite: SuiteProcess, settings: LiveSettings) -> tuple[Recorder, Driver]:
+def operator(session: RosSession, suite: SuiteProcess, settings: LiveSettings) -> tuple[Recorder, SimSuiteDriver]:
     """The collect's side of ``session``: a recorder of the bag schema's inputs (scored: the topics of its
     detectors' suite) and the driver."""
     topics = suite_topics(settings.detectors) if settings.calibration is not None else INPUT_TOPICS
     recorder = Recorder(session, topics, source=SOURCE)
-    return recorder, Driver(session, suite, settings.task, settings.detectors, recorder=recorder)
+    return recorder, SimSuiteDriver(session, suite, settings.task, settings.detectors, recorder=recorder)
 
 
 class RosRunner:
@@ -135,7 +135,7 @@ class RosRunner:
         self.scored = settings.calibration is not None
         self.failed = False
         self._stack = ExitStack()
-        self._driver: Driver | None = None
+        self._driver: SimSuiteDriver | None = None
         self._recorder: Recorder | None = None
 
     def __enter__(self) -> RosRunner:

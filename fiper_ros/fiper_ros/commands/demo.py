@@ -29,7 +29,7 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line
+from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, SimSuiteDriver, SuiteFailed, alarm_line
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -95,14 +95,14 @@ class Display:
 
 
 def operator(session: RosSession, suite: SuiteProcess, task: str, detectors: tuple[str, ...],
-             display: AlarmDisplay | None = None) -> tuple[Recorder, Driver]:
+             display: AlarmDisplay | None = None) -> tuple[Recorder, SimSuiteDriver]:
     """The demo's side of ``session`` for a suite of ``detectors``: a recorder of its topics, both cameras,
     ``/sim/*`` and ``/clock``, and the driver."""
     recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
-    return recorder, Driver(session, suite, task, detectors, recorder=recorder, display=display)
+    return recorder, SimSuiteDriver(session, suite, task, detectors, recorder=recorder, display=display)
 
 
-def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
+def run_rollout(driver: SimSuiteDriver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
     """Reset the bridge into ``plan``, follow the rollout to its end and wait for its last scores."""
     trace = driver.reset(plan.scenario, plan.seed, plan.label)
     display.say(f"rollout {trace.rollout_id}: {driver.task}/{plan.scenario} seed {plan.seed} ({plan.label}), "
