@@ -48,7 +48,7 @@ from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rol
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
 from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, DIAGNOSTICS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC,
                                         STEP_SIGNALS_TOPIC)
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 from fiper_ros.runtime.wiring import unmatched_readers
 
 __all__ = ["FiperPublisher", "SuiteNotReady"]

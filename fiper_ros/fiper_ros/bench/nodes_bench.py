@@ -67,7 +67,7 @@ from fiper_ros.nodes.base import ACTIVE_LOG, ACTIVE_LOG_END
 from fiper_ros.platform.dds import allocate_domain, interrupt_group, local_env
 from fiper_ros.platform.process import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
 from fiper_ros.platform.shm import clean_stale
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
 #: included) within :data:`TARGET_SUITE_S`; alarm latency p99 at 10 Hz at most :data:`TARGET_P99_MS`; each node's

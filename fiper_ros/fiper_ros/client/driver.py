@@ -32,7 +32,7 @@ from fiper_ros.core.detectors import info
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, SIM_RESET_SERVICE
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).

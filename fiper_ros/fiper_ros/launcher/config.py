@@ -51,7 +51,7 @@ import yaml
 
 from fiper_ros.launcher.errors import LaunchError
 from fiper_ros.launcher.substitutions import Context, SubstitutionError, has_substitution, substitute
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 
 #: ROS 2's switch for SROS2 security: when it is ``true``, every launched node runs in its own enclave.
 SECURITY_ENABLE_ENV = "ROS_SECURITY_ENABLE"

@@ -29,8 +29,8 @@ from fiper_ros.interface.conversions import header_view
 from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.platform.process import process_age_s
-from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
+from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 from fiper_ros.runtime.validation import MALFORMED, InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 

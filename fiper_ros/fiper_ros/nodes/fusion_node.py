@@ -35,8 +35,8 @@ from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, RESET_ALARM_SE
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
-from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.rollout_gate import Route
+from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
 #: The FailureAlarm on the wire: the node publishes its bytes.

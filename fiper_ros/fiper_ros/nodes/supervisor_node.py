@@ -28,8 +28,8 @@ from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.platform.process import run_node
 from fiper_ros.runtime.halt_delivery import HaltDelivery
-from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
+from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 
 #: How often the supervisor looks at its pending halt (a reply, the reply timeout, the retry time), steady clock.
 HALT_POLL_S = 0.02
