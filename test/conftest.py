@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from fiper_ros.nodes.main import use_discovery_profile
+from fiper_ros.platform.process import use_discovery_profile
 from helpers.dds import allocate_domain, clean_stale
 
 #: The session's start-up cleaning, reported in pytest's header.

@@ -33,10 +33,10 @@ from fiper_ros.bagio.schema import normalize_cdr
 from fiper_ros.bagio.storage import Salvage
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.client.ros_session import RosSession
-from fiper_ros.dds import allocate_domain, local_env
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, TOPICS
+from fiper_ros.platform.dds import allocate_domain, local_env
 
 #: The shapes of the shipped Sorting policy's messages: E = 128 (embedding), B = 32, H = 16, D = 3.
 E, B, H, D = 128, 32, 16, 3
@@ -45,8 +45,9 @@ E, B, H, D = 128, 32, 16, 3
 def step_cdr(rollout_id: int, step: int, rng: np.random.Generator) -> list[tuple[str, bytes]]:
     """An embedding and an action batch of one step, as DDS carries them (padded to 4 bytes)."""
     stamp = (step + 1) * 100_000_000
-    messages = [(EMBEDDING, embedding_msg(rollout_id, step, stamp, rng.normal(size=E).astype(np.float32))),
-                (ACTIONS, action_batch_msg(rollout_id, step, stamp, rng.normal(size=(B, H, D)).astype(np.float32), 8,
+    messages = [(EMBEDDING_TOPIC, embedding_msg(rollout_id, step, stamp, rng.normal(size=E).astype(np.float32))),
+                (ACTIONS_TOPIC, action_batch_msg(rollout_id, step, stamp, rng.normal(size=(B, H, D)).astype(np.float32),
+                                                 8,
                                            "ee_position"))]
     out = []
     for topic, msg in messages:
@@ -61,8 +62,8 @@ class Publisher:
     def __init__(self, session: RosSession) -> None:
         self.session = session
         node = session.node
-        self.publishers = {EMBEDDING: node.create_publisher(ObservationEmbedding, EMBEDDING, qos.INPUT),
-                           ACTIONS: node.create_publisher(ActionChunkBatch, ACTIONS, qos.INPUT)}
+        self.publishers = {EMBEDDING_TOPIC: node.create_publisher(ObservationEmbedding, EMBEDDING_TOPIC, qos.INPUT),
+                           ACTIONS_TOPIC: node.create_publisher(ActionChunkBatch, ACTIONS_TOPIC, qos.INPUT)}
 
     def spin(self, seconds: float) -> None:
         self.session.spin_until(lambda: False, seconds)
@@ -83,7 +84,8 @@ def on_disk(bag: Path) -> bool:
 
 def one_run(kind: str, domain: int, publisher: Publisher, bag: Path, steps_per_s: float, seconds: float) -> str:
     env = local_env(domain)
-    recorder = subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "record", "-o", str(bag), EMBEDDING, ACTIONS],
+    recorder = subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", "record", "-o", str(bag), EMBEDDING_TOPIC,
+                                 ACTIONS_TOPIC],
                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     rng = np.random.default_rng(0)
     try:

@@ -23,14 +23,14 @@ from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import ACE, RND_OE
 from fiper_ros.core.monitor import predict_rollout
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import score_topic
 from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore
+from fiper_ros.view.layout import STATE_COLOURS
 
 ROOT = Path(__file__).resolve().parents[1]
 SET = ROOT / "bags" / "sorting_sim"
 BAG = sorted((SET / "test_rollouts" / "box_pos").iterdir())[0]
-COLOURS = {OK: "#2ca02c", ALARM: "#d62728", UNKNOWN: "#7f7f7f"}
 
 
 def fused(rollout_id: int, prediction: object, combine: str) -> list[tuple[str, str]]:
@@ -65,8 +65,8 @@ def draw(out: Path) -> Path:
         axes.set_xlim(0, rollout.length - 1)
     transitions = figure.add_subplot(grid[2, 0])
     for t, (state, _) in enumerate(states):
-        transitions.barh(0, 1, left=t - 0.5, color=COLOURS[state], height=0.6)
-    first = next(t for t, (state, _) in enumerate(states) if state == ALARM)
+        transitions.barh(0, 1, left=t - 0.5, color=STATE_COLOURS[state], height=0.6)
+    first = next(t for t, (state, _) in enumerate(states) if state == AlarmStateName.ALARM)
     transitions.text(first / 2, 0, "OK", ha="center", va="center", color="white", fontsize=9)
     transitions.text((first + rollout.length) / 2, 0, "ALARM", ha="center", va="center", color="white", fontsize=9)
     transitions.set_yticks([0], ["alarm"])

@@ -17,8 +17,8 @@ from contextlib import contextmanager
 from typing import TextIO
 
 from fiper_ros import __version__
-from fiper_ros.dds import interruptible
 from fiper_ros.errors import FiperError, FiperWarning, one_line
+from fiper_ros.platform.dds import interruptible
 
 #: Exit status of a command refused because of its input (bad bag, calibration, arguments).
 EXIT_USAGE = 2

@@ -46,8 +46,9 @@ from fiper_ros.errors import FiperError
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr, rollout_event_msg, step_signals_cdr
 from fiper_ros.interface.messages import NO_ROLLOUT, OUTCOME_OF
-from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EMBEDDING, EVENTS, STEP_SIGNALS
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, DIAGNOSTICS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC,
+                                        STEP_SIGNALS_TOPIC)
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 from fiper_ros.runtime.wiring import unmatched_readers
 
 __all__ = ["FiperPublisher", "SuiteNotReady"]
@@ -83,8 +84,8 @@ class FiperPublisher:
     """
 
     def __init__(self, node: Node, *, action_space: str = ACTION_SPACES[0], exec_steps: int = 1,
-                 embedding_topic: str = EMBEDDING, actions_topic: str | None = ACTIONS,
-                 events_topic: str | None = EVENTS, signals_topic: str | None = STEP_SIGNALS,
+                 embedding_topic: str = EMBEDDING_TOPIC, actions_topic: str | None = ACTIONS_TOPIC,
+                 events_topic: str | None = EVENTS_TOPIC, signals_topic: str | None = STEP_SIGNALS_TOPIC,
                  event_callbacks: Callable[[str], PublisherEventCallbacks] | None = None) -> None:
         self.node = node
         self.set_layout(action_space, exec_steps)
@@ -141,10 +142,11 @@ class FiperPublisher:
         if self.events is not None:
             lines += self._writer_side(self.events)
         # who watches the suite's verdicts (fiper launch --summary, fiper record) must hear the first ones too
-        lines += unmatched_readers(self._reports, ALARM, node.count_publishers(ALARM))[1]
-        fusion = [fully_qualified(p.node_namespace, p.node_name) for p in node.get_publishers_info_by_topic(ALARM)]
+        lines += unmatched_readers(self._reports, ALARM_TOPIC, node.count_publishers(ALARM_TOPIC))[1]
+        fusion = [fully_qualified(p.node_namespace,
+                                  p.node_name) for p in node.get_publishers_info_by_topic(ALARM_TOPIC)]
         if suite and not any(self._active(name) for name in fusion):
-            state = f"{', '.join(fusion)} not active" if fusion else f"no publisher of {ALARM}"
+            state = f"{', '.join(fusion)} not active" if fusion else f"no publisher of {ALARM_TOPIC}"
             lines.append(f"the fusion node ({state})")
         return lines
 
@@ -168,7 +170,8 @@ class FiperPublisher:
         spinning meanwhile, e.g. in another thread).
         """
         node = self.node
-        subscription = node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
+        subscription = node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics,
+                                                qos.DIAGNOSTICS)
         owner, executor = node.executor, None
         if owner is None or node not in owner.get_nodes():  # nobody spins the node (rclpy.spin_once leaves owner set)
             executor = SingleThreadedExecutor(context=node.context)

@@ -30,10 +30,11 @@ from fiper_msgs.msg import ActionCommand, RolloutEvent
 from fiper_msgs.srv import ResetRollout
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import floats_of, rollout_event_msg, to_stamp
-from fiper_ros.interface.topics import (CAMERA_THIRD, CAMERA_WRIST, CLOCK, EVENTS, JOINT_STATES, SIM_ACTION, SIM_HALT,
-                                        SIM_PROPRIO, SIM_RESET)
+from fiper_ros.interface.topics import (CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, CLOCK_TOPIC, EVENTS_TOPIC,
+                                        JOINT_STATES_TOPIC, SIM_ACTION_TOPIC, SIM_HALT_SERVICE, SIM_PROPRIO_TOPIC,
+                                        SIM_RESET_SERVICE)
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
 
 from .bridge_session import FAILURE, JOINT_NAMES, PROPRIO_NAMES, SUCCESS, BridgeSession, Ended, Rollout
@@ -75,15 +76,15 @@ class BridgeNode(FiperNode):
         declare("observation_resend_s", 2.0, describe("re-publish a tick's images and proprioception at this period "
                                                       "until its command arrives; 0 = off", read_only=True,
                                                       low=0.0, high=3600.0))
-        declare("joint_state_topic", JOINT_STATES, describe("sensor_msgs/JointState of the 9 joints",
+        declare("joint_state_topic", JOINT_STATES_TOPIC, describe("sensor_msgs/JointState of the 9 joints",
                                                                 read_only=True))
-        declare("wrist_image_topic", CAMERA_WRIST, describe("wrist camera image", read_only=True))
-        declare("third_image_topic", CAMERA_THIRD, describe("third-person camera image",
+        declare("wrist_image_topic", CAMERA_WRIST_TOPIC, describe("wrist camera image", read_only=True))
+        declare("third_image_topic", CAMERA_THIRD_TOPIC, describe("third-person camera image",
                                                                          read_only=True))
-        declare("proprio_topic", SIM_PROPRIO, describe("the policy's proprioception (sensor_msgs/JointState)",
+        declare("proprio_topic", SIM_PROPRIO_TOPIC, describe("the policy's proprioception (sensor_msgs/JointState)",
                                                           read_only=True))
-        declare("action_topic", SIM_ACTION, describe("fiper_msgs/ActionCommand input", read_only=True))
-        declare("events_topic", EVENTS, describe("RolloutEvent output", read_only=True))
+        declare("action_topic", SIM_ACTION_TOPIC, describe("fiper_msgs/ActionCommand input", read_only=True))
+        declare("events_topic", EVENTS_TOPIC, describe("RolloutEvent output", read_only=True))
         self.sim_time = bool(self.get_parameter("sim_time").value)
         self.realtime_factor = float(self.get_parameter("realtime_factor").value)
         self.session: BridgeSession | None = None
@@ -107,9 +108,9 @@ class BridgeNode(FiperNode):
         self._image_pubs = ({key: publisher(Image, param, qos.INPUT) for key, param in IMAGE_TOPIC_PARAMS.items()}
                             if self.get_parameter("images").value else {})
         self._event_pub = publisher(RolloutEvent, "events_topic", qos.EVENT)
-        self._clock_pub = self.create_publisher(Clock, CLOCK, CLOCK_QOS) if self.sim_time else None
-        self.create_service(ResetRollout, SIM_RESET, self._on_reset)
-        self.create_service(Trigger, SIM_HALT, self._on_halt)
+        self._clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, CLOCK_QOS) if self.sim_time else None
+        self.create_service(ResetRollout, SIM_RESET_SERVICE, self._on_reset)
+        self.create_service(Trigger, SIM_HALT_SERVICE, self._on_halt)
         rate = float(self.get_parameter("publish_rate_hz").value)
         if rate > 0:
             self.create_timer(1.0 / rate, self._on_idle, clock=self.steady)

@@ -19,7 +19,7 @@ import torch
 from fiper_ros.bagio.collect_index import CollectSetup, RanEpisode
 from fiper_ros.bagio.rollout_bags import write_rollouts
 from fiper_ros.bagio.schema import BagInfo
-from fiper_ros.dds import die_with
+from fiper_ros.platform.dds import die_with
 from fiper_ros.policy.policy import Policy
 
 from .closed_loop import EpisodeResult, run_episode

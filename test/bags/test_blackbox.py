@@ -18,9 +18,9 @@ from fiper_ros.bagio.storage import Salvage
 from fiper_ros.client.capture import InfoTracker, TopicTap
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.snapshot import MAX_OPEN_SNAPSHOTS, TRACKED_ROLLOUTS, BlackBox, Recorder, Rise
-from fiper_ros.interface.topics import ALARM, EMBEDDING, TOPICS
+from fiper_ros.interface.topics import ALARM_TOPIC, EMBEDDING_TOPIC, TOPICS
 
-ALARM_TYPE, EMBEDDING_TYPE = TOPICS[ALARM].msgtype, TOPICS[EMBEDDING].msgtype
+ALARM_TYPE, EMBEDDING_TYPE = TOPICS[ALARM_TOPIC].msgtype, TOPICS[EMBEDDING_TOPIC].msgtype
 OK, ALARMED, UNKNOWN = FailureAlarm.STATE_OK, FailureAlarm.STATE_ALARM, FailureAlarm.STATE_UNKNOWN
 S = 1_000_000_000
 #: Receive times start here (2023-11-14), so that the snapshot names carry a real date.
@@ -46,9 +46,9 @@ def _embedding(step: int) -> bytes:
 def test_a_snapshot_holds_rise_minus_before_to_rise_plus_after(tmp_path: Path, session: RosSession) -> None:
     """Alarms every second (the rise at 5 s), embeddings half a second after each; before 2 s, after 1 s."""
     recorder = _recorder(tmp_path, session, before_s=2.0, after_s=1.0)
-    recorder.add(ALARM, ALARM_TYPE, T0, alarm_cdr(6, 0, OK))  # the first alarm only sets the state
+    recorder.add(ALARM_TOPIC, ALARM_TYPE, T0, alarm_cdr(6, 0, OK))  # the first alarm only sets the state
     for t in range(1, 10):
-        recorder.add(ALARM, ALARM_TYPE, T0 + t * S, alarm_cdr(6, t, ALARMED if t >= 5 else OK))
+        recorder.add(ALARM_TOPIC, ALARM_TYPE, T0 + t * S, alarm_cdr(6, t, ALARMED if t >= 5 else OK))
         if t == 5:  # the rise: its bag is open, and [3 s, 5 s] is on disk already (MCAP data, no metadata.yaml)
             (snapshot,) = recorder.open
             bag = snapshot.writer.path
@@ -58,7 +58,7 @@ def test_a_snapshot_holds_rise_minus_before_to_rise_plus_after(tmp_path: Path, s
             on_disk = [r.log_time for r in salvage.records() if hasattr(r, "log_time")]
             assert [(t - T0) / S for t in on_disk] == [3.0, 3.5, 4.0, 4.5, 5.0]
         recorder.tick(T0 + t * S)
-        recorder.add(EMBEDDING, EMBEDDING_TYPE, T0 + t * S + S // 2, _embedding(t))
+        recorder.add(EMBEDDING_TOPIC, EMBEDDING_TYPE, T0 + t * S + S // 2, _embedding(t))
         recorder.tick(T0 + t * S + S // 2)
         if t == 5:
             assert recorder.open, "closed before rise + after"
@@ -71,7 +71,8 @@ def test_a_snapshot_holds_rise_minus_before_to_rise_plus_after(tmp_path: Path, s
 def _rises(box: BlackBox, alarms: list[tuple[int, int, int, bool, str]]) -> list[tuple[int, int]]:
     rises = []
     for index, (rollout_id, step, state, heartbeat, reason) in enumerate(alarms):
-        rise = box.add(ALARM, ALARM_TYPE, T0 + index * S // 10, alarm_cdr(rollout_id, step, state, heartbeat=heartbeat,
+        rise = box.add(ALARM_TOPIC, ALARM_TYPE, T0 + index * S // 10, alarm_cdr(rollout_id, step, state,
+                                                                                heartbeat=heartbeat,
                                                                          reason=reason))
         if rise is not None:
             rises.append((rise.rollout_id, rise.step))
@@ -127,10 +128,10 @@ def test_the_ring_buffer_is_bounded_in_time_and_bytes() -> None:
 def test_a_snapshot_says_when_its_before_window_was_cut_short(tmp_path: Path, session: RosSession,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
     recorder = _recorder(tmp_path, session, before_s=10.0, after_s=0.0, max_bytes=3000)
-    recorder.add(ALARM, ALARM_TYPE, T0, alarm_cdr(6, 0, OK))
+    recorder.add(ALARM_TOPIC, ALARM_TYPE, T0, alarm_cdr(6, 0, OK))
     for t in range(1, 8):
         recorder.add("/camera", "std_msgs/msg/String", T0 + t * S, bytes(1000))
-    recorder.add(ALARM, ALARM_TYPE, T0 + 8 * S, alarm_cdr(6, 1, ALARMED))
+    recorder.add(ALARM_TOPIC, ALARM_TYPE, T0 + 8 * S, alarm_cdr(6, 1, ALARMED))
     recorder.tick(T0 + 8 * S)
     out = capsys.readouterr().out
     assert "only 2.0 s before the rise kept, not 10 s: the ring buffer reached --max-mb 0.00286102" in out, out
@@ -139,9 +140,9 @@ def test_a_snapshot_says_when_its_before_window_was_cut_short(tmp_path: Path, se
 def test_at_most_so_many_snapshots_are_open_at_once(tmp_path: Path, session: RosSession,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     recorder = _recorder(tmp_path, session, before_s=1.0, after_s=5.0)
-    recorder.add(ALARM, ALARM_TYPE, T0, alarm_cdr(1, 0, OK))
+    recorder.add(ALARM_TOPIC, ALARM_TYPE, T0, alarm_cdr(1, 0, OK))
     for rollout_id in range(1, MAX_OPEN_SNAPSHOTS + 2):
-        recorder.add(ALARM, ALARM_TYPE, T0 + rollout_id * S // 10, alarm_cdr(rollout_id, 3, ALARMED))
+        recorder.add(ALARM_TOPIC, ALARM_TYPE, T0 + rollout_id * S // 10, alarm_cdr(rollout_id, 3, ALARMED))
     assert len(recorder.open) == MAX_OPEN_SNAPSHOTS and recorder.skipped == 1
     assert (f"fiper snapshot: rise of rollout {MAX_OPEN_SNAPSHOTS + 1} at step 3 skipped: {MAX_OPEN_SNAPSHOTS} "
             "snapshots open (the most at once)") in capsys.readouterr().err

@@ -20,7 +20,7 @@ from fiper_ros.bagio.reader import BagReader
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.cli import main
 from fiper_ros.interface.conversions import to_stamp
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 
 
 def test_record_writes_what_was_published(tmp_path: Path, ros_domain: int, policy: Policy) -> None:
@@ -48,11 +48,11 @@ def test_record_writes_what_was_published(tmp_path: Path, ros_domain: int, polic
     assert np.array_equal(recorded.embeddings, rollout.embeddings)
     assert np.array_equal(recorded.actions, rollout.actions)
     with BagReader(bag) as reader:
-        assert reader.offered_qos(EVENTS)[0].durability.name == "TRANSIENT_LOCAL"
-        assert reader.offered_qos(EMBEDDING)[0].durability.name == "VOLATILE"
+        assert reader.offered_qos(EVENTS_TOPIC)[0].durability.name == "TRANSIENT_LOCAL"
+        assert reader.offered_qos(EMBEDDING_TOPIC)[0].durability.name == "VOLATILE"
         assert reader.info.source == "fiper record" and not reader.info.synthetic
         assert (reader.info.embedding_dim, reader.info.batch_size, reader.info.task) == (16, 32, "synthetic")
-        assert {t for t in reader.topics} == {EVENTS, EMBEDDING, ACTIONS}
+        assert {t for t in reader.topics} == {EVENTS_TOPIC, EMBEDDING_TOPIC, ACTIONS_TOPIC}
 
 
 def test_snapshot_writes_a_bag_around_an_alarm_rise(tmp_path: Path, ros_domain: int, policy: Policy) -> None:
@@ -80,8 +80,8 @@ def test_snapshot_writes_a_bag_around_an_alarm_rise(tmp_path: Path, ros_domain: 
     (bag,) = [p for p in out.iterdir()]
     assert bag.name.endswith(f"_rollout6_step{rise_step}")
     with BagReader(bag) as reader:
-        alarms = [(m.log_time_ns, reader.decode(m)) for m in reader.messages([ALARM])]
-        steps = sorted(reader.decode(m).step for m in reader.messages([EMBEDDING]))
+        alarms = [(m.log_time_ns, reader.decode(m)) for m in reader.messages([ALARM_TOPIC])]
+        steps = sorted(reader.decode(m).step for m in reader.messages([EMBEDDING_TOPIC]))
         times = [m.log_time_ns for m in reader.messages()]
     rise = next(t for t, a in alarms if a.state == FailureAlarm.STATE_ALARM)
     assert next(a.step for _, a in alarms if a.state == FailureAlarm.STATE_ALARM) == rise_step

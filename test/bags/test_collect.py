@@ -40,7 +40,7 @@ from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.kinematics import PinocchioFK
 from fiper_ros.evaluation.data import load_dataset
 from fiper_ros.evaluation.offline import predict_bag
-from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ARM_JOINT_NAMES, EMBEDDING_TOPIC, EVENTS_TOPIC, JOINT_STATES_TOPIC
 from fiper_ros.policy.policy import Policy
 
 MODELS = Path(__file__).resolve().parents[2] / "models"
@@ -71,10 +71,11 @@ def test_collect_writes_one_readable_bag_per_rollout(collected: Path) -> None:
         scenario, seed = bag.parent.name, int(bag.name.rsplit("_", 1)[1])
         with BagReader(bag) as reader:
             counts = Counter(m.topic for m in reader.messages())
-            events = [reader.decode(m) for m in reader.messages([EVENTS])]
-            stamps = [m.log_time_ns for m in reader.messages([ACTIONS])]
+            events = [reader.decode(m) for m in reader.messages([EVENTS_TOPIC])]
+            stamps = [m.log_time_ns for m in reader.messages([ACTIONS_TOPIC])]
             info = reader.info
-        assert counts == {EVENTS: 2, EMBEDDING: 2, ACTIONS: 2}  # no /joint_states for an ee_position task
+        assert counts == {EVENTS_TOPIC: 2, EMBEDDING_TOPIC: 2,
+                          ACTIONS_TOPIC: 2}  # no /joint_states for an ee_position task
         assert [(e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in events] == [
             (0, 0, "sorting", scenario, 2), (1, 2, "sorting", scenario, 2)]  # START, END with FAILURE
         assert {e.rollout_id for e in events} == {collected_rollout_id(scenario, seed)}
@@ -217,12 +218,12 @@ def _stacking_bag(tmp_path: Path, steps: int) -> tuple[Path, Path]:
 def test_joint_velocity_rollouts_keep_their_joint_states_through_the_bag(tmp_path: Path) -> None:
     model, bag = _stacking_bag(tmp_path, 2)
     with BagReader(bag) as reader:
-        joint_states = [(m.log_time_ns, reader.decode(m)) for m in reader.messages([JOINT_STATES])]
-        raw = next(reader.messages([JOINT_STATES])).raw
-        batches = [m.log_time_ns for m in reader.messages([ACTIONS])]
+        joint_states = [(m.log_time_ns, reader.decode(m)) for m in reader.messages([JOINT_STATES_TOPIC])]
+        raw = next(reader.messages([JOINT_STATES_TOPIC])).raw
+        batches = [m.log_time_ns for m in reader.messages([ACTIONS_TOPIC])]
         order = [m.topic for m in reader.messages()]
     assert [t for t, _ in joint_states] == batches  # one per policy step, at the step's stamp
-    assert order[1:4] == [JOINT_STATES, EMBEDDING, ACTIONS]  # before the step's batch
+    assert order[1:4] == [JOINT_STATES_TOPIC, EMBEDDING_TOPIC, ACTIONS_TOPIC]  # before the step's batch
     assert all(list(msg.name) == list(ARM_JOINT_NAMES) for _, msg in joint_states)
     assert list(deserialize_message(raw, JointState).name) == list(ARM_JOINT_NAMES)  # what a replayed ace_node gets
     (rollout,) = read_rollouts(bag)
@@ -241,11 +242,11 @@ def test_a_batch_logged_before_the_joint_state_of_its_stamp_gets_that_state(tmp_
     with BagReader(bag) as reader, BagWriter(late) as writer:
         writer.info = reader.info
         for message in reader.messages():  # each state 1 ns after its step's batch in the log
-            log_time = message.log_time_ns + (1 if message.topic == JOINT_STATES else 0)
+            log_time = message.log_time_ns + (1 if message.topic == JOINT_STATES_TOPIC else 0)
             writer.write(message.topic, log_time, message.raw, message.msgtype)
     with BagReader(late) as reader:
-        order = [m.topic for m in reader.messages([JOINT_STATES, ACTIONS])]
-    assert order[:2] == [ACTIONS, JOINT_STATES]
+        order = [m.topic for m in reader.messages([JOINT_STATES_TOPIC, ACTIONS_TOPIC])]
+    assert order[:2] == [ACTIONS_TOPIC, JOINT_STATES_TOPIC]
     (original,) = read_rollouts(bag)
     (rollout,) = read_rollouts(late)
     np.testing.assert_array_equal(rollout.metadata["joint_positions"], original.metadata["joint_positions"])
@@ -259,9 +260,9 @@ def test_reading_a_bag_of_many_joint_states_keeps_no_more_of_them_than_its_batch
     crowded, extra = tmp_path / "crowded", 30_000
     with BagReader(bag) as reader, BagWriter(crowded) as writer:
         writer.info = reader.info
-        first = next(reader.messages([JOINT_STATES]))
+        first = next(reader.messages([JOINT_STATES_TOPIC]))
         for index in range(extra):  # stamped before the first step's state: never a batch's answer
-            writer.write(JOINT_STATES, first.log_time_ns, _joint_state_cdr(index + 1, np.full(7, float(index))),
+            writer.write(JOINT_STATES_TOPIC, first.log_time_ns, _joint_state_cdr(index + 1, np.full(7, float(index))),
                          first.msgtype)
         for message in reader.messages():
             writer.write(message.topic, message.log_time_ns, message.raw, message.msgtype)

@@ -29,7 +29,8 @@ from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
 from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, JOINT_STATES, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, JOINT_STATES_TOPIC,
+                                        SCORE_ACE_TOPIC, SCORE_RND_OE_TOPIC)
 from fiper_ros.policy.policy import Policy
 from helpers.launch import node_entry, write_launch
 
@@ -68,15 +69,15 @@ def test_each_rollout_is_a_bag_of_the_live_run_equal_to_the_in_process_episode(c
         assert rollout_id & 0xFFFFFFFF == seed and rollout_id >> 32 >= 1  # the bridge's id: reset counter, seed
         with BagReader(bag) as reader:
             counts = Counter(m.topic for m in reader.messages())
-            events = [reader.decode(m) for m in reader.messages([EVENTS])]
+            events = [reader.decode(m) for m in reader.messages([EVENTS_TOPIC])]
             info = reader.info
             recorded = alarm_steps(reader, rollout_id)
-        assert counts[EMBEDDING] == counts[ACTIONS] == STEPS
+        assert counts[EMBEDDING_TOPIC] == counts[ACTIONS_TOPIC] == STEPS
         assert [(e.rollout_id, e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in events] == [
             (rollout_id, RolloutEvent.EVENT_START, RolloutEvent.OUTCOME_UNKNOWN, "sorting", "id", STEPS),
             (rollout_id, RolloutEvent.EVENT_END, RolloutEvent.OUTCOME_FAILURE, "", "", 0)]
         # a scoring node drops a step that arrives after the END it saw: the last step's scores may be missing
-        assert counts[SCORE_RND_OE] >= STEPS - 1 and counts[SCORE_ACE] >= STEPS - 1
+        assert counts[SCORE_RND_OE_TOPIC] >= STEPS - 1 and counts[SCORE_ACE_TOPIC] >= STEPS - 1
         assert set(range(STEPS - 1)) <= set(recorded)
         assert (info.source, info.seed, info.split, info.task, info.policy) == (SOURCE, str(seed), "test", "sorting",
                                                                                 "models/sorting")
@@ -196,10 +197,11 @@ def test_a_live_stacking_rollout_is_the_in_process_episode_and_scored_as_the_bag
                  "--out", str(out)]) == 0
     (bag,) = find_bags([out])
     with BagReader(bag) as reader:
-        (event, *_) = [reader.decode(m) for m in reader.messages([EVENTS])]
+        (event, *_) = [reader.decode(m) for m in reader.messages([EVENTS_TOPIC])]
         recorded = alarm_steps(reader, event.rollout_id)
-        states = {stamp_ns(m.header.stamp): m for m in (reader.decode(r) for r in reader.messages([JOINT_STATES]))}
-        batch_stamps = [stamp_ns(reader.decode(m).header.stamp) for m in reader.messages([ACTIONS])]
+        states = {stamp_ns(m.header.stamp): m
+                  for m in (reader.decode(r) for r in reader.messages([JOINT_STATES_TOPIC]))}
+        batch_stamps = [stamp_ns(reader.decode(m).header.stamp) for m in reader.messages([ACTIONS_TOPIC])]
     assert len(states) > steps and set(range(steps - 1)) <= set(recorded)  # the control steps' states as well
     (rollout,) = read_rollouts(bag)
     episode = run_episode(Policy.load(MODELS / "stacking"), "id", 1003, batch=8, max_policy_steps=steps)

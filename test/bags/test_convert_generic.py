@@ -23,7 +23,7 @@ from fiper_ros.cli import main
 from fiper_ros.commands.convert import convert
 from fiper_ros.converters.options import ConvertOptions, Keys
 from fiper_ros.core.rollout import Rollout, RolloutError
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 
 
 def _observation_only_supported() -> bool:
@@ -60,7 +60,8 @@ def test_npz_by_hand(tmp_path: Path) -> None:
     counts = convert("generic", src, tmp_path / "out", ConvertOptions(exec_steps=1))
     assert counts.bags == {"calibration_rollouts": 1, "test_rollouts": 1}
     calibration = _messages(tmp_path / "out" / "calibration_rollouts")
-    assert [t for t, _ in calibration] == [EVENTS, EMBEDDING, ACTIONS, EMBEDDING, ACTIONS, EVENTS]
+    assert [t for t, _ in calibration] == [EVENTS_TOPIC, EMBEDDING_TOPIC, ACTIONS_TOPIC, EMBEDDING_TOPIC, ACTIONS_TOPIC,
+                                           EVENTS_TOPIC]
     start, e0, a0, e1, a1, end = (m for _, m in calibration)
     assert (start.event, start.task, start.scenario, start.rollout_id) == (RolloutEvent.EVENT_START, "pusht", "id", 1)
     assert list(e0.data) == [1.0, 2.0] and list(e1.data) == [3.0, 4.0] and (e0.step, e1.step) == (0, 1)
@@ -150,12 +151,12 @@ def test_observation_only_bags_have_no_action_topic(tmp_path: Path, suffix: str)
         path.write_bytes(pickle.dumps([{"embeddings": embeddings, "success": True}]))
     convert("generic", tmp_path, tmp_path / "out", ConvertOptions(control_hz=10.0))
     messages = _messages(tmp_path / "out" / "calibration_rollouts")
-    assert [t for t, _ in messages] == [EVENTS, EMBEDDING, EMBEDDING, EMBEDDING, EVENTS]
+    assert [t for t, _ in messages] == [EVENTS_TOPIC, EMBEDDING_TOPIC, EMBEDDING_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC]
     assert [list(m.data) for _, m in messages[1:4]] == embeddings.tolist()
     stamps = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in messages[1:4]]
     assert np.diff(stamps).tolist() == [100_000_000, 100_000_000]  # h = 1 step of 1 / 10 Hz
     with BagReader(tmp_path / "out" / "calibration_rollouts") as reader:
-        assert ACTIONS not in reader.topics
+        assert ACTIONS_TOPIC not in reader.topics
         assert (reader.info.embedding_dim, reader.info.batch_size, reader.info.exec_steps) == (2, 0, 1)
 
 

@@ -21,7 +21,7 @@ from fiper_ros.commands.convert import SPLIT_FILE, convert
 from fiper_ros.converters.options import ConvertOptions, Keys
 from fiper_ros.core.data_split import split_by_task
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import EMBEDDING, EVENTS, STEP_SIGNALS
+from fiper_ros.interface.topics import EMBEDDING_TOPIC, EVENTS_TOPIC, STEP_SIGNALS_TOPIC
 
 NAMES = ("chunk_mse", "eef_z", "action_jerk")
 
@@ -63,8 +63,9 @@ def test_signals_by_hand(tmp_path: Path) -> None:
     src = tmp_path / "logs.npz"
     features = _table(src, [("a", "pick", True, 2), ("b", "pick", False, 1)], split=True)
     convert("generic", src, tmp_path / "out", _signals_options())
-    messages = _messages(tmp_path / "out" / "calibration_rollouts", [EMBEDDING, STEP_SIGNALS, EVENTS])
-    assert [t for t, _ in messages] == [EVENTS, EMBEDDING, STEP_SIGNALS, EMBEDDING, STEP_SIGNALS, EVENTS]
+    messages = _messages(tmp_path / "out" / "calibration_rollouts", [EMBEDDING_TOPIC, STEP_SIGNALS_TOPIC, EVENTS_TOPIC])
+    assert [t for t, _ in messages] == [EVENTS_TOPIC, EMBEDDING_TOPIC, STEP_SIGNALS_TOPIC, EMBEDDING_TOPIC,
+                                        STEP_SIGNALS_TOPIC, EVENTS_TOPIC]
     _, e0, s0, e1, s1, _ = (m for _, m in messages)
     assert [(s.rollout_id, s.step) for s in (s0, s1)] == [(e.rollout_id, e.step) for e in (e0, e1)] == [(1, 0), (1, 1)]
     assert [stamp_ns(s.header.stamp) for s in (s0, s1)] == [stamp_ns(e.header.stamp) for e in (e0, e1)]
@@ -166,7 +167,7 @@ def test_several_tasks_give_a_folder_of_bags_per_task(tmp_path: Path, capsys: py
             assert reader.info.task == bag.parent.name and reader.info.split_rule == ""
             starts.append(reader.start_ns)
             ends.append(max(m.log_time_ns for m in reader.messages()))
-            events = [reader.decode(m) for m in reader.messages([EVENTS])]
+            events = [reader.decode(m) for m in reader.messages([EVENTS_TOPIC])]
         assert {e.task for e in events if e.event == 0} == {bag.parent.name}
     assert all(end < start for end, start in zip(ends, starts[1:]))  # one time line over all bags
     converted = read_converted(out)

@@ -17,13 +17,14 @@ from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.cli import main
 from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import OBSERVATION_ONLY
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 
 
 def test_an_observation_only_copy_keeps_every_other_message_byte_for_byte(observation_bags: dict[str, Path]) -> None:
     with BagReader(observation_bags["test_full"]) as full, BagReader(observation_bags["test"]) as copy:
-        assert set(full.topics) == {EMBEDDING, ACTIONS, EVENTS} and set(copy.topics) == {EMBEDDING, EVENTS}
-        kept = [(m.topic, m.log_time_ns, m.raw) for m in full.messages([EMBEDDING, EVENTS])]
+        assert set(full.topics) == {EMBEDDING_TOPIC, ACTIONS_TOPIC,
+                                    EVENTS_TOPIC} and set(copy.topics) == {EMBEDDING_TOPIC, EVENTS_TOPIC}
+        kept = [(m.topic, m.log_time_ns, m.raw) for m in full.messages([EMBEDDING_TOPIC, EVENTS_TOPIC])]
         assert [(m.topic, m.log_time_ns, m.raw) for m in copy.messages()] == kept
         assert (copy.info.batch_size, copy.info.horizon, copy.info.action_dim, copy.info.action_space) == (0, 0, 0, "")
         assert copy.info.embedding_dim == full.info.embedding_dim and copy.info.split == "test"
@@ -37,7 +38,7 @@ def test_rollouts_without_action_batches_are_read_and_written_so(observation_bag
     assert [r.exec_steps for r in rollouts] == [r.exec_steps for r in full]  # from custom_data
     write_rollouts(tmp_path / "again", rollouts, [21, 22, 23], BagInfo(task="synthetic", source="test"))
     with BagReader(tmp_path / "again") as bag:
-        assert ACTIONS not in bag.topics and bag.info.action_space == ""
+        assert ACTIONS_TOPIC not in bag.topics and bag.info.action_space == ""
     again = read_rollouts(tmp_path / "again")
     assert all(np.array_equal(a.embeddings, b.embeddings) and b.actions is None for a, b in zip(full, again))
     assert [r.success for r in again] == [True, False, True]
@@ -48,7 +49,7 @@ def test_calibrate_without_action_batches_says_how_in_one_line(
     bag = observation_bags["calibration"]
     assert main(["calibrate", str(bag), "-o", str(tmp_path / "cal"), "--max-epochs", "1"]) == 2
     err = capsys.readouterr().err
-    assert err == (f"fiper calibrate: no action batches ({ACTIONS}) in {bag}: ACE cannot be calibrated; for an "
+    assert err == (f"fiper calibrate: no action batches ({ACTIONS_TOPIC}) in {bag}: ACE cannot be calibrated; for an "
                    "observation-only calibration (RND-OE alone) give --detectors rnd_oe\n")
     assert not (tmp_path / "cal").exists()
 

@@ -26,7 +26,7 @@ from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.recover import unfinished
 from fiper_ros.bagio.storage import Salvage
 from fiper_ros.cli import main
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 
 #: ``--chunk-s`` of the recorders under test.
 CHUNK_S = 0.5
@@ -94,7 +94,7 @@ def _steps(policy: Policy, rollout_id: int, steps: range, alarm_from: int | None
         sent.extend(policy.publish(topic, raw) for topic, raw in step_cdr(rollout_id, step, rollout))
         if alarm_from is not None:
             state = FailureAlarm.STATE_ALARM if step >= alarm_from else FailureAlarm.STATE_OK
-            sent.append(policy.publish(ALARM, alarm_cdr(rollout_id, step, state)))
+            sent.append(policy.publish(ALARM_TOPIC, alarm_cdr(rollout_id, step, state)))
         policy.spin_until(lambda: False, PERIOD_S)
     return sent
 
@@ -106,7 +106,7 @@ def _warm_up_recorder(policy: Policy, bag: Path) -> None:
         for topic, raw in step_cdr(WARM_UP, step, rollout):
             policy.publish(topic, raw)
         policy.spin_until(lambda: False, 0.1)
-        if step % 5 == 4 and _on_disk(bag, EMBEDDING) and _on_disk(bag, ACTIONS):
+        if step % 5 == 4 and _on_disk(bag, EMBEDDING_TOPIC) and _on_disk(bag, ACTIONS_TOPIC):
             return
     raise AssertionError(f"{bag}: the recorder wrote no warm-up step in 100 s")
 
@@ -118,9 +118,9 @@ def _record_and_stop(policy: Policy, tmp_path: Path, ros_domain: int, steps: int
     bag = tmp_path / "recording"
     proc = spawn_python(["-m", "fiper_ros.cli", "record", "-o", str(bag), "--chunk-s", str(CHUNK_S)], ros_domain)
     try:
-        assert policy.subscribed((EMBEDDING, ACTIONS, EVENTS))
+        assert policy.subscribed((EMBEDDING_TOPIC, ACTIONS_TOPIC, EVENTS_TOPIC))
         _warm_up_recorder(policy, bag)
-        sent = [policy.publish(EVENTS, start_cdr(ROLLOUT)), *_steps(policy, ROLLOUT, range(steps))]
+        sent = [policy.publish(EVENTS_TOPIC, start_cdr(ROLLOUT)), *_steps(policy, ROLLOUT, range(steps))]
         stopped_ns = time.time_ns()
         _kill(proc, sig)
     finally:
@@ -150,7 +150,7 @@ def test_a_killed_recorder_loses_at_most_its_open_chunk(tmp_path: Path, ros_doma
     assert "messages: /fiper/action_chunks " in out and f"{bag}: finished" in out, out
     messages = _bag_messages(bag)
     held = _holds(messages, sent, sent[0].time_ns, killed_ns - int((CHUNK_S + SLACK_S) * 1e9))
-    assert f"/fiper/observation_embedding {sum(t == EMBEDDING for t, _ in messages)}" in out
+    assert f"/fiper/observation_embedding {sum(t == EMBEDDING_TOPIC for t, _ in messages)}" in out
 
     # The replay of the unfinished bag said what the finished bag says: the alarms of the messages it holds.
     assert main([*replay, str(recovered_report), str(bag)]) == 0
@@ -177,11 +177,12 @@ def test_a_snapshot_survives_its_black_box(tmp_path: Path, ros_domain: int, poli
     proc = spawn_python(["-m", "fiper_ros.cli", "snapshot", "-o", str(out), "--before", str(before_s), "--after",
                          str(after_s), "--chunk-s", str(CHUNK_S)], ros_domain)
     try:
-        assert policy.subscribed((EMBEDDING, ACTIONS, EVENTS, ALARM)), stop(proc)
+        assert policy.subscribed((EMBEDDING_TOPIC, ACTIONS_TOPIC, EVENTS_TOPIC, ALARM_TOPIC)), stop(proc)
         # The warm-up rollout rises at step 10 and goes on until its snapshot is finished.
         first = _steps(policy, WARM_UP, range(20), alarm_from=10)
         assert policy.spin_until(lambda: any((b / "metadata.yaml").is_file() for b in out.glob("*")), timeout=30)
-        rollout = [policy.publish(EVENTS, start_cdr(ROLLOUT)), *_steps(policy, ROLLOUT, range(100), alarm_from=1000)]
+        rollout = [policy.publish(EVENTS_TOPIC, start_cdr(ROLLOUT)), *_steps(policy, ROLLOUT, range(100),
+                                                                             alarm_from=1000)]
         rise = _steps(policy, ROLLOUT, range(100, 101), alarm_from=100)
         after = _steps(policy, ROLLOUT, range(101, 101 + int(4.5 / PERIOD_S)), alarm_from=100)
         killed_ns = time.time_ns()
@@ -193,7 +194,7 @@ def test_a_snapshot_survives_its_black_box(tmp_path: Path, ros_domain: int, poli
     assert finished.name.endswith(f"_rollout{WARM_UP}_step10") and unfinished(finished) is None
     assert cut.name.endswith(f"_rollout{ROLLOUT}_step100") and unfinished(cut)
     whole = _bag_messages(finished)
-    assert (ALARM, [s for s in first if s.topic == ALARM][10].raw) in whole  # the rise
+    assert (ALARM_TOPIC, [s for s in first if s.topic == ALARM_TOPIC][10].raw) in whole  # the rise
     assert main(["bag", "recover", str(cut)]) == 0
     sent = rollout + rise + after
     rise_ns = rise[-1].time_ns

@@ -27,7 +27,7 @@ from fiper_ros.core.detectors import DETECTORS, OBSERVATION_ONLY
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.interface.messages import outcome_name
-from fiper_ros.interface.topics import EMBEDDING, EVENTS, STEP_SIGNALS
+from fiper_ros.interface.topics import EMBEDDING_TOPIC, EVENTS_TOPIC, STEP_SIGNALS_TOPIC
 
 SAMPLES = Path(__file__).resolve().parents[2] / "bags"
 SETS = sorted(p for p in SAMPLES.iterdir() if (p / "calibration").is_dir()) if SAMPLES.is_dir() else []
@@ -93,7 +93,7 @@ def _assert_sorting_verdicts(report: dict, stdout: str) -> None:
     outcomes = {}
     for bag in find_bags([SAMPLES / "sorting_sim"]):
         with BagReader(bag) as reader:
-            for message in reader.messages([EVENTS]):
+            for message in reader.messages([EVENTS_TOPIC]):
                 event = reader.decode(message)
                 if event.event == RolloutEvent.EVENT_START:
                     scenario = event.scenario
@@ -181,7 +181,7 @@ def test_replay_exits_1_when_a_step_gets_no_alarm(small_calibration: Path, ros_d
     with BagReader(whole) as reader, BagWriter(cut) as writer:
         writer.info = reader.info
         for message in reader.messages():
-            if message.topic == EVENTS:
+            if message.topic == EVENTS_TOPIC:
                 event = reader.decode(message)
                 if (event.rollout_id, event.event) == (8, RolloutEvent.EVENT_START):
                     continue
@@ -199,9 +199,11 @@ def test_replay_exits_1_when_a_step_gets_no_alarm(small_calibration: Path, ros_d
 def test_the_step_signals_are_played_into_every_suite_without_waiting_for_a_reader() -> None:
     """No node of the suite reads ``/fiper/step_signals``: the player publishes them (to ``fiper record``, or a node
     of another's) but waits for no reader of them, in a suite it launched or one already running."""
-    assert STEP_SIGNALS in played_topics(DETECTORS) and STEP_SIGNALS in played_topics(OBSERVATION_ONLY)
-    assert suite_subscribers(DETECTORS)[STEP_SIGNALS] == 0 and suite_subscribers(DETECTORS)[EMBEDDING] == 1
-    assert readers_needed([EMBEDDING, STEP_SIGNALS, EVENTS]) == {EMBEDDING: 1, STEP_SIGNALS: 0, EVENTS: 1}
+    assert STEP_SIGNALS_TOPIC in played_topics(DETECTORS) and STEP_SIGNALS_TOPIC in played_topics(OBSERVATION_ONLY)
+    assert suite_subscribers(DETECTORS)[STEP_SIGNALS_TOPIC] == 0 and suite_subscribers(DETECTORS)[EMBEDDING_TOPIC] == 1
+    assert readers_needed([EMBEDDING_TOPIC, STEP_SIGNALS_TOPIC, EVENTS_TOPIC]) == {EMBEDDING_TOPIC: 1,
+                                                                                   STEP_SIGNALS_TOPIC: 0,
+                                                                                   EVENTS_TOPIC: 1}
 
 
 def test_a_bag_with_step_signals_replays_as_the_offline_oracle(small_calibration: Path, ros_domain: int,
@@ -212,7 +214,7 @@ def test_a_bag_with_step_signals_replays_as_the_offline_oracle(small_calibration
     bag = tmp_path / "signals"
     write_rollouts(bag, rollouts, [5, 6], BagInfo(task="synthetic", synthetic=True, source="test"))
     with BagReader(bag) as reader:
-        assert STEP_SIGNALS in reader.topics
+        assert STEP_SIGNALS_TOPIC in reader.topics
     report, _ = _replay([str(bag), "--calibration", str(small_calibration), "--fast", "--step-timeout", "30"],
                         ros_domain, tmp_path / "report.json")
     assert report["missing"] == []

@@ -19,7 +19,7 @@ from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
 from fiper_ros.bagio.schema import BagInfo, normalize_cdr
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, TOPICS
 
 
 def _metadata(bag: Path) -> dict:
@@ -38,7 +38,7 @@ def test_bag_format_custom_data_and_offered_qos(small_bag: Path) -> None:
     assert custom["action_space"] == "ee_position"
     durability = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"][0]["durability"]
                   for t in meta["topics_with_message_count"]}
-    assert durability == {EVENTS: "transient_local", "/fiper/observation_embedding": "volatile",
+    assert durability == {EVENTS_TOPIC: "transient_local", "/fiper/observation_embedding": "volatile",
                           "/fiper/action_chunks": "volatile"}
     with (small_bag / "small.mcap").open("rb") as stream:
         compressions = {c.compression for c in make_reader(stream).get_summary().chunk_indexes}
@@ -75,19 +75,19 @@ def test_writing_is_deterministic_and_atomic(tmp_path: Path, rollouts: list[Roll
     with pytest.raises(BagError, match="exists already"):
         write_rollouts(tmp_path / "a" / "bag", rollouts, [1, 2, 3, 4], BagInfo())
     with pytest.raises(RuntimeError), BagWriter(tmp_path / "aborted") as writer:
-        writer.write(EVENTS, 1, b"\x00\x01\x00\x00")
+        writer.write(EVENTS_TOPIC, 1, b"\x00\x01\x00\x00")
         raise RuntimeError("interrupted")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b"]  # nothing of the aborted bag left
 
 
 def test_alarm_topic_is_recorded_transient_local(tmp_path: Path) -> None:
     msg = FailureAlarm(rollout_id=3, step=4, state=FailureAlarm.STATE_ALARM, combine="and", reason="x")
-    raw = normalize_cdr(serialize_message(msg), TOPICS[ALARM].msgtype)
+    raw = normalize_cdr(serialize_message(msg), TOPICS[ALARM_TOPIC].msgtype)
     with BagWriter(tmp_path / "alarm") as writer:
-        writer.write(ALARM, 5, raw)
+        writer.write(ALARM_TOPIC, 5, raw)
     with BagReader(tmp_path / "alarm") as bag:
-        assert bag.offered_qos(ALARM)[0].durability.name == "TRANSIENT_LOCAL"
-        assert bag.offered_qos(ALARM)[0].depth == 1
+        assert bag.offered_qos(ALARM_TOPIC)[0].durability.name == "TRANSIENT_LOCAL"
+        assert bag.offered_qos(ALARM_TOPIC)[0].depth == 1
         (message,) = list(bag.messages())
         decoded = bag.decode(message)
     assert (decoded.rollout_id, decoded.step, decoded.state, message.raw) == (3, 4, 1, raw)
@@ -98,7 +98,7 @@ def test_reader_names_a_missing_step(tmp_path: Path, small_bag: Path) -> None:
     with BagReader(small_bag) as source, BagWriter(bag) as writer:
         for message in source.messages():
             msg = source.decode(message)
-            if message.topic == EMBEDDING and msg.rollout_id == 8 and msg.step == 5:
+            if message.topic == EMBEDDING_TOPIC and msg.rollout_id == 8 and msg.step == 5:
                 continue
             writer.write(message.topic, message.log_time_ns, message.raw)
     with pytest.raises(BagError, match=r"rollout 8 has no observation embedding for step 5"):
@@ -112,7 +112,7 @@ def _without(small_bag: Path, bag: Path, drop: set[tuple[str, int, int]], events
         writer.info = source.info
         for message in source.messages():
             msg = source.decode(message)
-            if message.topic == EVENTS and not events and msg.rollout_id == 10 and msg.event == 1:
+            if message.topic == EVENTS_TOPIC and not events and msg.rollout_id == 10 and msg.event == 1:
                 continue
             if (message.topic, msg.rollout_id, getattr(msg, "step", -1)) not in drop:
                 writer.write(message.topic, message.log_time_ns, message.raw)
@@ -123,7 +123,7 @@ def test_a_step_cut_off_by_the_end_of_a_recording_is_left_out(tmp_path: Path, sm
                                                                caplog: pytest.LogCaptureFixture) -> None:
     """A recording that ends between the last step's embedding and its action batch: the rollout has no END,
     and that half step is left out, with a line; with the END (a finished rollout) it is an error."""
-    last = (ACTIONS, 10, len(read_rollouts(small_bag)[-1].embeddings) - 1)
+    last = (ACTIONS_TOPIC, 10, len(read_rollouts(small_bag)[-1].embeddings) - 1)
     cut = read_rollouts(_without(small_bag, tmp_path / "cut", {last}, events=False))
     assert (cut[-1].length, cut[-1].success) == (last[2], None)
     assert f"rollout 10 ends inside step {last[2]} (only its observation embedding, no END)" in caplog.text

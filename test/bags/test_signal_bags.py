@@ -18,7 +18,7 @@ from fiper_ros.bagio.schema import BagInfo, message_cdr
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.interface.conversions import embedding_msg, rollout_event_msg, step_signals_msg
-from fiper_ros.interface.topics import EMBEDDING, EVENTS, STEP_SIGNALS, TOPICS
+from fiper_ros.interface.topics import EMBEDDING_TOPIC, EVENTS_TOPIC, STEP_SIGNALS_TOPIC, TOPICS
 
 
 def _rollout(name: str, steps: int, signals: dict[str, np.ndarray]) -> Rollout:
@@ -32,8 +32,8 @@ def test_signals_round_trip_bit_for_bit(tmp_path: Path) -> None:
     rollouts = [_rollout("a", 4, {"chunk_mse": values, "eef_z": values[::-1].copy()}), _rollout("b", 2, {})]
     write_rollouts(tmp_path / "bag", rollouts, [3, 4], BagInfo())
     with BagReader(tmp_path / "bag") as reader:
-        assert reader.offered_qos(STEP_SIGNALS)[0].durability.name == "VOLATILE"
-        messages = [reader.decode(m) for m in reader.messages([STEP_SIGNALS])]
+        assert reader.offered_qos(STEP_SIGNALS_TOPIC)[0].durability.name == "VOLATILE"
+        messages = [reader.decode(m) for m in reader.messages([STEP_SIGNALS_TOPIC])]
     assert [(m.rollout_id, m.step) for m in messages] == [(3, 0), (3, 1), (3, 2), (3, 3)]  # none for rollout b
     first, plain = read_rollouts(tmp_path / "bag")
     assert list(first.signals) == ["chunk_mse", "eef_z"] and plain.signals == {}
@@ -51,15 +51,16 @@ def _bag(path: Path, steps: list[dict[str, float] | None], *, end: bool = True,
         def put(topic: str, stamp: int, msg: object) -> None:
             writer.write(topic, stamp, message_cdr(msg, TOPICS[topic].msgtype))
 
-        put(EVENTS, 1, rollout_event_msg(7, RolloutEvent.EVENT_START, 1, task="pick"))
+        put(EVENTS_TOPIC, 1, rollout_event_msg(7, RolloutEvent.EVENT_START, 1, task="pick"))
         for step, signals in enumerate(steps):
             stamp = 10 + step
             if embedded is None or step < embedded:
-                put(EMBEDDING, stamp, embedding_msg(7, step, stamp, np.full(2, step, np.float32)))
+                put(EMBEDDING_TOPIC, stamp, embedding_msg(7, step, stamp, np.full(2, step, np.float32)))
             if signals is not None:
-                put(STEP_SIGNALS, stamp, step_signals_msg(7, step, stamp, signals))
+                put(STEP_SIGNALS_TOPIC, stamp, step_signals_msg(7, step, stamp, signals))
         if end:
-            put(EVENTS, 99, rollout_event_msg(7, RolloutEvent.EVENT_END, 99, outcome=RolloutEvent.OUTCOME_SUCCESS))
+            put(EVENTS_TOPIC, 99, rollout_event_msg(7, RolloutEvent.EVENT_END, 99,
+                                                    outcome=RolloutEvent.OUTCOME_SUCCESS))
     return path
 
 
@@ -83,21 +84,21 @@ def test_steps_that_disagree_are_refused_naming_bag_rollout_and_step(tmp_path: P
 
 
 def _embedding() -> bytes:
-    return message_cdr(embedding_msg(7, 0, 10, np.zeros(2, np.float32)), TOPICS[EMBEDDING].msgtype)
+    return message_cdr(embedding_msg(7, 0, 10, np.zeros(2, np.float32)), TOPICS[EMBEDDING_TOPIC].msgtype)
 
 
 def test_a_signals_message_of_more_names_than_values_is_refused(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     with BagWriter(bag) as writer:
         msg = StepSignals(rollout_id=7, step=0, names=["a", "b"], values=[1.0])
-        writer.write(EMBEDDING, 10, _embedding())
-        writer.write(STEP_SIGNALS, 10, message_cdr(msg, TOPICS[STEP_SIGNALS].msgtype))
+        writer.write(EMBEDDING_TOPIC, 10, _embedding())
+        writer.write(STEP_SIGNALS_TOPIC, 10, message_cdr(msg, TOPICS[STEP_SIGNALS_TOPIC].msgtype))
     with pytest.raises(BagError, match=f"^{bag}: rollout 7 step 0: step signals: 2 signal names but 1 values$"):
         read_rollouts(bag)
     with BagWriter(bag, overwrite=True) as writer:
         msg = StepSignals(rollout_id=7, step=0, names=["a", "a"], values=[1.0, 2.0])
-        writer.write(STEP_SIGNALS, 10, message_cdr(msg, TOPICS[STEP_SIGNALS].msgtype))
-        writer.write(EMBEDDING, 10, _embedding())
+        writer.write(STEP_SIGNALS_TOPIC, 10, message_cdr(msg, TOPICS[STEP_SIGNALS_TOPIC].msgtype))
+        writer.write(EMBEDDING_TOPIC, 10, _embedding())
     with pytest.raises(BagError, match=r"rollout 7 step 0: step signals: a signal name repeats \(a, a\)$"):
         read_rollouts(bag)
 

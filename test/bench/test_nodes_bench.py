@@ -69,7 +69,7 @@ def test_a_get_state_request_left_unanswered_is_asked_again(ros_domain: int, mon
     executor.add_node(server)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    driver = nodes_bench.Driver(nodes_bench.SHAPES[0], ros_domain)
+    driver = nodes_bench.PolicyStepDriver(nodes_bench.SHAPES[0], ros_domain)
     try:
         began = time.monotonic()
         driver.wait_active(["/fiper/slow_node"])

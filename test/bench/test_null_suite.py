@@ -8,13 +8,13 @@ import sys
 import time
 
 from fiper_ros.bench import null_suite
-from fiper_ros.bench.nodes_bench import SHAPES, Driver, _start, _stop
+from fiper_ros.bench.nodes_bench import SHAPES, PolicyStepDriver, _start, _stop
 from fiper_ros.interface.conversions import action_batch_cdr, embedding_cdr
 
 
 def test_the_stand_ins_answer_every_step_once_both_scores_came(ros_domain: int) -> None:
     shape = SHAPES[0]
-    driver = Driver(shape, ros_domain)
+    driver = PolicyStepDriver(shape, ros_domain)
     procs = [_start([sys.executable, "-m", null_suite.__name__, role], ros_domain) for role in null_suite.ROLES]
     try:
         driver.wait_wired("the stand-ins")

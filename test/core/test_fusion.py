@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from fiper_ros.core.combine_mode import COMBINES, CombineMode
 from fiper_ros.core.fusion import Combine, alarms_over_rollout, exceeds, first_alarm, fuse, fuse_declared, fuse_votes
 
 
@@ -75,6 +76,14 @@ def test_combine_parse_and_votes(text: str, mode: str, k: int, votes: int) -> No
     else:
         assert combine.votes(1) == 1  # one detector alone decides alone
     assert combine.joint == (mode in ("max", "kth"))
+
+
+def test_combine_modes_by_hand() -> None:
+    assert COMBINES == ("and", "or") and [mode.joint for mode in CombineMode] == [False, False, True, True]
+    assert [mode.written for mode in CombineMode] == ["and", "or", "max", "kth:K"]
+    assert Combine("or").mode is CombineMode.OR and Combine.parse("kth:2") == Combine(CombineMode.KTH, 2)
+    with pytest.raises(ValueError, match=r"^or takes no K$"):
+        Combine(CombineMode.OR, 2)
 
 
 @pytest.mark.parametrize(("text", "message"), [

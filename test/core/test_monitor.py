@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 from helpers.core_data import make_rollout, overflowing_rnd
+from helpers.states import ALARM, OK
 
 from fiper_ros.core.calibration import Calibration
 from fiper_ros.core.detectors import ACE, RND_OE
@@ -16,7 +17,7 @@ from fiper_ros.core.scorers import RndOeScorer
 from fiper_ros.core.scores import NonFiniteScore
 from fiper_ros.core.thresholds import Threshold
 from fiper_ros.core.window import WindowAccumulator
-from fiper_ros.runtime.alarm import ALARM, OK, AlarmFuser, DetectorScore
+from fiper_ros.runtime.alarm import AlarmFuser, DetectorScore
 
 
 def _observation(calibration: Calibration) -> DetectorMonitor:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 
-from fiper_ros.dds import DOMAIN_RANGE, allocate_domain, domains_in_use
+from fiper_ros.platform.dds import DOMAIN_RANGE, allocate_domain, domains_in_use
 
 
 def test_a_domain_a_live_process_uses_is_never_allocated() -> None:

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from fiper_ros.client.suite_process import SuiteProcess, installed_launch
-from fiper_ros.dds import ignores_sigint, interrupt_group, interruptible
+from fiper_ros.platform.dds import ignores_sigint, interrupt_group, interruptible
 
 SORTING_CALIBRATION = Path(__file__).resolve().parents[2] / "models" / "sorting" / "calibration"
 

@@ -1,4 +1,4 @@
-"""Fast DDS shared-memory hygiene (fiper_ros.shm) against real DDS processes on loopback: a SIGKILLed
+"""Fast DDS shared-memory hygiene (fiper_ros.platform.shm) against real DDS processes on loopback: a SIGKILLed
 node's segments and ports are removed, a running node's never, also with several cleaners at once and a
 node starting meanwhile; the launcher reports what it removed at start-up."""
 from __future__ import annotations
@@ -15,8 +15,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from fiper_ros.dds import interrupt_group
-from fiper_ros.shm import SHM_DIR, clean_stale, group_files, maps_inodes
+from fiper_ros.platform.dds import interrupt_group
+from fiper_ros.platform.shm import SHM_DIR, clean_stale, group_files, maps_inodes
 from helpers.dds import ros_env, spawn_python, stop
 from helpers.launch import node_entry, write_launch
 
@@ -83,7 +83,7 @@ def sigkill(proc: subprocess.Popen[str]) -> None:
 
 def cleaner_processes(count: int, seconds: float) -> list[subprocess.Popen[str]]:
     """``count`` processes that each clean again and again for ``seconds`` and print what they removed."""
-    code = ("import json, sys, time\nfrom fiper_ros.shm import clean_stale\n"
+    code = ("import json, sys, time\nfrom fiper_ros.platform.shm import clean_stale\n"
             "end = time.monotonic() + float(sys.argv[1])\nremoved = []\n"
             "while time.monotonic() < end:\n    removed += clean_stale().removed\nprint(json.dumps(removed))\n")
     command = [sys.executable, "-c", code, str(seconds)]
@@ -129,7 +129,7 @@ def test_a_killed_nodes_files_go_and_a_running_nodes_stay(ros_domain: int) -> No
         result = clean_stale()
         deadline = time.monotonic() + START_TIMEOUT_S
         while still_there(dead) and result.busy and time.monotonic() < deadline:  # a port another node was
-            time.sleep(0.5)  # opening is left for the next time (fiper_ros.shm): the next cleaning takes it
+            time.sleep(0.5)  # opening is left for the next time (fiper_ros.platform.shm): the next cleaning takes it
             result = clean_stale()
         assert still_there(dead) == {}, result.summary()
         assert still_there(live_files) == live_files

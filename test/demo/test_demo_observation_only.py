@@ -31,7 +31,8 @@ from fiper_ros.core.calibration import load_calibration
 from fiper_ros.core.detectors import OBSERVATION_ONLY
 from fiper_ros.evaluation.offline import predict_bag
 from fiper_ros.evaluation.results import StepResult
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, SCORE_ACE, SCORE_RND_OE
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, SCORE_ACE_TOPIC,
+                                        SCORE_RND_OE_TOPIC)
 
 JUDGED_BY = "RND-OE alone (observation-only: no ACE)"
 JUDGED = f"judged by {JUDGED_BY}"
@@ -78,7 +79,8 @@ def test_the_demo_runs_rnd_oe_alone_and_its_alarms_equal_the_offline_oracle(
     assert "| ACE" not in run.stdout and "| RND-OE" in run.stdout  # the progress lines show RND-OE alone
     with BagReader(out / "bag") as bag:
         topics = set(bag.topics)
-    assert {EMBEDDING, ACTIONS, EVENTS, SCORE_RND_OE, ALARM} <= topics and SCORE_ACE not in topics
+    assert {EMBEDDING_TOPIC, ACTIONS_TOPIC, EVENTS_TOPIC, SCORE_RND_OE_TOPIC,
+            ALARM_TOPIC} <= topics and SCORE_ACE_TOPIC not in topics
     calibration = load_calibration(observation_calibration)
     in_dist, ood = summary["rollouts"]
     for live in (in_dist, ood):
@@ -116,7 +118,8 @@ def test_collect_ros_records_rnd_oe_alone_and_the_bag_replays(
     with BagReader(bag) as reader:
         topics = set(reader.topics)
         calibration_hash = reader.info.calibration_hash
-    assert {EMBEDDING, ACTIONS, EVENTS, SCORE_RND_OE, ALARM} <= topics and SCORE_ACE not in topics
+    assert {EMBEDDING_TOPIC, ACTIONS_TOPIC, EVENTS_TOPIC, SCORE_RND_OE_TOPIC,
+            ALARM_TOPIC} <= topics and SCORE_ACE_TOPIC not in topics
     assert calibration_hash == load_calibration(observation_calibration).content_hash
     oracle = _oracle_agrees(bag, observation_calibration, entry["rollout_id"], steps)
     assert any(s.state == "alarm" for s in oracle.values())  # the OOD rollout is alarmed within its 40 steps

@@ -15,7 +15,7 @@ from fiper_ros.client.suite_process import suite_topics
 from fiper_ros.client.trace import EARLY_MESSAGES, RolloutEvents, RolloutTrace
 from fiper_ros.commands.demo import SUPERVISOR, VIEW, demo_config, managed_nodes, plain_nodes, problems_of
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
-from fiper_ros.interface.topics import SCORE_ACE, SCORE_RND_OE, TOPICS
+from fiper_ros.interface.topics import SCORE_ACE_TOPIC, SCORE_RND_OE_TOPIC, TOPICS
 
 DEMO_YAML = Path(__file__).resolve().parents[2] / "fiper_ros" / "launch" / "demo.launch.yaml"
 
@@ -163,8 +163,8 @@ def test_the_demo_of_an_observation_only_calibration_runs_no_ace_node(tmp_path: 
     assert nodes["fusion_node"].parameters["calibration_dir"] == str(tmp_path / "calibration")
     assert SUPERVISOR not in managed_nodes(config) and "/fiper/ace_node" not in managed_nodes(config)
     # the recorder waits for every topic it records: never for the scores of a detector that is not there
-    assert suite_topics(OBSERVATION_ONLY) == tuple(t for t in TOPICS if t != SCORE_ACE)
-    assert suite_topics(DETECTORS) == tuple(TOPICS) and SCORE_RND_OE in suite_topics(OBSERVATION_ONLY)
+    assert suite_topics(OBSERVATION_ONLY) == tuple(t for t in TOPICS if t != SCORE_ACE_TOPIC)
+    assert suite_topics(DETECTORS) == tuple(TOPICS) and SCORE_RND_OE_TOPIC in suite_topics(OBSERVATION_ONLY)
 
 
 def test_the_progress_line_shows_the_declared_scores() -> None:

@@ -24,7 +24,7 @@ from typing import Union
 
 import pytest
 
-from fiper_ros.dds import interrupt_group
+from fiper_ros.platform.dds import interrupt_group
 from helpers.dds import ros_env
 
 ROOT = Path(os.environ["FIPER_ROOT"])

@@ -7,7 +7,7 @@ from __future__ import annotations
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.client.capture import report_matches
 from fiper_ros.interface import qos
-from fiper_ros.interface.topics import ALARM
+from fiper_ros.interface.topics import ALARM_TOPIC
 from helpers.spin import Listener
 
 
@@ -17,8 +17,8 @@ class AlarmListener(Listener):
     def __init__(self, domain: int) -> None:
         super().__init__(domain, "test_alarms")
         self.alarms: list[FailureAlarm] = []
-        subscription = self.node.create_subscription(FailureAlarm, ALARM, self.alarms.append, qos.ALARM_EVERY)
-        report_matches(self.node, lambda: {ALARM: subscription.get_publisher_count()})
+        subscription = self.node.create_subscription(FailureAlarm, ALARM_TOPIC, self.alarms.append, qos.ALARM_EVERY)
+        report_matches(self.node, lambda: {ALARM_TOPIC: subscription.get_publisher_count()})
 
     def verdicts(self) -> dict[int, dict[int, FailureAlarm]]:
         """Per rollout, the first decision (not a heartbeat) of each step."""

@@ -22,7 +22,7 @@ from fiper_ros.bagio.reader import BagReader
 from fiper_ros.bagio.rollout_bags import write_rollouts
 from fiper_ros.bagio.schema import BagInfo, message_definitions, typestore
 from fiper_ros.bagio.writer import BagWriter
-from fiper_ros.interface.topics import EMBEDDING
+from fiper_ros.interface.topics import EMBEDDING_TOPIC
 
 #: A damage: modifies the bag at the path, returns the text its refusal holds.
 Damage = Callable[[Path], str]
@@ -219,8 +219,8 @@ def only_std_msgs(bag: Path) -> str:
 
 
 def std_msgs_on_a_fiper_topic(bag: Path) -> str:
-    _string_bag(bag, EMBEDDING)
-    return (f"{bag}: topic {EMBEDDING} holds {STRING}, the FIPER schema says fiper_msgs/msg/ObservationEmbedding "
+    _string_bag(bag, EMBEDDING_TOPIC)
+    return (f"{bag}: topic {EMBEDDING_TOPIC} holds {STRING}, the FIPER schema says fiper_msgs/msg/ObservationEmbedding "
             "(not a bag of this suite)")
 
 
@@ -243,7 +243,7 @@ def other_definition_of_a_fiper_type(bag: Path) -> str:
                 connections[message.topic] = writer.add_connection(message.topic, message.msgtype, typestore=store)
             writer.write(connections[message.topic], message.log_time_ns, message.raw)
     shutil.rmtree(source)
-    return f"{bag}: its definition of fiper_msgs/msg/ObservationEmbedding (on {EMBEDDING}, RIHS01_"
+    return f"{bag}: its definition of fiper_msgs/msg/ObservationEmbedding (on {EMBEDDING_TOPIC}, RIHS01_"
 
 
 #: The damages after which a bag is unfinished, not unreadable: it is read up to its last complete chunk

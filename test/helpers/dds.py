@@ -1,5 +1,5 @@
-"""Test-side DDS helpers: child processes in a test's own domain (see fiper_ros.dds), shared memory of dead
-processes removed (fiper_ros.shm)."""
+"""Test-side DDS helpers: child processes in a test's own domain (see fiper_ros.platform.dds), shared memory of dead
+processes removed (fiper_ros.platform.shm)."""
 from __future__ import annotations
 
 import os
@@ -9,8 +9,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from fiper_ros.dds import allocate_domain, local_env, wait_interruptible
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import allocate_domain, local_env, wait_interruptible
+from fiper_ros.platform.shm import clean_stale
 
 __all__ = ["allocate_domain", "clean_stale", "ros_env", "run_python", "spawn_python", "stop"]
 

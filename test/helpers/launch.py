@@ -22,14 +22,14 @@ from std_srvs.srv import Trigger
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.dds import PARENT_PID_ENV, interrupt_group
 from fiper_ros.interface.topics import score_topic
 from fiper_ros.nodes.graph_watch import NOT_NAMED, PUBLISHERS_KEY
-from fiper_ros.nodes.main import TEARDOWN_S
+from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group
+from fiper_ros.platform.process import TEARDOWN_S
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 from helpers.dds import ros_env
 from helpers.spin import spin_until
-from helpers.suite import STEP_NS, Driver
+from helpers.suite import STEP_NS, PolicySideNode
 
 POLICY_PERIOD_S = STEP_NS / 1e9
 #: The score topics the fusion node reads, fully qualified.
@@ -119,7 +119,7 @@ class Rig:
 
     launch: Launch
     context: Context
-    driver: Driver
+    driver: PolicySideNode
     executor: SingleThreadedExecutor
     halts: list[float] = field(default_factory=list)
     """When the supervisor called ``/test/halt`` (monotonic seconds)."""
@@ -231,7 +231,7 @@ def open_rig(config: Path, domain: int) -> Rig:
     context = Context()
     rclpy.init(context=context, domain_id=domain)
     executor = SingleThreadedExecutor(context=context)
-    rig = Rig(launch, context, Driver(context), executor)
+    rig = Rig(launch, context, PolicySideNode(context), executor)
 
     def on_halt(request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         del request

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import rclpy
-from helpers.suite import STEP_NS, Driver
+from helpers.suite import STEP_NS, PolicySideNode
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import serialize_message
@@ -17,21 +17,21 @@ from fiper_ros.bagio.schema import normalize_cdr
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_batch_msg, embedding_msg, rollout_event_msg, to_stamp
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, TOPICS
 
 
 class Policy:
-    """The test's publisher side: the suite-harness Driver plus a FailureAlarm publisher."""
+    """The test's publisher side: the suite-harness PolicySideNode plus a FailureAlarm publisher."""
 
     def __init__(self, domain: int) -> None:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.executor = SingleThreadedExecutor(context=self.context)
-        self.driver = Driver(self.context)
+        self.driver = PolicySideNode(self.context)
         self.alarm = self.driver.create_publisher(FailureAlarm, "alarm", qos.ALARM)
         self.executor.add_node(self.driver)
-        self._publishers = {EMBEDDING: self.driver.embeddings, ACTIONS: self.driver.batches,
-                            EVENTS: self.driver.events, ALARM: self.alarm}
+        self._publishers = {EMBEDDING_TOPIC: self.driver.embeddings, ACTIONS_TOPIC: self.driver.batches,
+                            EVENTS_TOPIC: self.driver.events, ALARM_TOPIC: self.alarm}
 
     def spin_until(self, condition: Callable[[], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -72,15 +72,15 @@ def cdr(msg: object, topic: str) -> bytes:
 
 
 def start_cdr(rollout_id: int) -> bytes:
-    return cdr(rollout_event_msg(rollout_id, RolloutEvent.EVENT_START, 0, task="synthetic"), EVENTS)
+    return cdr(rollout_event_msg(rollout_id, RolloutEvent.EVENT_START, 0, task="synthetic"), EVENTS_TOPIC)
 
 
 def step_cdr(rollout_id: int, step: int, rollout: Rollout) -> list[tuple[str, bytes]]:
     """The embedding and the action batch of one policy step."""
     stamp = (step + 1) * STEP_NS
-    return [(EMBEDDING, cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]), EMBEDDING)),
-            (ACTIONS, cdr(action_batch_msg(rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps,
-                                           "ee_position"), ACTIONS))]
+    return [(EMBEDDING_TOPIC, cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]), EMBEDDING_TOPIC)),
+            (ACTIONS_TOPIC, cdr(action_batch_msg(rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps,
+                                           "ee_position"), ACTIONS_TOPIC))]
 
 
 def alarm_cdr(rollout_id: int, step: int, state: int, *, heartbeat: bool = False, reason: str = "") -> bytes:
@@ -88,4 +88,4 @@ def alarm_cdr(rollout_id: int, step: int, state: int, *, heartbeat: bool = False
     alarm = FailureAlarm(rollout_id=rollout_id, step=step, state=state, latched=state == FailureAlarm.STATE_ALARM,
                          combine="and", heartbeat=heartbeat, reason=reason)
     alarm.header.stamp = to_stamp(step)
-    return cdr(alarm, ALARM)
+    return cdr(alarm, ALARM_TOPIC)

@@ -42,7 +42,7 @@ def assert_as_the_oracle(alarms: dict[int, FailureAlarm], prediction: RolloutPre
                     bool(trace.exceeded[t]), np.float32(trace.windowed[t]), np.float32(trace.thresholds[t])), t
 
 
-class Driver(Node):
+class PolicySideNode(Node):
     """Publishes the policy side of the suite's topics and records everything the suite says."""
 
     def __init__(self, context: Context) -> None:
@@ -87,15 +87,15 @@ class Driver(Node):
         return out
 
 
-class DriverSession:
-    """A :class:`Driver` on its own executor, in a private context of ``domain``: the test side of a suite that runs
-    in other processes (``fiper launch``)."""
+class PolicySideSession:
+    """A :class:`PolicySideNode` on its own executor, in a private context of ``domain``: the test side of a suite that
+    runs in other processes (``fiper launch``)."""
 
     def __init__(self, domain: int) -> None:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain)
         self.executor = SingleThreadedExecutor(context=self.context)
-        self.driver = Driver(self.context)
+        self.driver = PolicySideNode(self.context)
         self.executor.add_node(self.driver)
 
     def spin_until(self, condition: Callable[[], bool], timeout: float = 30.0) -> bool:
@@ -138,7 +138,7 @@ class Suite:
         self.rnd_oe = RndOeNode(context=self.context, namespace="/fiper", parameter_overrides=params)
         self.ace = AceNode(context=self.context, namespace="/fiper", parameter_overrides=params)
         self.fusion = FusionNode(context=self.context, namespace="/fiper", parameter_overrides=list(fusion))
-        self.driver = Driver(self.context)
+        self.driver = PolicySideNode(self.context)
         self.nodes = [self.rnd_oe, self.ace, self.fusion, self.driver]
         for node in self.nodes:
             self.executor.add_node(node)

@@ -114,7 +114,7 @@ def wait_for(lines: list[str], text: str) -> bool:
 #: A node process (``run_node``) whose node never finishes its construction and ignores Ctrl-C meanwhile.
 STUCK_NODE = """
 import sys, time
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 
 def stuck_in_construction():
     print("constructing", flush=True)
@@ -144,7 +144,7 @@ def test_a_node_that_does_not_stop_within_the_grace_period_prints_its_stacks_bef
 #: A process that ignores Ctrl-C and ends on the stacks signal (a node whose teardown ends within the stacks' wait).
 ENDS_ON_STACKS = """
 import os, signal, time
-from fiper_ros.dds import STACKS_SIGNAL
+from fiper_ros.platform.dds import STACKS_SIGNAL
 signal.signal(signal.SIGINT, signal.SIG_IGN)
 signal.signal(STACKS_SIGNAL, lambda *_: os._exit(0))
 print("waiting", flush=True)

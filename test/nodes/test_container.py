@@ -13,7 +13,7 @@ import pytest
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.nodes.container import NODES, ContainerUsageError, contained, main
 from helpers.launch import Launch
-from helpers.suite import DriverSession
+from helpers.suite import PolicySideSession
 from helpers.synthetic import FAIL_FROM, make_rollout
 
 ROOT = Path(os.environ["FIPER_ROOT"])
@@ -51,7 +51,7 @@ def test_a_container_refuses_a_command_line_with_the_reason(argv: list[str], mes
 def test_the_composed_suite_alarms_at_the_separate_suites_step_and_a_killed_container_returns_whole(
         calibration_dir: Path, ros_domain: int) -> None:
     launch = Launch(SUITE, ros_domain, arguments={"calibration_dir": str(calibration_dir), "compose": "true"})
-    session = DriverSession(ros_domain)
+    session = PolicySideSession(ros_domain)
     driver, spin_until = session.driver, session.spin_until
     def active(node: str) -> int:
         return sum(f"[fiper.{node}]: ACTIVE" in line for line in list(launch.lines))

@@ -1,4 +1,4 @@
-"""The process shell of every node (`fiper_ros.nodes.main`): shutdown while a callback runs."""
+"""The process shell of every node (`fiper_ros.platform.process`): shutdown while a callback runs."""
 from __future__ import annotations
 
 import signal
@@ -12,7 +12,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 
-from fiper_ros.nodes.main import EXIT_S, spin_until_shutdown
+from fiper_ros.platform.process import EXIT_S, spin_until_shutdown
 from helpers.dds import spawn_python
 
 
@@ -57,7 +57,7 @@ def _run_node_process(factory_body: str, domain: int, interrupt_after: str | Non
                       executor: str = "single", stop: signal.Signals = signal.SIGINT) -> tuple[int, str]:
     """Run ``run_node`` on ``factory()`` (given by its body) in a child process; send ``stop`` once the child
     printed ``interrupt_after``; return its exit status and output."""
-    script = ("import faulthandler, sys, rclpy\nfrom fiper_ros.nodes.main import run_node\n"
+    script = ("import faulthandler, sys, rclpy\nfrom fiper_ros.platform.process import run_node\n"
               f"def factory():\n{textwrap.indent(factory_body, '    ')}\n"
               f"sys.exit(run_node(factory, [], executor={executor!r}))\n")
     child = spawn_python(["-c", script], domain)
@@ -154,12 +154,12 @@ def test_sigterm_shuts_down_once_and_ignores_the_next(ros_domain: int) -> None:
     handler, a lambda, stayed installed)."""
     import os
 
-    from fiper_ros.nodes import main
+    from fiper_ros.platform import process
 
     previous = signal.getsignal(signal.SIGTERM)
     rclpy.init(domain_id=ros_domain)
     try:
-        signal.signal(signal.SIGTERM, main._on_sigterm)
+        signal.signal(signal.SIGTERM, process._on_sigterm)
         os.kill(os.getpid(), signal.SIGTERM)
         deadline = time.monotonic() + 10
         while rclpy.ok() and time.monotonic() < deadline:  # the handler runs between bytecodes of this thread

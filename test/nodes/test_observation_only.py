@@ -24,7 +24,7 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import embedding_msg
 from fiper_ros.runtime.alarm import ratio_text
 from helpers.spin import spin_until
-from helpers.suite import STATE, STEP_NS, Driver
+from helpers.suite import STATE, STEP_NS, PolicySideNode
 from helpers.synthetic import FAIL_FROM, make_calibration, make_rollout
 
 FAST = [Parameter("diagnostics_period_s", value=0.1), Parameter("configure_retry_s", value=0.5)]
@@ -44,7 +44,7 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
     nodes = [RndOeNode(context=context, namespace="/fiper", parameter_overrides=params),
              FusionNode(context=context, namespace="/fiper", parameter_overrides=params),
              AceNode(context=context, namespace="/fiper", parameter_overrides=params)]
-    driver = Driver(context)
+    driver = PolicySideNode(context)
     # A node the suite does not know publishes on scores/ace: an observation-only fusion reads nothing there.
     intruder = rclpy.node.Node("intruder", context=context)
     intruder.create_publisher(Score, "/fiper/scores/ace", qos.SCORE_PUB)

@@ -21,7 +21,7 @@ from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent,
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import floats_of, stamp_ns
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, STEP_SIGNALS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, STEP_SIGNALS_TOPIC
 from fiper_ros.publishing import FiperPublisher, SuiteNotReady
 
 
@@ -34,10 +34,12 @@ class Ends:
         self.node = Node("test_policy", context=self.context)
         self.fiper = FiperPublisher(self.node, **options)  # type: ignore[arg-type]
         self.listener = Node("test_listener", context=self.context)
-        self.received: dict[str, list[object]] = {EMBEDDING: [], ACTIONS: [], EVENTS: [], STEP_SIGNALS: []}
-        for kind, topic, profile in ((ObservationEmbedding, EMBEDDING, qos.INPUT),
-                                     (ActionChunkBatch, ACTIONS, qos.INPUT), (RolloutEvent, EVENTS, qos.EVENT),
-                                     (StepSignals, STEP_SIGNALS, qos.INPUT)):
+        self.received: dict[str, list[object]] = {EMBEDDING_TOPIC: [], ACTIONS_TOPIC: [], EVENTS_TOPIC: [],
+                                                  STEP_SIGNALS_TOPIC: []}
+        for kind, topic, profile in ((ObservationEmbedding, EMBEDDING_TOPIC, qos.INPUT),
+                                     (ActionChunkBatch, ACTIONS_TOPIC, qos.INPUT), (RolloutEvent, EVENTS_TOPIC,
+                                                                                    qos.EVENT),
+                                     (StepSignals, STEP_SIGNALS_TOPIC, qos.INPUT)):
             self.listener.create_subscription(kind, topic, self.received[topic].append, profile)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.listener)
@@ -82,14 +84,14 @@ def test_start_steps_and_end_on_the_wire(ends: Ends) -> None:
     assert fiper.start(7) == 7
     assert fiper.step(embedding, chunks, stamp_ns=123) == 0
     fiper.end(success=None)
-    assert ends.spin_until(lambda: len(ends.received[EVENTS]) == 4 and len(ends.received[ACTIONS]) == 3)
-    events = [(e.rollout_id, e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in ends.received[EVENTS]]
+    assert ends.spin_until(lambda: len(ends.received[EVENTS_TOPIC]) == 4 and len(ends.received[ACTIONS_TOPIC]) == 3)
+    events = [(e.rollout_id, e.event, e.outcome, e.task, e.scenario, e.max_steps) for e in ends.received[EVENTS_TOPIC]]
     assert events == [(first, RolloutEvent.EVENT_START, RolloutEvent.OUTCOME_UNKNOWN, "my_task", "id", 3),
                       (first, RolloutEvent.EVENT_END, RolloutEvent.OUTCOME_FAILURE, "", "", 0),
                       (7, RolloutEvent.EVENT_START, RolloutEvent.OUTCOME_UNKNOWN, "", "", 0),
                       (7, RolloutEvent.EVENT_END, RolloutEvent.OUTCOME_UNKNOWN, "", "", 0)]
     assert first > 1_600_000_000_000  # from the wall clock in ms: never an id of an earlier run
-    embeddings, batches = ends.received[EMBEDDING], ends.received[ACTIONS]
+    embeddings, batches = ends.received[EMBEDDING_TOPIC], ends.received[ACTIONS_TOPIC]
     assert [(m.rollout_id, m.step) for m in embeddings] == [(b.rollout_id, b.step) for b in batches] == \
         [(first, 0), (first, 1), (7, 0)]
     assert [stamp_ns(m.header.stamp) for m in embeddings] == [stamp_ns(b.header.stamp) for b in batches]
@@ -110,11 +112,11 @@ def test_a_steps_signals_go_out_with_its_rollout_step_and_stamp_and_only_when_gi
     fiper.step(embedding, chunks, signals={"chunk_mse": 0.25, "eef_z": np.float32(-1.5)}, stamp_ns=5_000_000_007)
     fiper.step(embedding, chunks, signals={})
     fiper.end(success=True)
-    assert ends.spin_until(lambda: len(ends.received[ACTIONS]) == 3 and len(ends.received[EVENTS]) == 2)
-    assert ends.spin_until(lambda: len(ends.received[STEP_SIGNALS]) >= 1, 2.0)
-    (signals,) = ends.received[STEP_SIGNALS]
+    assert ends.spin_until(lambda: len(ends.received[ACTIONS_TOPIC]) == 3 and len(ends.received[EVENTS_TOPIC]) == 2)
+    assert ends.spin_until(lambda: len(ends.received[STEP_SIGNALS_TOPIC]) >= 1, 2.0)
+    (signals,) = ends.received[STEP_SIGNALS_TOPIC]
     assert (signals.rollout_id, signals.step, stamp_ns(signals.header.stamp)) == (rollout_id, 1, 5_000_000_007)
-    assert stamp_ns(ends.received[EMBEDDING][1].header.stamp) == 5_000_000_007
+    assert stamp_ns(ends.received[EMBEDDING_TOPIC][1].header.stamp) == 5_000_000_007
     assert list(signals.names) == ["chunk_mse", "eef_z"] and list(signals.values) == [0.25, -1.5]
 
 
@@ -131,8 +133,8 @@ def test_bad_signals_are_refused_before_anything_is_published(ends: Ends, signal
         fiper.step(np.zeros(3), np.zeros((2, 4, 3)), signals=signals)
     assert fiper.next_step == 0
     fiper.step(np.ones(3), np.zeros((2, 4, 3)))
-    assert ends.spin_until(lambda: len(ends.received[EMBEDDING]) == 1)
-    assert ends.received[EMBEDDING][0].data[0] == 1.0  # the refused step's embedding never went out
+    assert ends.spin_until(lambda: len(ends.received[EMBEDDING_TOPIC]) == 1)
+    assert ends.received[EMBEDDING_TOPIC][0].data[0] == 1.0  # the refused step's embedding never went out
 
 
 def test_what_the_publisher_refuses(ends: Ends) -> None:
@@ -171,8 +173,8 @@ def test_observation_only_and_without_events(ros_domain: int) -> None:
             fiper.step(np.zeros(3), np.zeros((2, 4, 3)), rollout_id=3, step=0)
         assert ends.spin_until(ends.matched, 30)
         fiper.step(np.ones(3), rollout_id=3, step=0)
-        assert ends.spin_until(lambda: len(ends.received[EMBEDDING]) == 1)
-        assert ends.received[ACTIONS] == []
+        assert ends.spin_until(lambda: len(ends.received[EMBEDDING_TOPIC]) == 1)
+        assert ends.received[ACTIONS_TOPIC] == []
     finally:
         ends.close()
 
@@ -182,8 +184,8 @@ def test_without_a_suite_the_wait_says_what_is_missing(ends: Ends) -> None:
         ends.fiper.wait_for_suite(0.5)
     text = str(error.value)
     assert text.startswith(f"the FIPER suite is not ready after 0.5 s in ROS domain {ends.context.get_domain_id()}")
-    assert f"an active node of the suite subscribing to {EMBEDDING} (none reports one on /diagnostics)" in text
-    assert f"an active node of the suite subscribing to {ACTIONS}" in text
+    assert f"an active node of the suite subscribing to {EMBEDDING_TOPIC} (none reports one on /diagnostics)" in text
+    assert f"an active node of the suite subscribing to {ACTIONS_TOPIC}" in text
     assert "the fusion node (no publisher of /fiper/alarm)" in text
     assert "fiper launch fiper_ros/launch/fiper.launch.yaml calibration_dir:=DIR" in text
     with pytest.raises(SuiteNotReady, match="/fiper_record is not ready after 0.1 s .*waiting for: /fiper_record to "
@@ -201,8 +203,8 @@ def test_a_recording_started_with_the_policy_holds_every_step(tmp_path: Path, ro
         # the recorder has matched every input, but it is no node of the suite (the walkthrough's first run took it
         # for one and published before the scoring nodes were active: their first steps were lost)
         assert fiper.missing(also=["/fiper_record"]) == [
-            f"an active node of the suite subscribing to {EMBEDDING} (none reports one on /diagnostics)",
-            f"an active node of the suite subscribing to {ACTIONS} (none reports one on /diagnostics)",
+            f"an active node of the suite subscribing to {EMBEDDING_TOPIC} (none reports one on /diagnostics)",
+            f"an active node of the suite subscribing to {ACTIONS_TOPIC} (none reports one on /diagnostics)",
             "the fusion node (no publisher of /fiper/alarm)"]
         rollout_id = fiper.start(task="my_task")
         chunks = np.zeros((2, 4, 3))

@@ -28,7 +28,7 @@ from fiper_ros.commands.grants import (Deployment, Grants, effective_parameters,
 from fiper_ros.commands.security import (differences, mismatches, observe_all, policy_xml, read_policy, resolve,
                                          settled_grants)
 from fiper_ros.core.detectors import DETECTORS
-from fiper_ros.interface.topics import ARM_JOINT_NAMES, DIAGNOSTICS, TOPICS
+from fiper_ros.interface.topics import ARM_JOINT_NAMES, DIAGNOSTICS_TOPIC, TOPICS
 from fiper_ros.launcher.config import NodeSpec, dump_launch, load_launch
 from fiper_ros.launcher.errors import LaunchError
 from fiper_ros.launcher.processes import build_node
@@ -95,7 +95,7 @@ def test_every_node_of_every_shipped_suite_does_exactly_what_its_grants_say() ->
     assert "/fiper/alarm" in supervisor.subscribe and supervisor.request == frozenset({"/sim/halt"})
     assert all("/fiper/alarm" not in g.publish for n, g in policy.items() if n != "/fiper/fusion_node")
     # the live view (#22) only reads: it publishes nothing of the suite's, only its own diagnostics
-    assert used["/fiper/view_node"].publish == frozenset({DIAGNOSTICS, "/rosout", "/parameter_events"})
+    assert used["/fiper/view_node"].publish == frozenset({DIAGNOSTICS_TOPIC, "/rosout", "/parameter_events"})
     assert {"/fiper/alarm", "/fiper/scores/rnd_oe", "/camera/wrist/image_raw"} <= used["/fiper/view_node"].subscribe
     # the joint-velocity ACE (Stacking) subscribes the joint states; an end-effector one does not
     joints = {spec.parameters["calibration_dir"]: "/joint_states" in seen.subscribe
@@ -151,7 +151,7 @@ def test_each_tool_does_exactly_what_its_grants_say(demo_suite: SuiteProcess, ro
 
         wait(sessions, subscribed, 120.0)
         # fiper echo of each topic fiper record captures, and of /diagnostics
-        echo_each(stack, ros_domain, recorder.tap.types | {DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"})
+        echo_each(stack, ros_domain, recorder.tap.types | {DIAGNOSTICS_TOPIC: "diagnostic_msgs/msg/DiagnosticArray"})
         derived = tool_grants()
         tools = settled_grants(recorded.node, derived, lambda: [s.spin_once(0.01) for s in sessions])
     policy = shipped()

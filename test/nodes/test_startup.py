@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import interrupt_group, local_env
-from fiper_ros.nodes import main
-from fiper_ros.nodes.main import DISCOVERY_PROFILE, FASTDDS_PROFILES_ENV, process_age_s, use_discovery_profile
+from fiper_ros.platform import process
+from fiper_ros.platform.dds import interrupt_group, local_env
+from fiper_ros.platform.process import DISCOVERY_PROFILE, FASTDDS_PROFILES_ENV, process_age_s, use_discovery_profile
 
 ROOT = Path(__file__).resolve().parents[2]
 CALIBRATION = ROOT / "models" / "pusht" / "calibration"
@@ -55,7 +55,7 @@ def test_a_profile_of_the_user_wins(clean_env: pytest.MonkeyPatch, tmp_path: Pat
     assert os.environ[FASTDDS_PROFILES_ENV] == str(theirs)
 
 
-@pytest.mark.parametrize("name", main.FASTDDS_DEFAULT_FILES)
+@pytest.mark.parametrize("name", process.FASTDDS_DEFAULT_FILES)
 def test_a_default_profiles_file_in_the_working_directory_wins(clean_env: pytest.MonkeyPatch, tmp_path: Path,
                                                                name: str) -> None:
     (tmp_path / name).write_text("<profiles/>")
@@ -85,7 +85,7 @@ def test_a_tools_session_uses_the_profile(ros_domain: int) -> None:
 
 def test_process_age_counts_from_the_exec() -> None:
     """A child that sleeps 0.5 s before it asks is at least that old (the kernel's tick: 10 ms)."""
-    code = ("import time; time.sleep(0.5); from fiper_ros.nodes.main import process_age_s; "
+    code = ("import time; time.sleep(0.5); from fiper_ros.platform.process import process_age_s; "
             "print(process_age_s())")
     age = float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                                timeout=60).stdout)

@@ -12,7 +12,7 @@ from rclpy.node import Node
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.interface import qos
 from helpers.launch import Launch, node_entry, write_launch
-from helpers.suite import DriverSession
+from helpers.suite import PolicySideSession
 from helpers.synthetic import FAIL_FROM, make_rollout
 
 DEADLINE_S = 1.0
@@ -28,7 +28,7 @@ def test_processes_alarm_latch_for_late_joiners_and_dead_node_detection(
                           node_entry("ace_node", scoring),
                           node_entry("fusion_node", {"deadline_s": DEADLINE_S, "heartbeat_s": HEARTBEAT_S}))
     launch = Launch(config, ros_domain)
-    session = DriverSession(ros_domain)
+    session = PolicySideSession(ros_domain)
     driver, spin_until = session.driver, session.spin_until
     try:
         assert spin_until(session.wired, timeout=60), "\n".join(launch.lines)

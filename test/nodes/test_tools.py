@@ -20,12 +20,12 @@ import pytest
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.commands.echo import Printer
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import PARENT_PID_ENV, interrupt_group
 from fiper_ros.interface import qos
-from fiper_ros.nodes.main import DISCOVERY_PROFILE
+from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group
+from fiper_ros.platform.process import DISCOVERY_PROFILE
 from helpers.dds import ros_env, spawn_python, stop
 from helpers.launch import node_entry, suite_config, write_launch
-from helpers.suite import Driver, Suite
+from helpers.suite import PolicySideNode, Suite
 from helpers.synthetic import FAIL_FROM, make_rollout
 
 OK, ALARMED, UNKNOWN = FailureAlarm.STATE_OK, FailureAlarm.STATE_ALARM, FailureAlarm.STATE_UNKNOWN
@@ -154,7 +154,7 @@ def test_launch_in_process_runs_the_suite_and_stops_on_ctrl_c(tmp_path: Path, ca
     launch = _fiper(["launch", str(config), "--in-process"], ros_domain)
     context = Context()
     rclpy.init(context=context, domain_id=ros_domain)
-    driver = Driver(context)
+    driver = PolicySideNode(context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(driver)
     try:

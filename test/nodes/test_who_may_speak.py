@@ -16,7 +16,7 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.runtime.publishers import FOREIGN, SEVERAL
+from fiper_ros.runtime.trusted_publishers import FOREIGN, SEVERAL
 from helpers.dds import spawn_python, stop
 from helpers.intruder import MARK_LATENCY_MS
 from helpers.suite import Suite

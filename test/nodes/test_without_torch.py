@@ -33,7 +33,7 @@ from fiper_ros.core.calibration import CalibrationError, load_calibration, upgra
 from fiper_ros.core.calibration_file import upgrade_command
 from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.core.scores import obs_scores
-from fiper_ros.dds import local_env
+from fiper_ros.platform.dds import local_env
 
 ROOT = Path(__file__).resolve().parents[2]
 FORMAT1 = ROOT / "test" / "data" / "calibration_format1"

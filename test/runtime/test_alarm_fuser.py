@@ -8,10 +8,11 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 from helpers.alarm_pairs import fuse_pair as _pair
+from helpers.states import ALARM, OK, UNKNOWN
 
 from fiper_ros.core.fusion import alarms_over_rollout
-from fiper_ros.runtime.alarm import (ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore,
-                                     explanation, ratio_text, reset_refusal)
+from fiper_ros.runtime.alarm import (NO_ROLLOUT, AlarmFuser, AlarmState, DetectorScore, explanation, ratio_text,
+                                     reset_refusal)
 
 S = 1_000_000_000
 MS = 1_000_000

@@ -6,8 +6,9 @@ from __future__ import annotations
 import math
 
 import pytest
+from helpers.states import ALARM, OK, UNKNOWN
 
-from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN, AlarmFuser, AlarmState, DetectorScore
+from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore
 
 S = 1_000_000_000
 ALONE = "(rnd_oe alone: combine does not apply)"

@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 from helpers.alarm_pairs import fuse_pair as _pair
+from helpers.states import ALARM, OK, UNKNOWN
 
-from fiper_ros.runtime.alarm import ALARM, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, DetectorScore
+from fiper_ros.runtime.alarm import NO_ROLLOUT, AlarmFuser, DetectorScore
 from fiper_ros.runtime.supervision import SupervisorLogic
 
 S = 1_000_000_000

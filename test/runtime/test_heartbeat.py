@@ -4,8 +4,9 @@ are said at once, once; a latched ALARM stays ALARM."""
 from __future__ import annotations
 
 from helpers.alarm_pairs import fuse_pair
+from helpers.states import ALARM, OK, UNKNOWN
 
-from fiper_ros.runtime.alarm import ALARM, OK, UNKNOWN, AlarmFuser, AlarmState
+from fiper_ros.runtime.alarm import AlarmFuser, AlarmState
 
 MS = 1_000_000
 HEARTBEAT = 500 * MS

@@ -3,14 +3,13 @@ from __future__ import annotations
 
 import pytest
 from helpers.alarm_pairs import fuse_pair
+from helpers.states import ALARM, OK, UNKNOWN
 
-from fiper_ros.runtime.alarm import ALARM, MAX_RESET_TEXT, NO_ROLLOUT, OK, UNKNOWN, AlarmFuser, AlarmState, \
-    reset_refusal
-from fiper_ros.runtime.publishers import (FOREIGN, SEVERAL, UNIDENTIFIED, UNKNOWN_NODE_NAME, UNKNOWN_NODE_NAMESPACE,
-                                          UNNAMED_GRACE_NS,
-                                          Expected, Finding, Publisher, PublisherWatch, fully_qualified, judge,
-                                          resolve_node)
+from fiper_ros.runtime.alarm import MAX_RESET_TEXT, NO_ROLLOUT, AlarmFuser, AlarmState, reset_refusal
 from fiper_ros.runtime.supervision import SupervisorLogic
+from fiper_ros.runtime.trusted_publishers import (FOREIGN, SEVERAL, UNIDENTIFIED, UNKNOWN_NODE_NAME,
+                                                  UNKNOWN_NODE_NAMESPACE, UNNAMED_GRACE_NS, Expected, Finding,
+                                                  Publisher, PublisherWatch, fully_qualified, judge, resolve_node)
 
 S = 1_000_000_000
 SCORES = "/fiper/scores/rnd_oe"

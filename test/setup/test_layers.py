@@ -2,7 +2,7 @@
 
 Every import of every module (also those inside functions and under ``TYPE_CHECKING``: a lazy import is
 still a dependency) is read with ``ast``. A *unit* is a package of ``fiper_ros`` (``core``, ``bagio``, ...),
-one of its top-level modules (``dds``, ``cli``, ...), ``fiper_ros`` itself (its ``__init__``: the version) or
+one of its top-level modules (``cli``, ``errors``, ...), ``fiper_ros`` itself (its ``__init__``: the version) or
 ``sim_bridge``. :data:`LAYERS` is the one place the allowed edges are written down: a unit may import units
 of lower layers only, never one of its own layer or above, so no two units can import each other.
 """
@@ -23,8 +23,9 @@ PACKAGES = {"fiper_ros": ROOT / "fiper_ros" / "fiper_ros", "sim_bridge": ROOT / 
 #: Lowest first. A unit may import the units of the layers below its own.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("fiper_ros", "errors"),  # the version; the root of the user errors (FiperError)
-    ("core", "interface", "dds", "shm", "data_paths", "cluster"),  # the method; the wire; the platform
-    ("runtime", "baselines", "view"),  # streaming rules without rclpy; the comparison methods; the live view
+    ("core", "interface", "data_paths", "cluster"),  # the method; the wire; data paths; the Ray cluster
+    ("runtime", "baselines", "view", "platform"),  # streaming rules without rclpy; the comparison methods; the live
+    # view; processes, DDS domains and shared memory (below the nodes, the launcher and the clients that all use it)
     ("bagio", "policy", "publishing"),  # bag I/O without rclpy; the generative policies; a policy's publishing side
     ("converters", "evaluation", "nodes"),  # foreign data -> rollouts; offline evaluation; the rclpy shells
     ("launcher", "sim_bridge"),  # launch files and node processes; the simulator side

@@ -16,7 +16,7 @@ from sensor_msgs.msg import Image, JointState
 from fiper_msgs.msg import ActionChunkBatch, ActionCommand, ObservationEmbedding, RolloutEvent
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import rollout_event_msg, to_stamp
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 from fiper_ros.nodes.policy_node import PolicyNode
 from helpers.spin import spin_until
 from sim_ros.bridge_client import IMAGE_TOPICS
@@ -34,7 +34,8 @@ class PolicyProbe(Node):
         self.batches: list[ActionChunkBatch] = []
         self.commands: list[ActionCommand] = []
         self.diagnostics: dict[str, str] = {}
-        outputs = ((ObservationEmbedding, EMBEDDING, self.embeddings), (ActionChunkBatch, ACTIONS, self.batches),
+        outputs = ((ObservationEmbedding, EMBEDDING_TOPIC, self.embeddings), (ActionChunkBatch, ACTIONS_TOPIC,
+                                                                              self.batches),
                    (ActionCommand, "/sim/action", self.commands))
         self.output_subs = [self.create_subscription(msg_type, topic, store.append, qos.INPUT)
                             for msg_type, topic, store in outputs]
@@ -108,7 +109,7 @@ class FakeDriver(Node):
         super().__init__("fake_driver", context=context)
         self.proprio_dim = proprio_dim
         self.rng = np.random.default_rng(0)
-        self.events = self.create_publisher(RolloutEvent, EVENTS, qos.EVENT)
+        self.events = self.create_publisher(RolloutEvent, EVENTS_TOPIC, qos.EVENT)
         self.images = {key: self.create_publisher(Image, topic, qos.INPUT) for key, topic in IMAGE_TOPICS.items()}
         self.proprio = self.create_publisher(JointState, "/sim/proprio", qos.INPUT)
 

@@ -23,10 +23,10 @@ from sim_ros.policy_client import FakeDriver, PolicyHarness
 
 from fiper_msgs.msg import RolloutEvent
 from fiper_ros.interface.conversions import floats_of, stamp_ns
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC
 from fiper_ros.launcher.config import load_launch
-from fiper_ros.nodes.main import stop_executor
 from fiper_ros.nodes.policy_node import IMAGE_TOPIC_PARAMS, NODE_CLASS
+from fiper_ros.platform.process import stop_executor
 from fiper_ros.policy.encoder import CAMERAS
 from fiper_ros.policy.session import PolicyAction, PolicyStep
 
@@ -239,7 +239,8 @@ def test_launch_file_and_parameter_defaults(ros_domain: int) -> None:
                           parameter_overrides=[Parameter("autostart", value=False)])
         defaults = {name: node.get_parameter(name).value for name in (
             "events_topic", "embedding_topic", "action_chunks_topic", "model", "batch")}
-        assert defaults == {"events_topic": EVENTS, "embedding_topic": EMBEDDING, "action_chunks_topic": ACTIONS,
+        assert defaults == {"events_topic": EVENTS_TOPIC, "embedding_topic": EMBEDDING_TOPIC,
+                            "action_chunks_topic": ACTIONS_TOPIC,
                             "model": "models/sorting", "batch": 0}
         assert tuple(IMAGE_TOPIC_PARAMS) == CAMERAS
         node.destroy_node()

@@ -5,8 +5,10 @@ import importlib.util
 import math
 from pathlib import Path
 
+from helpers.states import ALARM, OK, UNKNOWN
+
 from fiper_ros.evaluation.results import RolloutResult, StepResult
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN
+
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("heldout", ROOT / "tools" / "heldout.py")

@@ -14,7 +14,7 @@ from ament_index_python.packages import get_package_share_directory
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.interface.messages import message_class
-from fiper_ros.interface.topics import CAMERAS, DIAGNOSTICS, EVENTS, TOPICS, score_topic
+from fiper_ros.interface.topics import CAMERA_TOPICS, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, TOPICS, score_topic
 from fiper_ros.nodes.view_node import JSON_TOPICS
 from fiper_ros.view.layout import LAYOUT_FILE, layout_json, main, topics_of
 
@@ -23,9 +23,10 @@ SHIPPED = ROOT / "fiper_ros" / LAYOUT_FILE
 #: What the suite publishes: its outputs, the policy's rollout events, every node's diagnostics, the sim's cameras.
 #: Every detector a calibration may declare has its score topic (the suite's detector nodes).
 SCORES = [score_topic(d) for d in CALIBRATED]
-PUBLISHED = {t for t, spec in TOPICS.items() if not spec.input} | {EVENTS, DIAGNOSTICS, *CAMERAS, *SCORES}
+PUBLISHED = {t for t, spec in TOPICS.items() if not spec.input} | {EVENTS_TOPIC, DIAGNOSTICS_TOPIC, *CAMERA_TOPICS,
+                                                                   *SCORES}
 #: Message type of every published topic that is not a camera.
-TYPES = {t: spec.msgtype for t, spec in TOPICS.items()} | {DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray"} | \
+TYPES = {t: spec.msgtype for t, spec in TOPICS.items()} | {DIAGNOSTICS_TOPIC: "diagnostic_msgs/msg/DiagnosticArray"} | \
     {t: "fiper_msgs/msg/Score" for t in SCORES}
 
 
@@ -64,10 +65,11 @@ def test_the_shipped_layout_is_valid_json_and_what_the_generator_makes(tmp_path:
 
 def test_it_refers_only_to_topics_the_suite_publishes_and_the_view_serves_and_to_fields_they_have() -> None:
     layout = json.loads(SHIPPED.read_text())
-    served = {name if name.startswith("/") else f"/fiper/{name}" for name in JSON_TOPICS} | set(CAMERAS) | set(SCORES)
+    served = ({name if name.startswith("/") else f"/fiper/{name}" for name in JSON_TOPICS} | set(CAMERA_TOPICS)
+              | set(SCORES))
     used = topics_of(layout)
     assert used <= PUBLISHED and used <= served, (used - PUBLISHED, used - served)
-    assert used >= {*SCORES, "/fiper/alarm", DIAGNOSTICS, *CAMERAS}
+    assert used >= {*SCORES, "/fiper/alarm", DIAGNOSTICS_TOPIC, *CAMERA_TOPICS}
     for path in _paths(layout):
         topic, field = path.split(".", 1)
         assert field.split(".")[0] in message_class(TYPES[topic]).get_fields_and_field_types(), path
@@ -91,8 +93,8 @@ def test_it_has_the_panels_the_view_is_for() -> None:
     named = {s["value"]: s["label"] for s in alarm["customStates"]["states"] if s["operator"] == "="}
     assert named == {FailureAlarm.STATE_OK: "OK", FailureAlarm.STATE_ALARM: "ALARM",
                      FailureAlarm.STATE_UNKNOWN: "UNKNOWN"}
-    assert sorted(p["config"]["imageMode"]["imageTopic"] for p in by_type["Image"]) == sorted(CAMERAS)
-    assert [p["config"]["topicToRender"] for p in by_type["DiagnosticsSummary"]] == [DIAGNOSTICS]
+    assert sorted(p["config"]["imageMode"]["imageTopic"] for p in by_type["Image"]) == sorted(CAMERA_TOPICS)
+    assert [p["config"]["topicToRender"] for p in by_type["DiagnosticsSummary"]] == [DIAGNOSTICS_TOPIC]
     markdown = {p["config"]["renderMode"]: p["config"] for p in by_type["Markdown"]}
     assert markdown["message"]["messagePath"] == "/fiper/alarm.reason"
     assert "What you see" in markdown["static"]["markdown"]

@@ -36,15 +36,15 @@ from sensor_msgs.msg import Image
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.interface import qos
-from fiper_ros.interface.messages import STATE_NAMES
-from fiper_ros.interface.topics import (ALARM, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, EVENTS, SCORE_ACE, SCORE_RND_OE,
-                                       score_topic)
+from fiper_ros.interface.messages import AlarmStateName
+from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_TOPICS, CAMERA_WRIST_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC,
+                                        SCORE_ACE_TOPIC, SCORE_RND_OE_TOPIC, score_topic)
 
 ROOT = Path(os.environ["FIPER_ROOT"])
 BAGS = ROOT / "bags" / "pushchair_synthetic" / "test_rollouts"  # 10 rollouts; calibration/ next to them
-SCORES = (SCORE_RND_OE, SCORE_ACE)
+SCORES = (SCORE_RND_OE_TOPIC, SCORE_ACE_TOPIC)
 #: Every detector's scores are served by default (a suite of any detector set is seen), not only FIPER's pair's.
-SERVED = {*(score_topic(d) for d in CALIBRATED), ALARM, EVENTS, DIAGNOSTICS, *CAMERAS}
+SERVED = {*(score_topic(d) for d in CALIBRATED), ALARM_TOPIC, EVENTS_TOPIC, DIAGNOSTICS_TOPIC, *CAMERA_TOPICS}
 IMAGE_HZ = 50.0
 #: The view's queue per client in this test (messages).
 BACKLOG = 64
@@ -84,10 +84,11 @@ class Tap:
         for topic in SCORES:
             self.node.create_subscription(Score, topic, lambda m, t=topic: self.scores[t].append(score_of(m)),
                                           qos.SCORE_SUB)
-        self.node.create_subscription(FailureAlarm, ALARM, lambda m: self.alarms.append(alarm_of(m)), qos.ALARM_EVERY)
+        self.node.create_subscription(FailureAlarm, ALARM_TOPIC, lambda m: self.alarms.append(alarm_of(m)),
+                                      qos.ALARM_EVERY)
         self.images = threading.Event()
         self.published_images = 0
-        self._camera = self.node.create_publisher(Image, CAMERA_WRIST, qos.INPUT)
+        self._camera = self.node.create_publisher(Image, CAMERA_WRIST_TOPIC, qos.INPUT)
         self.node.create_timer(1.0 / IMAGE_HZ, self._publish_image)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -136,7 +137,7 @@ def start_view(domain: int) -> tuple[subprocess.Popen[str], int, queue.Queue[str
 
 def view_status(client: Client) -> dict[str, str]:
     """The view node's latest diagnostics values, as the view itself sent them to ``client``."""
-    for array in reversed(client.received.get(DIAGNOSTICS, [])):
+    for array in reversed(client.received.get(DIAGNOSTICS_TOPIC, [])):
         for status in array["status"]:
             if status["name"] == "fiper: /fiper/view_node":
                 return {kv["key"]: kv["value"] for kv in status["values"]}
@@ -159,13 +160,13 @@ async def drain(client: Client, topic: str, quiet_s: float, timeout: float = 300
 async def scenario(port: int, tap: Tap, domain: int, out: Path) -> dict[str, Any]:
     reader = await open_client(port)
     await reader.read_advertised(SERVED)
-    await reader.subscribe([*SCORES, ALARM, DIAGNOSTICS, CAMERA_WRIST])
+    await reader.subscribe([*SCORES, ALARM_TOPIC, DIAGNOSTICS_TOPIC, CAMERA_WRIST_TOPIC])
     stalled = await open_client(port, receive_buffer=16384, max_queue=1)  # never reads once subscribed
     await stalled.read_advertised(SERVED)
     await stalled.subscribe(sorted(SERVED))
     leaving = await open_client(port)
     await leaving.read_advertised(SERVED)
-    await leaving.subscribe([*SCORES, ALARM])
+    await leaving.subscribe([*SCORES, ALARM_TOPIC])
     subscriptions = 5 + len(SERVED) + 3
     await reader.read_until(lambda: view_status(reader).get("subscriptions") == str(subscriptions), 60)
     assert view_status(reader)["clients"] == "3"
@@ -183,7 +184,7 @@ async def scenario(port: int, tap: Tap, domain: int, out: Path) -> dict[str, Any
     done = asyncio.Event()
 
     def caught_up() -> bool:
-        return done.is_set() and len(reader.received[ALARM]) >= len(tap.alarms) and all(
+        return done.is_set() and len(reader.received[ALARM_TOPIC]) >= len(tap.alarms) and all(
             len(reader.received[t]) >= len(tap.scores[t]) for t in SCORES)
 
     reading = asyncio.create_task(reader.read_until(caught_up, 900))
@@ -194,10 +195,10 @@ async def scenario(port: int, tap: Tap, domain: int, out: Path) -> dict[str, Any
     assert replay.returncode == 0, (out / "replay.log").read_text()[-3000:]
     done.set()
     await reading
-    await drain(stalled, CAMERA_WRIST, quiet_s=3.0)
-    stalled_images = len(stalled.received[CAMERA_WRIST])
-    diagnostics = len(stalled.received[DIAGNOSTICS])
-    await stalled.read_until(lambda: len(stalled.received[DIAGNOSTICS]) > diagnostics, 30)  # still served
+    await drain(stalled, CAMERA_WRIST_TOPIC, quiet_s=3.0)
+    stalled_images = len(stalled.received[CAMERA_WRIST_TOPIC])
+    diagnostics = len(stalled.received[DIAGNOSTICS_TOPIC])
+    await stalled.read_until(lambda: len(stalled.received[DIAGNOSTICS_TOPIC]) > diagnostics, 30)  # still served
     late = await open_client(port)
     await late.read_advertised(SERVED)
     channels = late.channels
@@ -221,24 +222,24 @@ def test_a_foxglove_client_gets_what_the_suite_published_beside_a_stalled_and_a_
     for topic in SCORES:
         assert [score_in(j) for j in reader.received[topic]] == tap.scores[topic], topic
         assert len(tap.scores[topic]) >= 100
-    assert [tuple(j[f] for f in ALARM_FIELDS) for j in reader.received[ALARM]] == tap.alarms
+    assert [tuple(j[f] for f in ALARM_FIELDS) for j in reader.received[ALARM_TOPIC]] == tap.alarms
     # ... and what the replay reports for each step (its decision: state and windowed score)
     report = json.loads((tmp_path / "report.json").read_text())
-    decisions = [j for j in reader.received[ALARM] if not j["heartbeat"] and j["rollout_id"]]
-    assert [(j["rollout_id"], j["step"], STATE_NAMES[j["state"]], j["eta_obs"]) for j in decisions] == \
+    decisions = [j for j in reader.received[ALARM_TOPIC] if not j["heartbeat"] and j["rollout_id"]]
+    assert [(j["rollout_id"], j["step"], AlarmStateName.of_code(j["state"]), j["eta_obs"]) for j in decisions] == \
         [(r["rollout_id"], s["step"], s["state"], s["windowed"][0]) for r in report["rollouts"] for s in r["steps"]]
     first_alarms = [j["reason"] for j in decisions
                     if j["state"] == FailureAlarm.STATE_ALARM and not j["reason"].startswith("latched since")]
     assert first_alarms, "the failures of the set are predicted"
     assert all(re.fullmatch(r"(RND-OE|ACE) .+ since step \d+.*: (both |one )?exceeded \(.+\)", r) for r in first_alarms)
     # the client that never read lost frames; the one that read got (nearly) all; the one that left, its first ones
-    read_images = len(reader.received[CAMERA_WRIST])
+    read_images = len(reader.received[CAMERA_WRIST_TOPIC])
     assert read_images > 2 * outcome["stalled_images"] > 0, (read_images, outcome["stalled_images"],
                                                             tap.published_images)
     assert outcome["left"] >= 10
     assert set(outcome["channels"]) == SERVED
-    assert outcome["channels"][ALARM]["schemaName"] == "fiper_msgs/msg/FailureAlarm"
-    assert outcome["channels"][CAMERA_WRIST]["schemaName"] == "foxglove.RawImage"
+    assert outcome["channels"][ALARM_TOPIC]["schemaName"] == "fiper_msgs/msg/FailureAlarm"
+    assert outcome["channels"][CAMERA_WRIST_TOPIC]["schemaName"] == "foxglove.RawImage"
 
 
 def test_fiper_view_refuses_a_taken_port_in_one_line(ros_domain: int) -> None:
@@ -268,18 +269,18 @@ def test_with_nobody_watching_the_view_reads_nothing_of_the_suite(ros_domain: in
             return listener.node.count_subscribers(topic)
 
         assert listener.spin_until(lambda: "topics_read" in status(), 30)  # serving, and saying what it reads
-        assert status()["topics_read"] == "0" and readers(ALARM) == 0 and readers(CAMERA_WRIST) == 0
+        assert status()["topics_read"] == "0" and readers(ALARM_TOPIC) == 0 and readers(CAMERA_WRIST_TOPIC) == 0
 
         async def watch_then_leave() -> None:
             client = await open_client(port)
             await client.read_advertised(SERVED)
-            await client.subscribe([ALARM])
-            assert await asyncio.to_thread(listener.spin_until, lambda: readers(ALARM) == 1, 30)
-            assert readers(CAMERA_WRIST) == 0  # only what a client shows
+            await client.subscribe([ALARM_TOPIC])
+            assert await asyncio.to_thread(listener.spin_until, lambda: readers(ALARM_TOPIC) == 1, 30)
+            assert readers(CAMERA_WRIST_TOPIC) == 0  # only what a client shows
             await client.ws.close()
 
         asyncio.run(watch_then_leave())
-        assert listener.spin_until(lambda: readers(ALARM) == 0, 30)
+        assert listener.spin_until(lambda: readers(ALARM_TOPIC) == 0, 30)
         assert view.poll() is None
     finally:
         output = stop(view)

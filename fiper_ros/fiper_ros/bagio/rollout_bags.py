@@ -40,7 +40,8 @@ from fiper_ros.core.scores import JOINT_POSITIONS_KEY
 from fiper_ros.interface.conversions import (action_batch_msg, embedding_msg, rollout_event_msg, signals_of,
                                              stamp_ns, step_signals_msg)
 from fiper_ros.interface.messages import OUTCOME_OF, SUCCESS_OF
-from fiper_ros.interface.topics import ACTIONS, ARM_JOINT_NAMES, EMBEDDING, EVENTS, JOINT_STATES, STEP_SIGNALS, TOPICS
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, ARM_JOINT_NAMES, EMBEDDING_TOPIC, EVENTS_TOPIC,
+                                        JOINT_STATES_TOPIC, STEP_SIGNALS_TOPIC, TOPICS)
 from fiper_ros.runtime.joint_history import LatestNotAfter
 
 LOG = logging.getLogger(__name__)
@@ -103,9 +104,9 @@ def _joint_state_cdr(stamp: int, positions: np.ndarray) -> bytes:
     types = store.types
     header = types["std_msgs/msg/Header"](types["builtin_interfaces/msg/Time"](*divmod(stamp, 1_000_000_000)), "")
     empty = np.zeros(0, dtype=np.float64)
-    msg = types[TOPICS[JOINT_STATES].msgtype](header, list(ARM_JOINT_NAMES), np.asarray(positions, np.float64),
+    msg = types[TOPICS[JOINT_STATES_TOPIC].msgtype](header, list(ARM_JOINT_NAMES), np.asarray(positions, np.float64),
                                               empty, empty)
-    return bytes(store.serialize_cdr(msg, TOPICS[JOINT_STATES].msgtype))
+    return bytes(store.serialize_cdr(msg, TOPICS[JOINT_STATES_TOPIC].msgtype))
 
 
 def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], info: BagInfo, *,
@@ -130,30 +131,30 @@ def write_rollouts(path: Path, rollouts: Sequence[Rollout], ids: Sequence[int], 
         now = start_ns
         for rollout, rollout_id in zip(rollouts, ids, strict=True):
             max_steps = int(rollout.metadata.get("max_steps", 0))
-            writer.write(EVENTS, now, _cdr(rollout_event_msg(
+            writer.write(EVENTS_TOPIC, now, _cdr(rollout_event_msg(
                 rollout_id, RolloutEvent.EVENT_START, now, task=rollout.task, scenario=rollout.scenario,
-                max_steps=max_steps), EVENTS))
+                max_steps=max_steps), EVENTS_TOPIC))
             joints = _joint_positions(rollout, path)
             for step, offset in enumerate(_env_steps(rollout)):
                 stamp = now + EVENT_LEAD_NS + int(offset) * env_dt_ns
                 if joints is not None:
-                    writer.write(JOINT_STATES, stamp, _joint_state_cdr(stamp, joints[step]))
-                writer.write(EMBEDDING, stamp, _cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]),
-                                                    EMBEDDING))
+                    writer.write(JOINT_STATES_TOPIC, stamp, _joint_state_cdr(stamp, joints[step]))
+                writer.write(EMBEDDING_TOPIC, stamp,
+                             _cdr(embedding_msg(rollout_id, step, stamp, rollout.embeddings[step]), EMBEDDING_TOPIC))
                 if rollout.actions is not None:
-                    writer.write(ACTIONS, stamp, _cdr(action_batch_msg(
+                    writer.write(ACTIONS_TOPIC, stamp, _cdr(action_batch_msg(
                         rollout_id, step, stamp, rollout.actions[step], rollout.exec_steps, rollout.action_space),
-                        ACTIONS))
+                        ACTIONS_TOPIC))
                 if rollout.signals:
                     values = {name: float(series[step]) for name, series in rollout.signals.items()}
-                    writer.write(STEP_SIGNALS, stamp, _cdr(step_signals_msg(rollout_id, step, stamp, values),
-                                                           STEP_SIGNALS))
+                    writer.write(STEP_SIGNALS_TOPIC, stamp, _cdr(step_signals_msg(rollout_id, step, stamp, values),
+                                                                 STEP_SIGNALS_TOPIC))
             control_steps = rollout.metadata.get("control_steps")
             end = (stamp + rollout.exec_steps * env_dt_ns if control_steps is None
                    else now + EVENT_LEAD_NS + int(control_steps) * env_dt_ns)
-            writer.write(EVENTS, end, _cdr(rollout_event_msg(
+            writer.write(EVENTS_TOPIC, end, _cdr(rollout_event_msg(
                 rollout_id, RolloutEvent.EVENT_END, end, outcome=OUTCOME_OF[rollout.success], task=rollout.task,
-                scenario=rollout.scenario, max_steps=max_steps), EVENTS))
+                scenario=rollout.scenario, max_steps=max_steps), EVENTS_TOPIC))
             now = end + ROLLOUT_GAP_NS
     return now
 
@@ -188,18 +189,18 @@ def _arm_joints(msg: Any) -> np.ndarray:
 def _collect(bag: BagReader) -> list[_Collected]:
     rollouts: dict[int, _Collected] = {}
     batch_stamps: list[tuple[_Collected, int, int]] = []  # (rollout, step, the batch's stamp)
-    for message in bag.messages([EMBEDDING, ACTIONS, EVENTS, STEP_SIGNALS]):
+    for message in bag.messages([EMBEDDING_TOPIC, ACTIONS_TOPIC, EVENTS_TOPIC, STEP_SIGNALS_TOPIC]):
         msg = bag.decode(message)
         record = rollouts.setdefault(int(msg.rollout_id), _Collected(int(msg.rollout_id), task=bag.info.task,
                                                                      exec_steps=bag.info.exec_steps))
-        if message.topic == EVENTS:
+        if message.topic == EVENTS_TOPIC:
             if msg.event == RolloutEvent.EVENT_START:
                 record.task, record.scenario, record.max_steps = msg.task or record.task, msg.scenario, msg.max_steps
             elif msg.event == RolloutEvent.EVENT_END:
                 record.outcome = int(msg.outcome)
-        elif message.topic == EMBEDDING:
+        elif message.topic == EMBEDDING_TOPIC:
             record.embeddings[int(msg.step)] = np.asarray(msg.data, dtype=np.float32).ravel()
-        elif message.topic == STEP_SIGNALS:
+        elif message.topic == STEP_SIGNALS_TOPIC:
             try:
                 record.signals[int(msg.step)] = signals_of(msg)
             except ValueError as error:
@@ -223,10 +224,10 @@ def _resolve_joints(bag: BagReader, batch_stamps: list[tuple[_Collected, int, in
     before the batch (a recorder can take a batch before the states stamped up to it: other topics, another
     publisher; seen under load). A second pass over the states keeps one per batch at most, so a bag of many
     ``/joint_states`` costs no more memory than its batches."""
-    if not batch_stamps or JOINT_STATES not in bag.topics:
+    if not batch_stamps or JOINT_STATES_TOPIC not in bag.topics:
         return
     lookup = LatestNotAfter(stamp for _, _, stamp in batch_stamps)
-    for message in bag.messages([JOINT_STATES]):
+    for message in bag.messages([JOINT_STATES_TOPIC]):
         msg = bag.decode(message)
         if all(name in msg.name for name in ARM_JOINT_NAMES):
             lookup.offer(stamp_ns(msg.header.stamp), _arm_joints(msg))
@@ -311,8 +312,8 @@ def read_rollouts(path: Path) -> list[Rollout]:
     without embeddings and action batches is refused, and a bag without the action topic gives rollouts
     without action batches (observation-only data)."""
     with BagReader(path) as bag:
-        bag.require_any((EMBEDDING, ACTIONS))
-        has_actions = ACTIONS in bag.topics
+        bag.require_any((EMBEDDING_TOPIC, ACTIONS_TOPIC))
+        has_actions = ACTIONS_TOPIC in bag.topics
         collected = _collect(bag)
     rollouts = []
     for record in collected:
@@ -329,19 +330,19 @@ def layout_of(bag: BagReader) -> BagInfo:
     messages where ``custom_data`` does not say (e.g. a bag of ``fiper record`` or of another tool); a bag
     without action batches has B, H, D 0 and no action space, whatever its ``custom_data`` says."""
     info = bag.info
-    if ACTIONS not in bag.topics:
+    if ACTIONS_TOPIC not in bag.topics:
         info = replace(info, batch_size=0, horizon=0, action_dim=0, action_space="")
     if not info.task:
-        tasks = (bag.decode(message).task for message in bag.messages([EVENTS]))
+        tasks = (bag.decode(message).task for message in bag.messages([EVENTS_TOPIC]))
         info = replace(info, task=next((task for task in tasks if task), ""))
     if info.embedding_dim and info.action_dim and info.horizon and info.action_space:
         return info
-    for topic in (EMBEDDING, ACTIONS):
+    for topic in (EMBEDDING_TOPIC, ACTIONS_TOPIC):
         message = next(bag.messages([topic]), None)
         if message is None:
             continue
         msg = bag.decode(message)
-        if topic == EMBEDDING:
+        if topic == EMBEDDING_TOPIC:
             info = replace(info, embedding_dim=int(np.asarray(msg.data).size))
         else:
             info = replace(info, batch_size=int(msg.batch_size), horizon=int(msg.horizon), action_dim=int(msg.action_dim),

@@ -8,12 +8,13 @@ sustained rate (steps/s) at which every step's alarm arrives and the backlog sta
 tried, its p50 / p99 and the CPU milliseconds per step of each suite process and of the driver (``/proc``: all
 threads, DDS's included), which say where the time goes; for the rate that is not sustained, where its steps went
 (the nodes' ``/diagnostics`` counters, :data:`LOSS_COUNTERS`). Every figure is printed with its ratio to its
-target (docs/benchmarks.md). The nodes and the driver spin the executor :mod:`fiper_ros.nodes.main` chooses (``FIPER_EXECUTOR``).
+target (docs/benchmarks.md). The nodes and the driver spin the executor :mod:`fiper_ros.platform.process` chooses
+(``FIPER_EXECUTOR``).
 
 Start-up, per shape before the latency runs, each start repeated (:data:`NODE_STARTS`,
 :data:`SUITE_STARTS`: DDS discovery takes a few ms or one to three seconds from one start to the next): each
 node started alone (its command line as ``fiper launch`` builds it), the seconds from its exec to ACTIVE by the
-node's own ``ACTIVE`` log line (:func:`fiper_ros.nodes.main.process_age_s`), and until the driver sees it ACTIVE
+node's own ``ACTIVE`` log line (:func:`fiper_ros.platform.process.process_age_s`), and until the driver sees it ACTIVE
 (it asks the node's lifecycle ``get_state`` service every 20 ms: discovery included, the figure's resolution),
 its peak RSS then (``VmHWM``); then the suite: the seconds from the exec of ``fiper launch`` until all three
 nodes are ACTIVE and discovered one another (the driver's inputs matched by the scoring nodes, the events by
@@ -59,14 +60,14 @@ from fiper_ros.client.suite_process import installed_launch
 from fiper_ros.core.calibration import CalibrationSettings, calibrate
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.dds import allocate_domain, interrupt_group, local_env
 from fiper_ros.launcher.config import NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, rewrite
 from fiper_ros.nodes import container
 from fiper_ros.nodes.base import ACTIVE_LOG, ACTIVE_LOG_END
-from fiper_ros.nodes.main import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
-from fiper_ros.runtime.publishers import fully_qualified
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import allocate_domain, interrupt_group, local_env
+from fiper_ros.platform.process import EXECUTOR_ENV, PROFILE_ENV, proc_stat, use_discovery_profile
+from fiper_ros.platform.shm import clean_stale
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 
 #: Issue #24: a scoring node ACTIVE within this long of its exec on this machine, the three-node suite (discovery
 #: included) within :data:`TARGET_SUITE_S`; alarm latency p99 at 10 Hz at most :data:`TARGET_P99_MS`; each node's
@@ -250,7 +251,7 @@ class Startup:
     peak_mb: float
 
 
-def node_startup(spec: NodeSpec, driver: Driver, domain: int) -> Startup:
+def node_startup(spec: NodeSpec, driver: PolicyStepDriver, domain: int) -> Startup:
     """Start the node of ``spec`` alone (its ``fiper launch`` command line) and time it to ACTIVE (a container:
     its last node)."""
     with tempfile.TemporaryDirectory() as work:  # its parameter files, read at its start, and its output
@@ -277,7 +278,7 @@ def _created(output: IO[bytes]) -> float:
     raise RuntimeError(f"the plain node printed no 'created' line in {PLAIN_OUTPUT_LINES} lines")
 
 
-def plain_discovery(driver: Driver, domain: int, starts: int) -> list[float]:
+def plain_discovery(driver: PolicyStepDriver, domain: int, starts: int) -> list[float]:
     """Seconds from a plain rclpy node's creation (:data:`PLAIN_NODE`, a new process each start) until the driver's
     graph shows its publisher: DDS discovery alone, without any code of ours."""
     seconds = []
@@ -297,7 +298,7 @@ def plain_discovery(driver: Driver, domain: int, starts: int) -> list[float]:
     return seconds
 
 
-class Driver:
+class PolicyStepDriver:
     """Publishes policy steps and times their alarms."""
 
     def __init__(self, shape: Shape, domain: int) -> None:
@@ -310,8 +311,8 @@ class Driver:
 
         from fiper_ros.interface import qos  # noqa: PLC0415
         from fiper_ros.interface.cdr import codec  # noqa: PLC0415
-        from fiper_ros.interface.topics import DIAGNOSTICS  # noqa: PLC0415
-        from fiper_ros.nodes.main import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
+        from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC  # noqa: PLC0415
+        from fiper_ros.platform.process import EXECUTOR_EVENTS, new_executor  # noqa: PLC0415
 
         self.shape = shape
         self.context = Context()
@@ -335,7 +336,8 @@ class Driver:
         #: ``/diagnostics`` messages not read yet (bytes, arrival): read when asked for, not while a run is timed.
         self._unread: list[tuple[bytes, float]] = []
         self._diagnostics = codec(DiagnosticArray)
-        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS, raw=True)
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, qos.DIAGNOSTICS,
+                                      raw=True)
         rng = np.random.default_rng(1)
         self.embedding = rng.normal(size=shape.embedding_dim).astype(np.float32)
         self.actions = rng.uniform(-1, 1, (shape.batch, shape.horizon, shape.action_dim)).astype(np.float32)
@@ -477,7 +479,7 @@ class Driver:
 
 def bench_startup(shape: Shape, config: Path, domain: int, starts: int = NODE_STARTS) -> dict[str, list[Startup]]:
     """Each node of the launch YAML ``config`` started alone, one after the other, ``starts`` rounds."""
-    driver = Driver(shape, domain)
+    driver = PolicyStepDriver(shape, domain)
     nodes = load_launch(config).nodes
     try:
         rounds = [[node_startup(spec, driver, domain) for spec in nodes] for _ in range(starts)]
@@ -496,10 +498,10 @@ def steps_at(rate: float) -> int:
     return max(100, int(rate * 2))
 
 
-def rate_run(driver: Driver, pids: dict[str, int], rollout_id: int,
+def rate_run(driver: PolicyStepDriver, pids: dict[str, int], rollout_id: int,
              rate: float) -> tuple[np.ndarray, int, float, dict[str, float]]:
-    """One run of :func:`steps_at` steps at ``rate``: :meth:`Driver.run`'s latencies, missing steps and backlog, and
-    the CPU milliseconds per step of each process of ``pids``."""
+    """One run of :func:`steps_at` steps at ``rate``: :meth:`PolicyStepDriver.run`'s latencies, missing steps and
+    backlog, and the CPU milliseconds per step of each process of ``pids``."""
     before = {name: cpu_seconds(pid) for name, pid in pids.items()}
     steps = steps_at(rate)
     latencies, missing, backlog = driver.run(rollout_id, steps, rate)
@@ -525,7 +527,7 @@ def bench_shape(shape: Shape, steps: int, rates: list[float], view: bool = False
         work = Path(tmp)
         config = _suite_config(shaped_calibration(shape, work / "calibration"), work, compose)
         startup = bench_startup(shape, config, domain)
-        driver = Driver(shape, domain)
+        driver = PolicyStepDriver(shape, domain)
         plain = plain_discovery(driver, domain, PLAIN_STARTS)
         env = local_env(domain) | ({PROFILE_ENV: str(profile / shape.name)} if profile else {})
         fqns = [fqn for spec in load_launch(config).nodes for fqn in spec_fqns(spec)]
@@ -620,7 +622,7 @@ def bench_floor(shape: Shape, steps: int) -> dict[str, Any]:
     (:mod:`fiper_ros.bench.null_suite`): the latency at 10 Hz, and at the shape's target rate the lost steps, the
     backlog and the CPU per step of each process."""
     with allocate_domain() as domain:
-        driver = Driver(shape, domain)
+        driver = PolicyStepDriver(shape, domain)
         procs = {f"{role} stand-in": _start([sys.executable, "-m", null_suite.__name__, role], domain)
                  for role in null_suite.ROLES}
         try:

@@ -3,7 +3,8 @@
 Three node processes named as the suite's (``/fiper/rnd_oe_node``, ``/fiper/ace_node``, ``/fiper/fusion_node``), on
 the suite's topics with the suite's QoS (each score publisher's and the alarm publisher's MANUAL_BY_TOPIC liveliness
 asserted from a steady timer at the suite's period), each spinning the suite's executor in the suite's process shell
-(:func:`fiper_ros.nodes.main.run_node`) and reading and writing bytes with the wire codec, as the suite's nodes do.
+(:func:`fiper_ros.platform.process.run_node`) and reading and writing bytes with the wire codec, as the suite's nodes
+do.
 The two relays publish a Score per input with the input's header, rollout and step, nothing computed; the fusion
 stand-in publishes an OK FailureAlarm once both Scores of a step have come. What the benchmark's driver measures
 through them is what rclpy and Fast DDS cost on this machine for the suite's three hops (driver -> scoring node ->
@@ -24,12 +25,13 @@ from rclpy.utilities import remove_ros_args
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm, ObservationEmbedding, RolloutEvent, Score
 from fiper_ros.interface import qos, qos_spec
 from fiper_ros.interface.cdr import Codec, codec
-from fiper_ros.interface.topics import ACTIONS, ALARM, EMBEDDING, EVENTS, NAMESPACE, relative, score_topic
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, NAMESPACE, relative,
+                                        score_topic)
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 
 #: The relays, by detector: their input's type and topic (relative to :data:`NAMESPACE`, as the suite's nodes').
-INPUTS: dict[str, tuple[type, str]] = {"rnd_oe": (ObservationEmbedding, relative(EMBEDDING)),
-                                       "ace": (ActionChunkBatch, relative(ACTIONS))}
+INPUTS: dict[str, tuple[type, str]] = {"rnd_oe": (ObservationEmbedding, relative(EMBEDDING_TOPIC)),
+                                       "ace": (ActionChunkBatch, relative(ACTIONS_TOPIC))}
 FUSION = "fusion"
 ROLES = (*INPUTS, FUSION)
 #: Steps the fusion stand-in keeps waiting for their second Score, at most (beyond, the oldest is dropped).
@@ -50,7 +52,7 @@ class _StandIn(Node):
     def __init__(self, name: str) -> None:
         super().__init__(name, namespace=NAMESPACE)
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_subscription(RolloutEvent, relative(EVENTS), self._on_event, qos.EVENT, raw=True)
+        self.create_subscription(RolloutEvent, relative(EVENTS_TOPIC), self._on_event, qos.EVENT, raw=True)
 
     def _on_event(self, data: bytes) -> None:
         """The suite's nodes act on START and END; the stand-ins only take them."""
@@ -85,7 +87,7 @@ class Fusion(_StandIn):
         self._wire = codec(FailureAlarm)
         self._alarm = _template(self._wire)._replace(state=FailureAlarm.STATE_OK, combine="and")
         self._pending: dict[tuple[int, int], None] = {}
-        self._pub = self.create_publisher(FailureAlarm, relative(ALARM),
+        self._pub = self.create_publisher(FailureAlarm, relative(ALARM_TOPIC),
                                           qos.profile(replace(qos_spec.ALARM_PUB, depth=ALARM_DEPTH)))
         self.create_timer(qos.ALARM_HEARTBEAT_S, self._pub.assert_liveliness, clock=self.steady)
         for detector in INPUTS:

@@ -33,16 +33,17 @@ import numpy as np
 
 from fiper_msgs.msg import ActionChunkBatch, FailureAlarm
 from fiper_ros.bench import EVERY_ALARM, memory_mb
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed, state_name
+from fiper_ros.client.driver import SETTLE_S, SimSuiteDriver, SuiteFailed
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.client.suite_process import FUSION_MODULE, SuiteProcess, detectors_of, installed_launch
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.commands.demo import SUPERVISOR, Plan, demo_config, managed_nodes
-from fiper_ros.dds import allocate_domain
 from fiper_ros.interface import qos
-from fiper_ros.interface.topics import ACTIONS
+from fiper_ros.interface.messages import AlarmStateName
+from fiper_ros.interface.topics import ACTIONS_TOPIC
 from fiper_ros.launcher.config import LaunchConfig, dump_launch
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import allocate_domain
+from fiper_ros.platform.shm import clean_stale
 
 BRIDGE_MODULE = "sim_bridge.bridge_node"
 #: Seconds after which a step's action-chunk batch without an alarm counts as unanswered.
@@ -144,7 +145,7 @@ class Meter:
         self.blocks: list[Block] = []
         self.block = Block(0, 0.0, block_s)
         self.matcher = StepMatcher(int(UNANSWERED_S * 1e9))
-        session.node.create_subscription(ActionChunkBatch, ACTIONS, self._on_batch, qos.INPUT)
+        session.node.create_subscription(ActionChunkBatch, ACTIONS_TOPIC, self._on_batch, qos.INPUT)
 
     def start(self, pids: dict[str, int]) -> None:
         """Start the first block now; ``pids``: process name -> id, whose memory each block reads."""
@@ -171,9 +172,9 @@ class Meter:
         latency = self.matcher.alarm((msg.rollout_id, msg.step), time.monotonic_ns())
         if latency is not None:
             self._answered(latency)
-        state = state_name(msg)
-        self.block.unknown += state == "UNKNOWN"
-        self.block.alarms += state == "ALARM" and trace.alarm_step == msg.step
+        state = AlarmStateName.of_code(msg.state)
+        self.block.unknown += state == AlarmStateName.UNKNOWN
+        self.block.alarms += state == AlarmStateName.ALARM and trace.alarm_step == msg.step
         self.tick()
 
     def rollout_done(self) -> None:
@@ -246,7 +247,7 @@ def run_soak(args: argparse.Namespace) -> int:
         try:
             with RosSession("fiper_soak", domain) as session:
                 meter = Meter(session, block_s)
-                driver = Driver(session, suite, "sorting", detectors, display=meter.on_alarm)
+                driver = SimSuiteDriver(session, suite, "sorting", detectors, display=meter.on_alarm)
                 driver.wait_ready(managed_nodes(config), args.ready_timeout, plain=(SUPERVISOR,))
                 meter.start(suite.node_pids() | {"launcher": suite.proc.pid, "driver": os.getpid()})
                 print(f"soak: all nodes active; processes {meter.pids}", flush=True)

@@ -23,7 +23,7 @@ from fiper_ros.bagio.schema import BagInfo, bag_qos, typestore
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import message_class
-from fiper_ros.interface.topics import ACTIONS, DIAGNOSTICS, EMBEDDING, EVENTS, TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, DIAGNOSTICS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, TOPICS
 from fiper_ros.nodes.base import diagnostic_array
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS
 
@@ -109,7 +109,7 @@ class InfoTracker:
 
     def __init__(self, session: RosSession, source: str) -> None:
         self.info = BagInfo(source=source)
-        session.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
+        session.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, qos.DIAGNOSTICS)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -120,15 +120,15 @@ class InfoTracker:
     def see(self, topic: str, msgtype: str, raw: bytes) -> None:
         """Learn from one captured message (decodes only what is still unknown)."""
         info = self.info
-        if topic == EMBEDDING and not info.embedding_dim:
+        if topic == EMBEDDING_TOPIC and not info.embedding_dim:
             msg = typestore().deserialize_cdr(raw, msgtype)
             self.info = replace(info, embedding_dim=int(msg.data.size))
-        elif topic == ACTIONS and not info.action_dim:
+        elif topic == ACTIONS_TOPIC and not info.action_dim:
             msg = typestore().deserialize_cdr(raw, msgtype)
             self.info = replace(info, batch_size=int(msg.batch_size), horizon=int(msg.horizon),
                                 action_dim=int(msg.action_dim), exec_steps=int(msg.exec_steps),
                                 action_space=str(msg.action_space))
-        elif topic == EVENTS and not info.task:
+        elif topic == EVENTS_TOPIC and not info.task:
             msg = typestore().deserialize_cdr(raw, msgtype)
             if msg.event == RolloutEvent.EVENT_START and msg.task:
                 self.info = replace(info, task=str(msg.task))
@@ -139,7 +139,7 @@ def report_matches(node: Node, matched: Callable[[], dict[str, int]]) -> None:
     each subscription of a tool's node has matched (``matched()``: per topic), under the keys the suite's nodes
     use (:data:`~fiper_ros.runtime.wiring.MATCHED_PUBLISHERS`): a policy waits for such a reader too
     (:meth:`fiper_ros.publishing.FiperPublisher.wait_for_suite`)."""
-    publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
+    publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
 
     def report() -> None:
         counts = matched()

@@ -31,8 +31,8 @@ from fiper_ros.client.trace import RolloutEvents, RolloutTrace
 from fiper_ros.core.detectors import info
 from fiper_ros.interface import messages, qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import ACTIONS, ALARM, DIAGNOSTICS, EVENTS, SIM_RESET
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.interface.topics import ACTIONS_TOPIC, ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, SIM_RESET_SERVICE
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 from fiper_ros.runtime.wiring import missing_matches
 
 #: Deep history for what the driver follows (the contract's KEEP_LAST(1) would skip steps here).
@@ -64,19 +64,14 @@ class SuiteFailed(ClientError):
         self.output = output
 
 
-def state_name(msg: FailureAlarm) -> str:
-    """``OK``, ``ALARM`` or ``UNKNOWN``."""
-    return messages.state_name(msg.state).upper()
-
-
 def alarm_line(msg: FailureAlarm) -> str:
     """One alarm decision on one line: each judged detector's windowed score against its threshold, the state."""
     scores = [f"{info(d).label} {eta:8.3f} / {gamma:8.3f} {'>' if exceeded else ' '}"
               for d, eta, gamma, exceeded in zip(msg.detectors, msg.eta, msg.gamma, msg.exceeded)]
-    return " | ".join([f"step {msg.step:3d}", *scores, state_name(msg)])
+    return " | ".join([f"step {msg.step:3d}", *scores, messages.AlarmStateName.of_code(msg.state).name])
 
 
-class Driver:
+class SimSuiteDriver:
     """Readiness, resets and rollouts of a live sim suite, in one rclpy session.
 
     Args:
@@ -104,13 +99,13 @@ class Driver:
         self.events = RolloutEvents()
         #: The followed rollouts' traces, by rollout id.
         self.traces = self.events.traces
-        self._reset = node.create_client(ResetRollout, SIM_RESET)
-        node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, qos.DIAGNOSTICS)
+        self._reset = node.create_client(ResetRollout, SIM_RESET_SERVICE)
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, qos.DIAGNOSTICS)
         for detector in detectors:
             node.create_subscription(Score, detector_topics(detector)[2], self._on_score, TRACE_QOS)
-        node.create_subscription(FailureAlarm, ALARM, self._on_alarm, TRACE_QOS)
-        node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT)
-        node.create_subscription(ActionChunkBatch, ACTIONS, self._on_actions, qos.INPUT)
+        node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, TRACE_QOS)
+        node.create_subscription(RolloutEvent, EVENTS_TOPIC, self._on_event, qos.EVENT)
+        node.create_subscription(ActionChunkBatch, ACTIONS_TOPIC, self._on_actions, qos.INPUT)
 
     # callbacks ----------------------------------------------------------------------------------------
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -148,10 +143,10 @@ class Driver:
 
         def apply(trace: RolloutTrace) -> None:
             trace.combine = msg.combine
-            state = state_name(msg)
-            if state == "UNKNOWN":
+            state = messages.AlarmStateName.of_code(msg.state)
+            if state == messages.AlarmStateName.UNKNOWN:
                 trace.unknown_steps.add(msg.step)
-            elif state == "ALARM" and trace.alarm_step is None:
+            elif state == messages.AlarmStateName.ALARM and trace.alarm_step is None:
                 trace.alarm_step = msg.step
                 trace.alarm_text = alarm_line(msg)
             if self.display is not None:

@@ -10,7 +10,7 @@ the launcher and the collect with it. The suite starts on the first episode that
 is not collected yet, in a ROS domain of its own; its launch file and output go to ``DIR/.collect-ros/``
 (removed at the end unless the suite failed).
 
-Per episode: a bag is opened, the :class:`~fiper_ros.client.driver.Driver` resets the bridge into
+Per episode: a bag is opened, the :class:`~fiper_ros.client.driver.SimSuiteDriver` resets the bridge into
 ``(scenario, seed)`` and follows the rollout to its END, then waits until the rollout's messages landed
 in the bag; the collector indexes the episode and finishes the bag. One
 :class:`~fiper_ros.client.record.Recorder` serves all episodes, so its subscriptions never miss the start of
@@ -34,7 +34,7 @@ from sim_bridge.tasks import TASKS
 
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.collect_index import RanEpisode
-from fiper_ros.client.driver import SETTLE_S, Driver, SuiteFailed
+from fiper_ros.client.driver import SETTLE_S, SimSuiteDriver, SuiteFailed
 from fiper_ros.client.errors import ClientError
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -42,10 +42,10 @@ from fiper_ros.client.suite_process import (SuiteProcess, declared_of, detector_
                                             scoring_modules, suite_arguments, suite_topics)
 from fiper_ros.client.trace import RolloutTrace
 from fiper_ros.core.detectors import judged_by
-from fiper_ros.dds import allocate_domain
-from fiper_ros.interface.topics import ACTIONS, EMBEDDING, EVENTS, INPUT_TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC, INPUT_TOPICS
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
+from fiper_ros.platform.dds import allocate_domain
 
 SOURCE = "fiper collect (sim, ROS)"
 #: The node of ``fiper collect --ros`` (in the root namespace; its SROS2 enclave, docs/security.md).
@@ -108,12 +108,12 @@ def collect_config(source: Path, settings: LiveSettings) -> LaunchConfig:
     return apply(config, Overrides(by_name=parameters, keep=keep, required=True))
 
 
-def operator(session: RosSession, suite: SuiteProcess, settings: LiveSettings) -> tuple[Recorder, Driver]:
+def operator(session: RosSession, suite: SuiteProcess, settings: LiveSettings) -> tuple[Recorder, SimSuiteDriver]:
     """The collect's side of ``session``: a recorder of the bag schema's inputs (scored: the topics of its
     detectors' suite) and the driver."""
     topics = suite_topics(settings.detectors) if settings.calibration is not None else INPUT_TOPICS
     recorder = Recorder(session, topics, source=SOURCE)
-    return recorder, Driver(session, suite, settings.task, settings.detectors, recorder=recorder)
+    return recorder, SimSuiteDriver(session, suite, settings.task, settings.detectors, recorder=recorder)
 
 
 class RosRunner:
@@ -135,7 +135,7 @@ class RosRunner:
         self.scored = settings.calibration is not None
         self.failed = False
         self._stack = ExitStack()
-        self._driver: Driver | None = None
+        self._driver: SimSuiteDriver | None = None
         self._recorder: Recorder | None = None
 
     def __enter__(self) -> RosRunner:
@@ -187,9 +187,9 @@ class RosRunner:
             complete = driver.settle(lambda: self._landed(trace, steps, recorder, scored=True), SETTLE_S)
             if not complete and not self._landed(trace, steps, recorder, scored=False):  # scores: best effort
                 raise SuiteFailed(f"rollout {trace.rollout_id} ({scenario} seed {seed}): {steps} policy steps, "
-                                  f"but the bag got only {recorder.counts[EMBEDDING]} embeddings, "
-                                  f"{recorder.counts[ACTIONS]} action batches and {recorder.counts[EVENTS]} "
-                                  f"events within {SETTLE_S:g} s of its END")
+                                  f"but the bag got only {recorder.counts[EMBEDDING_TOPIC]} embeddings, "
+                                  f"{recorder.counts[ACTIONS_TOPIC]} action batches and "
+                                  f"{recorder.counts[EVENTS_TOPIC]} events within {SETTLE_S:g} s of its END")
             driver.spin(CATCH_UP_S)
 
         def write() -> None:
@@ -204,8 +204,8 @@ class RosRunner:
         step that comes after the END it saw, so the last scores may never come."""
         counts = recorder.counts
         scores = tuple(detector_topics(d)[2] for d in trace.detectors) if scored else ()
-        stepwise = (EMBEDDING, ACTIONS, *scores)
-        return trace.ended and counts[EVENTS] >= 2 and all(counts[topic] >= steps for topic in stepwise)
+        stepwise = (EMBEDDING_TOPIC, ACTIONS_TOPIC, *scores)
+        return trace.ended and counts[EVENTS_TOPIC] >= 2 and all(counts[topic] >= steps for topic in stepwise)
 
     @contextmanager
     def _reported(self) -> Iterator[None]:

@@ -46,15 +46,15 @@ from fiper_ros.evaluation.verdicts import rollout_line
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import to_stamp
 from fiper_ros.interface.messages import OUTCOME_NAMES, SUCCESS_OF, message_class
-from fiper_ros.interface.topics import (ACTIONS, ALARM as ALARM_TOPIC, CLOCK, EMBEDDING, EVENTS, INPUT_TOPICS,
-                                        STEP_SIGNALS, TOPICS, topic_spec)
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, CLOCK_TOPIC, EMBEDDING_TOPIC, EVENTS_TOPIC,
+                                        INPUT_TOPICS, STEP_SIGNALS_TOPIC, TOPICS, topic_spec)
 
 #: The node of ``fiper replay`` (in the root namespace; its SROS2 enclave, docs/security.md).
 NODE_NAME = "fiper_replay"
 #: Pause between "every endpoint is there" and the first message, for the nodes to match each other.
 WARM_UP_S = 1.0
 #: Policy-side topics played whether or not anything reads them: no node of the suite reads the step signals.
-UNREAD_INPUTS = (STEP_SIGNALS,)
+UNREAD_INPUTS = (STEP_SIGNALS_TOPIC,)
 
 
 def readers_needed(topics: Sequence[str]) -> dict[str, int]:
@@ -67,7 +67,7 @@ def suite_subscribers(detectors: tuple[str, ...]) -> dict[str, int]:
     """Subscribers a launched suite of ``detectors`` has per topic: each scoring node its input (an input several
     detectors read has as many), the fusion node each score, every node the rollout events, none an input no
     declared detector reads (:data:`UNREAD_INPUTS`)."""
-    needed = {**readers_needed(UNREAD_INPUTS), EVENTS: len(detectors) + 1}
+    needed = {**readers_needed(UNREAD_INPUTS), EVENTS_TOPIC: len(detectors) + 1}
     readers = collections.Counter(detector_topics(detector)[0] for detector in detectors)
     return needed | dict(readers) | {detector_topics(detector)[2]: 1 for detector in detectors}
 
@@ -101,7 +101,7 @@ class Player:
         self.settle_s = args.settle
         self.clock_period_ns = int(1e9 / args.clock_hz)
         self.publishers: dict[str, Any] = {}
-        self.clock = self.node.create_publisher(Clock, CLOCK, QoSProfile(depth=1))
+        self.clock = self.node.create_publisher(Clock, CLOCK_TOPIC, QoSProfile(depth=1))
         self.alarms: dict[tuple[int, int], FailureAlarm] = {}
         self.node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, qos.ALARM_EVERY)
         self.results: dict[int, RolloutResult] = {}
@@ -185,8 +185,8 @@ class Player:
     def play(self, bag: BagReader, shift_ns: int) -> int:
         """Publish the bag's played topics; returns the (shifted) log time of its last message."""
         last = 0
-        step_topics = {EMBEDDING, ACTIONS} & set(self.publishers)  # a step is sent once all of them are
-        keyed = step_topics | ({STEP_SIGNALS} & set(self.publishers))  # the messages of a step (rollout, step)
+        step_topics = {EMBEDDING_TOPIC, ACTIONS_TOPIC} & set(self.publishers)  # a step is sent once all of them are
+        keyed = step_topics | ({STEP_SIGNALS_TOPIC} & set(self.publishers))  # the messages of a step (rollout, step)
         for message in bag.messages([t for t in bag.topics if t in self.publishers]):
             if self.session.stop.is_set():
                 break
@@ -195,7 +195,7 @@ class Player:
             if message.topic in keyed:
                 msg = bag.decode(message)
                 key = (int(msg.rollout_id), int(msg.step))
-            elif message.topic == EVENTS:
+            elif message.topic == EVENTS_TOPIC:
                 event = bag.decode(message)
             if self._pending is not None and key != self._pending:
                 self._wait_pending()
@@ -208,7 +208,7 @@ class Player:
             if event is not None and event.event == RolloutEvent.EVENT_START:
                 self.results[int(event.rollout_id)] = RolloutResult(int(event.rollout_id), event.task, event.scenario)
                 # Every node has the START (reliable: acknowledged) and a moment to act on it before step 0.
-                self.publishers[EVENTS].wait_for_all_acked(Duration(seconds=self.step_timeout))
+                self.publishers[EVENTS_TOPIC].wait_for_all_acked(Duration(seconds=self.step_timeout))
                 self.session.spin_until(lambda: False, self.settle_s)
             if key is not None and message.topic in step_topics:
                 sent = self._sent.setdefault(key, set())

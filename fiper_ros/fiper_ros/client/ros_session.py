@@ -1,8 +1,8 @@
 """A private rclpy context for the bag tools: one node, one executor, the project's network rule.
 
-The process joins ``domain`` (default: ``ROS_DOMAIN_ID`` of the environment) with discovery kept on
-loopback (:func:`fiper_ros.dds.local_env`) and, unless the user has a Fast DDS profile of their own, the suite's
-discovery profile (:func:`fiper_ros.nodes.main.use_discovery_profile`: the tool and the suite see each other
+The process joins ``domain`` (default: ``ROS_DOMAIN_ID`` of the environment) with discovery kept on loopback
+(:func:`fiper_ros.platform.dds.local_env`) and, unless the user has a Fast DDS profile of their own, the suite's
+discovery profile (:func:`fiper_ros.platform.process.use_discovery_profile`: the tool and the suite see each other
 within about 0.5 s, not up to 3 s). rclpy's own signal handlers are off: SIGINT and SIGTERM set
 :attr:`RosSession.stop`, so a command can finish its bag cleanly instead of dying mid-write. With
 ``ROS_SECURITY_ENABLE=true`` the session runs in the SROS2 enclave named as its node (``/<name>``), as the launcher
@@ -23,9 +23,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from fiper_ros.dds import local_env
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV
-from fiper_ros.nodes.main import use_discovery_profile
+from fiper_ros.platform.dds import local_env
+from fiper_ros.platform.process import use_discovery_profile
 
 
 def environment_domain() -> int:

@@ -32,7 +32,7 @@ from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.client.capture import InfoTracker, TopicTap
 from fiper_ros.client.ros_session import RosSession
 from fiper_ros.interface.messages import NO_ROLLOUT
-from fiper_ros.interface.topics import ALARM
+from fiper_ros.interface.topics import ALARM_TOPIC
 
 GRAPH_POLL_S = 0.5
 #: The node of ``fiper snapshot`` (in the root namespace; its SROS2 enclave, docs/security.md).
@@ -80,7 +80,7 @@ class BlackBox:
         """Buffer one message; the rise it is, if it is an alarm message that rises."""
         self.buffer.append((time_ns, topic, msgtype, raw))
         self.bytes += len(raw)
-        rise = self._on_alarm(typestore().deserialize_cdr(raw, msgtype), time_ns) if topic == ALARM else None
+        rise = self._on_alarm(typestore().deserialize_cdr(raw, msgtype), time_ns) if topic == ALARM_TOPIC else None
         while self.buffer and self.buffer[0][0] < time_ns - self.before_ns:
             self.bytes -= len(self.buffer.popleft()[3])
         while self.bytes > self.max_bytes and len(self.buffer) > 1:
@@ -217,7 +217,7 @@ def black_box(session: RosSession, out: Path, topics: list[str], before_s: float
         assert recorder is not None
         recorder.add(topic, msgtype, time_ns, raw)
 
-    tap = TopicTap(session, [*topics, ALARM] if topics else [], sink)
+    tap = TopicTap(session, [*topics, ALARM_TOPIC] if topics else [], sink)
     recorder = Recorder(out, before_s, after_s, max_bytes, live, tap, tracker)
     return recorder
 

@@ -23,12 +23,13 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from fiper_ros.core.calibration_file import Declared, declared
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE, SIGNAL_PREFIX, info
 from fiper_ros.core.kinematics import RobotModel
-from fiper_ros.dds import PARENT_PID_ENV, interrupt_group, local_env
-from fiper_ros.interface.topics import JOINT_STATES, TOPICS, input_topic, score_topic
+from fiper_ros.interface.topics import JOINT_STATES_TOPIC, TOPICS, input_topic, score_topic
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, dump_launch, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
+from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group, local_env
 
 #: The scoring node's module of FIPER's pair (every other detector's is the generic detector node's); the fusion node.
 DETECTOR_MODULES = {RND_OE: "fiper_ros.nodes.rnd_oe_node", ACE: "fiper_ros.nodes.ace_node"}
@@ -47,7 +48,7 @@ DETECTOR_ARGUMENTS = ("logpzo", "pca_kmeans", "progress", "consistency", "elapse
 
 def detector_topics(detector: str) -> tuple[str, tuple[str, ...], str]:
     """Per detector: the policy step's input its node scores, the other inputs only that node reads, its scores."""
-    return input_topic(info(detector).reads), (JOINT_STATES,) if detector == ACE else (), score_topic(detector)
+    return input_topic(info(detector).reads), (JOINT_STATES_TOPIC,) if detector == ACE else (), score_topic(detector)
 
 
 def detector_module(detector: str) -> str:
@@ -59,7 +60,7 @@ def declared_of(directory: Path | None) -> Declared:
     """The detectors the calibration in ``directory`` declares and how it combines them (FIPER's pair under
     ``and`` without one), read without loading its score models; a ``CalibrationError`` (one line naming the file)
     for a missing or unreadable calibration and one that declares no (or no supported) detector set."""
-    return Declared(DETECTORS, "and") if directory is None else declared(directory)
+    return Declared(DETECTORS, CombineMode.AND.value) if directory is None else declared(directory)
 
 
 def detectors_of(directory: Path | None) -> tuple[str, ...]:

@@ -29,7 +29,7 @@ from fiper_ros.evaluation.results import RolloutResult, StepResult
 from fiper_ros.evaluation.verdicts import in_sample_warning, rollout_line, table, tally
 from fiper_ros.interface import qos
 from fiper_ros.interface.messages import NO_ROLLOUT, outcome_name
-from fiper_ros.interface.topics import ALARM, EVENTS, SCORE_RND_OE
+from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, SCORE_RND_OE_TOPIC
 
 #: Seconds after a rollout's END within which its last verdicts are waited for.
 SETTLE_S = 5.0
@@ -72,9 +72,9 @@ class LiveVerdicts:
     def _run(self) -> None:
         with RosSession("fiper_launch_summary", self.domain) as session:
             node = session.node
-            subscriptions = [node.create_subscription(RolloutEvent, EVENTS, self._on_event, qos.EVENT),
-                             node.create_subscription(FailureAlarm, ALARM, self._on_alarm, qos.ALARM_EVERY),
-                             node.create_subscription(Score, SCORE_RND_OE, self._on_score, qos.SCORE_SUB)]
+            subscriptions = [node.create_subscription(RolloutEvent, EVENTS_TOPIC, self._on_event, qos.EVENT),
+                             node.create_subscription(FailureAlarm, ALARM_TOPIC, self._on_alarm, qos.ALARM_EVERY),
+                             node.create_subscription(Score, SCORE_RND_OE_TOPIC, self._on_score, qos.SCORE_SUB)]
             report_matches(node, lambda: {s.topic_name: s.get_publisher_count() for s in subscriptions})
             self._ready.set()
             try:

@@ -48,7 +48,7 @@ from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.thresholds import KINDS, Threshold
 from fiper_ros.core.window import MODES
-from fiper_ros.interface.topics import ACTIONS
+from fiper_ros.interface.topics import ACTIONS_TOPIC
 
 RND_PRESETS = {"small": RNDConfig.small, "paper": RNDConfig.paper}
 #: Seconds between two progress lines of the RND-OE training.
@@ -109,8 +109,8 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
     without = sorted({str(r.metadata.get("bag", "")) for r in rollouts if not r.has_actions})
     readers = [info(d).label for d in settings.detectors if info(d).reads == "actions"]
     if readers and without:
-        raise BagError(f"no action batches ({ACTIONS}) in {', '.join(without)}: {' and '.join(readers)} cannot be "
-                       "calibrated; for an observation-only calibration (RND-OE alone) give --detectors rnd_oe")
+        raise BagError(f"no action batches ({ACTIONS_TOPIC}) in {', '.join(without)}: {' and '.join(readers)} "
+                       "cannot be calibrated; for an observation-only calibration (RND-OE alone) give --detectors rnd_oe")
     if not quiet:
         print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
               f"{len(rollouts)} in {names}", flush=True)

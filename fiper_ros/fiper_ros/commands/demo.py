@@ -1,6 +1,6 @@
 """``fiper demo`` (``make demo``): the whole suite live on the shipped Sorting model, as separate processes.
 
-The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.shm`), starts
+The demo removes the Fast DDS shared-memory files of dead processes (:mod:`fiper_ros.platform.shm`), starts
 ``fiper launch`` on ``launch/demo.launch.yaml`` (sim bridge, policy node, RND-OE, ACE, fusion and
 the example supervisor, each its own OS process) in a ROS domain of its own, then drives it like an
 operator would from this process: it waits until every node is active, resets the bridge into one
@@ -29,7 +29,7 @@ from pathlib import Path
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
 from fiper_ros.bagio.errors import BagError
-from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, Driver, SuiteFailed, alarm_line, state_name
+from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, SimSuiteDriver, SuiteFailed, alarm_line
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
 from fiper_ros.client.ros_session import RosSession
@@ -39,11 +39,13 @@ from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import judged_by
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
-from fiper_ros.dds import allocate_domain
 from fiper_ros.errors import FiperError
-from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, CLOCK, EMBEDDING, SIM_ACTION, SIM_PROPRIO
+from fiper_ros.interface.messages import AlarmStateName
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, CLOCK_TOPIC,
+                                        EMBEDDING_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.launcher.config import LaunchConfig, dump_launch, load_launch
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import allocate_domain
+from fiper_ros.platform.shm import clean_stale
 
 #: The supervisor is a plain node: it must be visible in the graph (every other node of the demo is a lifecycle
 #: node that must report ``lifecycle_state: active`` on /diagnostics before the first reset).
@@ -54,7 +56,7 @@ PLAIN = (SUPERVISOR, VIEW)
 #: The demo's own node, the operator's (in the root namespace; its SROS2 enclave, docs/security.md).
 NODE_NAME = "fiper_demo"
 #: Recorded besides the bag schema's topics.
-EXTRA_TOPICS = (CAMERA_WRIST, CAMERA_THIRD, SIM_PROPRIO, SIM_ACTION, CLOCK)
+EXTRA_TOPICS = (CAMERA_WRIST_TOPIC, CAMERA_THIRD_TOPIC, SIM_PROPRIO_TOPIC, SIM_ACTION_TOPIC, CLOCK_TOPIC)
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
 PROGRESS_EVERY = 5
 
@@ -81,10 +83,10 @@ class Display:
 
     def alarm(self, trace: RolloutTrace, msg: FailureAlarm) -> None:
         """Show one alarm decision of ``trace``'s rollout."""
-        state, line = state_name(msg), alarm_line(msg)
-        if state == "UNKNOWN":
+        state, line = AlarmStateName.of_code(msg.state), alarm_line(msg)
+        if state == AlarmStateName.UNKNOWN:
             self.say(f"  UNKNOWN at step {msg.step}: {msg.reason}")
-        elif state == "ALARM" and trace.alarm_step == msg.step:
+        elif state == AlarmStateName.ALARM and trace.alarm_step == msg.step:
             self.say(f"  ALARM  {line}\n         why: {msg.reason}")
         elif self.tty:
             print(f"\r  {line}", end="", flush=True)
@@ -93,14 +95,14 @@ class Display:
 
 
 def operator(session: RosSession, suite: SuiteProcess, task: str, detectors: tuple[str, ...],
-             display: AlarmDisplay | None = None) -> tuple[Recorder, Driver]:
+             display: AlarmDisplay | None = None) -> tuple[Recorder, SimSuiteDriver]:
     """The demo's side of ``session`` for a suite of ``detectors``: a recorder of its topics, both cameras,
     ``/sim/*`` and ``/clock``, and the driver."""
     recorder = Recorder(session, (*suite_topics(detectors), *EXTRA_TOPICS), source="fiper demo")
-    return recorder, Driver(session, suite, task, detectors, recorder=recorder, display=display)
+    return recorder, SimSuiteDriver(session, suite, task, detectors, recorder=recorder, display=display)
 
 
-def run_rollout(driver: Driver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
+def run_rollout(driver: SimSuiteDriver, display: Display, plan: Plan, timeout_s: float) -> RolloutTrace:
     """Reset the bridge into ``plan``, follow the rollout to its end and wait for its last scores."""
     trace = driver.reset(plan.scenario, plan.seed, plan.label)
     display.say(f"rollout {trace.rollout_id}: {driver.task}/{plan.scenario} seed {plan.seed} ({plan.label}), "
@@ -204,7 +206,7 @@ def run_demo(args: argparse.Namespace) -> int:
                     for plan in plans:
                         traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
                     # a step published just before the END it crossed: both of its messages into the bag
-                    driver.settle(lambda: recorder.counts[EMBEDDING] == recorder.counts[ACTIONS], SETTLE_S)
+                    driver.settle(lambda: recorder.counts[EMBEDDING_TOPIC] == recorder.counts[ACTIONS_TOPIC], SETTLE_S)
                 except SuiteFailed as error:
                     problems.append(f"{error}; its last output:\n{error.output}" if error.output else str(error))
                 finally:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from fiper_ros.core.detectors import info
-from fiper_ros.interface.messages import message_class, state_name
+from fiper_ros.interface.messages import AlarmStateName, message_class
 
 ARRAY_PREVIEW = 8
 #: The node of ``fiper echo`` (in the root namespace; its SROS2 enclave, docs/security.md).
@@ -76,8 +76,8 @@ def alarm_brief(msg: Any) -> str:
               for d, eta, gamma, exceeded in zip(msg.detectors, msg.eta, msg.gamma, msg.exceeded)
               if not np.isnan(gamma)]  # NaN: a state about no step
     flags = " latched" * bool(msg.latched) + " (heartbeat)" * bool(msg.heartbeat)
-    return " ".join([f"rollout {msg.rollout_id} step {msg.step}: {state_name(msg.state).upper()}{flags}", *scores,
-                     f"| {msg.reason}"])
+    state = AlarmStateName.of_code(msg.state).name
+    return " ".join([f"rollout {msg.rollout_id} step {msg.step}: {state}{flags}", *scores, f"| {msg.reason}"])
 
 
 def score_brief(msg: Any) -> str:
@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.executors import ExternalShutdownException  # noqa: PLC0415
 
     from fiper_ros.client.ros_session import enclave_args  # noqa: PLC0415
-    from fiper_ros.nodes.main import use_discovery_profile  # noqa: PLC0415
+    from fiper_ros.platform.process import use_discovery_profile  # noqa: PLC0415
 
     use_discovery_profile()
     rclpy.init(args=enclave_args(NODE_NAME))

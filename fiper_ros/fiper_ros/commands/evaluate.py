@@ -53,6 +53,7 @@ from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
+from fiper_ros.core.combine_mode import COMBINES
 from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
 from fiper_ros.core.fusion import Combine
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
@@ -158,7 +159,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sweep.add_argument("--thresholds", type=name_list(GRID_KINDS), default=None,
                        help=f"comma list of {', '.join(GRID_KINDS)} (default: all; with --pool: "
                             f"{', '.join(SHAPE_KINDS)})")
-    sweep.add_argument("--combines", type=name_list(("and", "or")), default=("and", "or"))
+    sweep.add_argument("--combines", type=name_list(COMBINES), default=COMBINES)
     sweep.add_argument("--pairs", choices=PAIR_GRIDS, default="coarse", help="FIPER (w_O, w_A) grid")
     sweep.add_argument("--signals", type=lambda text: tuple(p.strip() for p in text.split(",") if p.strip()),
                        default=(), metavar="NAMES",

@@ -31,10 +31,11 @@ from fiper_ros.core.detectors import ACE, CALIBRATED, DETECTORS, RND_OE, info
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.errors import FiperError
-from fiper_ros.interface.topics import (ACTIONS, ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, CLOCK, DIAGNOSTICS,
-                                        EMBEDDING, EVENTS, JOINT_STATES, RESET_ALARM, SIM_ACTION, SIM_HALT,
-                                        SIM_PROPRIO, SIM_RESET, STEP_SIGNALS, TOPICS, input_topic, relative,
-                                        score_topic)
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, ALARM_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_TOPICS,
+                                        CAMERA_WRIST_TOPIC, CLOCK_TOPIC, DIAGNOSTICS_TOPIC, EMBEDDING_TOPIC,
+                                        EVENTS_TOPIC, JOINT_STATES_TOPIC, RESET_ALARM_SERVICE, SIM_ACTION_TOPIC,
+                                        SIM_HALT_SERVICE, SIM_PROPRIO_TOPIC, SIM_RESET_SERVICE, STEP_SIGNALS_TOPIC,
+                                        TOPICS, input_topic, relative, score_topic)
 from fiper_ros.launcher.config import LaunchConfig, LaunchError, NodeSpec, load_launch
 from fiper_ros.launcher.overrides import Overrides, apply
 
@@ -139,20 +140,20 @@ Rule = Callable[[Mapping[str, Any]], Grants]
 
 def ros_node(p: Mapping[str, Any]) -> Grants:
     """Every rclpy node; ``/clock`` under sim time."""
-    return Grants.of(publish=(ROSOUT, PARAMETER_EVENTS), subscribe=(CLOCK,) if p.get("use_sim_time") else (),
+    return Grants.of(publish=(ROSOUT, PARAMETER_EVENTS), subscribe=(CLOCK_TOPIC,) if p.get("use_sim_time") else (),
                      reply=NODE_SERVICES)
 
 
 def fiper_node(p: Mapping[str, Any]) -> Grants:
     """:class:`fiper_ros.nodes.base.FiperNode`: a lifecycle node with its ``/diagnostics``."""
-    return ros_node(p) | Grants.of(publish=(TRANSITION_EVENT, DIAGNOSTICS), reply=LIFECYCLE_SERVICES)
+    return ros_node(p) | Grants.of(publish=(TRANSITION_EVENT, DIAGNOSTICS_TOPIC), reply=LIFECYCLE_SERVICES)
 
 
 def scoring_node(p: Mapping[str, Any], detector: str) -> Grants:
     """:class:`fiper_ros.nodes.detector_node.DetectorNode` of ``detector``: its score out, the rollout events and
     what the detector reads in."""
     return fiper_node(p) | Grants.of(publish=(relative(score_topic(detector)),),
-                                     subscribe=(relative(EVENTS), relative(input_topic(info(detector).reads))))
+                                     subscribe=(relative(EVENTS_TOPIC), relative(input_topic(info(detector).reads))))
 
 
 def detector_node(p: Mapping[str, Any]) -> Grants:
@@ -178,52 +179,51 @@ def rnd_oe_node(p: Mapping[str, Any]) -> Grants:
 def ace_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.ace_node``: with a joint-velocity calibration also the joint states."""
     velocities = load_calibration(calibration_dir(p)).layout.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY
-    joints = (p.get("joint_state_topic", JOINT_STATES),) if velocities else ()
+    joints = (p.get("joint_state_topic", JOINT_STATES_TOPIC),) if velocities else ()
     return scoring_node(p, ACE) | Grants.of(subscribe=joints)
 
 
 def fusion_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.fusion_node``: the scores of the detectors its calibration declares (none set: both)."""
     detectors = declared_detectors(calibration_dir(p)) if p.get("calibration_dir") else DETECTORS
-    return fiper_node(p) | Grants.of(publish=(relative(ALARM),), reply=(RESET_ALARM,),
-                                     subscribe=(relative(EVENTS), *(relative(score_topic(d)) for d in detectors)))
+    return fiper_node(p) | Grants.of(publish=(relative(ALARM_TOPIC),), reply=(RESET_ALARM_SERVICE,),
+                                     subscribe=(relative(EVENTS_TOPIC), *(relative(score_topic(d)) for d in detectors)))
 
 
 def supervisor_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.supervisor_node``: a plain node."""
-    return ros_node(p) | Grants.of(publish=(DIAGNOSTICS,), subscribe=(p.get("alarm_topic", ALARM),
-                                                                       p.get("events_topic", EVENTS)),
-                                   request=(p.get("halt_service", SIM_HALT),))
+    return ros_node(p) | Grants.of(publish=(DIAGNOSTICS_TOPIC,), subscribe=(p.get("alarm_topic", ALARM_TOPIC),
+                                                                       p.get("events_topic", EVENTS_TOPIC)),
+                                   request=(p.get("halt_service", SIM_HALT_SERVICE),))
 
 
 def policy_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.policy_node`` (its :class:`~fiper_ros.publishing.FiperPublisher` also has the step signals'
     publisher, which it never uses)."""
     return fiper_node(p) | Grants.of(
-        publish=(p.get("embedding_topic", EMBEDDING), p.get("action_chunks_topic", ACTIONS), STEP_SIGNALS,
-                 p.get("action_topic", SIM_ACTION)),
-        subscribe=(p.get("events_topic", EVENTS), p.get("wrist_image_topic", CAMERA_WRIST),
-                   p.get("third_image_topic", CAMERA_THIRD), p.get("proprio_topic", SIM_PROPRIO)))
+        publish=(p.get("embedding_topic", EMBEDDING_TOPIC), p.get("action_chunks_topic", ACTIONS_TOPIC),
+                 STEP_SIGNALS_TOPIC, p.get("action_topic", SIM_ACTION_TOPIC)),
+        subscribe=(p.get("events_topic", EVENTS_TOPIC), p.get("wrist_image_topic", CAMERA_WRIST_TOPIC),
+                   p.get("third_image_topic", CAMERA_THIRD_TOPIC), p.get("proprio_topic", SIM_PROPRIO_TOPIC)))
 
 
 def bridge_node(p: Mapping[str, Any]) -> Grants:
     """``sim_bridge.bridge_node``: the cameras with ``images``, ``/clock`` with ``sim_time``."""
-    images = (p.get("wrist_image_topic", CAMERA_WRIST), p.get("third_image_topic", CAMERA_THIRD))
+    images = (p.get("wrist_image_topic", CAMERA_WRIST_TOPIC), p.get("third_image_topic", CAMERA_THIRD_TOPIC))
     return fiper_node(p) | Grants.of(
-        publish=(p.get("joint_state_topic", JOINT_STATES), p.get("proprio_topic", SIM_PROPRIO),
-                 p.get("events_topic", EVENTS), *(images if p.get("images", True) else ()),
-                 *((CLOCK,) if p.get("sim_time", False) else ())),
-        subscribe=(p.get("action_topic", SIM_ACTION),), reply=(SIM_RESET, SIM_HALT))
+        publish=(p.get("joint_state_topic", JOINT_STATES_TOPIC), p.get("proprio_topic", SIM_PROPRIO_TOPIC),
+                 p.get("events_topic", EVENTS_TOPIC), *(images if p.get("images", True) else ()),
+                 *((CLOCK_TOPIC,) if p.get("sim_time", False) else ())),
+        subscribe=(p.get("action_topic", SIM_ACTION_TOPIC),), reply=(SIM_RESET_SERVICE, SIM_HALT_SERVICE))
 
 
 def view_node(p: Mapping[str, Any]) -> Grants:
     """``fiper_ros.nodes.view_node`` (the live view, a plain node): it only reads the scores of its ``detectors``
     (every detector a calibration may declare, by default), the alarm and events, the diagnostics and its
     ``cameras``; it publishes its own diagnostics."""
-    return ros_node(p) | Grants.of(publish=(DIAGNOSTICS,), subscribe=(
-        *(relative(score_topic(d)) for d in p.get("detectors", CALIBRATED)), relative(ALARM), relative(EVENTS),
-        DIAGNOSTICS,
-        *p.get("cameras", CAMERAS)))
+    return ros_node(p) | Grants.of(publish=(DIAGNOSTICS_TOPIC,), subscribe=(
+        *(relative(score_topic(d)) for d in p.get("detectors", CALIBRATED)), relative(ALARM_TOPIC),
+        relative(EVENTS_TOPIC), DIAGNOSTICS_TOPIC, *p.get("cameras", CAMERA_TOPICS)))
 
 
 #: Node module (a launch file's ``module``) -> its rule.
@@ -257,10 +257,10 @@ def tool_grants() -> dict[str, Grants]:
     from fiper_ros.client.replay import NODE_NAME as REPLAY, played_topics  # noqa: PLC0415
     from fiper_ros.commands import demo, echo  # noqa: PLC0415
 
-    recorded = Grants.of(subscribe=(*TOPICS, DIAGNOSTICS))
-    operator = recorded | Grants.of(request=(SIM_RESET,))
+    recorded = Grants.of(subscribe=(*TOPICS, DIAGNOSTICS_TOPIC))
+    operator = recorded | Grants.of(request=(SIM_RESET_SERVICE,))
     tools = {echo.NODE_NAME: recorded, record.NODE_NAME: recorded, snapshot.NODE_NAME: recorded,
-             REPLAY: Grants.of(publish=(CLOCK, *played_topics(DETECTORS)), subscribe=(ALARM,)),
+             REPLAY: Grants.of(publish=(CLOCK_TOPIC, *played_topics(DETECTORS)), subscribe=(ALARM_TOPIC,)),
              demo.NODE_NAME: operator | Grants.of(subscribe=demo.EXTRA_TOPICS), live_collect.NODE_NAME: operator}
     return {f"/{name}": (ros_node({}) | grants).resolved(f"/{name}") for name, grants in tools.items()}
 

@@ -11,10 +11,10 @@ from pathlib import Path
 from fiper_ros.commands import options
 from fiper_ros.core.calibration_file import CALIBRATION_FILE, CalibrationError, read_yaml, split_of
 from fiper_ros.data_paths import DataPathNotFound, resolve_data_path
-from fiper_ros.dds import die_with_parent
 from fiper_ros.launcher.config import LaunchConfig, load_launch, parse_arguments
 from fiper_ros.launcher.processes import run_in_process, run_processes, say
-from fiper_ros.shm import clean_stale
+from fiper_ros.platform.dds import die_with_parent
+from fiper_ros.platform.shm import clean_stale
 
 #: Options may come after the launch arguments (``fiper launch FILE a:=1 --in-process``), as with ``ros2 launch``.
 INTERMIXED = True

@@ -25,9 +25,9 @@ from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.data_paths import SEARCH_RULE, data_path_argument
-from fiper_ros.dds import allocate_domain
 from fiper_ros.evaluation.verdicts import in_sample, in_sample_warning, rollout_line, table, tally
 from fiper_ros.interface.topics import INPUT_TOPICS
+from fiper_ros.platform.dds import allocate_domain
 
 if TYPE_CHECKING:
     from fiper_ros.core.calibration import Calibration

@@ -39,7 +39,7 @@ from fiper_ros.commands.calibrate import calibrate_bags
 from fiper_ros.converters.options import ConvertOptions
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.errors import one_line
-from fiper_ros.interface.topics import ACTIONS, JOINT_STATES
+from fiper_ros.interface.topics import ACTIONS_TOPIC, JOINT_STATES_TOPIC
 
 LATENT_DIM = 8
 #: The end-effector path spans about this many metres; sample spread and OOD spread relative to it.
@@ -266,7 +266,7 @@ def make_set(spec: SampleSet, out: Path, seed: int, overwrite: bool = False) -> 
 
 
 #: What an observation-only copy leaves out: the action batches and the joint states only ACE reads.
-ACTION_TOPICS = (ACTIONS, JOINT_STATES)
+ACTION_TOPICS = (ACTIONS_TOPIC, JOINT_STATES_TOPIC)
 
 
 def observation_only(source: Path, out: Path, overwrite: bool = False) -> Path:

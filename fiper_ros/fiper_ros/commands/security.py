@@ -133,7 +133,7 @@ def observe(specs: Sequence[NodeSpec], domain: int, timeout_s: float = ACTIVE_TI
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
-    from fiper_ros.nodes.main import use_discovery_profile  # noqa: PLC0415
+    from fiper_ros.platform.process import use_discovery_profile  # noqa: PLC0415
 
     use_discovery_profile()  # as the nodes' own processes
     context = Context()
@@ -203,7 +203,7 @@ def observe_all(deployments: Iterable[Deployment], timeout_s: float = ACTIVE_TIM
     """Build every distinct node of ``deployments``, a group at a time in a ROS domain of its own (each held to
     the end, so that no group meets what an earlier one left of a node of the same name): each node, the
     deployments it runs in, and what it does (read from the graph)."""
-    from fiper_ros.dds import allocate_domain  # noqa: PLC0415
+    from fiper_ros.platform.dds import allocate_domain  # noqa: PLC0415
 
     observed = []
     with ExitStack() as domains:

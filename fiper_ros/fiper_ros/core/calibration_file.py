@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import DETECTORS, check_once, check_pair_format, in_fusion_order
 from fiper_ros.core.errors import CoreError
 
@@ -116,7 +117,7 @@ def declared(directory: str | Path) -> Declared:
     check_files(Path(directory), (CALIBRATION_FILE,))
     path = Path(directory) / CALIBRATION_FILE
     content = read_yaml(path)
-    return Declared(detectors_of(content, path), str(content["settings"].get("combine", "and")))
+    return Declared(detectors_of(content, path), str(content["settings"].get("combine", CombineMode.AND.value)))
 
 
 def merged_split(records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

@@ -17,55 +17,52 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Combines with a threshold per detector, each calibrated at delta on its own (AND: delta, OR: N x delta).
-COMBINES = ("and", "or")
-#: Combines with one conformal factor over the normalised detectors (:mod:`fiper_ros.core.combination`).
-JOINT_COMBINES = ("max", "kth")
-#: Every combine mode (``kth`` is written ``kth:K``).
-COMBINE_MODES = COMBINES + JOINT_COMBINES
+from fiper_ros.core.combine_mode import CombineMode
 
 
 @dataclass(frozen=True)
 class Combine:
     """How the declared detectors' decisions make the alarm: ``and``, ``or``, ``max`` or ``kth:K``."""
 
-    mode: str
+    mode: CombineMode
     k: int = 0
     """The votes ``kth`` needs (0 for the other modes)."""
 
     def __post_init__(self) -> None:
-        if self.mode not in COMBINE_MODES:
-            raise ValueError(f"unknown combine {self.mode!r}; expected one of and, or, max, kth:K")
-        if (self.mode == "kth") != (self.k >= 1):
-            raise ValueError("kth:K needs K >= 1" if self.mode == "kth" else f"{self.mode} takes no K")
+        if self.mode not in tuple(CombineMode):
+            raise ValueError(f"unknown combine {self.mode!r}; expected one of "
+                             f"{', '.join(mode.written for mode in CombineMode)}")
+        object.__setattr__(self, "mode", CombineMode(self.mode))
+        if (self.mode is CombineMode.KTH) != (self.k >= 1):
+            raise ValueError("kth:K needs K >= 1" if self.mode is CombineMode.KTH else f"{self.mode} takes no K")
 
     @classmethod
     def parse(cls, text: str) -> Combine:
         """``"and"``, ``"or"``, ``"max"`` or ``"kth:K"``; ``ValueError`` in one line otherwise."""
         mode, _, count = str(text).partition(":")
-        if mode == "kth":
+        if mode == CombineMode.KTH:
             if not count.isdigit() or int(count) < 1:
                 raise ValueError(f"combine {text!r}: kth:K needs an integer K >= 1 (e.g. kth:2)")
-            return cls("kth", int(count))
+            return cls(CombineMode.KTH, int(count))
         if count:
             raise ValueError(f"combine {text!r}: only kth takes a count (kth:K)")
-        return cls(mode)
+        return cls(mode)  # type: ignore[arg-type]  # checked and converted by __post_init__
 
     @property
     def joint(self) -> bool:
         """Whether the detectors share one conformal factor (``max``, ``kth``)."""
-        return self.mode in JOINT_COMBINES
+        return self.mode.joint
 
     def votes(self, detectors: int) -> int:
         """How many of ``detectors`` must exceed for an alarm (one detector alone: 1, whatever the mode)."""
         if detectors < 1:
             raise ValueError(f"at least one detector's decision is needed, got {detectors}")
-        if self.mode == "kth" and self.k > detectors:
+        if self.mode is CombineMode.KTH and self.k > detectors:
             raise ValueError(f"combine kth:{self.k} needs at least {self.k} detectors, got {detectors}")
-        return {"and": detectors, "or": 1, "max": 1}.get(self.mode, self.k)
+        return {CombineMode.AND: detectors, CombineMode.OR: 1, CombineMode.MAX: 1, CombineMode.KTH: self.k}[self.mode]
 
     def __str__(self) -> str:
-        return f"kth:{self.k}" if self.mode == "kth" else self.mode
+        return f"kth:{self.k}" if self.mode is CombineMode.KTH else self.mode.value
 
 
 def exceeds(eta: np.ndarray | float, gamma: np.ndarray | float) -> np.ndarray | bool:
@@ -76,7 +73,7 @@ def exceeds(eta: np.ndarray | float, gamma: np.ndarray | float) -> np.ndarray | 
     return np.greater(eta, gamma)
 
 
-def fuse(exceeded_obs: np.ndarray | bool, exceeded_act: np.ndarray | bool, combine: str = "and") -> np.ndarray | bool:
+def fuse(exceeded_obs: np.ndarray | bool, exceeded_act: np.ndarray | bool, combine: str = CombineMode.AND) -> np.ndarray | bool:
     """``F_O AND F_A`` (eq. 7) or ``F_O OR F_A``, element-wise."""
     return fuse_declared([exceeded_obs, exceeded_act], combine)
 
@@ -89,7 +86,7 @@ def fuse_votes(exceeded: Sequence[np.ndarray | bool], votes: int) -> np.ndarray 
     return np.count_nonzero(stacked, axis=0) >= votes if stacked.ndim > 1 else bool(np.count_nonzero(stacked) >= votes)
 
 
-def fuse_declared(exceeded: Sequence[np.ndarray | bool], combine: str | Combine = "and") -> np.ndarray | bool:
+def fuse_declared(exceeded: Sequence[np.ndarray | bool], combine: str | Combine = CombineMode.AND) -> np.ndarray | bool:
     """The alarm over the declared detectors' decisions: at least :meth:`Combine.votes` of them exceed
     (two with ``and``: eq. 7; one alone: its own decision)."""
     rule = combine if isinstance(combine, Combine) else Combine.parse(combine)
@@ -105,7 +102,7 @@ def first_alarm(alarms: np.ndarray) -> int | None:
 
 
 def alarms_over_rollout(
-    eta_obs: np.ndarray, gamma_obs: np.ndarray, eta_act: np.ndarray, gamma_act: np.ndarray, combine: str = "and"
+    eta_obs: np.ndarray, gamma_obs: np.ndarray, eta_act: np.ndarray, gamma_act: np.ndarray, combine: str = CombineMode.AND
 ) -> tuple[np.ndarray, int | None]:
     """Vectorised eq. (7) over a rollout: per-step alarms ``[T]`` and the first alarm step."""
     alarms = np.asarray(fuse(exceeds(eta_obs, gamma_obs), exceeds(eta_act, gamma_act), combine), dtype=bool)

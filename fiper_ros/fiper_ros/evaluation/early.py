@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fiper_ros.core.combination import SHAPE_KINDS, Shape, combined, fit_shape
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.metrics import auroc, early_cut, rollout_peaks
@@ -62,7 +63,7 @@ def statistic_of(group: Group, combinations: Mapping[str, tuple[str, ...]]) -> S
         detectors = combinations[group.method]
         labels = tuple(CUMULATIVE if info(d).aggregation else group.window for d in detectors)
         kinds: tuple[str | None, ...] = tuple(info(d).shape or group.kind for d in detectors)
-        return Statistic(detectors, labels, kinds, Combine.parse(group.combine or "max").votes(len(detectors)))
+        return Statistic(detectors, labels, kinds, Combine.parse(group.combine or CombineMode.MAX).votes(len(detectors)))
     if group.method == FIPER:
         if group.kind not in SHAPE_KINDS:
             return None

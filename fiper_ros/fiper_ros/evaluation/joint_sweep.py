@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fiper_ros.core.combination import SHAPE_KINDS, Shape, fit_shape
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.thresholds import Threshold, ThresholdSettings, _quantile
@@ -44,9 +45,9 @@ JOINT_COMBINE_DEFAULTS = ("max", "kth:2", "and", "or")
 def _combines(combination: Combination, wanted: Sequence[str]) -> list[Combine]:
     """The combines of ``wanted`` a combination takes (one detector: its own threshold, the ``max`` of one)."""
     if len(combination.detectors) == 1:
-        return [Combine.parse("max")]
+        return [Combine(CombineMode.MAX)]
     combines = [Combine.parse(text) for text in wanted]
-    return [c for c in combines if c.mode != "kth" or c.k <= len(combination.detectors)]
+    return [c for c in combines if c.mode is not CombineMode.KTH or c.k <= len(combination.detectors)]
 
 
 def _kinds(combination: Combination, wanted: Sequence[str]) -> list[str]:

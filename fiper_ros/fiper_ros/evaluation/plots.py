@@ -26,6 +26,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # the backend must be chosen first
 import numpy as np
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.fusion import alarms_over_rollout
 from fiper_ros.core.thresholds import Threshold, fit_threshold
 from fiper_ros.core.window import aggregate
@@ -100,7 +101,7 @@ def _series(result: EvaluationResult, method: str, kind: str, labels: list[str])
     metrics = result.metrics["all"]
     rows = []
     for label in labels:
-        group = Group(method, f"{label}/{label}", kind, "and") if method == FIPER else Group(method, label, kind)
+        group = Group(method, f"{label}/{label}", kind, CombineMode.AND.value) if method == FIPER else Group(method, label, kind)
         rows.append(nanmean(metrics[:, :, index[group]], axis=(0, 1)) if group in index else
                     np.full((metrics.shape[3], len(METRICS)), np.nan))
     return np.stack(rows)

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.metrics import evaluate
 from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.sweep import FIPER, Group
@@ -204,8 +205,8 @@ def run_protocol(
         scores[method] = float(twa[best])
         # FIPER's default is AND at w/w; swept as a combination (pooled) its window is written once
         candidates = [groups[members[0]]] if fixed is not None else [
-            Group(method, f"{default_window}/{default_window}", default_kind, "and"),
-            Group(method, str(default_window), default_kind, "and" if method == FIPER else "")]
+            Group(method, f"{default_window}/{default_window}", default_kind, CombineMode.AND.value),
+            Group(method, str(default_window), default_kind, CombineMode.AND.value if method == FIPER else "")]
         wanted = next((g for g in candidates if g in groups), None)
         if wanted is not None:
             default[method] = result(method, list(groups).index(wanted))

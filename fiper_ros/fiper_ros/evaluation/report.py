@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
 from fiper_ros.evaluation.early import EarlyDetection
@@ -296,7 +297,7 @@ def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], p
     group = chosen.group_of(task)
     if group.kind not in GUARANTEED_KINDS:
         return "none (per-step quantile)"
-    bound = f"{len(streams)}δ (OR)" if group.combine == "or" else "δ"
+    bound = f"{len(streams)}δ (OR)" if group.combine == CombineMode.OR else "δ"
     bound += " over all tasks (pooled)" if pooled else ""
     if all(not info(s).fitted for s in streams) or split == "split":
         text = f"≤ {bound}"  # nothing we fitted saw the conformal rollouts

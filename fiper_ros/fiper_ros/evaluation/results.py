@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.interface.messages import ALARM, UNKNOWN, state_name
+from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.runtime.alarm import AlarmState
 
 
@@ -20,14 +20,15 @@ from fiper_ros.runtime.alarm import AlarmState
 class StepResult:
     """FIPER's output at one policy step: the state, and per declared detector its decision and windowed score."""
 
-    state: str
+    state: AlarmStateName
     exceeded: tuple[bool, ...]
     windowed: tuple[float | None, ...]
 
     @classmethod
     def of_alarm(cls, msg: Any) -> StepResult:  # a FailureAlarm message (or its wire view)
         """The result a FailureAlarm message carries."""
-        return cls(state_name(msg.state), tuple(bool(e) for e in msg.exceeded), tuple(as_float32(v) for v in msg.eta))
+        return cls(AlarmStateName.of_code(msg.state), tuple(bool(e) for e in msg.exceeded),
+                   tuple(as_float32(v) for v in msg.eta))
 
     @classmethod
     def of_state(cls, state: AlarmState) -> StepResult:
@@ -48,14 +49,14 @@ class RolloutResult:
     @property
     def first_alarm(self) -> int | None:
         """First step whose state is ALARM."""
-        alarms = [s for s, r in self.steps.items() if r.state == ALARM]
+        alarms = [s for s, r in self.steps.items() if r.state == AlarmStateName.ALARM]
         return min(alarms) if alarms else None
 
     def summary(self) -> str:
         """One line: rollout, scenario, steps, first alarm step, outcome."""
         where = f" {self.task}/{self.scenario}" if self.task or self.scenario else ""
         alarm = "none" if self.first_alarm is None else f"step {self.first_alarm}"
-        unknown = sum(r.state == UNKNOWN for r in self.steps.values())
+        unknown = sum(r.state == AlarmStateName.UNKNOWN for r in self.steps.values())
         extra = f", {unknown} unknown" if unknown else ""
         return f"rollout {self.rollout_id}{where}: {len(self.steps)} steps{extra}, first alarm {alarm}, outcome {self.outcome}"
 

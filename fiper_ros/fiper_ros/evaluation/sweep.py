@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fiper_ros.core.fusion import COMBINES, exceeds, fuse
+from fiper_ros.core.combine_mode import COMBINES
+from fiper_ros.core.fusion import exceeds, fuse
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.methods import METHODS

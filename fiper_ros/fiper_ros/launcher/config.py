@@ -33,7 +33,7 @@ exits, forwards Ctrl-C / SIGTERM (SIGINT, then SIGKILL after a grace period) and
 own. Every node process dies with the launcher (``FIPER_PARENT_PID``). With ``ROS_SECURITY_ENABLE=true`` each
 node process runs in its own SROS2 enclave, named as the node (docs/security.md). ``--in-process`` runs all
 nodes in one process on a multi-threaded executor (one DDS participant: one enclave for all). Before any node
-starts, the launcher removes the Fast DDS shared-memory files that dead processes left (:mod:`fiper_ros.shm`).
+starts, the launcher removes the Fast DDS shared-memory files that dead processes left (:mod:`fiper_ros.platform.shm`).
 """
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ import yaml
 
 from fiper_ros.launcher.errors import LaunchError
 from fiper_ros.launcher.substitutions import Context, SubstitutionError, has_substitution, substitute
-from fiper_ros.runtime.publishers import fully_qualified
+from fiper_ros.runtime.trusted_publishers import fully_qualified
 
 #: ROS 2's switch for SROS2 security: when it is ``true``, every launched node runs in its own enclave.
 SECURITY_ENABLE_ENV = "ROS_SECURITY_ENABLE"

@@ -16,9 +16,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
 
-from fiper_ros.dds import PARENT_PID_ENV, STACKS_SIGNAL
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, LaunchError, NodeSpec
 from fiper_ros.nodes.errors import NodeError
+from fiper_ros.platform.dds import PARENT_PID_ENV, STACKS_SIGNAL
 
 
 #: How long a node that did not stop gets to print its stacks before it is killed.
@@ -231,7 +231,7 @@ def run_in_process(config: LaunchConfig) -> int:
     import rclpy  # noqa: PLC0415 - only this mode needs rclpy in the launcher itself
     from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
 
-    from fiper_ros.nodes.main import discovery_note, spin_until_shutdown, use_discovery_profile  # noqa: PLC0415
+    from fiper_ros.platform.process import discovery_note, spin_until_shutdown, use_discovery_profile  # noqa: PLC0415
 
     profile = use_discovery_profile()
     if profile is not None:

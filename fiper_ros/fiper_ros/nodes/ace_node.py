@@ -20,10 +20,10 @@ from fiper_ros.core.detectors import ACE
 from fiper_ros.core.kinematics import ForwardKinematics, PinocchioFK
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.topics import ARM_JOINT_NAMES, JOINT_STATES
+from fiper_ros.interface.topics import ARM_JOINT_NAMES, JOINT_STATES_TOPIC
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector_node import DetectorNode
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.joint_history import JointHistory, StampGate
 from fiper_ros.runtime.validation import InputRejected
@@ -40,7 +40,7 @@ class AceNode(DetectorNode):
         super().__init__("ace_node", **kwargs)
         self.declare_parameter("urdf_path", "", describe("robot URDF for joint-space actions", read_only=True))
         self.declare_parameter("ee_frame", "panda_hand", describe("end-effector frame of the URDF", read_only=True))
-        self.declare_parameter("joint_state_topic", JOINT_STATES,
+        self.declare_parameter("joint_state_topic", JOINT_STATES_TOPIC,
                                describe("measured joint positions, for joint-velocity actions", read_only=True))
         self.declare_parameter("joint_names", list(ARM_JOINT_NAMES),
                                describe("joints of the URDF chain, picked by name from joint_states", read_only=True))

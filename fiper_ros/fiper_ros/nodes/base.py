@@ -26,16 +26,16 @@ from rclpy.subscription import Subscription
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import CdrError, EncapsulationError, codec
 from fiper_ros.interface.conversions import header_view
-from fiper_ros.interface.topics import DIAGNOSTICS
+from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC
 from fiper_ros.nodes.graph_watch import PublisherCheck
-from fiper_ros.nodes.main import process_age_s
-from fiper_ros.runtime.publishers import Expected, resolve_node
+from fiper_ros.platform.process import process_age_s
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
+from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 from fiper_ros.runtime.validation import MALFORMED, InputRejected
 from fiper_ros.runtime.wiring import MATCHED_PUBLISHERS, MATCHED_SUBSCRIBERS
 
 #: Topics of ROS itself, left out of the matched-endpoint diagnostics.
-INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", DIAGNOSTICS)
+INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", DIAGNOSTICS_TOPIC)
 #: The log line of a node that reached ACTIVE: :data:`ACTIVE_LOG`, the seconds since its process started, then
 #: :data:`ACTIVE_LOG_END` (``make bench-nodes`` reads the seconds).
 ACTIVE_LOG, ACTIVE_LOG_END = "ACTIVE", "s after the process started"
@@ -99,7 +99,7 @@ class FiperNode(LifecycleNode):
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         #: The node clock's handle (:meth:`now_ns`); the clock object is the node's for its life, sim time included.
         self._clock_handle = self.get_clock().handle
-        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self.publish_diagnostics, clock=self.steady)
         self.publisher_check: PublisherCheck | None = None
         self._autostart_timer = None

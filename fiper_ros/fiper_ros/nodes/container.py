@@ -1,7 +1,7 @@
 """Several of the suite's nodes in one process: ``ros2 run fiper_ros container rnd_oe_node fusion_node --ros-args ...``.
 
 The nodes are created in the order given and spun by one EventsExecutor in the process's main thread
-(:func:`fiper_ros.nodes.main.run_nodes`), so a message between them costs no process wake-up
+(:func:`fiper_ros.platform.process.run_nodes`), so a message between them costs no process wake-up
 (``fiper.launch.yaml compose:=true``; what that buys at PushT's shape is measured in docs/benchmarks.md, "Composed
 nodes"). The price is isolation: a crash of one node ends the others, and a callback that hangs stops them all (the alarm's liveliness then lapses, which a supervisor sees; docs/nodes.md
 "Composed nodes"). Every node keeps its own name, parameters (a parameter file's entries by node name, or
@@ -17,7 +17,7 @@ import sys
 from rclpy.utilities import remove_ros_args
 
 from fiper_ros.nodes.errors import NodeError
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_nodes
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_nodes
 
 #: The nodes a container may hold: the suite's single-threaded nodes, each its executable's name.
 NODES = ("rnd_oe_node", "ace_node", "fusion_node")

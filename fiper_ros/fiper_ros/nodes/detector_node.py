@@ -29,9 +29,9 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec
 from fiper_ros.interface.conversions import floats_of
 from fiper_ros.interface.messages import outcome_name
-from fiper_ros.interface.topics import EVENTS, input_topic, relative, score_topic
+from fiper_ros.interface.topics import EVENTS_TOPIC, input_topic, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.rollout_gate import RolloutGate, Route
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
@@ -101,8 +101,8 @@ class DetectorNode(FiperNode):
             # Liveliness is a wall-clock contract (DDS lease): assert it on the steady clock, also under sim time.
             self.create_timer(qos.SCORE_HEARTBEAT_S, self._score_pub.assert_liveliness, clock=self.steady)
         # Events are followed in every state, so a rollout started before activation is known.
-        self.create_subscription(RolloutEvent, relative(EVENTS), self._on_event, qos.EVENT,
-                                 event_callbacks=self.subscription_events(relative(EVENTS)))
+        self.create_subscription(RolloutEvent, relative(EVENTS_TOPIC), self._on_event, qos.EVENT,
+                                 event_callbacks=self.subscription_events(relative(EVENTS_TOPIC)))
         self.input_topic = relative(input_topic(self.reads)) if self.reads else ""
         self.watch_publishers()  # one publisher per input (of allowed_publishers, if set); the scores only from here
 

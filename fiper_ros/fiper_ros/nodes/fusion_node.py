@@ -24,21 +24,21 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_msgs.srv import ResetAlarm
 from fiper_ros.core.calibration_file import declared
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
 from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import codec
 from fiper_ros.interface.conversions import header_view, stamp_ns
-from fiper_ros.interface.messages import ALARM, OK, UNKNOWN, outcome_name
-from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, EVENTS, RESET_ALARM, relative, score_topic
+from fiper_ros.interface.messages import AlarmStateName, outcome_name
+from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, RESET_ALARM_SERVICE, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
-from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.rollout_gate import Route
+from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
-STATES = {OK: FailureAlarm.STATE_OK, ALARM: FailureAlarm.STATE_ALARM, UNKNOWN: FailureAlarm.STATE_UNKNOWN}
 #: The FailureAlarm on the wire: the node publishes its bytes.
 ALARM_WIRE = codec(FailureAlarm)
 #: The ``combine`` parameter's value that takes the calibration's own combine.
@@ -84,7 +84,7 @@ class FusionNode(FiperNode):
             "empty: each declared detector's <detector>_node)", read_only=True))
         self.fuser: AlarmFuser | None = None
         self.lost: set[str] = set()
-        self.states = {OK: 0, ALARM: 0, UNKNOWN: 0}
+        self.states = dict.fromkeys(AlarmStateName, 0)
         self._last_publish_ns = 0
         self._heartbeat_ns = 0
         self._allow_reset = bool(self.get_parameter("allow_reset").value)
@@ -98,7 +98,7 @@ class FusionNode(FiperNode):
         )
         # Liveliness (a DDS lease, wall clock): a supervisor counts the live publishers of the alarm.
         self.create_timer(qos.ALARM_HEARTBEAT_S, self._alarm_pub.assert_liveliness, clock=self.steady)
-        self.create_service(ResetAlarm, RESET_ALARM, self._on_reset)
+        self.create_service(ResetAlarm, RESET_ALARM_SERVICE, self._on_reset)
         #: Reset requests, by outcome ("accepted", "refused").
         self.resets: Counter[str] = Counter()
         self._declare_streams(DETECTORS)
@@ -123,7 +123,7 @@ class FusionNode(FiperNode):
             detectors, combine = own.detectors, own.combine
         self._declare_streams(detectors)
         self._heartbeat_ns = int(self.get_parameter("heartbeat_s").value * 1e9)
-        self.fuser = AlarmFuser("and" if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
+        self.fuser = AlarmFuser(CombineMode.AND if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
                                 self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
                                 int(self.get_parameter("deadline_floor_s").value * 1e9), detectors,
                                 int(self.get_parameter("start_wait_s").value * 1e9))
@@ -140,8 +140,8 @@ class FusionNode(FiperNode):
                 event_callbacks=self.subscription_events(topic, lambda info, d=detector: self._on_liveliness(d, info)),
             ))
         self._inputs.append(self.create_subscription(
-            RolloutEvent, relative(EVENTS), self._on_event, qos.EVENT,
-            event_callbacks=self.subscription_events(relative(EVENTS))))
+            RolloutEvent, relative(EVENTS_TOPIC), self._on_event, qos.EVENT,
+            event_callbacks=self.subscription_events(relative(EVENTS_TOPIC))))
         self._timer = self.create_timer(self.get_parameter("check_period_s").value, self._on_timer)
 
     def deactivate(self) -> None:
@@ -260,13 +260,13 @@ class FusionNode(FiperNode):
         """Publish one FailureAlarm at ``now_ns`` (the node clock; ``heartbeat``: a repeat, not a new step's
         decision); never an OK while the scores cannot be attributed (a publisher that appeared
         since the last look is judged first)."""
-        if state.state == OK:
+        if state.state == AlarmStateName.OK:
             self.publisher_check.check_if_matched()
         state = self.fuser.doubted(state)
         (obs_exceeded, eta_obs, gamma_obs), (act_exceeded, eta_act, gamma_act) = state.of(RND_OE), state.of(ACE)
         self._alarm_pub.publish(ALARM_WIRE.encode(ALARM_WIRE.view(
             header=header_view(state.stamp_ns), rollout_id=state.rollout_id, step=state.step,
-            state=STATES[state.state], latched=state.latched, detectors=list(state.detectors),
+            state=state.state.code, latched=state.latched, detectors=list(state.detectors),
             eta=list(state.windowed), gamma=list(state.thresholds), exceeded=list(state.exceeded), votes=state.votes,
             obs_exceeded=obs_exceeded, act_exceeded=act_exceeded, eta_obs=eta_obs, gamma_obs=gamma_obs,
             eta_act=eta_act, gamma_act=gamma_act, combine=state.combine, reason=state.reason, heartbeat=heartbeat)))

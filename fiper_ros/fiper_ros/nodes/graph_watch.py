@@ -1,4 +1,4 @@
-"""Shell of the publisher rule (:mod:`fiper_ros.runtime.publishers`): look at the ROS graph's publishers of
+"""Shell of the publisher rule (:mod:`fiper_ros.runtime.trusted_publishers`): look at the ROS graph's publishers of
 a node's topics every ``period_s`` (a graph query of the local cache: about 0.1 ms per topic), judge them,
 log each finding once when it appears, and tell the node (``on_change``) so that it acts at once.
 """
@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
-from fiper_ros.runtime.publishers import Expected, Publisher, PublisherWatch, fully_qualified
+from fiper_ros.runtime.trusted_publishers import Expected, Publisher, PublisherWatch, fully_qualified
 
 #: Key prefix of the graph's publishers of a topic in /diagnostics.
 PUBLISHERS_KEY = "publishers."

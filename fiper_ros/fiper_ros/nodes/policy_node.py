@@ -28,9 +28,10 @@ from fiper_ros.data_paths import resolve_data_path
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import action_command_msg, stamp_ns
 from fiper_ros.interface.messages import outcome_name
-from fiper_ros.interface.topics import ACTIONS, CAMERA_THIRD, CAMERA_WRIST, EMBEDDING, EVENTS, SIM_ACTION, SIM_PROPRIO
+from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, EMBEDDING_TOPIC,
+                                        EVENTS_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.session import PolicySession, PolicyStep
@@ -56,15 +57,15 @@ class PolicyNode(FiperNode):
         declare("torch_threads", 1, describe("torch intra-op threads", read_only=True, low=1, high=256, integer=True))
         declare("start_wait_s", 1.0, describe("how long an observation may wait for its rollout's START",
                                               read_only=True, low=0.0, high=60.0))
-        declare("events_topic", EVENTS, describe("RolloutEvent input", read_only=True))
-        declare("wrist_image_topic", CAMERA_WRIST, describe("wrist camera, rgb8", read_only=True))
-        declare("third_image_topic", CAMERA_THIRD, describe("third-person camera, rgb8",
+        declare("events_topic", EVENTS_TOPIC, describe("RolloutEvent input", read_only=True))
+        declare("wrist_image_topic", CAMERA_WRIST_TOPIC, describe("wrist camera, rgb8", read_only=True))
+        declare("third_image_topic", CAMERA_THIRD_TOPIC, describe("third-person camera, rgb8",
                                                                          read_only=True))
-        declare("proprio_topic", SIM_PROPRIO, describe("proprioception (sensor_msgs/JointState positions)",
+        declare("proprio_topic", SIM_PROPRIO_TOPIC, describe("proprioception (sensor_msgs/JointState positions)",
                                                           read_only=True))
-        declare("embedding_topic", EMBEDDING, describe("ObservationEmbedding output", read_only=True))
-        declare("action_chunks_topic", ACTIONS, describe("ActionChunkBatch output", read_only=True))
-        declare("action_topic", SIM_ACTION, describe("ActionCommand output (the robot's input)", read_only=True))
+        declare("embedding_topic", EMBEDDING_TOPIC, describe("ObservationEmbedding output", read_only=True))
+        declare("action_chunks_topic", ACTIONS_TOPIC, describe("ActionChunkBatch output", read_only=True))
+        declare("action_topic", SIM_ACTION_TOPIC, describe("ActionCommand output (the robot's input)", read_only=True))
         self.policy: Policy | None = None
         self.session: PolicySession | None = None
         self.sync: ObservationSync[np.ndarray] = ObservationSync((*CAMERAS, PROPRIO))

@@ -6,7 +6,7 @@ from typing import Any
 
 from fiper_ros.core.detectors import RND_OE
 from fiper_ros.nodes.detector_node import DetectorNode
-from fiper_ros.nodes.main import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 
 
 class RndOeNode(DetectorNode):

@@ -22,14 +22,14 @@ from std_srvs.srv import Trigger
 from fiper_msgs.msg import FailureAlarm, RolloutEvent
 from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
-from fiper_ros.interface.messages import state_name
-from fiper_ros.interface.topics import ALARM as ALARM_TOPIC, DIAGNOSTICS, EVENTS, SIM_HALT
+from fiper_ros.interface.messages import AlarmStateName
+from fiper_ros.interface.topics import ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, SIM_HALT_SERVICE
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
 from fiper_ros.nodes.graph_watch import PublisherCheck
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.runtime.halt_delivery import HaltDelivery
-from fiper_ros.runtime.publishers import Expected, resolve_node
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
+from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 
 #: How often the supervisor looks at its pending halt (a reply, the reply timeout, the retry time), steady clock.
 HALT_POLL_S = 0.02
@@ -44,7 +44,7 @@ class SupervisorNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("supervisor_node", **kwargs)
         self.declare_parameter("alarm_topic", ALARM_TOPIC, describe("FailureAlarm topic", read_only=True))
-        self.declare_parameter("halt_service", SIM_HALT, describe("std_srvs/Trigger that halts the robot",
+        self.declare_parameter("halt_service", SIM_HALT_SERVICE, describe("std_srvs/Trigger that halts the robot",
                                                                       read_only=True))
         self.declare_parameter("deadline_s", 2.0, describe("tolerated UNKNOWN; tolerated silence while no rollout "
                                                            "runs or its period is not measured yet",
@@ -54,7 +54,7 @@ class SupervisorNode(Node):
                                         low=0.0, high=1000.0))
         self.declare_parameter("silence_floor_s", 0.1,
                                describe("the period-based silence deadline is never shorter", low=0.0, high=600.0))
-        self.declare_parameter("events_topic", EVENTS,
+        self.declare_parameter("events_topic", EVENTS_TOPIC,
                                describe("RolloutEvent topic: which rollout is running", read_only=True))
         self.declare_parameter("alarm_publishers", ["/fiper/fusion_node"], describe(
             "nodes that may publish the alarm topic, one publisher each (relative names: in this node's namespace)",
@@ -89,7 +89,7 @@ class SupervisorNode(Node):
         self.create_subscription(RolloutEvent, self.get_parameter("events_topic").value, self._on_event, qos.EVENT)
         self.create_timer(0.02, self._on_clock)
         self.create_timer(HALT_POLL_S, self._deliver, clock=self._steady)
-        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics,
                           clock=self._steady)
 
@@ -97,7 +97,7 @@ class SupervisorNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _on_alarm(self, msg: FailureAlarm) -> None:
-        decision = self.logic.on_state(msg.rollout_id, state_name(msg.state), msg.reason, self._now(),
+        decision = self.logic.on_state(msg.rollout_id, AlarmStateName.of_code(msg.state), msg.reason, self._now(),
                                        msg.step, msg.heartbeat, self._steady.now().nanoseconds,
                                        stamp_ns(msg.header.stamp))
         if msg.state == FailureAlarm.STATE_ALARM and decision is not None:

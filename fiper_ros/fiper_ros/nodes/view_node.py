@@ -35,18 +35,19 @@ from sensor_msgs.msg import Image
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
 from fiper_ros.core.detectors import CALIBRATED, info
 from fiper_ros.interface import qos
-from fiper_ros.interface.topics import ALARM, CAMERAS, DIAGNOSTICS, EVENTS, relative, score_topic
+from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_TOPICS, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, relative,
+                                        score_topic)
 from fiper_ros.nodes.base import describe, diagnostic_array
-from fiper_ros.nodes.main import run_node
+from fiper_ros.platform.process import run_node
 from fiper_ros.view.layout import installed_layout
 from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, HOW_TO_OPEN, ViewError, ViewServer
 
 #: The JSON topics the node serves besides the scores (relative: in its namespace), their message class and
 #: subscription QoS.
 JSON_TOPICS: dict[str, tuple[type, QoSProfile]] = {
-    relative(ALARM): (FailureAlarm, qos.ALARM_EVERY),
-    relative(EVENTS): (RolloutEvent, qos.EVENT),
-    DIAGNOSTICS: (DiagnosticArray, qos.DIAGNOSTICS),
+    relative(ALARM_TOPIC): (FailureAlarm, qos.ALARM_EVERY),
+    relative(EVENTS_TOPIC): (RolloutEvent, qos.EVENT),
+    DIAGNOSTICS_TOPIC: (DiagnosticArray, qos.DIAGNOSTICS),
 }
 #: How often the node matches its subscriptions to the channels the clients are subscribed to (``on_demand``).
 SYNC_PERIOD_S = 0.1
@@ -68,7 +69,7 @@ class ViewNode(Node):
         self.declare_parameter("detectors", list(CALIBRATED), describe(
             "detectors whose score topics (scores/<detector>) are served; a logged signal is signal_<name>",
             read_only=True))
-        self.declare_parameter("cameras", list(CAMERAS), describe("sensor_msgs/Image topics served (absolute)",
+        self.declare_parameter("cameras", list(CAMERA_TOPICS), describe("sensor_msgs/Image topics served (absolute)",
                                                                   read_only=True))
         self.declare_parameter("diagnostics_period_s", 1.0,
                                describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
@@ -87,7 +88,7 @@ class ViewNode(Node):
         if not self._on_demand:
             for topic in self.streams:
                 self._subscribe(topic)
-        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos.DIAGNOSTICS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics, clock=steady)
         self._start = self.create_timer(0.0, self._serve, clock=steady)

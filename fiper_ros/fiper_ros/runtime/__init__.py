@@ -6,5 +6,5 @@ without DDS and the same rules serve the live nodes and the bag replay.
 """
 from __future__ import annotations
 
-__all__ = ["alarm", "halt_delivery", "joint_history", "observation_sync", "pending", "publishers", "rollout_gate", "rollout_tracker",
-           "stats", "supervision", "validation", "wiring"]
+__all__ = ["alarm", "halt_delivery", "joint_history", "observation_sync", "pending", "rollout_gate", "rollout_tracker",
+           "stats", "supervision", "trusted_publishers", "validation", "wiring"]

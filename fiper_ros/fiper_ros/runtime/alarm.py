@@ -30,9 +30,10 @@ import math
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import DETECTORS, check_once, info
 from fiper_ros.core.fusion import Combine, exceeds, fuse_votes
-from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, OK, UNKNOWN
+from fiper_ros.interface.messages import NO_ROLLOUT, AlarmStateName
 from fiper_ros.runtime.rollout_gate import RolloutGate
 from fiper_ros.runtime.rollout_tracker import RolloutRecord
 from fiper_ros.runtime.stats import PeriodEstimator
@@ -132,7 +133,7 @@ class AlarmState:
 
     rollout_id: int
     step: int
-    state: str
+    state: AlarmStateName
     latched: bool
     detectors: tuple[str, ...]
     exceeded: tuple[bool, ...]
@@ -158,7 +159,7 @@ class AlarmFuser:
     """Streaming votes of the declared detectors' scores matched per (rollout_id, step) (eq. 7, generalised), with
     latch and staleness."""
 
-    def __init__(self, combine: str = "and", deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
+    def __init__(self, combine: str = CombineMode.AND, deadline_ns: int = 1_000_000_000, buffer_size: int = 64,
                  deadline_periods: float = 0.0, deadline_floor_ns: int = 0,
                  detectors: tuple[str, ...] = DETECTORS, start_wait_ns: int = 1_000_000_000) -> None:
         if deadline_periods < 0 or deadline_floor_ns < 0 or deadline_ns <= 0:
@@ -257,14 +258,14 @@ class AlarmFuser:
     def doubted(self, state: AlarmState) -> AlarmState:
         """``state`` as it may be published: an OK becomes UNKNOWN while the scores cannot be attributed,
         or could not during this rollout (ALARM and UNKNOWN stay: doubt never clears an alarm)."""
-        if state.state != OK or not (self.suspicion or self.tainted):
+        if state.state != AlarmStateName.OK or not (self.suspicion or self.tainted):
             return state
         if self.suspicion:
             reason = f"scores cannot be attributed to the suite: {self.suspicion}"
         else:
             reason = f"scores of this rollout could not be attributed to the suite ({self.tainted}): an alarm " \
                      "cannot be ruled out"
-        return replace(state, state=UNKNOWN, reason=reason)
+        return replace(state, state=AlarmStateName.UNKNOWN, reason=reason)
 
     def deadline(self) -> int:
         """The staleness deadline now: ``deadline_periods`` measured policy periods of this rollout (at
@@ -320,15 +321,15 @@ class AlarmFuser:
             votes=self.votes, combine=self.combined, stamp_ns=max(s.stamp_ns for s in scores),
         )
         if self.latched:  # the latch wins over whatever this step brings
-            return AlarmState(state=ALARM, latched=True,
+            return AlarmState(state=AlarmStateName.ALARM, latched=True,
                               reason=f"latched since step {self.alarm_step}: {self.explained}", **common)
         uncalibrated = [s.detector for s in scores if not math.isfinite(s.threshold)]
         if uncalibrated:
-            return AlarmState(state=UNKNOWN, latched=False, reason=f"no threshold: {', '.join(uncalibrated)}",
-                              **common)
+            return AlarmState(state=AlarmStateName.UNKNOWN, latched=False,
+                              reason=f"no threshold: {', '.join(uncalibrated)}", **common)
         undecided = [s.detector for s, d in zip(scores, decisions) if d is None]
         if undecided:
-            return AlarmState(state=UNKNOWN, latched=False,
+            return AlarmState(state=AlarmStateName.UNKNOWN, latched=False,
                               reason=f"score not finite or contradicting its exceeded flag: {', '.join(undecided)}",
                               **common)
         # Scores are >= 0, so an incomplete window's sum is a lower bound: its "exceeded" is certain,
@@ -337,24 +338,24 @@ class AlarmFuser:
             self.latched, self.alarm_step = True, first.step
             self.explained = explanation([(s.detector, s.windowed, s.threshold, self.exceeding_since[s.detector])
                                           for s, e in zip(scores, exceeded) if e], len(scores), self._how)
-            return AlarmState(state=ALARM, latched=True, reason=self.explained, **common)
+            return AlarmState(state=AlarmStateName.ALARM, latched=True, reason=self.explained, **common)
         if self.unjudged is not None:  # the latch may have fired at a step never judged here
             first, last = self.unjudged
-            return AlarmState(state=UNKNOWN, latched=False, reason=f"not every step of {first}..{last} was judged "
-                              "(a gap, or this node started after them): an alarm there cannot be ruled out",
-                              **common)
+            return AlarmState(state=AlarmStateName.UNKNOWN, latched=False,
+                              reason=f"not every step of {first}..{last} was judged (a gap, or this node started "
+                              "after them): an alarm there cannot be ruled out", **common)
         rejected = [s.detector for s in scores if not s.scored]
         if rejected:  # a step whose input was rejected is never OK, whatever the other detector says
-            return AlarmState(state=UNKNOWN, latched=False, reason=f"input of this step rejected: {', '.join(rejected)}",
-                              **common)
+            return AlarmState(state=AlarmStateName.UNKNOWN, latched=False,
+                              reason=f"input of this step rejected: {', '.join(rejected)}", **common)
         # The alarm is ruled out when fewer detectors than the votes may still exceed: AND needs one certainly below,
         # OR and max (and one detector alone) all of them.
         certainly_below = [s.complete and not e for s, e in zip(scores, exceeded)]
         if len(scores) - sum(certainly_below) >= self.votes:
             incomplete = [s.detector for s in scores if not s.complete]
-            return AlarmState(state=UNKNOWN, latched=False,
+            return AlarmState(state=AlarmStateName.UNKNOWN, latched=False,
                               reason=f"window holds a missing step: {', '.join(incomplete)}", **common)
-        return AlarmState(state=OK, latched=False,
+        return AlarmState(state=AlarmStateName.OK, latched=False,
                           reason="below thresholds" if self.combined else f"below threshold {self._how}", **common)
 
     # time -------------------------------------------------------------------------------------------
@@ -374,7 +375,8 @@ class AlarmFuser:
         reason = f"stream(s) {', '.join(bad)} missing or older than {self.deadline() / 1e9:.3g} s"
         if self.last is None:
             return self._without_step(now_ns, reason)
-        return replace(self.last, state=ALARM if self.latched else UNKNOWN, reason=reason, stamp_ns=now_ns)
+        state = AlarmStateName.ALARM if self.latched else AlarmStateName.UNKNOWN
+        return replace(self.last, state=state, reason=reason, stamp_ns=now_ns)
 
     def repeat_ns(self, heartbeat_ns: int) -> int:
         """Silence after which the current state is published again: ``heartbeat_ns``, or one measured policy
@@ -413,7 +415,7 @@ class AlarmFuser:
         :attr:`last` holds that step's state until the latch is cleared."""
         count = len(self.detectors)
         return AlarmState(
-            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=UNKNOWN, latched=False,
+            rollout_id=self.active_rollout or NO_ROLLOUT, step=0, state=AlarmStateName.UNKNOWN, latched=False,
             detectors=self.detectors, exceeded=(False,) * count, windowed=(math.nan,) * count,
             thresholds=(math.nan,) * count, votes=self.votes, combine=self.combined, reason=reason, stamp_ns=now_ns,
         )

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-from fiper_ros.interface.messages import ALARM, NO_ROLLOUT, UNKNOWN
+from fiper_ros.interface.messages import NO_ROLLOUT, AlarmStateName
 from fiper_ros.runtime.stats import PeriodEstimator
 
 #: How many recent halts the supervisor remembers (to halt each rollout once): bounded, whatever the rollout ids.
@@ -71,7 +71,7 @@ class SupervisorLogic:
             return self.deadline_ns
         return self.period.deadline_ns(self.silence_periods, self.silence_floor_ns, self.deadline_ns)
 
-    def on_state(self, rollout_id: int, state: str, reason: str, now_ns: int, step: int = 0,
+    def on_state(self, rollout_id: int, state: AlarmStateName, reason: str, now_ns: int, step: int = 0,
                  heartbeat: bool = True, steady_ns: int | None = None, stamp_ns: int | None = None
                  ) -> HaltDecision | None:
         """One FailureAlarm arrived (``heartbeat`` False: a new step's decision, whose ``stamp_ns`` (its
@@ -88,12 +88,12 @@ class SupervisorLogic:
         if rollout_id != self._rollout_id:
             self._unknown_since_ns = None
         self._rollout_id = rollout_id
-        if state == ALARM:
+        if state == AlarmStateName.ALARM:
             self._unknown_since_ns = None
             return self._halt(f"ALARM: {reason}")
         if self.suspicion:
-            state, reason = UNKNOWN, self._doubt()
-        if state == UNKNOWN and rollout_id != NO_ROLLOUT:
+            state, reason = AlarmStateName.UNKNOWN, self._doubt()
+        if state == AlarmStateName.UNKNOWN and rollout_id != NO_ROLLOUT:
             if self._unknown_since_ns is None:
                 self._unknown_since_ns = now_ns
             self._unknown_reason = reason

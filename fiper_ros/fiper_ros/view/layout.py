@@ -22,7 +22,9 @@ import foxglove.layouts as fl
 
 from fiper_ros.core.detectors import ACE, CALIBRATED, LABELS, RND_OE
 from fiper_ros.data_paths import package_share
-from fiper_ros.interface.topics import ALARM, CAMERA_THIRD, CAMERA_WRIST, CAMERAS, DIAGNOSTICS, score_topic
+from fiper_ros.interface.messages import AlarmStateName
+from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_TOPICS, CAMERA_WRIST_TOPIC,
+                                        DIAGNOSTICS_TOPIC, score_topic)
 
 #: Where the layout is kept, relative to the ``fiper_ros`` package folder (installed in its share directory).
 LAYOUT_FILE = Path("config") / "foxglove" / "fiper.layout.json"
@@ -30,9 +32,9 @@ LAYOUT_FILE = Path("config") / "foxglove" / "fiper.layout.json"
 SCORE_TOPICS = {detector: score_topic(detector) for detector in CALIBRATED}
 #: The subscripts the paper gives FIPER's pair (``eta_O``, ``gamma_A``), written as the plots' labels do.
 SUBSCRIPTS = {RND_OE: "obs", ACE: "act"}
-#: ``FailureAlarm.state`` codes, as the state-transitions panel names and colours them.
-STATES = ((0, "OK", "#2ca02c"), (1, "ALARM", "#d62728"), (2, "UNKNOWN", "#7f7f7f"))
-CAMERA_TITLES = {CAMERA_WRIST: "wrist camera", CAMERA_THIRD: "third-person camera"}
+#: The colour of each alarm state in the state-transitions panel (named there by its code's upper-case name).
+STATE_COLOURS = {AlarmStateName.OK: "#2ca02c", AlarmStateName.ALARM: "#d62728", AlarmStateName.UNKNOWN: "#7f7f7f"}
+CAMERA_TITLES = {CAMERA_WRIST_TOPIC: "wrist camera", CAMERA_THIRD_TOPIC: "third-person camera"}
 
 ABOUT = """\
 ### What you see
@@ -69,11 +71,11 @@ def _score_plot(detector: str) -> fl.PlotPanel:
 
 def _alarm_states() -> fl.StateTransitionsPanel:
     states = fl.StateTransitionsRangeCustomStates(states=[
-        fl.StateTransitionsRangeCustomState(value=float(code), operator="=", label=label, color=color)
-        for code, label, color in STATES])
+        fl.StateTransitionsRangeCustomState(value=float(state.code), operator="=", label=state.name, color=color)
+        for state, color in STATE_COLOURS.items()])
     return fl.StateTransitionsPanel(title="alarm state", config=fl.StateTransitionsConfig(
-        paths=[fl.StateTransitionsSeries(value=f"{ALARM}.state", label="alarm", custom_states=states),
-               fl.StateTransitionsSeries(value=f"{ALARM}.rollout_id", label="rollout")],
+        paths=[fl.StateTransitionsSeries(value=f"{ALARM_TOPIC}.state", label="alarm", custom_states=states),
+               fl.StateTransitionsSeries(value=f"{ALARM_TOPIC}.rollout_id", label="rollout")],
         is_synced=True, show_points=True))
 
 
@@ -85,12 +87,13 @@ def _column(*panels: fl.BasePanel | fl.TabContainer, sizes: tuple[float, ...]) -
 def build() -> fl.Layout:
     """The layout."""
     reason = fl.MarkdownPanel(title="why: the alarm's reason", config=fl.MarkdownConfig(
-        render_mode="message", message_path=f"{ALARM}.reason"))
+        render_mode="message", message_path=f"{ALARM_TOPIC}.reason"))
     cameras = [fl.ImagePanel(title=CAMERA_TITLES[topic], config=fl.ImageConfig(
-        image_mode=fl.ImageModeConfig(image_topic=topic))) for topic in CAMERAS]
+        image_mode=fl.ImageModeConfig(image_topic=topic))) for topic in CAMERA_TOPICS]
     health = fl.TabContainer(tabs=[
         fl.TabItem(title="diagnostics", content=fl.DiagnosticsSummaryPanel(
-            title="node health", config=fl.DiagnosticsSummaryConfig(topic_to_render=DIAGNOSTICS, sort_by_level=True))),
+            title="node health", config=fl.DiagnosticsSummaryConfig(topic_to_render=DIAGNOSTICS_TOPIC,
+                                                                    sort_by_level=True))),
         fl.TabItem(title="what you see", content=fl.MarkdownPanel(title="what you see",
                                                                   config=fl.MarkdownConfig(markdown=ABOUT)))])
     pair = _column(_score_plot(RND_OE), _score_plot(ACE), sizes=(1, 1))

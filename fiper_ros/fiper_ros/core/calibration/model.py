@@ -12,6 +12,7 @@ import yaml
 
 from fiper_ros.core.calibration.settings import CalibrationSettings
 from fiper_ros.core.calibration_file import CALIBRATION_FILE, FORMAT_VERSION, CalibrationError, merged_split
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.profiles import Profile
 from fiper_ros.core.scorers import Scorer
@@ -222,7 +223,7 @@ def promised_rate(settings: CalibrationSettings) -> float:
     detector's threshold exceeded), with a joint combine (one conformal factor) and with one detector alone;
     ``N delta`` with an OR of N thresholds at ``delta`` each (the union bound)."""
     detectors = len(settings.detectors)
-    return settings.delta * (detectors if settings.combine_rule.mode == "or" and detectors > 1 else 1)
+    return settings.delta * (detectors if settings.combine_rule.mode is CombineMode.OR and detectors > 1 else 1)
 
 
 def guarantee(settings: CalibrationSettings) -> str:
@@ -233,7 +234,7 @@ def guarantee(settings: CalibrationSettings) -> str:
     rate = promised_rate(settings)
     count = len(settings.detectors)
     how = ""
-    if settings.combine_rule.mode == "or" and count > 1:
+    if settings.combine_rule.mode is CombineMode.OR and count > 1:
         how = (f"; OR of {count} thresholds at delta {settings.delta:g} each: the union bound, calibrate at --delta "
                f"{settings.delta / count:g} for {settings.delta:g}, or combine max for one shared threshold")
     elif settings.combine_rule.joint and count > 1:

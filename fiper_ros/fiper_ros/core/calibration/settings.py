@@ -10,6 +10,7 @@ from typing import Any
 from fiper_ros.core.ace import check_alpha
 from fiper_ros.core.calibration_file import CalibrationError
 from fiper_ros.core.combination import SHAPE_KINDS
+from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
                                       in_fusion_order, info)
@@ -83,7 +84,7 @@ class CalibrationSettings:
     aggregation: str = "window"
     threshold: str = "cp_band"
     delta: float = 0.05
-    combine: str = "and"
+    combine: str = CombineMode.AND.value
     rnd: RNDConfig = field(default_factory=RNDConfig.small)
     alpha: float | None = None
     action_dims: tuple[int, int] | None = None

@@ -4,10 +4,10 @@ After start-up every object that exists (rclpy, numpy, torch, the node) is moved
 collector's reach (``gc.freeze``): a full collection then only walks what the callbacks allocate, so it
 no longer stalls a callback for milliseconds (the tail of the node benchmark, docs/benchmarks.md).
 A crash of the process prints every thread's Python stack (``faulthandler``), which the launcher shows; so does
-:data:`~fiper_ros.dds.STACKS_SIGNAL` (SIGUSR1), which the launcher sends a node that does not stop within its grace period
-before it kills it, and so does a teardown that outlasts :data:`TEARDOWN_S`, which then ends the process. The exit
-after the teardown (Python's finalization, then the C++ static destructors) is bounded by :data:`EXIT_S`: SIGALRM,
-whose default action ends the process.
+:data:`~fiper_ros.platform.dds.STACKS_SIGNAL` (SIGUSR1), which the launcher sends a node that does not stop within its
+grace period before it kills it, and so does a teardown that outlasts :data:`TEARDOWN_S`, which then ends the process.
+The exit after the teardown (Python's finalization, then the C++ static destructors) is bounded by :data:`EXIT_S`:
+SIGALRM, whose default action ends the process.
 A node started by ``fiper launch`` dies with it (``FIPER_PARENT_PID``: Linux's parent-death signal), so a
 killed launcher never leaves a stale suite speaking on the suite's topics.
 
@@ -43,7 +43,7 @@ from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedEx
 from rclpy.experimental import EventsExecutor
 
 from fiper_ros.data_paths import package_share
-from fiper_ros.dds import STACKS_SIGNAL, die_with_parent
+from fiper_ros.platform.dds import STACKS_SIGNAL, die_with_parent
 
 CALLBACK_DRAIN_S = 30.0
 """Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
