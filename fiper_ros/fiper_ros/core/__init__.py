@@ -29,10 +29,11 @@ Modules, one concept each:
 - :mod:`.scorers`: each declarable detector fitted on successes and scored, whole-rollout and streaming.
 - :mod:`.calibration_file`: reading ``calibration.yaml`` without torch (what a calibration declares).
 - :mod:`.calibration`: a calibration's settings, model, fitting and files (one module each).
+- :mod:`.auto`: choosing a calibration's configuration from successes alone (``fiper calibrate --auto``).
 - :mod:`.monitor`: streaming and vectorised failure prediction.
 """
 from __future__ import annotations
 
-__all__ = ["ace", "calibration", "calibration_file", "combination", "consistency", "data_split", "detector_model",
+__all__ = ["ace", "auto", "calibration", "calibration_file", "combination", "consistency", "data_split", "detector_model",
            "detectors", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles",
            "progress", "rnd_oe", "rollout", "scorers", "scores", "step_stream", "thresholds", "window"]

@@ -1,0 +1,178 @@
+"""``--auto`` (:mod:`fiper_ros.core.auto`, :mod:`fiper_ros.core.calibration.auto`): the rule by hand, the failure
+proxies, the candidate budget, determinism for a seed, and that a failure is never opened."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from fiper_ros.core.auto import (PROXIES, AutoError, AutoSettings, Candidate, EmbeddingSpread, TaskScores,
+                                 candidates, choose, detector_sets, make_proxy)
+from fiper_ros.core.calibration import CalibrationError, CalibrationSettings, load_calibration
+from fiper_ros.core.calibration.auto import auto_calibrate, available_detectors, choose_configuration
+from fiper_ros.core.calibration_file import CALIBRATION_FILE
+from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.thresholds import ThresholdSettings
+
+ONE = AutoSettings(windows=(1,), kinds=("cp_constant",), proxies=("stall",), folds=4)
+
+
+def test_the_rule_by_hand_on_one_detector() -> None:
+    # Four identical successes (peak 1): every inner quantile is k = 1, no held-out success exceeds it (strict), and
+    # each stall proxy (length 6) first exceeds k at step 2: 1 - 2/6 caught. Score = 0.5 (1 - 0) + 0.5 (2/3).
+    success = np.ones(4)
+    proxy = np.array([1.0, 1.0, 5.0, 5.0, 5.0, 5.0])
+    data = TaskScores({"signal_a": [success] * 4}, {"signal_a": [proxy] * 4}, ("stall",) * 4, (0, 1, 2, 3))
+    choice = choose({"t": data}, ["signal_a"], ONE, ThresholdSettings(kind="cp_constant", delta=0.1), seed=0)
+    assert choice.chosen == Candidate(("signal_a",), 1, "cp_constant")
+    assert choice.ranking[0].false_alarms == 0.0
+    assert choice.ranking[0].caught == {"stall": pytest.approx(2 / 3)}
+    assert choice.ranking[0].score == pytest.approx(0.5 + 0.5 * 2 / 3)
+
+
+def test_the_detector_that_catches_the_proxies_earlier_wins_and_ties_go_to_fewer_detectors() -> None:
+    # signal_a's proxies exceed at step 1, signal_b's at step 4: a wins; a's successes are noisy but a held-out
+    # success never exceeds the others' quantile more often than b's does (both have the same peaks).
+    rng = np.random.default_rng(0)
+    successes = {d: [1.0 + 0.01 * rng.random(8) for _ in range(8)] for d in ("signal_a", "signal_b")}
+    early, late = np.r_[1.0, np.full(9, 9.0)], np.r_[np.ones(4), np.full(6, 9.0)]
+    proxies = {"signal_a": [early] * 8, "signal_b": [late] * 8}
+    data = TaskScores(successes, proxies, ("stall",) * 8, tuple(range(8)))
+    settings = AutoSettings(windows=(1,), kinds=("cp_constant", "cp_band"), combines=("max",), proxies=("stall",))
+    choice = choose({"t": data}, ["signal_a", "signal_b"], settings, ThresholdSettings(delta=0.1), seed=0)
+    assert choice.chosen.detectors == ("signal_a",)
+    labels = [s.candidate.label() for s in choice.ranking]
+    assert labels.index("signal_a w1 cp_constant") < labels.index("signal_b w1 cp_constant")
+
+
+def test_candidate_sets_and_the_budget() -> None:
+    assert detector_sets(["elapsed", "rnd_oe", "signal_x"]) == [
+        ("rnd_oe",), ("elapsed",), ("signal_x",), ("rnd_oe", "elapsed", "signal_x"), ("rnd_oe", "signal_x")]
+    settings = AutoSettings(windows=(1, 5), kinds=("cp_band", "cp_constant"), combines=("max", "kth:2", "kth:3"))
+    pool = candidates(["rnd_oe", "elapsed"], settings)
+    # rnd_oe: 2 windows x 2 kinds; elapsed alone: its one (cumulative, CP constant); the pair: 2 windows x cp_band x
+    # max and kth:2 (kth:3 needs three detectors)
+    assert len(pool) == 4 + 1 + 4
+    assert Candidate(("elapsed",), 1, "cp_constant") in pool
+    assert all(c.kind == "cp_band" for c in pool if len(c.detectors) == 2)
+    with pytest.raises(AutoError, match=r"^9 candidate configurations exceed the auto budget of 8 \(--auto-budget\)"):
+        candidates(["rnd_oe", "elapsed"], AutoSettings(windows=(1, 5), kinds=("cp_band", "cp_constant"),
+                                                        combines=("max", "kth:2", "kth:3"), budget=8))
+    with pytest.raises(AutoError, match="joint"):
+        AutoSettings(combines=("and",))
+    with pytest.raises(AutoError, match="kinds"):
+        AutoSettings(kinds=("time_varying",))
+
+
+def _rollout(index: int, length: int = 20, *, success: bool | None = True, signals: dict | None = None) -> Rollout:
+    rng = np.random.default_rng(index)
+    embeddings = rng.normal(size=(length, 3)).astype(np.float32)
+    actions = rng.normal(size=(length, 2, 4, 2)).astype(np.float32)
+    steps = np.arange(length, dtype=np.float64)
+    return Rollout(f"r{index}", "task", "id", embeddings, actions, 2, success, metadata={"q": steps[:, None]},
+                   signals=signals if signals is not None else {"a": steps, "b": 2 * steps})
+
+
+def test_proxies_by_hand() -> None:
+    rollout = _rollout(1)
+    spread = EmbeddingSpread(np.array([3.0, 4.0, 0.0]))
+    assert spread.total == 5.0
+    stall = make_proxy(rollout, "stall", np.random.default_rng(0), spread, 30, 1.0)
+    onset = int(np.argmax(np.diff(stall.signals["a"]) == 0))  # the first repeated step
+    assert stall.length == 30 and stall.success is None and stall.rollout_id == "r1~stall"
+    np.testing.assert_array_equal(stall.signals["a"], np.r_[np.arange(onset + 1), np.full(30 - onset - 1, onset)])
+    np.testing.assert_array_equal(stall.embeddings[onset:], np.repeat(rollout.embeddings[onset:onset + 1], 30 - onset, 0))
+    np.testing.assert_array_equal(stall.metadata["q"][:, 0], stall.signals["a"])  # per-step metadata follows
+    assert 6 <= onset < 14  # in [0.3 T, 0.7 T)
+    skip = make_proxy(rollout, "skip", np.random.default_rng(0), spread, 30, 1.0)
+    assert skip.length == 15  # a quarter of 20 dropped
+    kept = skip.signals["a"].astype(int)
+    assert np.count_nonzero(np.diff(kept) == 6) == 1 and np.all(np.diff(kept) >= 1)  # one block of 5 dropped
+    drift = make_proxy(rollout, "drift", np.random.default_rng(0), spread, 30, 0.5)
+    moved = np.linalg.norm(drift.embeddings - rollout.embeddings, axis=1)
+    first = int(np.argmax(moved > 0))
+    assert np.all(moved[:first] == 0) and moved[-1] == pytest.approx(2.5, rel=1e-5)  # 0.5 x the total spread
+    assert np.all(np.diff(moved[first - 1:]) > 0)  # growing linearly from the onset
+    np.testing.assert_array_equal((drift.embeddings - rollout.embeddings)[:, 2], 0.0)  # no spread: no drift there
+    with pytest.raises(AutoError, match="unknown proxy"):
+        make_proxy(rollout, "wobble", np.random.default_rng(0), spread, 30, 1.0)
+    assert PROXIES == ("stall", "drift", "skip")
+
+
+class SealedFailure:
+    """A failed rollout that refuses to be opened: anything but its flag raises."""
+
+    success = False
+
+    def __getattr__(self, name: str) -> Any:  # any attribute
+        raise AssertionError(f"a failure was opened: its {name!r} was read")
+
+
+def _signal_rollouts(count: int, spike: str | None = None, start: int = 0) -> list[Rollout]:
+    """Successes whose signals a and b are noisy and flat; ``spike``: that signal jumps from step 12 on."""
+    out = []
+    for i in range(start, start + count):
+        rng = np.random.default_rng(i)
+        signals = {"a": 1.0 + 0.1 * rng.random(24), "b": 1.0 + 0.1 * rng.random(24)}
+        if spike is not None:
+            signals[spike][12:] += 20.0
+        out.append(_rollout(i, 24, signals=signals))
+    return out
+
+
+FAST = CalibrationSettings(detectors=("signal_a",), delta=0.3, seed=4)
+SIGNALS = ("signal_a", "signal_b", "elapsed")
+AUTO = AutoSettings(windows=(1, 3), folds=3)
+
+
+def _choose(rollouts: Sequence[Any]) -> dict[str, Any]:
+    return choose_configuration(rollouts, FAST, AUTO, SIGNALS).record()
+
+
+def test_auto_is_deterministic_for_a_seed_and_never_opens_a_failure() -> None:
+    successes = _signal_rollouts(14)
+    alone = _choose(successes)
+    assert _choose(successes) == alone  # deterministic
+    # failures interleaved, sealed: the choice is the same and none is opened
+    assert _choose([*successes[:5], SealedFailure(), *successes[5:], SealedFailure()]) == alone
+    # the same failures (b jumps) read as successes would change it: the test can fail
+    failures = _signal_rollouts(14, spike="b", start=100)
+    flipped = [Rollout(r.rollout_id, r.task, r.scenario, r.embeddings, r.actions, r.exec_steps, True,
+                       signals=r.signals) for r in failures]
+    assert _choose([*successes, *flipped]) != alone
+    assert choose_configuration(successes, CalibrationSettings(detectors=("signal_a",), delta=0.3, seed=5), AUTO,
+                                SIGNALS).record() != alone  # another seed: another split and proxies
+
+
+def test_available_detectors() -> None:
+    rollouts = [_rollout(0), _rollout(1, signals={"a": np.zeros(20)})]
+    assert available_detectors(rollouts) == ("rnd_oe", "logpzo", "pca_kmeans", "progress", "ace", "consistency",
+                                             "signal_a", "elapsed")
+    without = [Rollout("x", "task", "id", np.zeros((5, 3)), None, 1, True)]
+    assert available_detectors(without) == ("rnd_oe", "logpzo", "pca_kmeans", "progress", "elapsed")
+
+
+def test_auto_calibrate_stores_the_choice_and_refuses_what_it_cannot_do(tmp_path: Path) -> None:
+    rollouts = _signal_rollouts(14)
+    calibration, choice = auto_calibrate(rollouts, FAST, AUTO, SIGNALS)
+    assert calibration.settings.detectors == choice.chosen.detectors
+    assert calibration.settings.threshold == choice.chosen.kind and calibration.settings.shape_folds == AUTO.folds
+    calibration.save(tmp_path / "c")
+    loaded = load_calibration(tmp_path / "c")
+    assert loaded.auto == choice.record() and loaded.auto["rule"] == "proxy-twa" and loaded.auto["version"] == 1
+    assert loaded.auto["chosen"] == choice.chosen.to_dict() and len(loaded.auto["top"]) == 10
+    assert loaded.content_hash == calibration.content_hash
+    path = tmp_path / "c" / CALIBRATION_FILE
+    data = yaml.safe_load(path.read_text())
+    data["auto"]["chosen"]["window"] = 99  # the record is covered by the content hash
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(CalibrationError, match="content hash mismatch"):
+        load_calibration(tmp_path / "c")
+    with pytest.raises(AutoError, match=r"--split split\), not --split same"):
+        choose_configuration(rollouts, CalibrationSettings(detectors=("signal_a",), split="same"), AUTO, SIGNALS)
+    with pytest.raises(AutoError, match="at least 4 successful rollouts of task 'task', got 3"):
+        choose_configuration(rollouts[:3], FAST, AUTO, SIGNALS)
