@@ -36,7 +36,7 @@ def test_the_evaluated_choice_is_calibrate_autos_and_so_are_its_alarms(tiny_data
                                consistency=ms.consistency, delta=DELTA, seed=1)
     # calibration failures beside the successes: never read
     calibration, choice = auto_calibrate(tiny_dataset.calibration, core, AUTO, ("pca_kmeans", "progress", "elapsed"))
-    assert outcome.records[0][0] == choice.record(top=5)
+    assert outcome.records[0][0][0] == choice.record(top=5)
     assert outcome.choices == [[[choice.chosen.label()]]]
     steps = [predict_rollout(r, calibration).first_alarm_step for r in tiny_dataset.test]
     expected = evaluate(steps, [bool(f) for f in tiny_dataset.failed], [int(n) for n in tiny_dataset.lengths])
@@ -53,7 +53,7 @@ def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
     text = (out / "results.md").read_text()
     section = text[text.index("## --auto: each task's configuration chosen from its own calibration successes"):]
     rows = [line for line in section.splitlines() if line.startswith("| ")]
-    assert rows[0].split(" | ")[:3] == ["| Task", "chosen (δ=0.3, seed 0)", "TWA"]
+    assert rows[0].split(" | ")[:3] == ["| Task", "chosen (seed 0, at δ)", "TWA"]
     assert "LOTO best (TWA)" in rows[0] and "clean best, report half (TWA)" in rows[0]
     assert [r.split(" | ")[0] for r in rows[1:]] == ["| sorting", "| stacking", "| average"]
     document = json.loads((out / "results.json").read_text())

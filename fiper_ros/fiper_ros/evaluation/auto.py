@@ -47,15 +47,22 @@ class AutoOutcome:
 
     ``metrics[subset]`` ``[tasks, seeds, deltas, 5]`` (NaN where the chosen threshold is +inf), ``held_out[subset]``
     ``[tasks, seeds, deltas]`` the false-alarm rate on the subset's ID successes, ``choices[task][seed][delta]`` the
-    chosen configuration's label and ``records[task][seed]`` the full record at the middle delta."""
+    chosen configuration's label and ``records[task][seed][delta]`` its record (its best five candidates); a task's
+    choice is shown at the delta :meth:`shown` names."""
 
     deltas: tuple[float, ...]
     choices: list[list[list[str]]]
     metrics: dict[str, np.ndarray]
     infinite: np.ndarray
     held_out: dict[str, np.ndarray]
-    records: list[list[dict[str, Any]]]
+    records: list[list[list[dict[str, Any]]]]
     seconds: float
+
+    def shown(self, task: int) -> int:
+        """The delta (an index) a task's choice is shown at: the one closest to 0.05 whose threshold is finite on
+        every seed (0.05 itself where there is none)."""
+        finite = [k for k in range(len(self.deltas)) if not self.infinite[task, :, k].any()]
+        return min(finite or range(len(self.deltas)), key=lambda k: (abs(self.deltas[k] - 0.05), k))
 
     def values(self, subset: str) -> np.ndarray:
         """Metrics averaged over the finite deltas, ``[tasks, seeds, 5]``."""
@@ -119,13 +126,12 @@ def auto_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], d
     started = time.perf_counter()
     pool = candidate_streams(streams)
     profile = get_profile(method_settings.profile)
-    middle = min(range(len(deltas)), key=lambda i: abs(deltas[i] - 0.05))
     bar = Progress("auto", len(datasets) * len(seeds), progress)
     metrics = {name: np.full((len(datasets), len(seeds), len(deltas), len(METRICS)), np.nan) for name in subsets}
     rates = {name: np.full((len(datasets), len(seeds), len(deltas)), np.nan) for name in held_out}
     infinite = np.zeros((len(datasets), len(seeds), len(deltas)), dtype=bool)
     choices: list[list[list[str]]] = []
-    records: list[list[dict[str, Any]]] = []
+    records: list[list[list[dict[str, Any]]]] = []
     tnr = METRICS.index("tnr")
     for t, dataset in enumerate(datasets):
         horizons = dataset.lengths if profile.dt_mode == "paper" else dataset.max_length
@@ -134,14 +140,13 @@ def auto_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], d
         for s, seed in enumerate(seeds):
             data = task_scores(dataset, pool, method_settings, auto, seed, threads)
             alarms = np.full((len(deltas), len(dataset.test)), -1, dtype=np.int64)
-            labels = []
+            made = []
             for k, delta in enumerate(deltas):
                 choice, alarms[k], infinite[t, s, k] = task_choice(dataset, data, scores[(dataset.task, seed)], pool,
                                                                    method_settings, auto, seed, delta)
-                labels.append(choice.chosen.label())
-                if k == middle:
-                    records[t].append(choice.record(top=5))
-            choices[t].append(labels)
+                made.append(choice)
+            choices[t].append([c.chosen.label() for c in made])
+            records[t].append([c.record(top=5) for c in made])
             for name, per_task in subsets.items():
                 values = alarm_metrics(alarms, dataset.failed, horizons, profile.dt_mode, per_task[t],
                                        profile.metrics_rule)
@@ -151,6 +156,6 @@ def auto_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], d
                 rate = 1.0 - alarm_metrics(alarms, dataset.failed, horizons, profile.dt_mode, members[t])[..., tnr]
                 rate[infinite[t, s]] = np.nan
                 rates[name][t, s] = rate
-            bar.advance(note=f"{dataset.task} seed {seed}: {labels[middle]}")
+            bar.advance(note=f"{dataset.task} seed {seed}")
     bar.close()
     return AutoOutcome(tuple(deltas), choices, metrics, infinite, rates, records, time.perf_counter() - started)

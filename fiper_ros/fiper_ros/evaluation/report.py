@@ -518,11 +518,9 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     on all test rollouts, its held-out false alarms at delta 0.05 and, beside it, the elapsed time and the best
     configuration the label-reading protocols chose."""
     seeds = len(result.settings.seeds)
-    middle = min(range(len(auto.deltas)), key=lambda i: abs(auto.deltas[i] - 0.05))
     floor = next((p.selected[ELAPSED] for p in result.protocols.values() if ELAPSED in p.selected), None)
     mean, std = _auto_rows(auto, "all")
-    columns = ["Task", f"chosen (δ={auto.deltas[middle]:g}, seed {result.settings.seeds[0]})", "TWA", "TPR", "TNR",
-               "DT", f"FA δ={auto.deltas[middle]:g}"]
+    columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ"]
     columns += ["TWA − Elapsed"] if floor is not None else []
     columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
     columns += ["TWA, report half", "clean best, report half (TWA)"] if "report" in auto.metrics else []
@@ -530,9 +528,9 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     report = _auto_rows(auto, "report") if "report" in auto.metrics else None
     for t in range(len(result.tasks) + 1):
         name = result.tasks[t] if t < len(result.tasks) else "average"
-        chosen = auto.choices[t][0][middle] if t < len(result.tasks) else ""
-        rate = nanmean(auto.held_out["all"][t, :, middle], axis=0) if t < len(result.tasks) else \
-            nanmean(auto.held_out["all"][:, :, middle], axis=(0, 1))
+        shown = auto.shown(t) if t < len(result.tasks) else 0
+        chosen = f"{auto.choices[t][0][shown]} (δ={auto.deltas[shown]:g})" if t < len(result.tasks) else ""
+        rate = nanmean(auto.held_out["all"][t, :, shown], axis=0) if t < len(result.tasks) else math.nan
         cells = [name, chosen, *(_cell(float(mean[t, m]), float(std[t, m]), seeds, False)
                                  for m in (METRICS.index(k) for k in ("twa", "tpr", "tnr", "dt"))),
                  "–" if math.isnan(rate) else f"{rate:.2f}"]
@@ -552,13 +550,14 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
                 else:
                     cells.append("")
         rows.append("| " + " | ".join(cells) + " |")
-    record = auto.records[0][0]
+    record = auto.records[0][0][0]
     return "\n".join([
         "## --auto: each task's configuration chosen from its own calibration successes (fiper calibrate --auto)", "",
         f"Rule {record['rule']} v{record['version']} (docs/method.md, 'Choosing the configuration from successes'): "
         "candidates scored on the fit part's successes by fold models, with stall, drift and skip proxies made from "
         "them; no label and no other task is read. The choice is made at every δ; metrics are averaged over the "
-        "finite δ on all test rollouts; FA: held-out ID successes alarmed at the δ named. The LOTO and clean "
+        "finite δ on all test rollouts; the choice is shown at the finite δ closest to 0.05, FA: the held-out ID "
+        "successes alarmed there. The LOTO and clean "
         "columns are the best method those protocols chose with failures (of other tasks, or of the task's "
         "validation half).", "", *rows])
 
@@ -580,7 +579,8 @@ def _auto_json(result: EvaluationResult, auto: AutoOutcome) -> dict[str, Any]:
                    **({"held_out_false_alarms": nanmean(auto.held_out[subset][t], axis=0)}
                       if t < len(result.tasks) else {})}
             for t, name in enumerate([*result.tasks, "average"])}
-    out["tasks"] = {task: {"choices": auto.choices[t], "record": auto.records[t][0],
+    out["tasks"] = {task: {"choices": auto.choices[t], "shown_delta": auto.deltas[auto.shown(t)],
+                           "record": auto.records[t][0][auto.shown(t)],
                            "infinite_deltas": [d for d, bad in zip(auto.deltas, auto.infinite[t].any(axis=0)) if bad]}
                     for t, task in enumerate(result.tasks)}
     return out
