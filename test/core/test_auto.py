@@ -34,6 +34,18 @@ def test_the_rule_by_hand_on_one_detector() -> None:
     assert choice.ranking[0].score == pytest.approx(0.5 + 0.5 * 2 / 3)
 
 
+def test_a_proxy_whose_own_success_alarms_earns_nothing() -> None:
+    # Six successes of peak 1 but one of peak 1.5; every proxy exceeds any k from step 2 of 6. The odd success is
+    # held out once, against k = 1 (the others): it alarms, and its proxy, although above k, is not credited.
+    successes = [np.ones(4)] * 5 + [np.array([1.0, 1.5, 1.0, 1.0])]
+    proxy = np.array([1.0, 1.0, 5.0, 5.0, 5.0, 5.0])
+    data = TaskScores({"signal_a": successes}, {"signal_a": [proxy] * 6}, ("stall",) * 6, tuple(range(6)))
+    settings = AutoSettings(windows=(1,), kinds=("cp_constant",), proxies=("stall",), folds=6)
+    best = choose({"t": data}, ["signal_a"], settings, ThresholdSettings(delta=0.1), seed=0).ranking[0]
+    assert best.false_alarms == pytest.approx(1 / 6)
+    assert best.caught == {"stall": pytest.approx(5 / 6 * 2 / 3)}  # unpaired it would be 2/3
+
+
 def test_the_detector_that_catches_the_proxies_earlier_wins_and_ties_go_to_fewer_detectors() -> None:
     # signal_a's proxies exceed at step 1, signal_b's at step 4: a wins; a's successes are noisy but a held-out
     # success never exceeds the others' quantile more often than b's does (both have the same peaks).

@@ -18,6 +18,12 @@ each, ``max`` / ``kth:K`` under one conformal threshold. Bags without action bat
 them are refused with one line saying so. Rollouts of several tasks are calibrated together, each task its own
 models and shapes; ``--pool`` pools the conformal factor over the tasks.
 
+``--auto`` chooses the detectors (among ``--detectors``, default every one the successes can feed), the window,
+the threshold kind and the combine from the successes alone (:mod:`fiper_ros.core.auto`: the fit part's fold
+curves and failure proxies made from them; ``--auto-windows``, ``--auto-folds``, ``--auto-budget``,
+``--step-limit``), calibrates that, prints its best candidates and why the winner won, and stores the choice in
+the calibration (``auto``); the other configuration options are then not used.
+
 ``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
 file ``rnd_oe.pt``, which the nodes no longer read) or 2 to the current format: the same thresholds, weights
 and scores, checked against the old content hash. ``-o OLD --force`` converts in place.

@@ -18,9 +18,11 @@ configuration):
    candidate's per-step shape, :func:`fiper_ros.core.combination.fit_shape`) and a quantile half (the
    ``1 - delta`` empirical quantile ``k`` of their ``max_t c(t)``, the combined statistic of
    :mod:`fiper_ros.core.combination`); the fold's held-out successes and their proxies are judged against ``k``.
+   A proxy counts as caught only if the success it was made from stays below ``k`` (paired: a proxy alarmed like
+   its own success was caught by the detector's noise, not by what was done to it).
 4. **Score**: a time-weighted accuracy on the proxies (App. B.4's TWA with proxies as the failures):
-   ``0.5 (1 - held-out false-alarm rate) + 0.5 mean_kind mean_proxy (1 - t_alarm / T)`` (0 for a proxy never
-   alarmed), averaged over tasks. The highest score wins; ties go to fewer held-out false alarms, then fewer
+   ``0.5 (1 - held-out false-alarm rate) + 0.5 mean_kind mean_proxy (1 - t_alarm / T)`` (0 for a proxy not
+   caught), averaged over tasks. The highest score wins; ties go to fewer held-out false alarms, then fewer
    detectors, then the smaller window, then the candidate order.
 
 Why it should transfer to unseen failures: every candidate is calibrated to the same promise (``delta`` on
@@ -378,11 +380,12 @@ class _TaskRule:
             peaks = c.max(axis=1)
             k = _quantile(peaks[quantile_rows], delta, False)
             alarms += int(np.sum(peaks[held] > k))
-            proxies = np.flatnonzero(np.isin(self.sources, held))
-            for p in proxies:
+            for p in np.flatnonzero(np.isin(self.sources, held)):
                 row = self.data.count + p
                 above = np.flatnonzero(c[row] > k)
-                value = 1.0 - above[0] / self.lengths[row] if above.size else 0.0
+                # paired: only a proxy whose own success stays below k is caught by what was done to it
+                clean = peaks[self.sources[p]] <= k
+                value = 1.0 - above[0] / self.lengths[row] if above.size and clean else 0.0
                 caught.setdefault(str(self.kinds[p]), []).append(value)
         return alarms / self.data.count, {kind: float(np.mean(v)) for kind, v in caught.items()}
 
