@@ -78,7 +78,9 @@ class AutoSettings:
             with a shape among them.
         combines: Joint combines tried for sets of several detectors.
         proxies: The failure proxies built from held-out successes.
-        folds: Folds of the fit part (out-of-fold curves; also the final calibration's ``shape_folds``).
+        folds: Folds of the fit part (out-of-fold curves; also the final calibration's ``shape_folds``), and of
+            the rule's inner calibration.
+        repeats: Repeats of the inner calibration, each with its own seeded folds and halves (less noise in ``k``).
         budget: Most candidates evaluated; more is refused (fewer windows, kinds or detectors).
         drift_scale: A drift proxy's final offset, in units of the successes' total spread.
         stall_factor: Without a step limit, a stall proxy runs to this many times the longest success.
@@ -90,6 +92,7 @@ class AutoSettings:
     combines: tuple[str, ...] = ("max", "kth:2")
     proxies: tuple[str, ...] = PROXIES
     folds: int = 5
+    repeats: int = 3
     budget: int = 400
     drift_scale: float = 1.0
     stall_factor: float = 1.5
@@ -107,8 +110,8 @@ class AutoSettings:
                 raise AutoError(f"auto combines must be joint (max, kth:K), got {text!r}")
         if not self.proxies or any(p not in PROXIES for p in self.proxies):
             raise AutoError(f"auto proxies must be among {', '.join(PROXIES)}, at least one, got {self.proxies}")
-        if self.folds < 2:
-            raise AutoError(f"auto folds must be >= 2, got {self.folds}")
+        if self.folds < 2 or self.repeats < 1:
+            raise AutoError(f"auto folds must be >= 2 and repeats >= 1, got {self.folds}, {self.repeats}")
         if self.budget < 1:
             raise AutoError(f"auto budget must be >= 1, got {self.budget}")
         if not self.drift_scale > 0 or not self.stall_factor > 1:
@@ -321,22 +324,24 @@ def _aggregated(scores: Sequence[np.ndarray], detector: str, window: int, length
     return out
 
 
-def _folds(count: int, folds: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per inner fold: the held-out successes, the shape half and the quantile half of the rest (seeded)."""
-    rng = np.random.default_rng([seed, 41])
-    order = rng.permutation(count)
+def _folds(count: int, folds: int, repeats: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per inner fold of every repeat: the held-out successes, the shape half and the quantile half of the rest
+    (seeded; each repeat its own permutation, every success held out once per repeat)."""
     out = []
-    for held in np.array_split(order, min(folds, count)):
-        rest = rng.permutation(np.setdiff1d(order, held))
-        half = max(1, rest.shape[0] // 2)
-        out.append((np.sort(held), np.sort(rest[:half]), np.sort(rest[half:] if rest.shape[0] > 1 else rest)))
+    for repeat in range(repeats):
+        rng = np.random.default_rng([seed, 41, repeat])
+        order = rng.permutation(count)
+        for held in np.array_split(order, min(folds, count)):
+            rest = rng.permutation(np.setdiff1d(order, held))
+            half = max(1, rest.shape[0] // 2)
+            out.append((np.sort(held), np.sort(rest[:half]), np.sort(rest[half:] if rest.shape[0] > 1 else rest)))
     return out
 
 
 class _TaskRule:
     """The rule's work on one task: curves, shapes and statistics cached per (detector, window, kind, fold)."""
 
-    def __init__(self, data: TaskScores, base: ThresholdSettings, folds: int, seed: int) -> None:
+    def __init__(self, data: TaskScores, base: ThresholdSettings, folds: int, repeats: int, seed: int) -> None:
         if data.count < 4:
             raise AutoError(f"auto needs at least 4 successes in the fit part, got {data.count}")
         self.data, self.base = data, base
@@ -344,7 +349,8 @@ class _TaskRule:
         self.rows = data.count + len(data.proxy_kinds)
         self.lengths = np.array([s.shape[0] for s in next(iter(data.successes.values()))]
                                 + [s.shape[0] for s in next(iter(data.proxies.values()), [])])
-        self.folds = _folds(data.count, folds, seed)
+        self.folds = _folds(data.count, folds, repeats, seed)
+        self.repeats = repeats
         self.sources = np.array(data.proxy_sources, dtype=int)
         self.kinds = np.array(data.proxy_kinds)
         self._curves: dict[tuple[str, int], np.ndarray] = {}
@@ -387,7 +393,7 @@ class _TaskRule:
                 clean = peaks[self.sources[p]] <= k
                 value = 1.0 - above[0] / self.lengths[row] if above.size and clean else 0.0
                 caught.setdefault(str(self.kinds[p]), []).append(value)
-        return alarms / self.data.count, {kind: float(np.mean(v)) for kind, v in caught.items()}
+        return alarms / (self.data.count * self.repeats), {kind: float(np.mean(v)) for kind, v in caught.items()}
 
 
 def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: AutoSettings,
@@ -398,7 +404,7 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
         raise AutoError("auto needs the successes of at least one task")
     detectors = in_fusion_order(dict.fromkeys(detectors))
     pool = candidates(detectors, settings)
-    rules = {name: _TaskRule(data, base, settings.folds, seed) for name, data in tasks.items()}
+    rules = {name: _TaskRule(data, base, settings.folds, settings.repeats, seed) for name, data in tasks.items()}
     scores = []
     for candidate in pool:
         rates, caught = [], []
