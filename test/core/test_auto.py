@@ -9,6 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fiper_ros.core.auto import (PROXIES, AutoError, AutoSettings, Candidate, EmbeddingSpread, TaskScores,
                                  candidates, choose, detector_sets, make_proxy)
@@ -188,3 +190,25 @@ def test_auto_calibrate_stores_the_choice_and_refuses_what_it_cannot_do(tmp_path
         choose_configuration(rollouts, CalibrationSettings(detectors=("signal_a",), split="same"), AUTO, SIGNALS)
     with pytest.raises(AutoError, match="at least 4 successful rollouts of task 'task', got 3"):
         choose_configuration(rollouts[:3], FAST, AUTO, SIGNALS)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**16), count=st.integers(4, 9), reverse=st.booleans())
+def test_scores_are_rates_and_the_choice_ignores_the_order_of_the_detectors(seed: int, count: int,
+                                                                            reverse: bool) -> None:
+    rng = np.random.default_rng(seed)
+    names = ["signal_a", "signal_b", "elapsed"]
+    lengths = rng.integers(5, 12, count)
+    successes = {d: [rng.random(n) for n in lengths] for d in names}
+    successes["elapsed"] = [np.ones(n) for n in lengths]
+    kinds = ("stall", "skip")
+    proxies = {d: [rng.random(int(n) + 3) * 3 for n in lengths for _ in kinds] for d in names}
+    proxies["elapsed"] = [np.ones(int(n) + 3) for n in lengths for _ in kinds]
+    data = TaskScores(successes, proxies, kinds * count, tuple(i for i in range(count) for _ in kinds))
+    auto = AutoSettings(windows=(1, 2), combines=("max", "kth:2"), proxies=kinds, folds=3, repeats=2)
+    base = ThresholdSettings(delta=0.2)
+    choice = choose({"t": data}, names, auto, base, seed)
+    assert all(0.0 <= s.score <= 1.0 and 0.0 <= s.false_alarms <= 1.0 for s in choice.ranking)
+    assert all(0.0 <= v <= 1.0 for s in choice.ranking for v in s.caught.values())
+    again = choose({"t": data}, names[::-1] if reverse else names, auto, base, seed)
+    assert again.record() == choice.record()

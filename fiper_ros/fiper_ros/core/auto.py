@@ -156,9 +156,9 @@ class Candidate:
 
 
 def detector_sets(detectors: Sequence[str]) -> list[tuple[str, ...]]:
-    """The detector sets tried, each in the fusion's order: each detector alone, all together, all but the elapsed
+    """The detector sets tried, each in the fusion's order (logged signals by name): each detector alone, all together, all but the elapsed
     time and the fitted ones alone (each set once, with at least two detectors for the sets)."""
-    given = in_fusion_order(dict.fromkeys(detectors))
+    given = in_fusion_order(sorted(set(detectors)))
     sets: list[tuple[str, ...]] = [(d,) for d in given]
     for members in (given, tuple(d for d in given if d != ELAPSED), tuple(d for d in given if info(d).fitted)):
         if len(members) >= 2 and members not in sets:
@@ -402,7 +402,7 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
     order, whatever their order here) scored, the best chosen. Deterministic for ``seed``."""
     if not tasks:
         raise AutoError("auto needs the successes of at least one task")
-    detectors = in_fusion_order(dict.fromkeys(detectors))
+    detectors = in_fusion_order(sorted(set(detectors)))
     pool = candidates(detectors, settings)
     rules = {name: _TaskRule(data, base, settings.folds, settings.repeats, seed) for name, data in tasks.items()}
     scores = []
