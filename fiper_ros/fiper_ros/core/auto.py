@@ -12,8 +12,9 @@ configuration):
 2. **Failure proxies** made from each held-out success, scored by the same fold models (:func:`make_proxy`):
    ``stall`` (from a seeded step on, that step repeated up to the task's step limit: a rollout that stops
    progressing and runs into the time limit), ``drift`` (from a seeded step on, the embeddings moved along a
-   seeded direction, growing linearly to ``drift_scale`` times the successes' total spread at the last step: a
-   rollout that leaves the calibration manifold), ``skip`` (a seeded block of a quarter of the steps dropped).
+   seeded direction uniform on the sphere, growing linearly to ``drift_scale`` times the successes' total spread at
+   the last step: a rollout that leaves the calibration manifold; in many dimensions a random direction lies mostly
+   across the few directions the successes vary in), ``skip`` (a seeded block of a quarter of the steps dropped).
 3. **Inner calibration.** Per inner fold of the out-of-fold curves, the rest is split into a shape half (the
    candidate's per-step shape, :func:`fiper_ros.core.combination.fit_shape`) and a quantile half (the
    ``1 - delta`` empirical quantile ``k`` of their ``max_t c(t)``, the combined statistic of
@@ -189,7 +190,7 @@ def candidates(detectors: Sequence[str], settings: AutoSettings) -> list[Candida
 
 @dataclass(frozen=True)
 class EmbeddingSpread:
-    """The successes' per-dimension embedding standard deviation: the drift proxy's scale."""
+    """The successes' per-dimension embedding standard deviation; its :attr:`total` is the drift proxy's scale."""
 
     std: np.ndarray
 
@@ -238,9 +239,8 @@ def make_proxy(rollout: Rollout, kind: str, rng: np.random.Generator, spread: Em
         return _reindexed(rollout, np.concatenate([steps[:start], steps[start + dropped:]]), kind)
     if kind == "drift":
         onset = _onset(rng, length)
-        direction = rng.standard_normal(spread.std.shape[0]) * spread.std
-        norm = float(np.linalg.norm(direction))
-        direction = direction / norm if norm > 0 else np.zeros_like(direction)
+        direction = rng.standard_normal(spread.std.shape[0])
+        direction /= np.linalg.norm(direction)
         ramp = np.clip((steps - onset) / max(length - 1 - onset, 1), 0.0, 1.0)
         offset = (drift_scale * spread.total) * ramp[:, None] * direction[None, :]
         return _reindexed(rollout, steps, kind, rollout.embeddings + offset.astype(np.float32))
