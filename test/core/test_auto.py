@@ -23,17 +23,22 @@ from fiper_ros.core.thresholds import ThresholdSettings
 ONE = AutoSettings(windows=(1,), kinds=("cp_constant",), proxies=("stall",), folds=4)
 
 
-def test_the_rule_by_hand_on_one_detector() -> None:
-    # Four identical successes (peak 1): every inner quantile is k = 1, no held-out success exceeds it (strict), and
-    # each stall proxy (length 6) first exceeds k at step 2: 1 - 2/6 caught. Score = 0.5 (1 - 0) + 0.5 (2/3).
+def test_the_rule_by_hand() -> None:
+    # Four identical successes (peak 1) per detector: every inner quantile is k = 1 and no held-out success exceeds
+    # it (strict). The stall proxies (length 6) of signal_a first exceed k at step 2 (caught 1 - 2/6), those of
+    # signal_b at step 4 (1 - 4/6). Each kind's credit is relative to the best candidate's: a scores
+    # 0.5 (1 - 0) + 0.5 (2/3) / (2/3) = 1, b 0.5 + 0.5 (1/3) / (2/3) = 0.75.
     success = np.ones(4)
-    proxy = np.array([1.0, 1.0, 5.0, 5.0, 5.0, 5.0])
-    data = TaskScores({"signal_a": [success] * 4}, {"signal_a": [proxy] * 4}, ("stall",) * 4, (0, 1, 2, 3))
-    choice = choose({"t": data}, ["signal_a"], ONE, ThresholdSettings(kind="cp_constant", delta=0.1), seed=0)
-    assert choice.chosen == Candidate(("signal_a",), 1, "cp_constant")
-    assert choice.ranking[0].false_alarms == 0.0
+    data = TaskScores({"signal_a": [success] * 4, "signal_b": [success] * 4},
+                      {"signal_a": [np.array([1.0, 1.0, 5.0, 5.0, 5.0, 5.0])] * 4,
+                       "signal_b": [np.array([1.0, 1.0, 1.0, 1.0, 5.0, 5.0])] * 4}, ("stall",) * 4, (0, 1, 2, 3))
+    choice = choose({"t": data}, ["signal_b", "signal_a"], ONE, ThresholdSettings(delta=0.1), seed=0)
+    assert [s.candidate for s in choice.ranking] == [Candidate(("signal_a",), 1, "cp_constant"),
+                                                      Candidate(("signal_b",), 1, "cp_constant")]
+    assert [s.false_alarms for s in choice.ranking] == [0.0, 0.0]
     assert choice.ranking[0].caught == {"stall": pytest.approx(2 / 3)}
-    assert choice.ranking[0].score == pytest.approx(0.5 + 0.5 * 2 / 3)
+    assert choice.ranking[1].caught == {"stall": pytest.approx(1 / 3)}
+    assert [s.score for s in choice.ranking] == [pytest.approx(1.0), pytest.approx(0.75)]
 
 
 def test_a_proxy_whose_own_success_alarms_earns_nothing() -> None:

@@ -21,9 +21,10 @@ configuration):
    :mod:`fiper_ros.core.combination`); the fold's held-out successes and their proxies are judged against ``k``.
    A proxy counts as caught only if the success it was made from stays below ``k`` (paired: a proxy alarmed like
    its own success was caught by the detector's noise, not by what was done to it).
-4. **Score**: a time-weighted accuracy on the proxies (App. B.4's TWA with proxies as the failures):
-   ``0.5 (1 - held-out false-alarm rate) + 0.5 mean_kind mean_proxy (1 - t_alarm / T)`` (0 for a proxy not
-   caught), averaged over tasks. The highest score wins; ties go to fewer held-out false alarms, then fewer
+4. **Score**: a time-weighted accuracy on the proxies (App. B.4's TWA with proxies as the failures), each kind
+   weighed by what is achievable: ``0.5 (1 - held-out false-alarm rate) + 0.5 mean_kind (C_kind / max C_kind)``,
+   ``C_kind`` the candidate's mean ``1 - t_alarm / T`` over the proxies of that kind (0 for a proxy not caught,
+   averaged over tasks) and ``max C_kind`` the best candidate's (a kind no candidate catches is left out). The highest score wins; ties go to fewer held-out false alarms, then fewer
    detectors, then the smaller window, then the candidate order.
 
 Why it should transfer to unseen failures: every candidate is calibrated to the same promise (``delta`` on
@@ -405,7 +406,7 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
     detectors = in_fusion_order(sorted(set(detectors)))
     pool = candidates(detectors, settings)
     rules = {name: _TaskRule(data, base, settings.folds, settings.repeats, seed) for name, data in tasks.items()}
-    scores = []
+    judged = []
     for candidate in pool:
         rates, caught = [], []
         for rule in rules.values():
@@ -413,9 +414,14 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
             rates.append(rate)
             caught.append(per_kind)
         kinds = [k for k in settings.proxies if any(k in per for per in caught)]
-        mean_caught = {k: float(np.mean([per[k] for per in caught if k in per])) for k in kinds}
-        false_alarms = float(np.mean(rates))
-        positive = float(np.mean(list(mean_caught.values()))) if mean_caught else 0.0
+        judged.append((float(np.mean(rates)), {k: float(np.mean([per[k] for per in caught if k in per]))
+                                               for k in kinds}))
+    # each kind's credit relative to the best candidate's: a kind that is hard to catch weighs as much as an easy one
+    best = {k: max(c.get(k, 0.0) for _, c in judged) for k in settings.proxies}
+    scores = []
+    for candidate, (false_alarms, mean_caught) in zip(pool, judged):
+        relative = [mean_caught.get(k, 0.0) / best[k] for k in settings.proxies if best[k] > 0]
+        positive = float(np.mean(relative)) if relative else 0.0
         scores.append(Score(candidate, 0.5 * (1.0 - false_alarms) + 0.5 * positive, false_alarms, mean_caught))
     order = sorted(range(len(scores)), key=lambda i: (-scores[i].score, scores[i].false_alarms,
                                                       len(pool[i].detectors), pool[i].window, i))
