@@ -18,6 +18,12 @@ each, ``max`` / ``kth:K`` under one conformal threshold. Bags without action bat
 them are refused with one line saying so. Rollouts of several tasks are calibrated together, each task its own
 models and shapes; ``--pool`` pools the conformal factor over the tasks.
 
+``--auto`` chooses the detectors (among ``--detectors``, default every one the successes can feed), the window,
+the threshold kind and the combine from the successes alone (:mod:`fiper_ros.core.auto`: the fit part's fold
+curves and failure proxies made from them; ``--auto-windows``, ``--auto-folds``, ``--auto-budget``,
+``--step-limit``), calibrates that, prints its best candidates and why the winner won, and stores the choice in
+the calibration (``auto``); the other configuration options are then not used.
+
 ``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
 file ``rnd_oe.pt``, which the nodes no longer read) or 2 to the current format: the same thresholds, weights
 and scores, checked against the old content hash. ``-o OLD --force`` converts in place.
@@ -39,6 +45,8 @@ from fiper_ros.commands.errors import UsageError
 from fiper_ros.converters.options import parse_channels
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
                                         upgrade_calibration)
+from fiper_ros.core.auto import AutoChoice, AutoSettings
+from fiper_ros.core.calibration.auto import auto_calibrate
 from fiper_ros.core.calibration_file import FORMAT_VERSION
 from fiper_ros.core.detectors import info, judged_by
 from fiper_ros.core.fusion import Combine
@@ -96,9 +104,12 @@ def window_warnings(settings: CalibrationSettings, successes: Sequence[Rollout])
 
 
 def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSettings, *, overwrite: bool = False,
-                   quiet: bool = False, fk: ForwardKinematics | None = None) -> tuple[Calibration, list[Rollout]]:
+                   quiet: bool = False, fk: ForwardKinematics | None = None, auto: AutoSettings | None = None,
+                   candidates: Sequence[str] | None = None) -> tuple[Calibration, list[Rollout]]:
     """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``
-    (``fk``: the robot's forward kinematics, for joint-space actions); the calibration and the successes."""
+    (``fk``: the robot's forward kinematics, for joint-space actions); the calibration and the successes. With
+    ``auto`` the configuration is chosen from the successes first (:func:`auto_calibrate`, among ``candidates`` or
+    every detector they can feed) and the choice printed."""
     check_new(out, overwrite)
     rollouts = load_rollouts(bags)
     good = successful(rollouts)
@@ -107,17 +118,24 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
         raise BagError(f"too few successful rollouts to calibrate: {len(good)} of {len(rollouts)} in {names} "
                        f"(need at least {settings.min_rollouts}, see --min-rollouts)")
     without = sorted({str(r.metadata.get("bag", "")) for r in rollouts if not r.has_actions})
-    readers = [info(d).label for d in settings.detectors if info(d).reads == "actions"]
-    if readers and without:
+    readers = [info(d).label for d in (candidates or settings.detectors) if info(d).reads == "actions"]
+    if readers and without and (auto is None or candidates is not None):
         raise BagError(f"no action batches ({ACTIONS_TOPIC}) in {', '.join(without)}: {' and '.join(readers)} "
                        "cannot be calibrated; for an observation-only calibration (RND-OE alone) give --detectors rnd_oe")
     if not quiet:
         print(f"calibrating on {len(good)} successful rollouts ({sum(r.length for r in good)} steps) of "
               f"{len(rollouts)} in {names}", flush=True)
-        for warning in window_warnings(settings, good):
+        for warning in window_warnings(settings, good) if auto is None else ():
             print(f"fiper calibrate: {warning}", file=sys.stderr, flush=True)
     try:
-        calibration = calibrate(rollouts, settings, fk=fk, progress=None if quiet else EpochPrinter())
+        progress = None if quiet else EpochPrinter()
+        if auto is None:
+            calibration = calibrate(rollouts, settings, fk=fk, progress=progress)
+        else:
+            calibration, choice = auto_calibrate(rollouts, settings, auto, candidates, fk, progress,
+                                                 None if quiet else _note)
+            if not quiet:
+                print("\n".join(auto_lines(choice)), flush=True)
     except CalibrationError as error:
         raise BagError(str(error)) from error
     except KinematicsError as error:
@@ -125,6 +143,36 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
     with atomic_output(out, overwrite) as staging:
         calibration.save(staging)
     return calibration, good
+
+
+def _note(text: str) -> None:
+    """A progress line of the automatic choice on stderr."""
+    print(f"  auto: {text}", file=sys.stderr, flush=True)
+
+
+def auto_lines(choice: AutoChoice, top: int = 8) -> list[str]:
+    """What ``--auto`` chose and why, with its best candidates (lines to print)."""
+    kinds = list(choice.ranking[0].caught)
+    lines = [f"auto ({choice.record()['rule']} v{choice.record()['version']}, delta {choice.delta:g}): "
+             f"{len(choice.ranking)} candidates of {', '.join(choice.detectors)}",
+             f"  {'rank':>4}  {'proxy TWA':>9}  {'held-out FA':>11}  " + "  ".join(f"{k:>6}" for k in kinds)
+             + "  candidate"]
+    for rank, score in enumerate(choice.ranking[:top], 1):
+        lines.append(f"  {rank:>4}  {score.score:>9.3f}  {score.false_alarms:>11.3f}  "
+                     + "  ".join(f"{score.caught.get(k, 0.0):>6.3f}" for k in kinds) + f"  {score.candidate.label()}")
+    lines.append(f"chosen: {choice.why()}")
+    return lines
+
+
+def auto_settings_from(args: argparse.Namespace) -> AutoSettings | None:
+    """The ``--auto`` settings of the command line (``None`` without ``--auto``)."""
+    if not args.auto:
+        return None
+    try:
+        return AutoSettings(windows=args.auto_windows, folds=args.auto_folds, budget=args.auto_budget,
+                            step_limit=args.step_limit)
+    except CalibrationError as error:
+        raise BagError(str(error)) from error
 
 
 def settings_from(args: argparse.Namespace) -> CalibrationSettings:
@@ -137,10 +185,11 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
         if args.max_epochs:
             rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
         windows = dict(args.windows)
+        detectors = args.detectors or defaults_detectors()
         for detector, window in (("rnd_oe", args.window_obs), ("ace", args.window_act)):
-            if window is not None and detector in args.detectors:
+            if window is not None and detector in detectors:
                 windows.setdefault(detector, window)
-        return CalibrationSettings(detectors=args.detectors, window=args.window, windows=windows,
+        return CalibrationSettings(detectors=detectors, window=args.window, windows=windows,
                                    aggregation=args.aggregation, alpha=args.alpha, threshold=args.threshold,
                                    delta=args.delta, combine=args.combine, rnd=rnd, seed=args.seed,
                                    profile=args.profile, min_rollouts=args.min_rollouts, action_dims=dims,
@@ -159,10 +208,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--upgrade", type=Path, metavar="OLD", default=None,
                         help="instead of calibrating: convert the calibration OLD of format 1 (weights in rnd_oe.pt, "
                              f"torch) or 2 to format {FORMAT_VERSION}; -o OLD --force converts in place")
-    parser.add_argument("--detectors", type=_names, default=defaults.detectors,
+    parser.add_argument("--detectors", type=_names, default=None,
                         help="detectors calibrated and combined, a comma list of rnd_oe, ace, logpzo, pca_kmeans, "
                              "progress, consistency, elapsed and signal_<name> (default rnd_oe,ace; rnd_oe alone: "
-                             "observation-only, no action batches needed)")
+                             "observation-only, no action batches needed); with --auto the candidates (default: "
+                             "every detector the successes can feed)")
+    parser.add_argument("--auto", action="store_true",
+                        help="choose the detectors, window, threshold kind and combine from the successes alone "
+                             "(their fit part: fold models, held-out successes and failure proxies; docs/method.md) "
+                             "and calibrate that; the choice is printed and stored in the calibration")
+    parser.add_argument("--auto-windows", type=_ints, default=AutoSettings().windows, metavar="W,...",
+                        help="with --auto: the windows tried (default 1,3,5,10,20)")
+    parser.add_argument("--auto-folds", type=int, default=AutoSettings().folds, metavar="K",
+                        help="with --auto: folds of the fit part (also the calibration's --shape-folds)")
+    parser.add_argument("--auto-budget", type=int, default=AutoSettings().budget, metavar="N",
+                        help="with --auto: most candidate configurations tried (more is refused)")
+    parser.add_argument("--step-limit", type=int, default=None, metavar="STEPS",
+                        help="with --auto: the task's step limit (a stalled proxy rollout runs to it)")
     parser.add_argument("--combine", type=_combine, default=defaults.combine,
                         help="how the detectors vote: and (eq. 7), or (a threshold each), max or kth:K (one "
                              "conformal threshold over all: the promise is delta)")
@@ -208,9 +270,12 @@ def run(args: argparse.Namespace) -> int:
     if args.upgrade is not None or not args.bags:
         return upgrade(args)
     settings = settings_from(args)
+    auto = auto_settings_from(args)
     fk = options.fk_of(options.robot_from(args))
     bags = find_bags(args.bags, strict=args.strict)
-    calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk)
+    calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk, auto=auto,
+                                            candidates=args.detectors)
+    settings = calibration.settings
     shown = {k: v for k, v in settings.to_dict().items() if k not in ("rnd", "progress", "consistency", "logpzo",
                                                                         "pca_kmeans")}
     print(f"settings: {shown}; RND-OE {args.rnd_preset} (max {settings.rnd.max_epochs} epochs)")
@@ -276,6 +341,19 @@ def summary(calibration: Calibration) -> list[str]:
 def _names(text: str) -> tuple[str, ...]:
     """``--detectors``: a comma list of names (checked with the other settings)."""
     return tuple(part.strip() for part in text.split(",") if part.strip())
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    """``--auto-windows``: a comma list of integers."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    if not parts or not all(p.isdigit() for p in parts):
+        raise argparse.ArgumentTypeError(f"expected a comma list of integers, got {text!r}")
+    return tuple(int(p) for p in parts)
+
+
+def defaults_detectors() -> tuple[str, ...]:
+    """The detectors calibrated without ``--detectors``: the settings' default (FIPER's pair)."""
+    return CalibrationSettings().detectors
 
 
 def _combine(text: str) -> str:

@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fiper_ros.core.auto import AutoSettings
 from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
@@ -187,6 +188,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           help="comma list: paper (select and report on all test rollouts), clean (select on a "
                                "validation half), loto (each task's configuration selected on the other tasks; two "
                                "tasks or more)")
+    protocol.add_argument("--auto", action="store_true",
+                          help="also choose each task's configuration as fiper calibrate --auto does, from its "
+                               "calibration successes alone, and report it beside the protocols")
+    protocol.add_argument("--auto-windows", type=int_list, default=AutoSettings().windows, metavar="W,...",
+                          help="with --auto: the windows it tries (default 1,3,5,10,20)")
+    protocol.add_argument("--auto-budget", type=int, default=AutoSettings().budget, metavar="N",
+                          help="with --auto: most candidate configurations per task")
+    protocol.add_argument("--step-limit", type=int, default=None, metavar="STEPS",
+                          help="with --auto: every task's step limit (a stalled proxy runs to it)")
     protocol.add_argument("--q-auc", type=float, default=DEFAULT_Q, metavar="Q",
                           help="the q-AUC's early cut: each rollout's maximum over its first ceil(Q T_max) steps "
                                f"(default {DEFAULT_Q:g})")
@@ -288,7 +298,9 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           select_aggregations=("window", "max", "cumulative") if args.select_cumulative
                           else ("window", "max"),
                           progress=not args.quiet, combinations=combinations_from(args),
-                          combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc)
+                          combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc,
+                          auto=AutoSettings(windows=args.auto_windows, budget=args.auto_budget,
+                                            step_limit=args.step_limit) if args.auto else None)
 
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:

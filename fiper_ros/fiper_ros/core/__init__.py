@@ -30,6 +30,7 @@ Modules, one concept each:
 - :mod:`.scorers`: each declarable detector fitted on successes and scored, whole-rollout and streaming.
 - :mod:`.calibration_file`: reading ``calibration.yaml`` without torch (what a calibration declares).
 - :mod:`.calibration`: a calibration's settings, model, fitting and files (one module each).
+- :mod:`.auto`: choosing a calibration's configuration from successes alone (``fiper calibrate --auto``).
 - :mod:`.monitor`: streaming and vectorised failure prediction.
 - :mod:`.errors`: :class:`CoreError`, what every error of the core derives from.
 """
@@ -37,7 +38,7 @@ from __future__ import annotations
 
 from fiper_ros.core.errors import CoreError
 
-__all__ = ["CoreError", "ace", "calibration", "calibration_file", "combination", "combine_mode", "consistency",
+__all__ = ["CoreError", "ace", "auto", "calibration", "calibration_file", "combination", "combine_mode", "consistency",
            "data_split", "detector_model", "detectors", "errors", "fusion", "kinematics", "logpzo", "metrics", "mlp",
            "monitor", "pca", "pca_kmeans", "profiles", "progress", "rnd_oe", "rollout", "scorers", "scores",
            "step_stream", "thresholds", "window"]

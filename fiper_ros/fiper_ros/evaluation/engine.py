@@ -12,9 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.cluster import connected
+from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
+from fiper_ros.evaluation.auto import AutoOutcome, auto_evaluation
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.distributed import score_on_ray, sweep_on_ray
@@ -56,6 +58,8 @@ class EngineSettings:
             only (CP band, CP scaled).
         q_auc: ``q`` of the q-AUC: each rollout's maximum over its first ``ceil(q T_max)`` steps
             (:mod:`fiper_ros.evaluation.early`).
+        auto: With settings: each task's configuration also chosen by ``fiper calibrate --auto`` on its calibration
+            successes alone (:mod:`fiper_ros.evaluation.auto`); ``None``: not.
     """
 
     methods: tuple[str, ...] = tuple(METHODS)
@@ -73,12 +77,16 @@ class EngineSettings:
     combines: tuple[str, ...] = JOINT_COMBINE_DEFAULTS
     pooled: bool = False
     q_auc: float = DEFAULT_Q
+    auto: AutoSettings | None = None
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
         names = [*self.methods, *(c.name for c in self.combinations)]
         if len(set(names)) != len(names):
             raise ValueError(f"method and combination names must be distinct, got {names}")
+        if self.auto is not None and self.method_settings.split != "split":
+            raise ValueError("--auto chooses on the fit part of a split conformal calibration (--split split), not "
+                             f"--split {self.method_settings.split}")
         if (self.combinations or self.pooled) and self.method_settings.split != "split":
             raise ValueError("combinations and pooled thresholds take their shapes from the fit part of a split "
                              f"conformal calibration (--split split), not from --split {self.method_settings.split}")
@@ -158,6 +166,8 @@ class EvaluationResult:
     cache_misses: int = 0
     early: dict[str, dict[str, EarlyDetection]] = field(default_factory=dict)
     """Per protocol, every selected configuration's AUROC and q-AUC on the rollouts it is reported on."""
+    auto: AutoOutcome | None = None
+    """``--auto``'s choice per task and its metrics (:mod:`fiper_ros.evaluation.auto`); ``None``: not asked for."""
 
     @property
     def tasks(self) -> list[str]:
@@ -379,15 +389,32 @@ def run_evaluation(
                                            outcome.held_out[report])
     selected = time.perf_counter()
     early = protocol_early(datasets, scores, settings, protocols)
+    early_done = time.perf_counter()
+    auto = None if settings.auto is None else run_auto(datasets, scores, settings, settings.auto)
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
-               "early_detection": outcome.early_seconds + time.perf_counter() - selected,
+               "early_detection": outcome.early_seconds + early_done - selected,
+               **({} if auto is None else {"auto": auto.seconds}),
                **({} if writer is None else {"dump": writer.seconds}), "total": time.perf_counter() - start}
     LOG.info("evaluation: %d configurations x %d deltas, %.1f s", len(outcome.groups), len(settings.sweep.deltas),
              timings["total"])
     first = settings.seeds[0]
     return EvaluationResult(settings, list(datasets), outcome, protocols,
                             {d.task: scores[(d.task, first)] for d in datasets}, timings,
-                            cache.hits if cache else 0, cache.misses if cache else 0, early)
+                            cache.hits if cache else 0, cache.misses if cache else 0, early, auto)
+
+
+def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+             settings: EngineSettings, auto: AutoSettings) -> AutoOutcome:
+    """``--auto`` on every task and seed (:func:`~fiper_ros.evaluation.auto.auto_evaluation`), its metrics on all
+    test rollouts and, with the clean protocol, on its report half."""
+    subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
+    held_out = {"all": [d.held_out_id_successes for d in datasets]}
+    if "clean" in settings.protocols:
+        report = [validation_split(d.failed, settings.split_seed)[1] for d in datasets]
+        subsets["report"] = list(report)
+        held_out["report"] = [np.intersect1d(r, d.held_out_id_successes) for r, d in zip(report, datasets)]
+    return auto_evaluation(datasets, scores, settings.streams(), settings.method_settings, settings.seeds,
+                           settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
 
 
 def protocol_early(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],

@@ -28,6 +28,7 @@ import numpy as np
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
+from fiper_ros.evaluation.auto import AutoOutcome
 from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.engine import EvaluationResult
 from fiper_ros.evaluation.methods import ELAPSED, METHODS
@@ -496,9 +497,94 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
             lines += [f"## Fixed default configuration, {name} protocol "
                       f"(w = {s.default_window}, {KIND_LABELS[s.default_kind]}, FIPER AND)", "",
                       table1(result, protocol.default), ""]
+    if result.auto is not None:
+        lines += [auto_section(result, result.auto), ""]
     if figures:
         lines += ["## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures] + [""]
     return "\n".join(lines)
+
+
+def _best_of(result: EvaluationResult, protocol: str, task: int) -> tuple[str, float]:
+    """The method with the highest mean TWA on ``task`` under ``protocol`` (the elapsed time aside) and that TWA."""
+    best = ("–", math.nan)
+    for method, chosen in result.protocols[protocol].selected.items():
+        value = float(chosen.per_task()[0][task, TWA])
+        if method != ELAPSED and not math.isnan(value) and (math.isnan(best[1]) or value > best[1]):
+            best = (result.settings.catalogue()[method].label, value)
+    return best
+
+
+def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
+    """``--auto``'s section: per task the configuration it chose from the calibration successes alone, its metrics
+    on all test rollouts, its held-out false alarms at delta 0.05 and, beside it, the elapsed time and the best
+    configuration the label-reading protocols chose."""
+    seeds = len(result.settings.seeds)
+    floor = next((p.selected[ELAPSED] for p in result.protocols.values() if ELAPSED in p.selected), None)
+    mean, std = _auto_rows(auto, "all")
+    columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ"]
+    columns += ["TWA − Elapsed"] if floor is not None else []
+    columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
+    columns += ["TWA, report half", "clean best, report half (TWA)"] if "report" in auto.metrics else []
+    rows = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    report = _auto_rows(auto, "report") if "report" in auto.metrics else None
+    for t in range(len(result.tasks) + 1):
+        name = result.tasks[t] if t < len(result.tasks) else "average"
+        shown = auto.shown(t) if t < len(result.tasks) else 0
+        chosen = f"{auto.choices[t][0][shown]} (δ={auto.deltas[shown]:g})" if t < len(result.tasks) else ""
+        rate = nanmean(auto.held_out["all"][t, :, shown], axis=0) if t < len(result.tasks) else math.nan
+        cells = [name, chosen, *(_cell(float(mean[t, m]), float(std[t, m]), seeds, False)
+                                 for m in (METRICS.index(k) for k in ("twa", "tpr", "tnr", "dt"))),
+                 "–" if math.isnan(rate) else f"{rate:.2f}"]
+        if floor is not None:
+            per_seed = (auto.values("all")[t, :, TWA] if t < len(result.tasks)
+                        else nanmean(auto.values("all")[..., TWA], axis=0))
+            base = floor.values[t, :, TWA] if t < len(result.tasks) else nanmean(floor.values[..., TWA], axis=0)
+            cells.append(_signed(float(nanmean(per_seed - base, axis=0)), float(nanstd(per_seed - base, axis=0)),
+                                 seeds))
+        for protocol in ("loto", "clean"):
+            if protocol == "clean" and report is not None:
+                cells.append(_cell(float(report[0][t][TWA]), float(report[1][t][TWA]), seeds, False))
+            if protocol in result.protocols and (protocol == "loto" or report is not None):
+                if t < len(result.tasks):
+                    label, value = _best_of(result, protocol, t)
+                    cells.append(f"{label} ({value:.2f})" if not math.isnan(value) else "–")
+                else:
+                    cells.append("")
+        rows.append("| " + " | ".join(cells) + " |")
+    record = auto.records[0][0][0]
+    return "\n".join([
+        "## --auto: each task's configuration chosen from its own calibration successes (fiper calibrate --auto)", "",
+        f"Rule {record['rule']} v{record['version']} (docs/method.md, 'Choosing the configuration from successes'): "
+        "candidates scored on the fit part's successes by fold models, with stall, drift and skip proxies made from "
+        "them; no label and no other task is read. The choice is made at every δ; metrics are averaged over the "
+        "finite δ on all test rollouts; the choice is shown at the finite δ closest to 0.05, FA: the held-out ID "
+        "successes alarmed there. The LOTO and clean "
+        "columns are the best method those protocols chose with failures (of other tasks, or of the task's "
+        "validation half).", "", *rows])
+
+
+def _auto_rows(auto: AutoOutcome, subset: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per task and the average: mean and std over seeds of ``subset``'s metrics."""
+    values = auto.values(subset)
+    both = np.concatenate([values, nanmean(values, axis=0)[None]])
+    return nanmean(both, axis=1), nanstd(both, axis=1)
+
+
+def _auto_json(result: EvaluationResult, auto: AutoOutcome) -> dict[str, Any]:
+    """``--auto``'s numbers: per subset and task the metrics, per task every choice and the record at delta 0.05."""
+    out: dict[str, Any] = {"deltas": list(auto.deltas), "seconds": auto.seconds, "subsets": {}}
+    for subset in auto.metrics:
+        mean, std = _auto_rows(auto, subset)
+        out["subsets"][subset] = {
+            name: {**{m: {"mean": mean[t, i], "std": std[t, i]} for i, m in enumerate(METRICS)},
+                   **({"held_out_false_alarms": nanmean(auto.held_out[subset][t], axis=0)}
+                      if t < len(result.tasks) else {})}
+            for t, name in enumerate([*result.tasks, "average"])}
+    out["tasks"] = {task: {"choices": auto.choices[t], "shown_delta": auto.deltas[auto.shown(t)],
+                           "record": auto.records[t][0][auto.shown(t)],
+                           "infinite_deltas": [d for d, bad in zip(auto.deltas, auto.infinite[t].any(axis=0)) if bad]}
+                    for t, task in enumerate(result.tasks)}
+    return out
 
 
 def _clean(value: Any) -> Any:
@@ -610,6 +696,7 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
         "timings_s": result.timings,
         "score_cache": {"hits": result.cache_hits, "misses": result.cache_misses},
         "protocols": protocols,
+        **({"auto": _auto_json(result, result.auto)} if result.auto is not None else {}),
         "sweep": sweep,
     }
     return _clean(document)

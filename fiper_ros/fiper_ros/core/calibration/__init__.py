@@ -4,6 +4,8 @@
 - :mod:`.model`: a fitted calibration (:class:`Calibration`: per task, each detector's scorer and threshold) and
   what it promises (:func:`guarantee`).
 - :mod:`.fit`: the split of the successes and the fit (:func:`calibrate`).
+- :mod:`.auto`: ``--auto``: the fold scores and failure proxies the choice rests on, and the calibration of the
+  chosen configuration (:func:`auto_calibrate`).
 - :mod:`.store`: reading ``calibration.yaml`` and the models' files (:func:`load_calibration`); a calibration
   writes itself (:meth:`Calibration.save`).
 
@@ -12,6 +14,7 @@ training.
 """
 from __future__ import annotations
 
+from fiper_ros.core.calibration.auto import auto_calibrate, choose_configuration
 from fiper_ros.core.calibration.fit import CalibrationSplit, calibrate, false_alarm_estimate, split_successes
 from fiper_ros.core.calibration.model import (Calibration, CalibrationMismatch, DetectorPart, Layout, TaskPart,
                                               guarantee, promised_rate)
@@ -20,6 +23,7 @@ from fiper_ros.core.calibration.store import load_calibration, upgrade_calibrati
 from fiper_ros.core.calibration_file import CalibrationError
 
 __all__ = ["SPLITS", "Calibration", "CalibrationError", "CalibrationMismatch", "CalibrationSettings",
-           "CalibrationSplit", "DetectorPart", "Layout", "TaskPart", "calibrate", "false_alarm_estimate", "fit",
+           "CalibrationSplit", "DetectorPart", "Layout", "TaskPart", "auto", "auto_calibrate", "calibrate",
+           "choose_configuration", "false_alarm_estimate", "fit",
            "guarantee", "load_calibration", "model", "promised_rate", "settings",
            "split_successes", "store", "upgrade_calibration"]

@@ -91,13 +91,16 @@ class Calibration:
     """A fitted calibration: the settings, the policy's layout and, per task (``""``: rollouts that named none),
     every declared detector's scorer and threshold; ``joint`` summarises a joint combine's conformal factor (the
     votes; pooled over tasks also ``k`` and the conformal rollouts behind it); ``false_alarms`` is the
-    leave-one-out estimate of the false-alarm rate on new successes."""
+    leave-one-out estimate of the false-alarm rate on new successes; ``auto`` how ``--auto`` chose the configuration."""
 
     settings: CalibrationSettings
     layout: Layout
     tasks: dict[str, TaskPart]
     joint: dict[str, Any] = field(default_factory=dict)
     false_alarms: dict[str, Any] = field(default_factory=dict)
+    auto: dict[str, Any] = field(default_factory=dict)
+    """How ``--auto`` chose the configuration (:meth:`fiper_ros.core.auto.AutoChoice.record`); empty: chosen by
+    hand."""
 
     @property
     def guarantee(self) -> str:
@@ -118,6 +121,7 @@ class Calibration:
                                            for d, p in part.detectors.items()}}
                       for name, part in self.tasks.items()},
             **({"false_alarm_estimate": self.false_alarms} if self.false_alarms else {}),
+            **({"auto": self.auto} if self.auto else {}),
         }
 
     def hash_of(self, content: dict[str, Any]) -> str:

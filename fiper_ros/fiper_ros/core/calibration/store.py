@@ -85,7 +85,7 @@ def _read(directory: Path, data: dict[str, Any]) -> Calibration:
                 detectors[d] = DetectorPart(_scorer(d, where, entry, settings, layout), threshold)
             tasks[name] = TaskPart(detectors, int(part["num_rollouts"]), dict(part.get("split", {})))
         calibration = Calibration(settings, layout, tasks, dict(data.get("joint", {})),
-                                  dict(data.get("false_alarm_estimate", {})))
+                                  dict(data.get("false_alarm_estimate", {})), dict(data.get("auto", {})))
     except CalibrationError:
         raise
     except KeyError as error:

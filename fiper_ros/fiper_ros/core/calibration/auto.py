@@ -1,0 +1,123 @@
+"""``--auto``: the scores the choice rests on (fold models of the fit part, failure proxies) and the calibration of
+the chosen configuration.
+
+:func:`auto_scores` scores one task's fit-part successes and the proxies made from them
+(:func:`fiper_ros.core.auto.make_proxy`) with models fitted on the other folds of the fit part (the folds the
+final calibration's cross-fitted shapes use, ``shape_folds``); :func:`choose_configuration` applies the rule of
+:mod:`fiper_ros.core.auto` to them; :func:`auto_calibrate` calibrates the chosen configuration and stores the
+choice in the calibration (``auto``). Only rollouts with ``success is True`` are read, and only those of the fit
+part: the conformal part is left to the final thresholds.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from fiper_ros.core.auto import (AutoChoice, AutoError, AutoSettings, EmbeddingSpread, TaskScores, choose,
+                                 make_proxy, stall_length)
+from fiper_ros.core.calibration.fit import calibrate, split_successes
+from fiper_ros.core.calibration.model import Calibration
+from fiper_ros.core.calibration.settings import CalibrationSettings
+from fiper_ros.core.detectors import ACE, CONSISTENCY, ELAPSED, PROGRESS, RND_OE, info, signal_stream
+from fiper_ros.core.kinematics import ForwardKinematics
+from fiper_ros.core.rnd_oe import ProgressCallback
+from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.scorers import LOGPZO, PCA_KMEANS, FitContext, fit_scorer
+
+#: Called with a short note as the fold models are fitted (progress of a long run).
+Note = Callable[[str], None]
+#: The embedding detectors every rollout can feed.
+EMBEDDING_DETECTORS = (RND_OE, LOGPZO, PCA_KMEANS, PROGRESS)
+
+
+def available_detectors(successes: Sequence[Rollout]) -> tuple[str, ...]:
+    """The detectors the successes can feed: the embedding ones, ACE and action consistency where every success has
+    action batches, every signal every success logged, and the elapsed time."""
+    out = list(EMBEDDING_DETECTORS)
+    if successes and all(r.has_actions for r in successes):
+        out += [ACE, CONSISTENCY]
+    common = set.intersection(*(set(r.signals) for r in successes)) if successes else set()
+    return (*out, *(signal_stream(s) for s in sorted(common)), ELAPSED)
+
+
+def auto_scores(good: Sequence[Rollout], members: Sequence[int], folds: Sequence[Sequence[int]],
+                detectors: Sequence[str], context: FitContext, fk: ForwardKinematics | None, settings: AutoSettings,
+                seed: int, note: Note | None = None) -> TaskScores:
+    """Per detector, the scores of ``good[i]`` for every ``i`` of ``members`` (in that order) and of the proxies
+    made from them, each fold's by the models fitted on the other members (the fitted ones; the others fit
+    nothing)."""
+    position = {index: n for n, index in enumerate(members)}
+    successes: dict[str, list[np.ndarray]] = {d: [np.empty(0)] * len(members) for d in detectors}
+    proxies: dict[str, list[np.ndarray]] = {d: [] for d in detectors}
+    kinds: list[str] = []
+    sources: list[int] = []
+    stall = stall_length([good[i] for i in members], settings)
+    for number, fold in enumerate(folds, 1):
+        train = [good[i] for i in members if i not in fold]
+        scorers = {}
+        for d in detectors:
+            if note is not None and info(d).fitted:
+                note(f"fold {number}/{len(folds)}: fitting {info(d).label} on {len(train)} successes")
+            scorers[d] = fit_scorer(d, train, context)
+        spread = EmbeddingSpread.of(train)
+        for i in fold:
+            rng = np.random.default_rng([seed, 37, i])
+            made = [make_proxy(good[i], kind, rng, spread, stall, settings.drift_scale) for kind in settings.proxies]
+            for d, scorer in scorers.items():
+                successes[d][position[i]] = scorer.scores(good[i], fk)
+                proxies[d].extend(scorer.scores(p, fk) for p in made)
+            kinds.extend(settings.proxies)
+            sources.extend([position[i]] * len(made))
+    return TaskScores(successes, proxies, tuple(kinds), tuple(sources))
+
+
+def auto_split_settings(settings: CalibrationSettings, auto: AutoSettings) -> CalibrationSettings:
+    """``settings`` with the fit part's folds of ``auto`` (its ``shape_folds``); :class:`AutoError` for a split that
+    has no fit part."""
+    if settings.split != "split":
+        raise AutoError(f"--auto chooses on the fit part of a split conformal calibration (--split split), not "
+                        f"--split {settings.split}")
+    return replace(settings, shape_folds=auto.folds)
+
+
+def choose_configuration(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
+                         detectors: Sequence[str] | None = None, fk: ForwardKinematics | None = None,
+                         note: Note | None = None) -> AutoChoice:
+    """The rule's choice (:func:`fiper_ros.core.auto.choose`) on the successes of ``rollouts`` (every task's fit part,
+    split as ``settings`` with ``auto.folds`` shape folds), among ``detectors`` (default: every one they can feed,
+    :func:`available_detectors`). Nothing but ``success is True`` rollouts is read."""
+    split_settings = auto_split_settings(settings, auto)
+    good_ones = [r for r in rollouts if r.success is True]  # the flag alone is read of any other rollout
+    names = sorted({r.task for r in good_ones})
+    pool = tuple(detectors) if detectors is not None else available_detectors(good_ones)
+    context = FitContext(settings.seed, settings.profile_obj, settings.options(), "ee_position", fk)
+    tasks = {}
+    for name in names:
+        good = [r for r in good_ones if r.task == name]
+        if len(good) < settings.min_rollouts:
+            raise AutoError(f"--auto needs at least {settings.min_rollouts} successful rollouts of task {name!r}, got "
+                            f"{len(good)}")
+        split = split_successes(len(good), split_settings)
+        own = replace(context, action_space=good[0].action_space)
+        tasks[name] = auto_scores(good, split.fit, split.shape_folds, pool, own, fk, auto, settings.seed, note)
+    return choose(tasks, pool, auto, settings.threshold_settings(), settings.seed)
+
+
+def chosen_settings(settings: CalibrationSettings, choice: AutoChoice) -> CalibrationSettings:
+    """``settings`` with the chosen configuration, its shapes cross-fitted in the rule's folds."""
+    return replace(settings, **choice.chosen.settings(), shape_folds=choice.settings.folds)
+
+
+def auto_calibrate(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
+                   detectors: Sequence[str] | None = None, fk: ForwardKinematics | None = None,
+                   progress: ProgressCallback | None = None, note: Note | None = None
+                   ) -> tuple[Calibration, AutoChoice]:
+    """Choose the configuration (:func:`choose_configuration`), calibrate it (:func:`calibrate`) and store the
+    choice in the calibration's ``auto`` record."""
+    choice = choose_configuration(rollouts, settings, auto, detectors, fk, note)
+    calibration = calibrate(rollouts, chosen_settings(settings, choice), fk=fk, progress=progress)
+    calibration.auto = choice.record()
+    return calibration, choice

@@ -1,0 +1,66 @@
+"""``fiper evaluate --auto``: each task's configuration is exactly the one ``fiper calibrate --auto`` chooses on its
+calibration successes, and its reported metrics are those of that calibration's alarms on the test rollouts."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fiper_ros.cli import main
+from fiper_ros.core.auto import AutoSettings
+from fiper_ros.core.calibration import CalibrationSettings, auto_calibrate
+from fiper_ros.core.metrics import evaluate
+from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.engine import EngineSettings, run_evaluation
+from fiper_ros.evaluation.methods import MethodSettings
+from fiper_ros.evaluation.protocol import METRICS
+from fiper_ros.evaluation.sweep import SweepSettings
+
+AUTO = AutoSettings(windows=(1, 3), folds=3)
+DELTA = 0.3
+
+
+def test_the_evaluated_choice_is_calibrate_autos_and_so_are_its_alarms(tiny_dataset: Dataset,
+                                                                      tiny_settings: MethodSettings) -> None:
+    settings = EngineSettings(methods=("elapsed", "pca_kmeans", "progress"), seeds=(1,), method_settings=tiny_settings,
+                              sweep=SweepSettings(windows=(1, 3), deltas=(DELTA,), kinds=("cp_band",)),
+                              auto=AUTO, progress=False)
+    outcome = run_evaluation([tiny_dataset], settings).auto
+    assert outcome is not None
+    ms = tiny_settings
+    core = CalibrationSettings(rnd=ms.rnd, logpzo=ms.logpzo, pca_kmeans=ms.pca_kmeans, progress=ms.progress,
+                               consistency=ms.consistency, delta=DELTA, seed=1)
+    # calibration failures beside the successes: never read
+    calibration, choice = auto_calibrate(tiny_dataset.calibration, core, AUTO, ("pca_kmeans", "progress", "elapsed"))
+    assert outcome.records[0][0][0] == choice.record(top=5)
+    assert outcome.choices == [[[choice.chosen.label()]]]
+    steps = [predict_rollout(r, calibration).first_alarm_step for r in tiny_dataset.test]
+    expected = evaluate(steps, [bool(f) for f in tiny_dataset.failed], [int(n) for n in tiny_dataset.lengths])
+    np.testing.assert_array_equal(outcome.metrics["all"][0, 0, 0], [expected[m] for m in METRICS])
+    assert not outcome.infinite.any()
+
+
+def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
+                 "--tiny", "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--deltas", "0.3",
+                 "--no-default-combos", "--protocol", "clean,loto", "--auto", "--auto-windows", "1,3", "--no-plots",
+                 "--no-cache", "--quiet", "--out", str(out)]) == 0
+    text = (out / "results.md").read_text()
+    section = text[text.index("## --auto: each task's configuration chosen from its own calibration successes"):]
+    rows = [line for line in section.splitlines() if line.startswith("| ")]
+    assert rows[0].split(" | ")[:3] == ["| Task", "chosen (seed 0, at δ)", "TWA"]
+    assert "LOTO best (TWA)" in rows[0] and "clean best, report half (TWA)" in rows[0]
+    assert [r.split(" | ")[0] for r in rows[1:]] == ["| sorting", "| stacking", "| average"]
+    document = json.loads((out / "results.json").read_text())
+    assert set(document["auto"]["subsets"]) == {"all", "report"}
+    assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "proxy-twa"
+
+
+def test_evaluate_auto_needs_a_split_conformal_calibration(tiny_settings: MethodSettings) -> None:
+    with pytest.raises(ValueError, match=r"--auto chooses on the fit part"):
+        EngineSettings(method_settings=replace(tiny_settings, split="same"), auto=AUTO)
