@@ -43,9 +43,9 @@ from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.converters.options import parse_channels
+from fiper_ros.core.auto import AutoChoice, AutoSettings
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
                                         upgrade_calibration)
-from fiper_ros.core.auto import AutoChoice, AutoSettings
 from fiper_ros.core.calibration.auto import auto_calibrate
 from fiper_ros.core.calibration_file import FORMAT_VERSION
 from fiper_ros.core.detectors import info, judged_by

@@ -47,11 +47,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fiper_ros.core.auto import AutoSettings
 from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
+from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import COMBINES
@@ -61,13 +61,11 @@ from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX
 from fiper_ros.evaluation.early import DEFAULT_Q
-from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation
-from fiper_ros.evaluation.engine import check_evaluation
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation
 from fiper_ros.evaluation.external import ExternalScores, parse_scores
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS
-from fiper_ros.evaluation.methods import (METHODS, Combination, MethodSettings, default_combinations,
+from fiper_ros.evaluation.methods import (ELAPSED, METHODS, Combination, MethodSettings, default_combinations,
                                           observation_methods, parse_combination, signal_methods)
-from fiper_ros.evaluation.methods import ELAPSED
 from fiper_ros.evaluation.protocol import PROTOCOLS
 from fiper_ros.evaluation.report import config_text, gain, write_reports
 from fiper_ros.evaluation.sweep import DELTAS, MAX_POOL_WINDOWS, PAIR_GRIDS, SweepSettings
