@@ -22,6 +22,7 @@ Modules, one concept each:
 - :mod:`.window`: score aggregation, eqs. (2) and (5).
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
 - :mod:`.combination`: one conformal threshold over a combination of detectors (normalised, voted).
+- :mod:`.equalisation`: the detectors' tails equalised before a joint combination (quantile or tail maps).
 - :mod:`.fusion`: the votes of the detectors' decisions: eq. (7)'s AND/OR, max and kth:K.
 - :mod:`.metrics`: TPR, TNR, accuracy, DT and TWA, App. B.4.
 - :mod:`.profiles`: the "paper" and "reference" (authors' code) profiles.
@@ -34,5 +35,6 @@ Modules, one concept each:
 from __future__ import annotations
 
 __all__ = ["ace", "calibration", "calibration_file", "combination", "consistency", "data_split", "detector_model",
-           "detectors", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles",
-           "progress", "rnd_oe", "rollout", "scorers", "scores", "step_stream", "thresholds", "window"]
+           "detectors", "equalisation", "fusion", "kinematics", "logpzo", "metrics", "mlp", "monitor", "pca",
+           "pca_kmeans", "profiles", "progress", "rnd_oe", "rollout", "scorers", "scores", "step_stream", "thresholds",
+           "window"]
