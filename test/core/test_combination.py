@@ -251,6 +251,20 @@ def test_an_equalised_combination_keeps_delta(rule: str, equalise: str) -> None:
     assert rate >= 0.1 - 1 / 40 - 2 * sigma
 
 
+@pytest.mark.parametrize("equalise", ["quantile", "tail"])
+def test_equalising_takes_the_heavy_tail_out_of_the_others_way(equalise: str) -> None:
+    """One detector's tail 3 times heavier: the plain max gives every detector the factor that detector's tail sets
+    (11.3); equalised, the two light detectors get a lower factor (6.5-7.7 measured) and the heavy one a higher one."""
+    rng = np.random.default_rng(1)
+    group = GroupCurves(_successes(rng, 40, 3.0), _successes(rng, 39, 3.0))
+    settings = ThresholdSettings(kind="cp_band", delta=0.1)
+    kinds = dict.fromkeys(DETECTORS, "cp_band")
+    plain = fit_joint({"g": group}, DETECTORS, kinds, 1, settings)
+    equalised = fit_joint({"g": group}, DETECTORS, kinds, 1, settings, equalise)
+    factors = {d: equalised.thresholds["g"][d].params["factor"] for d in DETECTORS}
+    assert max(factors["a"], factors["b"]) < 0.75 * plain.k and factors["c"] > 1.5 * plain.k
+
+
 def test_or_of_per_detector_thresholds_at_delta_breaks_it() -> None:
     """The same detectors OR-ed with a CP band each at delta alarm on far more than delta of new successes (the
     union bound promises 3 delta), which the test above would catch."""
