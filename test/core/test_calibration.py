@@ -366,6 +366,18 @@ def test_an_equalised_joint_combine_is_the_core_one_and_its_file_records_the_equ
         assert np.array_equal(predict_rollout(rollout, fitted).alarms, predict_rollout(rollout, loaded).alarms)
 
 
+def test_a_detector_whose_tail_cannot_be_equalised_is_refused_by_name() -> None:
+    """The elapsed time over successes of one length has one fit maximum: no tail map, a CalibrationError naming it."""
+    rng = np.random.default_rng(9)
+    rollouts = [make_rollout(rng, i, length=30) for i in range(12)]
+    settings = CalibrationSettings(rnd=TINY_RND, detectors=(RND_OE, "elapsed"), combine="max", delta=0.2,
+                                   equalise="tail")
+    with pytest.raises(CalibrationError, match=r"^detector 'elapsed': tail equalisation needs at least 2 distinct "
+                                               r"maxima in the fit part, got 1 \(of 6\)$"):
+        calibrate(rollouts, settings)
+    assert calibrate(rollouts, dataclasses.replace(settings, equalise="quantile")).joint["equalise"] == "quantile"
+
+
 def test_settings_without_equalising_write_what_they_wrote_before() -> None:
     """The equalisation is written only when set: a calibration without it has the content (and hash) it had."""
     for settings in (CalibrationSettings(), CalibrationSettings(combine="max", detectors=THREE)):

@@ -162,6 +162,13 @@ def test_combined_exceedance_is_the_vote_over_per_detector_thresholds(seed: int,
 
 def test_refusals_name_what_is_wrong() -> None:
     settings = ThresholdSettings(kind="cp_band", delta=0.2)
+    clock = {"a": [np.arange(1.0, 6.0)] * 4}  # the elapsed time over successes of one length: one distinct maximum
+    with pytest.raises(ThresholdError, match=r"^detector 'a': tail equalisation needs at least 2 distinct maxima in "
+                                             r"the fit part, got 1 \(of 4\)$"):
+        fit_joint({"g": GroupCurves(clock, clock)}, ("a",), {"a": "cp_scaled"}, 1, settings, "tail")
+    with pytest.raises(ThresholdError, match=r"^equalising needs at least 2 shape curves per group, got 1$"):
+        fit_joint({"g": GroupCurves({"a": [np.ones(3)]}, {"a": [np.ones(3)]})}, ("a",), {"a": "cp_band"}, 1, settings,
+                  "quantile")
     group = GroupCurves({"a": [np.ones(3)]}, {"a": [np.ones(3)]})
     with pytest.raises(ThresholdError, match=r"^a joint combination normalises with cp_band or cp_scaled, not "
                                              r"'cp_constant'$"):

@@ -188,14 +188,20 @@ def _equalised(z: np.ndarray, equaliser: Equaliser | None) -> np.ndarray:
 def fit_equalisers(groups: Mapping[str, GroupCurves], detectors: Sequence[str], kinds: Mapping[str, str],
                    settings: ThresholdSettings, equalise: str, level: float = DEFAULT_LEVEL) -> dict[str, Equaliser]:
     """Per detector the equaliser ``equalise`` over every group's :func:`fold_maxima` of its shape curves (empty for
-    ``"none"``); the conformal curves are never read."""
+    ``"none"``); the conformal curves are never read. A detector whose maxima cannot be equalised is refused by
+    name."""
     check_equalisation(equalise, level)
     if equalise == "none":
         return {}
-    return {d: fit_equaliser(equalise, np.concatenate([fold_maxima(curves.shape[d], max(len(c) for c in curves.shape[d]),
-                                                                   kinds[d], settings)
-                                                       for curves in groups.values()]), level)
-            for d in detectors}
+    out = {}
+    for d in detectors:
+        maxima = np.concatenate([fold_maxima(curves.shape[d], max(len(c) for c in curves.shape[d]), kinds[d], settings)
+                                 for curves in groups.values()])
+        try:
+            out[d] = fit_equaliser(equalise, maxima, level)
+        except ThresholdError as error:
+            raise ThresholdError(f"detector {d!r}: {error}") from error
+    return out
 
 
 def fit_joint(groups: Mapping[str, GroupCurves], detectors: Sequence[str], kinds: Mapping[str, str], votes: int,

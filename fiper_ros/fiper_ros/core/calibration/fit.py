@@ -43,7 +43,7 @@ from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rnd_oe import ProgressCallback
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.scorers import FitContext, Scorer, fit_scorer
-from fiper_ros.core.thresholds import Threshold, _split, fit_threshold, minimum_conformal_set
+from fiper_ros.core.thresholds import Threshold, ThresholdError, _split, fit_threshold, minimum_conformal_set
 from fiper_ros.core.window import aggregate
 
 LOG = logging.getLogger(__name__)
@@ -220,9 +220,13 @@ def fit_thresholds(conformal: Mapping[str, Curves], shape: Mapping[str, Curves |
         summary["equalise"] = settings.equalise
     for pool in pools:
         for chosen in members:
-            joint = fit_joint({name: GroupCurves({d: g.shape[d] for d in chosen}, {d: g.conformal[d] for d in chosen})
-                               for name, g in pool.items()}, chosen, kinds, votes, settings.threshold_settings(),
-                              settings.equalise, settings.equalise_level)
+            try:
+                joint = fit_joint({name: GroupCurves({d: g.shape[d] for d in chosen},
+                                                     {d: g.conformal[d] for d in chosen})
+                                   for name, g in pool.items()}, chosen, kinds, votes, settings.threshold_settings(),
+                                  settings.equalise, settings.equalise_level)
+            except ThresholdError as error:  # e.g. a detector whose maxima cannot be equalised: one line, by name
+                raise CalibrationError(str(error)) from error
             for name in pool:
                 out[name].update(joint.thresholds[name])
             if combine.joint and settings.pooled:
