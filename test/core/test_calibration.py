@@ -330,6 +330,62 @@ def test_a_joint_combine_is_the_core_combination_of_the_detectors_curves(calibra
     assert declared(_saved(fitted)).combine == "max"
 
 
+@pytest.mark.parametrize("equalise", ["quantile", "tail"])
+def test_an_equalised_joint_combine_is_the_core_one_and_its_file_records_the_equalisers(
+        calibration_rollouts: list[Rollout], tmp_path: Path, equalise: str) -> None:
+    """max over RND-OE, progress and the elapsed time with equalised tails: the thresholds are fit_joint's on the
+    split's curves (the equalisers from the fit part's), the file names each detector's equaliser and factor in
+    plain YAML, and a loaded calibration judges as the fitted one."""
+    settings = CalibrationSettings(rnd=TINY_RND, detectors=THREE, combine="max", threshold="cp_band", delta=0.2,
+                                   window=3, equalise=equalise, equalise_level=0.8)
+    fitted = calibrate(calibration_rollouts, settings)
+    part = fitted.part("synthetic")
+    index = {str(r.rollout_id): r for r in successful(calibration_rollouts)}
+
+    def curves(ids: list[str]) -> dict[str, list[np.ndarray]]:
+        return {d: [aggregate(fitted.scorer(d).scores(index[i]), settings.aggregation_of(d), settings.window_of(d))
+                    for i in ids] for d in THREE}
+
+    group = GroupCurves(curves(part.split["fit"]), curves(part.split["conformal"]))
+    expected = fit_joint({"synthetic": group}, THREE, {d: settings.shape_of(d) for d in THREE}, 1,
+                         settings.threshold_settings(), equalise, 0.8)
+    for detector in THREE:
+        threshold = part.detectors[detector].threshold
+        np.testing.assert_array_equal(threshold.values, expected.thresholds["synthetic"][detector].values)
+        assert threshold.params["equaliser"] == expected.equalisers[detector].to_dict()
+        assert threshold.params["factor"] == expected.equalisers[detector].inverse(expected.k)
+    assert fitted.joint == {"votes": 1, "equalise": equalise}
+    assert ("equalise_level" in settings.to_dict()) == (equalise == "quantile")
+    path = fitted.save(tmp_path)
+    written = yaml.safe_load(path.read_text())
+    assert written["settings"]["equalise"] == equalise
+    assert written["tasks"]["synthetic"]["detectors"][RND_OE]["threshold"]["params"]["equaliser"]["kind"] == equalise
+    loaded = load_calibration(tmp_path)
+    assert loaded.content_hash == fitted.content_hash and loaded.settings == settings
+    for rollout in calibration_rollouts[:3]:
+        assert np.array_equal(predict_rollout(rollout, fitted).alarms, predict_rollout(rollout, loaded).alarms)
+
+
+def test_a_detector_whose_tail_cannot_be_equalised_is_refused_by_name() -> None:
+    """The elapsed time over successes of one length has one fit maximum: no tail map, a CalibrationError naming it."""
+    rng = np.random.default_rng(9)
+    rollouts = [make_rollout(rng, i, length=30) for i in range(12)]
+    settings = CalibrationSettings(rnd=TINY_RND, detectors=(RND_OE, "elapsed"), combine="max", delta=0.2,
+                                   equalise="tail")
+    with pytest.raises(CalibrationError, match=r"^detector 'elapsed': tail equalisation needs at least 2 distinct "
+                                               r"maxima in the fit part, got 1 \(of 6\)$"):
+        calibrate(rollouts, settings)
+    assert calibrate(rollouts, dataclasses.replace(settings, equalise="quantile")).joint["equalise"] == "quantile"
+
+
+def test_settings_without_equalising_write_what_they_wrote_before() -> None:
+    """The equalisation is written only when set: a calibration without it has the content (and hash) it had."""
+    for settings in (CalibrationSettings(), CalibrationSettings(combine="max", detectors=THREE)):
+        assert settings.equalise == "none"
+        assert not {"equalise", "equalise_level"} & set(settings.to_dict())
+        assert CalibrationSettings.from_dict(settings.to_dict()) == settings
+
+
 def _saved(calibration: Calibration) -> Path:
     import tempfile
 
@@ -384,6 +440,13 @@ def test_settings_refuse_what_cannot_be_calibrated() -> None:
         CalibrationSettings(combine="max", threshold="cp_constant")
     with pytest.raises(CalibrationError, match=r"combine kth:3 needs at least 3 detectors, got 2"):
         CalibrationSettings(combine="kth:3")
+    with pytest.raises(CalibrationError, match=r"^equalise tail applies to a joint combine \(max, kth:K\), not and$"):
+        CalibrationSettings(equalise="tail")
+    with pytest.raises(CalibrationError, match=r"^unknown equalisation 'median'; expected one of none, quantile, "
+                                               r"tail$"):
+        CalibrationSettings(combine="max", equalise="median")
+    with pytest.raises(CalibrationError, match=r"^the equalisation level must be in \(0, 1\), got 0\.0$"):
+        CalibrationSettings(combine="max", equalise="quantile", equalise_level=0.0)
     with pytest.raises(CalibrationError, match=r"windows of undeclared detectors: progress"):
         CalibrationSettings(windows={"progress": 3})
     assert CalibrationSettings(detectors=("elapsed", "rnd_oe")).detectors == ("rnd_oe", "elapsed")

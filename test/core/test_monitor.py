@@ -227,3 +227,35 @@ def test_a_detector_that_reads_the_step_before_marks_the_step_after_a_gap_incomp
     # step 3's score reads the lost step 2, step 4's window (w 2) holds step 3's score, step 5's reads steps 3-5
     assert [r.complete for r in results] == [False, False, True, True]
     assert results[1].score == predict_rollout(rollout, fitted).detectors["consistency"].scores[4]
+
+
+def test_an_equalised_joint_combine_streams_as_it_predicts(calibration_rollouts: list) -> None:
+    """Tails equalised (max over RND-OE, progress and the elapsed time): the streaming monitors and the fusion node's
+    fuser decide every step as predict_rollout does; the equalisation lives in the thresholds, nowhere else."""
+    from helpers.core_data import TINY_RND
+
+    from fiper_ros.core.calibration import CalibrationSettings, calibrate
+    from fiper_ros.core.monitor import rollout_value
+
+    detectors = (RND_OE, "progress", "elapsed")
+    fitted = calibrate(calibration_rollouts, CalibrationSettings(rnd=TINY_RND, detectors=detectors, combine="max",
+                                                                 window=3, delta=0.2, equalise="tail"))
+    assert all("equaliser" in fitted.threshold(d).params for d in detectors)
+    alarmed = 0
+    for rollout in [*calibration_rollouts[:2], make_rollout(np.random.default_rng(3), 50, ood=True, success=False)]:
+        prediction = predict_rollout(rollout, fitted)
+        monitors = {d: DetectorMonitor(fitted, d) for d in detectors}
+        fuser = AlarmFuser("max", detectors=detectors)
+        fuser.start(1, 0)
+        states = []
+        for t in range(rollout.length):
+            for d, monitor in monitors.items():
+                s = monitor.update(t, rollout_value(rollout, d, t))
+                assert (s.windowed, s.threshold, s.exceeded) == (prediction.detectors[d].windowed[t],
+                                                                 prediction.detectors[d].thresholds[t],
+                                                                 prediction.detectors[d].exceeded[t])
+                state = fuser.add(DetectorScore(d, 1, t, s.windowed, s.threshold, t, s.complete, bool(s.exceeded)), t)
+            states.append(state.state)
+        assert states == [ALARM if a else OK for a in np.logical_or.accumulate(prediction.alarms)]
+        alarmed += bool(prediction.alarms.any())
+    assert alarmed >= 1  # the out-of-distribution rollout alarms: the comparison covers ALARM states

@@ -160,3 +160,25 @@ def test_a_test_set_without_id_successes_has_no_false_alarm_rate(tmp_path: Path,
     rows = [line for line in (tmp_path / "out" / "results.md").read_text().splitlines()
             if line.startswith("| Elapsed | w cumulative, CP constant | ≤ δ | sorting |")]
     assert rows and all("| sorting | 0 | – |" in row for row in rows), rows
+
+
+def test_equalised_combinations_are_swept_beside_the_plain_ones(tmp_path: Path, tiny_dataset: Dataset,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """--equalise quantile,tail: each combination of several detectors again per kind, with the joint combines only;
+    a one-detector combination (a logged signal alone) is not repeated."""
+    data = _npz(tmp_path / "sorting.npz", tiny_dataset)
+    out = tmp_path / "out"
+    assert main(["evaluate", "--data", f"sorting={data}", "--tiny", "--methods", "elapsed,pca_kmeans", "--windows",
+                 "1-2", "--default-window", "1", "--deltas", "0.2", "--no-default-combos", "--combo",
+                 "both=pca_kmeans+elapsed", "--combo", "one=pca_kmeans", "--equalise", "quantile,tail",
+                 "--equalise-level", "0.8", "--no-cache", "--no-plots", "--quiet", "--out", str(out)]) == 0
+    capsys.readouterr()
+    combines: dict[str, set[str]] = {}
+    for row in json.loads((out / "results.json").read_text())["sweep"]:
+        combines.setdefault(row["method"], set()).add(row["combine"])
+    assert combines["both"] == {"max", "kth:2", "and", "or"} and combines["one"] == {""}
+    assert combines["both_quantile"] == combines["both_tail"] == {"max", "kth:2"}
+    assert "one_tail" not in combines
+    with pytest.raises(SystemExit):  # argparse: the plain combination is always swept, "none" is no extra kind
+        main(["evaluate", "--data", f"sorting={data}", "--equalise", "none", "--out", str(tmp_path / "x")])
+    assert "argument --equalise: unknown ['none']; choose from quantile, tail" in capsys.readouterr().err

@@ -63,7 +63,8 @@ def _expected(streams: dict[str, dict[str, StreamScores]], combination: Combinat
             chosen = wanted or {task: groups[task]}
             joint = fit_joint({name: GroupCurves({d: g.shape[d] for d in members}, {d: g.conformal[d] for d in members})
                                for name, g in chosen.items()}, members, kinds,
-                              votes if combine.joint else 1, settings)
+                              votes if combine.joint else 1, settings,
+                              combination.equalise if combine.joint else "none", combination.level)
             for d in members:
                 thresholds[task][d] = joint.thresholds[task][d]
     out = {}
@@ -93,6 +94,28 @@ def test_the_sweep_decides_as_the_core(pooled: bool) -> None:
                 compared += 1
     # trio: 4 labels x 2 kinds x 4 combines; alone: 4 x 2; clock: its one configuration (cumulative, CP scaled)
     assert compared == 2 * (4 * 2 * 4 + 4 * 2 + 1) * len(SWEEP.deltas)
+
+
+@pytest.mark.parametrize("pooled", [False, True])
+def test_the_sweep_equalises_as_the_core(pooled: bool) -> None:
+    """Equalised combinations (quantile at 0.8, tail): the joint combines only, each decided as fit_joint does."""
+    rng = np.random.default_rng(8)
+    streams = {"small": _streams(rng, 1.0), "large": _streams(rng, 40.0)}
+    equalised = tuple(COMBINATIONS[0].equalised(kind, 0.8) for kind in ("quantile", "tail"))
+    assert [c.name for c in equalised] == ["trio_quantile", "trio_tail"]
+    swept = joint_sweep(streams, equalised, SWEEP, dict.fromkeys(streams, BASE), pooled,
+                        combines=("max", "kth:2", "and", "or"))
+    compared = 0
+    for task, result in swept.items():
+        assert {g.combine for g in result.groups} == {"max", "kth:2"}  # equalising applies to one shared factor
+        for g, group in enumerate(result.groups):
+            combination = next(c for c in equalised if c.name == group.method)
+            for d, delta in enumerate(SWEEP.deltas):
+                expected = _expected(streams, combination, group.window, group.kind, Combine.parse(group.combine),
+                                     delta, pooled)[task]
+                assert [None if a < 0 else int(a) for a in result.alarms[g, d]] == expected, (task, group, delta)
+                compared += 1
+    assert compared == 2 * 2 * (4 * 2 * 2) * len(SWEEP.deltas)
 
 
 def test_groups_name_the_configuration() -> None:

@@ -49,6 +49,7 @@ from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, C
 from fiper_ros.core.calibration.auto import auto_calibrate
 from fiper_ros.core.calibration_file import FORMAT_VERSION
 from fiper_ros.core.detectors import info, judged_by
+from fiper_ros.core.equalisation import EQUALISATIONS
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.profiles import PROFILE_NAMES
@@ -195,7 +196,8 @@ def settings_from(args: argparse.Namespace) -> CalibrationSettings:
                                    profile=args.profile, min_rollouts=args.min_rollouts, action_dims=dims,
                                    control_dt=args.control_dt, split="same" if args.same_data else args.split,
                                    conformal_fraction=args.conformal_fraction, folds=args.folds,
-                                   shape_folds=args.shape_folds, pooled=args.pool)
+                                   shape_folds=args.shape_folds, pooled=args.pool, equalise=args.equalise,
+                                   equalise_level=args.equalise_level)
     except (CalibrationError, ValueError) as error:
         raise UsageError(str(error)) from error
 
@@ -252,6 +254,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pool", action="store_true",
                         help="rollouts of several tasks: one conformal factor over every task's conformal rollouts "
                              "(each task normalised by its own shapes); the promise is then over all tasks")
+    parser.add_argument("--equalise", choices=EQUALISATIONS, default=defaults.equalise,
+                        help="with --combine max or kth:K: map each detector's normalised score by an equaliser fitted "
+                             "on the fit part's out-of-fold maxima before combining: 'quantile' (divide by their "
+                             "--equalise-level quantile), 'tail' (their -log survival function), 'none' (default)")
+    parser.add_argument("--equalise-level", type=float, default=defaults.equalise_level, metavar="Q",
+                        help="with --equalise quantile: the quantile of the maxima mapped to 1")
     parser.add_argument("--folds", type=int, default=defaults.folds, help="with --split cross: the folds K")
     parser.add_argument("--min-rollouts", type=int, default=defaults.min_rollouts, help="fewest successes accepted")
     parser.add_argument("--profile", choices=PROFILE_NAMES, default=defaults.profile,
@@ -327,8 +335,9 @@ def summary(calibration: Calibration) -> list[str]:
     if settings.combine_rule.joint and len(calibration.detectors) > 1:
         joint = calibration.joint
         pooled = f", k {joint['k']:.4g} over {joint['m']} conformal rollouts of every task" if "k" in joint else ""
+        equalised = f", tails equalised ({settings.equalise})" if settings.equalise != "none" else ""
         lines.append(f"combine {settings.combine}: an alarm needs {settings.votes} of {len(calibration.detectors)} "
-                     f"detectors above thresholds with one conformal factor{pooled}")
+                     f"detectors above thresholds with one conformal factor{pooled}{equalised}")
     lines.append(f"false alarms on held-out successes, {estimate['method']}: {estimate['false_alarms']} of "
                  f"{estimate['rollouts']} ({estimate['rate']:.3f} +- {estimate['standard_error']:.3f})"
                  + ("" if estimate["held_out_from_models"] else "; optimistic: the models saw these rollouts"))

@@ -56,6 +56,7 @@ from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import COMBINES
 from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
+from fiper_ros.core.equalisation import DEFAULT_LEVEL, EQUALISATIONS
 from fiper_ros.core.fusion import Combine
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
@@ -178,6 +179,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sweep.add_argument("--combo-combines", type=combine_list, default=JOINT_COMBINE_DEFAULTS,
                        help="how a combination of several detectors votes: comma list of max, kth:K, and, or "
                             f"(default {','.join(JOINT_COMBINE_DEFAULTS)})")
+    sweep.add_argument("--equalise", type=name_list(EQUALISATIONS[1:]), default=(), metavar="KINDS",
+                       help="also evaluate every combination of several detectors with its joint combines' tails "
+                            "equalised, as NAME_KIND per kind: comma list of quantile, tail (fiper calibrate "
+                            "--equalise)")
+    sweep.add_argument("--equalise-level", type=float, default=DEFAULT_LEVEL, metavar="Q",
+                       help=f"with --equalise quantile: the quantile of the maxima mapped to 1 (default {DEFAULT_LEVEL:g})")
     sweep.add_argument("--pool", action="store_true",
                        help="one threshold per configuration pooled over the tasks (each task normalised by its own "
                             "shapes): for many tasks with few successes each; the promise is then over all tasks")
@@ -303,13 +310,15 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:
     """The default combinations of the evaluated methods (unless ``--no-default-combos``, or a split without a fit
-    part) and ``--combo``'s."""
+    part) and ``--combo``'s, and each of several detectors again per ``--equalise`` kind (``<name>_<kind>``)."""
     signals = signal_methods(args.signals)
     defaults = not args.no_default_combos and args.split == "split"  # the shapes need a fit part
     chosen = list(signals)
     if defaults:
         chosen += default_combinations(args.methods, tuple(s.name for s in signals))
     chosen += [parse_combination(text) for text in args.combo]
+    chosen += [c.equalised(kind, args.equalise_level) for c in list(chosen) if len(c.detectors) > 1
+               for kind in args.equalise]
     return tuple(chosen)
 
 

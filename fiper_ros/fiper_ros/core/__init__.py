@@ -23,6 +23,7 @@ Modules, one concept each:
 - :mod:`.thresholds`: calibrated thresholds, Sec. 4.3 and App. A.3.
 - :mod:`.combination`: one conformal threshold over a combination of detectors (normalised, voted).
 - :mod:`.combine_mode`: the combine modes (and, or, max, kth), without numpy.
+- :mod:`.equalisation`: the detectors' tails equalised before a joint combination (quantile or tail maps).
 - :mod:`.fusion`: the votes of the detectors' decisions: eq. (7)'s AND/OR, max and kth:K.
 - :mod:`.metrics`: TPR, TNR, accuracy, DT and TWA, App. B.4.
 - :mod:`.profiles`: the "paper" and "reference" (authors' code) profiles.
@@ -39,6 +40,6 @@ from __future__ import annotations
 from fiper_ros.core.errors import CoreError
 
 __all__ = ["CoreError", "ace", "auto", "calibration", "calibration_file", "combination", "combine_mode", "consistency",
-           "data_split", "detector_model", "detectors", "errors", "fusion", "kinematics", "logpzo", "metrics", "mlp",
-           "monitor", "pca", "pca_kmeans", "profiles", "progress", "rnd_oe", "rollout", "scorers", "scores",
-           "step_stream", "thresholds", "window"]
+           "data_split", "detector_model", "detectors", "equalisation", "errors", "fusion", "kinematics", "logpzo",
+           "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles", "progress", "rnd_oe", "rollout", "scorers",
+           "scores", "step_stream", "thresholds", "window"]

@@ -21,6 +21,14 @@ scores ``R`` of the conformal rollouts and of a new successful rollout are excha
 some step exactly when its ``R`` exceeds ``k``, which has probability at most ``delta``. With one detector the
 combination is that detector's CP band (or CP scaled) threshold, value for value.
 
+Equalised (``equalise``, :mod:`fiper_ros.core.equalisation`): before step 2 each detector's ``z_d`` is mapped by its
+equaliser ``T_d``, fitted on its fit-part maxima ``max_t z_d(t)`` of the shape curves, each normalised by the shape of
+the other folds' shape curves (:func:`fold_maxima`: out of fold, as a conformal rollout is normalised by a shape it
+did not fit); ``c(t)`` is the ``votes``-th largest ``T_d(z_d(t))`` and detector ``d``'s threshold is
+``mu_d(t) + T_d^{-1}(k) s_d(t)`` (or ``T_d^{-1}(k) q_d(t)``). ``T_d`` is strictly increasing, so the vote over these
+thresholds is still exactly ``c(t) > k``, and ``T_d`` depends on the shape curves only: the guarantee stands. Pooled,
+each detector has one equaliser over every group's maxima.
+
 Pooled over groups (tasks of a many-task policy): each group has its own shapes, the conformal scores of all
 groups are pooled into one ``k``. The promise then holds for a new success drawn like the conformal rollouts
 (the groups in their proportions), not for each group: a group's own rate may be above ``delta``.
@@ -34,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.equalisation import DEFAULT_LEVEL, Equaliser, check_equalisation, fit_equaliser
 from fiper_ros.core.thresholds import (
     Threshold,
     ThresholdError,
@@ -45,6 +54,10 @@ from fiper_ros.core.thresholds import (
     _supported_length,
     _validated,
 )
+
+#: Folds of a group's shape curves in which :func:`fold_maxima` normalises each curve out of fold (fewer curves:
+#: one fold each).
+EQUALISER_FOLDS = 5
 
 #: Normalisations a joint combination accepts: the shapes of the two guaranteed kinds that have one.
 SHAPE_KINDS = ("cp_band", "cp_scaled")
@@ -87,6 +100,24 @@ def fit_shape(shape_curves: Sequence[np.ndarray], length: int, kind: str, settin
     return Shape(kind, np.zeros(length), scale, floor)
 
 
+def fold_maxima(shape_curves: Sequence[np.ndarray], length: int, kind: str, settings: ThresholdSettings
+                ) -> np.ndarray:
+    """``max_t z_i(t)`` of every shape curve ``i``, normalised by the shape (:func:`fit_shape`) of the shape curves
+    of the other folds (curve ``i`` in fold ``i mod K``, ``K = min(EQUALISER_FOLDS, count)``): what an equaliser is
+    fitted on. Needs at least 2 curves."""
+    curves = _validated(shape_curves)
+    count = len(curves)
+    if count < 2:
+        raise ThresholdError(f"equalising needs at least 2 shape curves per group, got {count}")
+    folds = min(EQUALISER_FOLDS, count)
+    out = np.empty(count)
+    for fold in range(folds):
+        shape = fit_shape([c for i, c in enumerate(curves) if i % folds != fold], length, kind, settings)
+        for i in range(fold, count, folds):
+            out[i] = np.max(shape.normalised(curves[i]))
+    return out
+
+
 def combined(z: np.ndarray, votes: int) -> np.ndarray:
     """The ``votes``-th largest of ``z[N, T]`` per step (``votes = 1``: the maximum)."""
     if not 1 <= votes <= z.shape[0]:
@@ -118,6 +149,8 @@ class JointThreshold:
     """``R_i`` of the conformal rollouts, all groups in order."""
     conformal: dict[str, int] = field(default_factory=dict)
     """Conformal rollouts per group."""
+    equalisers: dict[str, Equaliser] = field(default_factory=dict)
+    """Per detector its equaliser ``T_d`` (empty: not equalised)."""
 
     @property
     def m(self) -> int:
@@ -134,26 +167,52 @@ def _group_length(curves: GroupCurves, detectors: Sequence[str]) -> int:
     return max(lengths)
 
 
-def group_scores(curves: GroupCurves, shapes: Mapping[str, Shape], detectors: Sequence[str], votes: int
-                 ) -> np.ndarray:
-    """``R_i = max_t c_i(t)`` of a group's conformal rollouts."""
+def group_scores(curves: GroupCurves, shapes: Mapping[str, Shape], detectors: Sequence[str], votes: int,
+                 equalisers: Mapping[str, Equaliser] | None = None) -> np.ndarray:
+    """``R_i = max_t c_i(t)`` of a group's conformal rollouts (each ``z_d`` through ``equalisers[d]`` if given)."""
     counts = {len(curves.conformal[d]) for d in detectors}
     if len(counts) != 1:
         raise ThresholdError(f"every detector needs the same conformal rollouts, got counts {sorted(counts)}")
     out = np.empty(counts.pop())
     for i in range(out.shape[0]):
-        z = np.stack([shapes[d].normalised(np.asarray(curves.conformal[d][i], dtype=np.float64)) for d in detectors])
+        z = np.stack([_equalised(shapes[d].normalised(np.asarray(curves.conformal[d][i], dtype=np.float64)),
+                                 (equalisers or {}).get(d)) for d in detectors])
         out[i] = np.max(combined(z, votes))
     return out
 
 
+def _equalised(z: np.ndarray, equaliser: Equaliser | None) -> np.ndarray:
+    return z if equaliser is None else equaliser(z)
+
+
+def fit_equalisers(groups: Mapping[str, GroupCurves], detectors: Sequence[str], kinds: Mapping[str, str],
+                   settings: ThresholdSettings, equalise: str, level: float = DEFAULT_LEVEL) -> dict[str, Equaliser]:
+    """Per detector the equaliser ``equalise`` over every group's :func:`fold_maxima` of its shape curves (empty for
+    ``"none"``); the conformal curves are never read. A detector whose maxima cannot be equalised is refused by
+    name."""
+    check_equalisation(equalise, level)
+    if equalise == "none":
+        return {}
+    out = {}
+    for d in detectors:
+        maxima = np.concatenate([fold_maxima(curves.shape[d], max(len(c) for c in curves.shape[d]), kinds[d], settings)
+                                 for curves in groups.values()])
+        try:
+            out[d] = fit_equaliser(equalise, maxima, level)
+        except ThresholdError as error:
+            raise ThresholdError(f"detector {d!r}: {error}") from error
+    return out
+
+
 def fit_joint(groups: Mapping[str, GroupCurves], detectors: Sequence[str], kinds: Mapping[str, str], votes: int,
-              settings: ThresholdSettings) -> JointThreshold:
-    """One conformal factor ``k`` over the ``votes``-th largest normalised score of ``detectors``, pooled over
-    ``groups`` (one group: a single task), and every group's per-detector thresholds (module docstring).
+              settings: ThresholdSettings, equalise: str = "none", level: float = DEFAULT_LEVEL) -> JointThreshold:
+    """One conformal factor ``k`` over the ``votes``-th largest normalised (and with ``equalise`` equalised) score of
+    ``detectors``, pooled over ``groups`` (one group: a single task), and every group's per-detector thresholds
+    (module docstring).
 
     ``kinds[d]`` is detector ``d``'s normalisation (:data:`SHAPE_KINDS`); ``settings`` gives delta, the support
-    rule, the floor, the extension and whether the quantile is conformal.
+    rule, the floor, the extension and whether the quantile is conformal; ``equalise`` and ``level`` the
+    equalisation (:data:`~fiper_ros.core.equalisation.EQUALISATIONS`).
     """
     detectors = tuple(detectors)
     if not detectors:
@@ -161,21 +220,24 @@ def fit_joint(groups: Mapping[str, GroupCurves], detectors: Sequence[str], kinds
     if not groups:
         raise ThresholdError("a joint combination needs the curves of at least one group")
     combined(np.zeros((len(detectors), 1)), votes)  # refuse impossible votes before any work
+    check_equalisation(equalise, level)
     shapes: dict[str, dict[str, Shape]] = {}
-    scores: list[np.ndarray] = []
     for name, curves in groups.items():
         for d in detectors:
             if not curves.shape[d] or not curves.conformal[d]:
                 raise ThresholdError(f"group {name!r}, detector {d!r}: no shape or no conformal curves")
         length = _group_length(curves, detectors)
         shapes[name] = {d: fit_shape(curves.shape[d], length, kinds[d], settings) for d in detectors}
-        scores.append(group_scores(curves, shapes[name], detectors, votes))
+    equalisers = fit_equalisers(groups, detectors, kinds, settings, equalise, level)
+    scores = [group_scores(curves, shapes[name], detectors, votes, equalisers) for name, curves in groups.items()]
     pooled = np.concatenate(scores)
     k = _quantile(pooled, settings.delta, settings.conformal)
-    thresholds = {name: {d: Threshold(kinds[d], settings.delta, shape.values(k), settings.extension,
+    factors = {d: equalisers[d].inverse(k) if d in equalisers else k for d in detectors}
+    extra = {d: {"factor": factors[d], "equaliser": equalisers[d].to_dict()} for d in equalisers}
+    thresholds = {name: {d: Threshold(kinds[d], settings.delta, shape.values(factors[d]), settings.extension,
                                       {"k": float(k), "m": int(pooled.shape[0]), "votes": votes,
-                                       "floor": shape.floor})
+                                       "floor": shape.floor, **extra.get(d, {})})
                          for d, shape in group.items()}
                   for name, group in shapes.items()}
     return JointThreshold(float(k), votes, detectors, shapes, thresholds, pooled,
-                          {name: int(s.shape[0]) for name, s in zip(groups, scores)})
+                          {name: int(s.shape[0]) for name, s in zip(groups, scores)}, equalisers)

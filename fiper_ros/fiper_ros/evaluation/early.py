@@ -57,10 +57,13 @@ class Statistic:
 
 def statistic_of(group: Group, combinations: Mapping[str, tuple[str, ...]]) -> Statistic | None:
     """The statistic of ``group`` (module docstring); ``combinations`` names the detectors of every method swept as
-    a combination (the run's combinations, and every method when thresholds are pooled). ``None``: FIPER with a
-    threshold kind that has no shape."""
+    a combination (the run's combinations, and every method when thresholds are pooled; none: an equalised
+    combination). ``None``: FIPER with a threshold kind that has no shape, or an equalised combination (its maxima of
+    the equalised scores are not computed here)."""
     if group.method in combinations:
         detectors = combinations[group.method]
+        if not detectors:
+            return None
         labels = tuple(CUMULATIVE if info(d).aggregation else group.window for d in detectors)
         kinds: tuple[str | None, ...] = tuple(info(d).shape or group.kind for d in detectors)
         return Statistic(detectors, labels, kinds, Combine.parse(group.combine or CombineMode.MAX).votes(len(detectors)))

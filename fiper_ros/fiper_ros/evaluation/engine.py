@@ -117,9 +117,10 @@ class EngineSettings:
         return {**METHODS, **{m: method_of(m) for m in self.methods}, **{c.name: c.method() for c in self.combinations}}
 
     def combined_detectors(self) -> dict[str, tuple[str, ...]]:
-        """The detectors of every method swept as a combination: the combinations, and every method when pooled."""
+        """The detectors of every method swept as a combination: the combinations, and every method when pooled; none
+        for an equalised combination (its threshold-free statistic is not computed, :func:`~.early.statistic_of`)."""
         pooled = pooled_methods(self.methods) if self.pooled else ()
-        return {c.name: c.detectors for c in (*pooled, *self.combinations)}
+        return {c.name: c.detectors if c.equalise == "none" else () for c in (*pooled, *self.combinations)}
 
     def streams(self) -> list[str]:
         """Every stream the methods and combinations read."""

@@ -16,7 +16,12 @@ every test rollout, exactly as a calibration of that configuration would decide:
   quantile of the task's scores, or of every task's scores pooled; ``and`` / ``or``: each detector its own ``k``
   over its own scores (one vote each), AND needing all votes, OR one;
 - detector ``d``'s threshold is ``shape.values(k)`` extended with :meth:`~fiper_ros.core.thresholds.Threshold.over`,
-  and a step alarms when at least the combine's votes of ``eta_d > gamma_d`` hold (the core's strict comparison).
+  and a step alarms when at least the combine's votes of ``eta_d > gamma_d`` hold (the core's strict comparison);
+- an equalised combination (:attr:`Combination.equalise`, joint combines only) maps each detector's normalised
+  scores by its equaliser (:func:`~fiper_ros.core.equalisation.fit_equaliser` of the fit part's
+  :func:`~fiper_ros.core.combination.fold_maxima`, over every task's when pooled) before the ``votes``-th largest,
+  and detector ``d``'s threshold is ``shape.values(T_d^{-1}(k))``, as :func:`~fiper_ros.core.combination.fit_joint`
+  fits them.
 
 A ``k`` that is ``+inf`` (too few conformal rollouts for delta) is recorded, as in the per-task sweep. On request
 (``thresholds``) every configuration's per-detector thresholds are kept, as the per-task sweep keeps them.
@@ -29,9 +34,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fiper_ros.core.combination import SHAPE_KINDS, Shape, fit_shape
+from fiper_ros.core.combination import SHAPE_KINDS, Shape, fit_shape, fold_maxima
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
+from fiper_ros.core.equalisation import Equaliser, fit_equaliser
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.thresholds import Threshold, ThresholdSettings, _quantile
 from fiper_ros.evaluation.cache import StreamScores
@@ -43,11 +49,13 @@ JOINT_COMBINE_DEFAULTS = ("max", "kth:2", "and", "or")
 
 
 def _combines(combination: Combination, wanted: Sequence[str]) -> list[Combine]:
-    """The combines of ``wanted`` a combination takes (one detector: its own threshold, the ``max`` of one)."""
+    """The combines of ``wanted`` a combination takes (one detector: its own threshold, the ``max`` of one; an
+    equalised combination: the joint ones)."""
     if len(combination.detectors) == 1:
         return [Combine(CombineMode.MAX)]
     combines = [Combine.parse(text) for text in wanted]
-    return [c for c in combines if c.mode is not CombineMode.KTH or c.k <= len(combination.detectors)]
+    return [c for c in combines if (c.mode is not CombineMode.KTH or c.k <= len(combination.detectors))
+            and (c.joint or combination.equalise == "none")]
 
 
 def _kinds(combination: Combination, wanted: Sequence[str]) -> list[str]:
@@ -131,6 +139,7 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
     out: dict[str, dict[str, list]] = {t: {part: [] for part in parts} for t in tasks}
     for position, label in enumerate(settings.labels()):
         current = {key: next(generator)[1] for key, generator in generators.items()}
+        maxima: dict[tuple, np.ndarray] = {}  # fold maxima, shared by the combinations of this label
         for combination in combinations:
             windowed = any(d in swept for d in combination.detectors)
             if not windowed and position > 0:
@@ -139,15 +148,39 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
                       for t in tasks}
             for kind in _kinds(combination, kinds):
                 _configurations(combination, label if windowed else CUMULATIVE, kind, chosen, settings.deltas, bases,
-                                pooled, _combines(combination, combines), out)
+                                pooled, _combines(combination, combines), out, maxima)
     return {t: TaskSweep(own["groups"], np.stack(own["alarms"]), np.stack(own["infinite"]),
                          np.array(own["conformal"], dtype=int), own.get("thresholds")) for t, own in out.items()}
 
 
+def _equalisers(combination: Combination, kinds: Mapping[str, str], chosen: Mapping[str, Mapping[str, _Curves]],
+                bases: Mapping[str, ThresholdSettings], delta: float, pooled: bool,
+                maxima: dict[tuple, np.ndarray]) -> dict[tuple[str, str], Equaliser]:
+    """Per (task, detector) the equaliser of an equalised combination, over the task's fit-part fold maxima or, pooled,
+    every task's (``maxima`` caches them: a band's do not depend on delta)."""
+    tasks = list(chosen)
+    out = {}
+    for pool in [tasks] if pooled else [[t] for t in tasks]:
+        for d in combination.detectors:
+            parts = []
+            for t in pool:
+                key = (t, d, kinds[d], None if kinds[d] == "cp_band" else delta)
+                if key not in maxima:
+                    fit = chosen[t][d].fit
+                    maxima[key] = fold_maxima(fit, max(c.shape[0] for c in fit), kinds[d],
+                                              replace(bases[t], delta=delta))
+                parts.append(maxima[key])
+            equaliser = fit_equaliser(combination.equalise, np.concatenate(parts), combination.level)
+            out.update({(t, d): equaliser for t in pool})
+    return out
+
+
 def _configurations(combination: Combination, label: str, kind: str, chosen: Mapping[str, Mapping[str, _Curves]],
                     deltas: Sequence[float], bases: Mapping[str, ThresholdSettings], pooled: bool,
-                    combines: Sequence[Combine], out: dict[str, dict[str, list]]) -> None:
-    """Append every combine's group of one (combination, label, kind) to ``out``, per task."""
+                    combines: Sequence[Combine], out: dict[str, dict[str, list]], maxima: dict[tuple, np.ndarray]
+                    ) -> None:
+    """Append every combine's group of one (combination, label, kind) to ``out``, per task (``maxima``: the fold
+    maxima of the label, cached)."""
     tasks = list(chosen)
     detectors = combination.detectors
     kinds = {d: info(d).shape or kind for d in detectors}
@@ -161,7 +194,11 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
         shapes = {t: {d: band.get((t, d)) or fit_shape(chosen[t][d].fit, _length(chosen[t]), kinds[d],
                                                       replace(bases[t], delta=delta))
                       for d in detectors} for t in tasks}
-        z = {t: np.stack([_normalised(chosen[t][d], shapes[t][d]) for d in detectors]) for t in tasks}
+        equalisers = {} if combination.equalise == "none" else \
+            _equalisers(combination, kinds, chosen, bases, delta, pooled, maxima)
+        z = {t: np.stack([_normalised(chosen[t][d], shapes[t][d]) if (t, d) not in equalisers
+                          else equalisers[(t, d)](_normalised(chosen[t][d], shapes[t][d])) for d in detectors])
+             for t in tasks}
         for combine in combines:
             votes = combine.votes(len(detectors))
             # joint: one k over the votes-th largest; and / or: one k per detector over its own scores
@@ -175,6 +212,8 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
                     behind[(t, str(combine))] = int(own.shape[0])
             for t in tasks:
                 per_detector = ks[t] * len(detectors) if combine.joint else ks[t]
+                if equalisers:
+                    per_detector = [equalisers[(t, d)].inverse(k) for d, k in zip(detectors, per_detector)]
                 test_length = chosen[t][detectors[0]].test.shape[1]
                 gammas = [Threshold(kinds[d], delta, shapes[t][d].values(k), bases[t].extension).over(test_length)
                           for d, k in zip(detectors, per_detector)]

@@ -31,6 +31,7 @@ from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import ACE, CONSISTENCY, EXTERNAL_PREFIX, PROGRESS, RND_OE, info, signal_stream
+from fiper_ros.core.equalisation import DEFAULT_LEVEL, check_equalisation
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
@@ -217,12 +218,23 @@ class Combination:
     detectors: tuple[str, ...]
     label: str = ""
     """Its name for people (default: the name)."""
+    equalise: str = "none"
+    """How its joint combines equalise the detectors' tails (:mod:`fiper_ros.core.equalisation`; not ``"none"``:
+    swept with the joint combines only)."""
+    level: float = DEFAULT_LEVEL
+    """The quantile level of ``equalise="quantile"``."""
 
     def __post_init__(self) -> None:
         if not self.detectors or len(set(self.detectors)) != len(self.detectors):
             raise ValueError(f"combination {self.name!r}: distinct detectors needed, got {self.detectors}")
         for detector in self.detectors:
             info(detector)
+        check_equalisation(self.equalise, self.level)
+
+    def equalised(self, equalise: str, level: float = DEFAULT_LEVEL) -> Combination:
+        """The same detectors with their tails equalised by ``equalise``, named ``<name>_<equalise>``."""
+        return Combination(f"{self.name}_{equalise}", self.detectors, f"{self.label or self.name} ({equalise})",
+                           equalise, level)
 
     def method(self) -> Method:
         """The combination as a table column."""

@@ -18,8 +18,8 @@ successful rollouts serve (``D_c`` of Sec. 4.3). Which of them fits what is the 
   own training rollouts are lower than those of new successes, so the thresholds come out too low.
 
 Thresholds: with ``and`` / ``or`` each detector its own (:func:`fiper_ros.core.thresholds.fit_threshold`); with a
-joint combine (``max``, ``kth:K``) one conformal factor over the detectors normalised by their shapes
-(:func:`fiper_ros.core.combination.fit_joint`); ``pooled``: that factor (or each detector's) over every task's
+joint combine (``max``, ``kth:K``) one conformal factor over the detectors normalised by their shapes (and with
+``equalise`` equalised on the fit part's curves; :func:`fiper_ros.core.combination.fit_joint`); ``pooled``: that factor (or each detector's) over every task's
 conformal rollouts.
 """
 
@@ -43,7 +43,7 @@ from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rnd_oe import ProgressCallback
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.scorers import FitContext, Scorer, fit_scorer
-from fiper_ros.core.thresholds import Threshold, _split, fit_threshold, minimum_conformal_set
+from fiper_ros.core.thresholds import Threshold, ThresholdError, _split, fit_threshold, minimum_conformal_set
 from fiper_ros.core.window import aggregate
 
 LOG = logging.getLogger(__name__)
@@ -216,10 +216,17 @@ def fit_thresholds(conformal: Mapping[str, Curves], shape: Mapping[str, Curves |
     votes = settings.votes if combine.joint else 1
     pools = [groups] if settings.pooled else [{name: group} for name, group in groups.items()]
     summary: dict[str, Any] = {"votes": votes} if combine.joint else {}
+    if settings.equalise != "none":
+        summary["equalise"] = settings.equalise
     for pool in pools:
         for chosen in members:
-            joint = fit_joint({name: GroupCurves({d: g.shape[d] for d in chosen}, {d: g.conformal[d] for d in chosen})
-                               for name, g in pool.items()}, chosen, kinds, votes, settings.threshold_settings())
+            try:
+                joint = fit_joint({name: GroupCurves({d: g.shape[d] for d in chosen},
+                                                     {d: g.conformal[d] for d in chosen})
+                                   for name, g in pool.items()}, chosen, kinds, votes, settings.threshold_settings(),
+                                  settings.equalise, settings.equalise_level)
+            except ThresholdError as error:  # e.g. a detector whose maxima cannot be equalised: one line, by name
+                raise CalibrationError(str(error)) from error
             for name in pool:
                 out[name].update(joint.thresholds[name])
             if combine.joint and settings.pooled:

@@ -14,6 +14,7 @@ from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
                                       in_fusion_order, info)
+from fiper_ros.core.equalisation import DEFAULT_LEVEL, check_equalisation
 from fiper_ros.core.errors import CoreError
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.logpzo import LogpZOConfig
@@ -76,6 +77,10 @@ class CalibrationSettings:
             K >= 2 on cross-fitted ones (each of K folds of the fit part scored by models fitted on the others).
         pooled: With rollouts of several tasks: one conformal factor over every task's conformal rollouts (each task
             normalised by its own shapes: kinds with a shape only), else per-task thresholds.
+        equalise: With a joint combine: ``"none"`` (each detector's shape only), ``"quantile"`` or ``"tail"``: each
+            detector's normalised score mapped by an equaliser fitted on the fit part's out-of-fold maxima
+            (:mod:`fiper_ros.core.equalisation`).
+        equalise_level: With ``"quantile"``: the quantile of the maxima mapped to 1 (otherwise the default).
     """
 
     detectors: tuple[str, ...] = DETECTORS
@@ -104,11 +109,16 @@ class CalibrationSettings:
     folds: int = 5
     shape_folds: int = 0
     pooled: bool = False
+    equalise: str = "none"
+    equalise_level: float = DEFAULT_LEVEL
 
     def __post_init__(self) -> None:
         try:
             object.__setattr__(self, "detectors", _ordered(tuple(self.detectors)))
             self._canonical_windows()
+            check_equalisation(self.equalise, self.equalise_level)
+            if self.equalise != "quantile":  # one form per meaning: the level serves the quantile map only
+                object.__setattr__(self, "equalise_level", DEFAULT_LEVEL)
             self._check()
         except CalibrationError:
             raise
@@ -145,6 +155,9 @@ class CalibrationSettings:
             why = "a joint combine" if combine.joint else "pooled thresholds"
             raise CalibrationError(f"{why} normalises each detector by its shape: threshold {' or '.join(SHAPE_KINDS)}, "
                                    f"not {self.threshold}")
+        if self.equalise != "none" and not combine.joint:
+            raise CalibrationError(f"equalise {self.equalise} applies to a joint combine (max, kth:K), not "
+                                   f"{self.combine}")
         unknown = sorted(set(self.windows) - set(self.detectors))
         if unknown:
             raise CalibrationError(f"windows of undeclared detectors: {', '.join(unknown)} (detectors "
@@ -223,7 +236,7 @@ class CalibrationSettings:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form for YAML: a detector's options only when it is declared, the split's own settings only
-        where they apply, ``windows`` and ``pooled`` only when set."""
+        where they apply, ``windows``, ``pooled`` and the equalisation only when set."""
         data = asdict(self)
         for name, kind in _NESTED.items():
             value = getattr(self, name)
@@ -237,6 +250,8 @@ class CalibrationSettings:
         unused += ("windows",) if not self.windows else ()
         unused += ("pooled",) if not self.pooled else ()
         unused += ("shape_folds",) if not self.shape_folds else ()
+        unused += ("equalise",) if self.equalise == "none" else ()
+        unused += ("equalise_level",) if self.equalise != "quantile" else ()
         return {k: v for k, v in data.items() if k not in unused}
 
     @classmethod
