@@ -152,9 +152,10 @@ class TaskPool(Generic[K]):
         self._calls.pop(key, None)
 
     def close(self) -> None:
-        """Cancel every task not finished (their workers are stopped)."""
-        for ref in self._refs.values():
-            self._ray.cancel(ref, force=True)
+        """Forget every task not finished: they end with the driver's job when :func:`connected` leaves the cluster
+        (a local instance stops, a cluster ends the job's tasks). Not ``ray.cancel(force=True)``: a task that
+        completed while it was being cancelled made Ray 2.60's driver abort ("Tried to complete task that was not
+        pending", task_manager.cc, exit 1) when a collect was interrupted (docs/scale.md)."""
         self._refs.clear()
         self._ready.clear()
         self._calls.clear()
