@@ -139,6 +139,14 @@ def check_pair_format(names: Iterable[str]) -> tuple[str, ...]:
     return ordered
 
 
+def check_declared(name: str) -> str:
+    """``name`` if a calibration can declare it; ``ValueError`` naming the detectors that can."""
+    if name in CALIBRATED or info(name).reads == "signal":
+        return name
+    raise ValueError(f"detector {name!r} cannot be calibrated (an evaluation baseline); declare some of "
+                     f"{', '.join(CALIBRATED)} or signal_<name>")
+
+
 def judged_by(detectors: Iterable[str], combine: str) -> str:
     """Which detectors judge and how their decisions combine, for people: ``"RND-OE and ACE"`` (FIPER's pair under
     ``and``, eq. 7), ``"RND-OE alone (observation-only: no ACE)"``, ``"RND-OE and ACE (max)"`` or ``"RND-OE, progress

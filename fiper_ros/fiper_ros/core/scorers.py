@@ -27,8 +27,8 @@ import numpy as np
 
 from fiper_ros.core.ace import action_ranges, cell_size
 from fiper_ros.core.consistency import ActionConsistency, ConsistencySettings
-from fiper_ros.core.detectors import (ACE, CALIBRATED, CONSISTENCY, ELAPSED, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE,
-                                      SIGNAL_PREFIX, info)
+from fiper_ros.core.detectors import (ACE, CONSISTENCY, ELAPSED, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, SIGNAL_PREFIX,
+                                      check_declared, info)
 from fiper_ros.core.errors import CoreError
 from fiper_ros.core.kinematics import ActionProjection, ForwardKinematics
 from fiper_ros.core.logpzo import LogpZO, LogpZOConfig
@@ -306,14 +306,6 @@ class SignalScorer(_Stateless):
 
     def score_one(self, step: int, value: float) -> float:
         return float(finite(np.float64(abs(float(value))), f"signal {self.signal}"))
-
-
-def check_declared(name: str) -> str:
-    """``name`` if a calibration can declare it; ``ValueError`` naming the detectors that can."""
-    if name in CALIBRATED or info(name).reads == "signal":
-        return name
-    raise ValueError(f"detector {name!r} cannot be calibrated (an evaluation baseline); declare some of "
-                     f"{', '.join(CALIBRATED)} or signal_<name>")
 
 
 def fit_scorer(name: str, successes: Sequence[Rollout], context: FitContext) -> Scorer:

@@ -23,10 +23,10 @@ import numpy as np
 from fiper_ros.core.auto import AutoChoice, AutoSettings, TaskScores, choose
 from fiper_ros.core.calibration.auto import auto_scores, auto_split_settings, chosen_settings
 from fiper_ros.core.calibration.fit import fit_thresholds, split_successes
-from fiper_ros.core.detectors import ACE, info
+from fiper_ros.core.detectors import ACE, CALIBRATED, info
 from fiper_ros.core.fusion import exceeds, fuse_votes
 from fiper_ros.core.profiles import get_profile
-from fiper_ros.core.scorers import CALIBRATED, FitContext
+from fiper_ros.core.scorers import FitContext
 from fiper_ros.core.window import aggregate
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.data import Dataset

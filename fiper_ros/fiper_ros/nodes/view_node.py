@@ -33,7 +33,7 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
-from fiper_ros.core.detectors import CALIBRATED, info
+from fiper_ros.core.detectors import CALIBRATED, check_declared
 from fiper_ros.interface import qos
 from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_TOPICS, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, relative,
                                         score_topic)
@@ -101,12 +101,10 @@ class ViewNode(Node):
         names = [str(name) for name in self.get_parameter("detectors").value]
         for name in names:
             try:
-                scored = name in CALIBRATED or info(name).reads == "signal"
+                check_declared(name)
             except ValueError:
-                scored = False
-            if not scored:
                 raise ViewError(f"parameter detectors: {name!r} is not a detector a suite scores ("
-                                 f"{', '.join(CALIBRATED)} or signal_<name>)")
+                                f"{', '.join(CALIBRATED)} or signal_<name>)") from None
         return names
 
     def _serve(self) -> None:

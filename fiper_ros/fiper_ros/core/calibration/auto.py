@@ -21,11 +21,12 @@ from fiper_ros.core.auto import (AutoChoice, AutoError, AutoSettings, EmbeddingS
 from fiper_ros.core.calibration.fit import calibrate, split_successes
 from fiper_ros.core.calibration.model import Calibration
 from fiper_ros.core.calibration.settings import CalibrationSettings
-from fiper_ros.core.detectors import ACE, CONSISTENCY, ELAPSED, PROGRESS, RND_OE, info, signal_stream
+from fiper_ros.core.detectors import (ACE, CONSISTENCY, ELAPSED, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, info,
+                                      signal_stream)
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rnd_oe import ProgressCallback
 from fiper_ros.core.rollout import Rollout
-from fiper_ros.core.scorers import LOGPZO, PCA_KMEANS, FitContext, fit_scorer
+from fiper_ros.core.scorers import FitContext, fit_scorer
 
 #: Called with a short note as the fold models are fitted (progress of a long run).
 Note = Callable[[str], None]

@@ -12,8 +12,8 @@ from fiper_ros.core.calibration_file import CalibrationError
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.consistency import ConsistencySettings
-from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_once,
-                                      in_fusion_order, info)
+from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_declared,
+                                      check_once, in_fusion_order, info)
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, check_equalisation
 from fiper_ros.core.errors import CoreError
 from fiper_ros.core.fusion import Combine
@@ -22,7 +22,7 @@ from fiper_ros.core.pca_kmeans import PCAKMeansConfig
 from fiper_ros.core.profiles import Profile, get_profile
 from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
-from fiper_ros.core.scorers import DetectorOptions, check_declared
+from fiper_ros.core.scorers import DetectorOptions
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.core.window import MODES
 
