@@ -13,8 +13,8 @@ which the driver raises as the single-process run would; any other failure is on
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Sequence
-from typing import Any, TypeVar
+from collections.abc import Sequence
+from typing import Any, Protocol, TypeVar
 
 from fiper_ros.cluster import LOCAL, TaskPool, connected
 from fiper_ros.evaluation.cache import RolloutScores, ScoreCache, StreamScores
@@ -27,6 +27,20 @@ from fiper_ros.evaluation.scoring import score_stream, separated_streams, stream
 Key = tuple[str, int, str]
 #: What one seed's sweep gives.
 Swept = TypeVar("Swept")
+#: The settings one seed's sweep reads (the engine's): only carried, to the object store and into the sweep.
+Settings = TypeVar("Settings")
+#: :data:`Settings` and :data:`Swept` as :class:`SeedSweep` takes and gives them (a parameter, a result).
+SettingsTaken = TypeVar("SettingsTaken", contravariant=True)
+SweptGiven = TypeVar("SweptGiven", covariant=True)
+
+
+class SeedSweep(Protocol[SettingsTaken, SweptGiven]):
+    """The single-process run's sweep of one seed (:func:`~fiper_ros.evaluation.engine.sweep_seed`), as
+    :func:`sweep_on_ray` runs it: what a seed's sweep takes is all this module knows of the engine's settings."""
+
+    def __call__(self, datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+                 settings: SettingsTaken, seed: int, thresholds: bool) -> SweptGiven:
+        """Every configuration of ``seed`` (with their thresholds if ``thresholds``)."""
 
 
 def stream_task(shared: list[Any], stream: str, seed: int, threads: int) -> tuple[RolloutScores, float] | DatasetError:
@@ -119,7 +133,7 @@ def _compute(datasets: Sequence[Dataset], settings: MethodSettings, seeds: Seque
     return computing
 
 
-def seed_task(sweep: Callable[..., Swept], shared: list[Any], seed: int, thresholds: bool) -> Swept:
+def seed_task(sweep: SeedSweep[Settings, Swept], shared: list[Any], seed: int, thresholds: bool) -> Swept:
     """``sweep`` (the single-process run's sweep of one seed) on a Ray worker; ``shared``: the references of the
     datasets, of the seed's scores and of the engine settings in the object store."""
     import ray  # noqa: PLC0415 - the worker of a Ray task has it
@@ -128,8 +142,8 @@ def seed_task(sweep: Callable[..., Swept], shared: list[Any], seed: int, thresho
     return sweep(datasets, scores, settings, seed, thresholds)
 
 
-def sweep_on_ray(sweep: Callable[..., Swept], datasets: Sequence[Dataset],
-                 scores: dict[tuple[str, int], dict[str, StreamScores]], settings: Any, seeds: Sequence[int],
+def sweep_on_ray(sweep: SeedSweep[Settings, Swept], datasets: Sequence[Dataset],
+                 scores: dict[tuple[str, int], dict[str, StreamScores]], settings: Settings, seeds: Sequence[int],
                  thresholds: bool, progress: Progress) -> dict[int, Swept]:
     """``sweep(datasets, scores, settings, seed, thresholds)`` of every seed as one Ray task each, on the cluster
     joined (inside :func:`~fiper_ros.cluster.connected`): the datasets and the settings go to the object store once,
