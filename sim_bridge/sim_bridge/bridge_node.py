@@ -39,7 +39,7 @@ from fiper_ros.runtime.validation import INTERNAL, InputRejected
 
 from .bridge_session import FAILURE, JOINT_NAMES, PROPRIO_NAMES, SUCCESS, BridgeSession, Ended, Rollout
 from .render import CAMERAS
-from .scenarios import get_scenario
+from .scenarios import ScenarioError, get_scenario
 
 #: Simulated time of the first /clock message: ROS tools read a zero stamp as "unset".
 SIM_EPOCH_NS = 1_000_000_000
@@ -150,8 +150,8 @@ class BridgeNode(FiperNode):
         task = request.task or (self.session.rollout.task if self.session.rollout else self.get_parameter("task").value)
         try:
             rollout = self._start(task, request.scenario or "id", request.seed)
-        except KeyError as error:
-            response.message = str(error.args[0])
+        except ScenarioError as error:
+            response.message = str(error)
             self.get_logger().warning(f"reset refused: {response.message}")
             return response
         response.success = True

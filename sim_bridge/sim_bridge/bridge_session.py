@@ -104,9 +104,9 @@ class BridgeSession:
             The new rollout and how the previous one ended (``aborted``), if one was running.
 
         Raises:
-            KeyError: Unknown task or scenario (the running rollout, if any, keeps running).
+            ScenarioError: Unknown task or scenario (the running rollout, if any, keeps running).
         """
-        get_scenario(task, scenario)  # a KeyError naming the known tasks / scenarios
+        get_scenario(task, scenario)  # a ScenarioError naming the known tasks / scenarios
         env = make_env(task, scenario, seed, images=False)
         aborted = self.end("aborted")
         self.close()

@@ -17,6 +17,8 @@ from typing import Literal
 
 import numpy as np
 
+from fiper_ros.errors import FiperError
+
 from .scene import SceneParams
 
 Kind = Literal["id", "benign", "harmful"]
@@ -103,12 +105,16 @@ SCENARIOS: dict[str, dict[str, Scenario]] = {
 """Task -> scenario name -> Scenario."""
 
 
+class ScenarioError(FiperError):
+    """A task or scenario the simulator does not have (a flag, a node parameter or a reset request names it)."""
+
+
 def get_scenario(task: str, name: str) -> Scenario:
-    """Look up a scenario; raises ``KeyError`` with the valid names if unknown."""
+    """Look up a scenario; :class:`ScenarioError` naming the valid names if unknown."""
     if task not in SCENARIOS:
-        raise KeyError(f"unknown task {task!r}; tasks: {sorted(SCENARIOS)}")
+        raise ScenarioError(f"unknown task {task!r}; tasks: {sorted(SCENARIOS)}")
     if name not in SCENARIOS[task]:
-        raise KeyError(f"unknown scenario {name!r} for {task}; scenarios: {sorted(SCENARIOS[task])}")
+        raise ScenarioError(f"unknown scenario {name!r} for {task}; scenarios: {sorted(SCENARIOS[task])}")
     return SCENARIOS[task][name]
 
 

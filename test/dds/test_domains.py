@@ -5,7 +5,11 @@ from __future__ import annotations
 import os
 import subprocess
 
-from fiper_ros.platform.dds import DOMAIN_RANGE, allocate_domain, domains_in_use
+import pytest
+
+from fiper_ros.errors import FiperError
+from fiper_ros.platform import dds
+from fiper_ros.platform.dds import DOMAIN_RANGE, DomainsExhausted, allocate_domain, domains_in_use
 
 
 def test_a_domain_a_live_process_uses_is_never_allocated() -> None:
@@ -22,3 +26,13 @@ def test_a_domain_a_live_process_uses_is_never_allocated() -> None:
         for sleeper in sleepers:
             sleeper.kill()
             sleeper.wait()
+
+
+def test_no_free_domain_is_a_user_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every domain taken (here: reported in use) is the user's to fix, one line (before: a RuntimeError, shown by
+    ``fiper demo`` / ``replay`` as a traceback)."""
+    monkeypatch.setattr(dds, "domains_in_use", lambda: set(DOMAIN_RANGE))
+    with pytest.raises(DomainsExhausted, match=r"^no free ROS_DOMAIN_ID in 1\.\.101: each is the shell's") as refused, \
+            allocate_domain():
+        pass
+    assert isinstance(refused.value, FiperError) and not isinstance(refused.value, RuntimeError)

@@ -149,3 +149,16 @@ def test_a_policy_folder_that_is_not_one_is_a_user_error(tmp_path: Path,
     assert cli.main(["collect", "--task", "sorting", "--episodes", "1", "--model", str(folder),
                      "--out", str(folder / "out")]) == 2
     assert capsys.readouterr().err.startswith(f"fiper collect: {folder}: cannot load the policy (")
+
+
+def test_a_policy_yaml_without_a_configuration_is_a_policy_error(tmp_path: Path) -> None:
+    """``PolicyConfig.read`` (``fiper demo``'s check of its model, ``fiper security``'s shipped models) refused with
+    a ValueError, which the demo relabelled a BagError; now the policy's own error, naming the file."""
+    from fiper_ros.policy import PolicyError
+    from fiper_ros.policy.config import PolicyConfig
+
+    path = tmp_path / "policy.yaml"
+    for text in ("config: [", "weights: {}", "config: {heads: 3}"):
+        path.write_text(text)
+        with pytest.raises(PolicyError, match=f"^{path}: not a policy configuration \\("):
+            PolicyConfig.read(path)

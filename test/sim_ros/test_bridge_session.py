@@ -13,6 +13,7 @@ from rclpy.parameter import Parameter
 from fiper_msgs.msg import ActionCommand
 from fiper_ros.runtime.validation import InputRejected
 from sim_bridge.bridge_session import ACTION_SPACES, JOINT_NAMES, PROPRIO_NAMES, BridgeSession, bridge_rollout_id
+from sim_bridge.scenarios import ScenarioError
 from sim_bridge.tasks import TASKS
 
 
@@ -89,10 +90,10 @@ def test_a_command_asks_for_the_observations_of_its_last_control_steps(session: 
 def test_outcomes(session: BridgeSession) -> None:
     rollout, _ = session.start("sorting", "id", 2)
     assert session.end("nothing") is not None and session.end("twice") is None
-    with pytest.raises(KeyError):
+    with pytest.raises(ScenarioError, match=r"^unknown scenario 'no_such_scenario' for sorting; scenarios: \["):
         session.start("sorting", "no_such_scenario", 0)
     rollout, _ = session.start("sorting", "id", 2)
-    with pytest.raises(KeyError):
+    with pytest.raises(ScenarioError, match=r"^unknown task 'no_such_task'; tasks: \["):
         session.start("no_such_task", "id", 0)
     assert session.rollout is rollout  # a refused reset keeps the rollout running
     tcp = session.observation()["proprio"][:2]

@@ -39,7 +39,7 @@ from helpers.policy_fixtures import random_observation, tiny_policy
 from sim_bridge.bridge_node import BridgeNode
 from sim_bridge.bridge_session import ACTION_SPACES, BridgeSession
 from sim_bridge.env import make_env
-from sim_bridge.scenarios import get_scenario
+from sim_bridge.scenarios import ScenarioError, get_scenario
 
 #: The valid rollout after each example: an id the fuzz never uses, stamped after every stamp it uses (a tick of
 #: the fuzz still waiting for its START is not acted on in the valid rollout).
@@ -259,7 +259,7 @@ def known_scenario(task: str, scenario: str) -> bool:
     """Whether the simulation has this task and scenario."""
     try:
         get_scenario(task, scenario)
-    except KeyError:
+    except ScenarioError:
         return False
     return True
 

@@ -28,7 +28,6 @@ from pathlib import Path
 
 from fiper_msgs.msg import FailureAlarm
 from fiper_ros.bagio.atomic import remove
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.client.driver import SETTLE_S, AlarmDisplay, SimSuiteDriver, SuiteFailed, alarm_line
 from fiper_ros.client.figure import plot_trace
 from fiper_ros.client.record import Recorder
@@ -146,15 +145,13 @@ def plain_nodes(config: LaunchConfig) -> list[str]:
 
 
 def check_calibration(model: Path, calibration: Path) -> None:
-    """Refuse (:class:`BagError`, one line naming the file) a calibration that does not load or does not fit
-    the model's policy, instead of scoring nodes that never configure. Imported here: it needs torch."""
+    """Refuse in one line naming the file a model whose ``policy.yaml`` holds no configuration (:class:`PolicyError`)
+    and a calibration that does not load or does not fit the model's policy (:class:`EvaluationError`), instead of
+    scoring nodes that never configure. Imported here: it needs torch."""
     from fiper_ros.evaluation.offline import calibration_for, policy_layout  # noqa: PLC0415
     from fiper_ros.policy.config import PolicyConfig  # noqa: PLC0415
 
-    try:
-        config = PolicyConfig.read(model / "policy.yaml")
-    except ValueError as error:
-        raise BagError(str(error)) from error
+    config = PolicyConfig.read(model / "policy.yaml")
     calibration_for(calibration, [policy_layout(config, model)])
 
 

@@ -20,6 +20,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
+from fiper_ros.errors import FiperError
+
 LOCK_DIR = Path(os.environ.get("FIPER_DOMAIN_LOCK_DIR", "/tmp/fiper-ros-domains"))
 #: Domain ids that are safe on Linux with the default RTPS port mapping.
 DOMAIN_RANGE = range(1, 102)
@@ -31,6 +33,10 @@ INTERRUPTIBLE_WAIT_S = 2.0
 #: A node process prints every thread's Python stack on this signal and runs on (``faulthandler``); ``fiper launch``
 #: sends it to a node that did not stop within its grace period, before killing it.
 STACKS_SIGNAL = signal.SIGUSR1
+
+
+class DomainsExhausted(FiperError):
+    """Every ROS_DOMAIN_ID of :data:`DOMAIN_RANGE` is taken: by the shell, a live process or another run's lock."""
 
 
 def domains_in_use(proc: Path = Path("/proc")) -> set[int]:
@@ -55,7 +61,7 @@ def domains_in_use(proc: Path = Path("/proc")) -> set[int]:
 @contextmanager
 def allocate_domain() -> Iterator[int]:
     """Hold an unused ROS_DOMAIN_ID (not the shell's own, none a live process uses) for the duration of
-    the ``with`` block."""
+    the ``with`` block; :class:`DomainsExhausted` if none is free."""
     LOCK_DIR.mkdir(parents=True, exist_ok=True)
     own = os.environ.get("ROS_DOMAIN_ID", "")
     busy = domains_in_use()
@@ -74,7 +80,8 @@ def allocate_domain() -> Iterator[int]:
             fcntl.flock(handle, fcntl.LOCK_UN)
             handle.close()
         return
-    raise RuntimeError(f"no free ROS_DOMAIN_ID in {DOMAIN_RANGE.start}..{DOMAIN_RANGE.stop - 1}")
+    raise DomainsExhausted(f"no free ROS_DOMAIN_ID in {DOMAIN_RANGE.start}..{DOMAIN_RANGE.stop - 1}: each is the "
+                           "shell's, used by a live process or held by another run (end those runs first)")
 
 
 def local_env(domain: int, base: dict[str, str] | None = None) -> dict[str, str]:

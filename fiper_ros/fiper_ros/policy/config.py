@@ -7,6 +7,8 @@ from typing import Any
 
 import yaml
 
+from fiper_ros.policy.errors import PolicyError
+
 
 @dataclass(frozen=True)
 class PolicyConfig:
@@ -65,11 +67,11 @@ class PolicyConfig:
     @classmethod
     def read(cls, path: Path) -> PolicyConfig:
         """The ``config`` entry of a model's ``policy.yaml`` (without loading the network); a file that
-        does not hold one raises ``ValueError`` naming it."""
+        does not hold one raises :class:`PolicyError` naming it."""
         try:
             return cls.from_dict(yaml.safe_load(Path(path).read_text())["config"])
         except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as error:
-            raise ValueError(f"{path}: not a policy configuration ({type(error).__name__}: {error})") from error
+            raise PolicyError(f"{path}: not a policy configuration ({type(error).__name__}: {error})") from error
 
     def with_overrides(self, **changes: Any) -> PolicyConfig:
         """A copy with some fields changed."""
