@@ -6,9 +6,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from fiper_ros.bagio.rollout_bags import read_rollouts
+from fiper_ros.commands import samples
+from fiper_ros.core.calibration import CalibrationError
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -29,3 +32,16 @@ def test_the_pushchair_set_regenerates_the_shipped_rollouts(tmp_path: Path) -> N
     calibration = yaml.safe_load((made / "calibration" / "calibration.yaml").read_text())
     assert calibration["settings"].get("split", "same") == "same"
     assert "not covered by Proposition 1" in calibration["guarantee"]
+
+
+def test_a_calibration_the_core_refuses_is_one_line(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """A set whose calibration the core refuses (a CalibrationError, no longer relabelled a BagError by
+    ``calibrate_bags``) is reported in one line, exit 2, as any user error of the sets."""
+    def refused(*args: object, **kwargs: object) -> None:
+        raise CalibrationError("a threshold is +inf:\n  too few conformal rollouts")
+
+    monkeypatch.setattr(samples, "calibrate_bags", refused)
+    assert samples.main(["--sets", "pushchair", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err == "fiper samples: a threshold is +inf: too few conformal rollouts\n"
+    assert not (tmp_path / "pushchair_synthetic").exists()

@@ -16,6 +16,7 @@ from fiper_ros.core.metrics import evaluate
 from fiper_ros.core.monitor import predict_rollout
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import EngineSettings, run_evaluation
+from fiper_ros.evaluation.errors import SettingsError
 from fiper_ros.evaluation.methods import MethodSettings
 from fiper_ros.evaluation.protocol import METRICS
 from fiper_ros.evaluation.sweep import SweepSettings
@@ -62,5 +63,5 @@ def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
 
 
 def test_evaluate_auto_needs_a_split_conformal_calibration(tiny_settings: MethodSettings) -> None:
-    with pytest.raises(ValueError, match=r"--auto chooses on the fit part"):
+    with pytest.raises(SettingsError, match=r"--auto chooses on the fit part"):
         EngineSettings(method_settings=replace(tiny_settings, split="same"), auto=AUTO)

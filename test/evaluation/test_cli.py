@@ -13,6 +13,7 @@ import pytest
 from fiper_ros.cli import main
 from fiper_ros.core.rollout import Rollout, RolloutSet
 from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.errors import SettingsError
 from fiper_ros.evaluation.sweep import SweepSettings
 
 
@@ -142,7 +143,7 @@ def test_bad_settings_are_one_line(tmp_path: Path, tiny_dataset: Dataset, capsys
     assert main(["evaluate", "--data", f"sorting={data}", "--cache-dir", str(cache), *out]) == 2
     assert capsys.readouterr().err == f"fiper evaluate: {cache} exists and is not a directory\n"
     assert not (tmp_path / "out").exists()
-    with pytest.raises(ValueError, match="at least one"):
+    with pytest.raises(SettingsError, match="at least one"):
         SweepSettings(deltas=())
 
 

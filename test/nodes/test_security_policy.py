@@ -23,6 +23,7 @@ from fiper_ros.client.replay import NODE_NAME as REPLAY, Player, played_topics
 from fiper_ros.client.ros_session import RosSession, enclave_args
 from fiper_ros.client.suite_process import SuiteProcess, installed_launch
 from fiper_ros.commands import demo, echo, grants, replay
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.commands.grants import (Deployment, Grants, effective_parameters, node_grants, shipped_deployments,
                                        shipped_models, shipped_policy, tool_grants)
 from fiper_ros.commands.security import (differences, mismatches, observe_all, policy_xml, read_policy, resolve,
@@ -320,8 +321,10 @@ def test_relative_names_resolve_as_sros2_does() -> None:
             '<services reply="ALLOW"><service>~s</service></services></profile></profiles></enclave></enclaves>'
             '</policy>')
     assert read_policy(text) == {"/a/n": Grants.of(publish={"/a/t"}, reply={"/a/n/s"})}
-    with pytest.raises(ValueError, match="0.2.0"):
-        read_policy('<policy version="0.1.0"/>')
+    with pytest.raises(UsageError, match=r"^policy\.xml: not an SROS2 policy of version 0\.2\.0$"):
+        read_policy('<policy version="0.1.0"/>', "policy.xml")
+    with pytest.raises(UsageError, match=r"^policy: not an SROS2 policy \(not XML: "):
+        read_policy("<policy")
 
 
 def test_a_composed_launch_has_no_enclave_and_fiper_security_says_so(

@@ -19,6 +19,7 @@ import pytest
 
 from fiper_msgs.msg import FailureAlarm, Score
 from fiper_ros.commands.echo import Printer
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.data_paths import package_share
 from fiper_ros.interface import qos
 from fiper_ros.platform.dds import PARENT_PID_ENV, interrupt_group
@@ -109,7 +110,7 @@ def test_echo_brief_of_scores_and_other_types() -> None:
         "rollout 4 step 0: ace score 0.500, windowed 0.500 <= 1.250 (below, window 3 (incomplete))",
         "rollout 4 step 2: ace score 0.500, windowed 1.500 > 1.250 (exceeded, window 3)",
         "rollout 4 step 4: ace score 0.500, windowed 1.000 <= 1.250 (below, window 3)"]
-    with pytest.raises(ValueError, match="--brief formats fiper_msgs/msg/FailureAlarm and fiper_msgs/msg/Score, not "
+    with pytest.raises(UsageError, match="--brief formats fiper_msgs/msg/FailureAlarm and fiper_msgs/msg/Score, not "
                                          "std_msgs/msg/String"):
         Printer("std_msgs/msg/String", brief=True)
     from std_msgs.msg import String

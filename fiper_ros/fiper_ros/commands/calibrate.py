@@ -42,9 +42,8 @@ from fiper_ros.bagio.reader import find_bags
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.converters.options import parse_channels
 from fiper_ros.core.auto import AutoChoice, AutoSettings
-from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationError, CalibrationSettings, calibrate,
+from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationSettings, calibrate,
                                         upgrade_calibration)
 from fiper_ros.core.calibration.auto import auto_calibrate
 from fiper_ros.core.calibration_file import FORMAT_VERSION
@@ -137,8 +136,6 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
                                                  None if quiet else _note)
             if not quiet:
                 print("\n".join(auto_lines(choice)), flush=True)
-    except CalibrationError as error:
-        raise BagError(str(error)) from error
     except KinematicsError as error:
         raise BagError(f"{error}: give the robot model with --urdf, --ee-frame and --control-dt") from error
     with atomic_output(out, overwrite) as staging:
@@ -165,41 +162,27 @@ def auto_lines(choice: AutoChoice, top: int = 8) -> list[str]:
     return lines
 
 
-def auto_settings_from(args: argparse.Namespace) -> AutoSettings | None:
-    """The ``--auto`` settings of the command line (``None`` without ``--auto``)."""
-    if not args.auto:
-        return None
-    try:
-        return AutoSettings(windows=args.auto_windows, folds=args.auto_folds, budget=args.auto_budget,
-                            step_limit=args.step_limit)
-    except CalibrationError as error:
-        raise BagError(str(error)) from error
-
-
 def settings_from(args: argparse.Namespace) -> CalibrationSettings:
     """The calibration settings of the command line."""
-    dims = None if args.action_dims is None else parse_channels(args.action_dims)
+    dims = None if args.action_dims is None else options.parse_channels(args.action_dims, "--action-dims")
     if isinstance(dims, str):
-        raise UsageError("--action-dims must be START:STOP")
-    try:
-        rnd = RND_PRESETS[args.rnd_preset]()
-        if args.max_epochs:
-            rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
-        windows = dict(args.windows)
-        detectors = args.detectors or defaults_detectors()
-        for detector, window in (("rnd_oe", args.window_obs), ("ace", args.window_act)):
-            if window is not None and detector in detectors:
-                windows.setdefault(detector, window)
-        return CalibrationSettings(detectors=detectors, window=args.window, windows=windows,
-                                   aggregation=args.aggregation, alpha=args.alpha, threshold=args.threshold,
-                                   delta=args.delta, combine=args.combine, rnd=rnd, seed=args.seed,
-                                   profile=args.profile, min_rollouts=args.min_rollouts, action_dims=dims,
-                                   control_dt=args.control_dt, split="same" if args.same_data else args.split,
-                                   conformal_fraction=args.conformal_fraction, folds=args.folds,
-                                   shape_folds=args.shape_folds, pooled=args.pool, equalise=args.equalise,
-                                   equalise_level=args.equalise_level)
-    except (CalibrationError, ValueError) as error:
-        raise UsageError(str(error)) from error
+        raise UsageError(f"--action-dims must be START:STOP, got {dims!r}")
+    rnd = RND_PRESETS[args.rnd_preset]()
+    if args.max_epochs:
+        rnd = RNDConfig.from_dict(rnd.to_dict() | {"max_epochs": args.max_epochs})
+    windows = dict(args.windows)
+    detectors = args.detectors or defaults_detectors()
+    for detector, window in (("rnd_oe", args.window_obs), ("ace", args.window_act)):
+        if window is not None and detector in detectors:
+            windows.setdefault(detector, window)
+    return CalibrationSettings(detectors=detectors, window=args.window, windows=windows,
+                               aggregation=args.aggregation, alpha=args.alpha, threshold=args.threshold,
+                               delta=args.delta, combine=args.combine, rnd=rnd, seed=args.seed,
+                               profile=args.profile, min_rollouts=args.min_rollouts, action_dims=dims,
+                               control_dt=args.control_dt, split="same" if args.same_data else args.split,
+                               conformal_fraction=args.conformal_fraction, folds=args.folds,
+                               shape_folds=args.shape_folds, pooled=args.pool, equalise=args.equalise,
+                               equalise_level=args.equalise_level)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -219,14 +202,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="choose the detectors, window, threshold kind and combine from the successes alone "
                              "(their fit part: fold models, held-out successes and failure proxies; docs/method.md) "
                              "and calibrate that; the choice is printed and stored in the calibration")
-    parser.add_argument("--auto-windows", type=_ints, default=AutoSettings().windows, metavar="W,...",
-                        help="with --auto: the windows tried (default 1,3,5,10,20)")
-    parser.add_argument("--auto-folds", type=int, default=AutoSettings().folds, metavar="K",
-                        help="with --auto: folds of the fit part (also the calibration's --shape-folds)")
-    parser.add_argument("--auto-budget", type=int, default=AutoSettings().budget, metavar="N",
-                        help="with --auto: most candidate configurations tried (more is refused)")
-    parser.add_argument("--step-limit", type=int, default=None, metavar="STEPS",
-                        help="with --auto: the task's step limit (a stalled proxy rollout runs to it)")
+    options.add_auto_arguments(parser, folds=True)
     parser.add_argument("--combine", type=_combine, default=defaults.combine,
                         help="how the detectors vote: and (eq. 7), or (a threshold each), max or kth:K (one "
                              "conformal threshold over all: the promise is delta)")
@@ -278,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
     if args.upgrade is not None or not args.bags:
         return upgrade(args)
     settings = settings_from(args)
-    auto = auto_settings_from(args)
+    auto = options.auto_from(args)
     fk = options.fk_of(options.robot_from(args))
     bags = find_bags(args.bags, strict=args.strict)
     calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk, auto=auto,
@@ -350,14 +326,6 @@ def summary(calibration: Calibration) -> list[str]:
 def _names(text: str) -> tuple[str, ...]:
     """``--detectors``: a comma list of names (checked with the other settings)."""
     return tuple(part.strip() for part in text.split(",") if part.strip())
-
-
-def _ints(text: str) -> tuple[int, ...]:
-    """``--auto-windows``: a comma list of integers."""
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if not parts or not all(p.isdigit() for p in parts):
-        raise argparse.ArgumentTypeError(f"expected a comma list of integers, got {text!r}")
-    return tuple(int(p) for p in parts)
 
 
 def defaults_detectors() -> tuple[str, ...]:

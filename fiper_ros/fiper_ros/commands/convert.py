@@ -24,8 +24,9 @@ from fiper_ros.bagio.atomic import atomic_output, check_new
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.rollout_bags import DEFAULT_START_NS, write_rollouts
 from fiper_ros.bagio.schema import BagInfo
+from fiper_ros.commands.options import parse_channels
 from fiper_ros.converters import fiper as convert_fiper, generic as convert_generic, sentinel as convert_sentinel
-from fiper_ros.converters.options import DEFAULT_MAX_MB, EXEC_STEPS, ConvertOptions, Converted, Keys, parse_channels
+from fiper_ros.converters.options import DEFAULT_MAX_MB, EXEC_STEPS, ConvertOptions, Converted, Keys
 from fiper_ros.core.data_split import (DEFAULT_FRACTION, DEFAULT_SEED, NO_SPLIT, SPLITS, DataSplitError, TaskSplit,
                                        describe, split_by_task)
 from fiper_ros.core.rollout import Rollout

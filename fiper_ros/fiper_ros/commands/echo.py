@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.detectors import info
 from fiper_ros.interface.messages import AlarmStateName, message_class
 
@@ -96,7 +97,7 @@ class Printer:
 
     def __init__(self, type_name: str, *, brief: bool = False, changes: bool = False, full: bool = False) -> None:
         if brief and type_name not in BRIEF:
-            raise ValueError(f"--brief formats {' and '.join(BRIEF)}, not {type_name}")
+            raise UsageError(f"--brief formats {' and '.join(BRIEF)}, not {type_name}")
         self.type_name, self.brief, self.changes, self.full = type_name, brief, changes, full
         self._last: object = None
 
@@ -156,11 +157,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"fiper echo: topic {args.topic} not found within {args.wait:g} s (give --type to wait for it)",
                   file=sys.stderr)
             return 1
-        try:
-            printer = Printer(type_name, brief=args.brief, changes=args.changes, full=args.full)
-        except ValueError as error:
-            print(f"fiper echo: {error} ({args.topic})", file=sys.stderr)
-            return 2
+        printer = Printer(type_name, brief=args.brief, changes=args.changes, full=args.full)
         seen = 0
 
         def on_message(msg: Any) -> None:

@@ -51,7 +51,6 @@ from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import COMBINES
@@ -76,23 +75,9 @@ from fiper_ros.evaluation.threshold_grid import GRID_KINDS
 LOG = logging.getLogger(__name__)
 
 
-def int_list(text: str) -> tuple[int, ...]:
-    """``"1-50"``, ``"1,5,10"`` or a mix -> sorted distinct integers."""
-    values: set[int] = set()
-    for part in text.split(","):
-        if "-" in part.strip()[1:]:
-            low, high = part.split("-", 1)
-            values.update(range(int(low), int(high) + 1))
-        elif part.strip():
-            values.add(int(part))
-    if not values:
-        raise argparse.ArgumentTypeError(f"no integers in {text!r}")
-    return tuple(sorted(values))
-
-
 def window_list(text: str) -> tuple[int, ...]:
-    """:func:`int_list`, or ``"none"`` for no windows."""
-    return () if text == "none" else int_list(text)
+    """:func:`~fiper_ros.commands.options.int_list`, or ``"none"`` for no windows."""
+    return () if text == "none" else options.int_list(text)
 
 
 def delta_list(text: str) -> tuple[float, ...]:
@@ -150,7 +135,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sweep = parser.add_argument_group("sweep")
     sweep.add_argument("--methods", type=name_list(tuple(METHODS)), default=None,
                        help="comma list (default: all; on observation-only data those that need no action batches)")
-    sweep.add_argument("--windows", type=int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
+    sweep.add_argument("--windows", type=options.int_list, default=tuple(range(1, 51)), help="e.g. 1-50 (default)")
     sweep.add_argument("--no-cumulative", action="store_true", help="do not sweep the cumulative sum")
     sweep.add_argument("--max-pool", type=window_list, default=MAX_POOL_WINDOWS,
                        help="max-pooled windows, e.g. 2-10 or none (default: "
@@ -196,16 +181,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     protocol.add_argument("--auto", action="store_true",
                           help="also choose each task's configuration as fiper calibrate --auto does, from its "
                                "calibration successes alone, and report it beside the protocols")
-    protocol.add_argument("--auto-windows", type=int_list, default=AutoSettings().windows, metavar="W,...",
-                          help="with --auto: the windows it tries (default 1,3,5,10,20)")
-    protocol.add_argument("--auto-budget", type=int, default=AutoSettings().budget, metavar="N",
-                          help="with --auto: most candidate configurations per task")
-    protocol.add_argument("--step-limit", type=int, default=None, metavar="STEPS",
-                          help="with --auto: every task's step limit (a stalled proxy runs to it)")
+    options.add_auto_arguments(protocol)
     protocol.add_argument("--q-auc", type=float, default=DEFAULT_Q, metavar="Q",
                           help="the q-AUC's early cut: each rollout's maximum over its first ceil(Q T_max) steps "
                                f"(default {DEFAULT_Q:g})")
-    protocol.add_argument("--seeds", type=int_list, default=(0,), help="e.g. 0-4")
+    protocol.add_argument("--seeds", type=options.int_list, default=(0,), help="e.g. 0-4")
     protocol.add_argument("--split-seed", type=int, default=0, help="clean protocol's validation split")
     protocol.add_argument("--select-cumulative", action="store_true",
                           help="let the selection also pick the cumulative sum (paper: windows only)")
@@ -304,8 +284,7 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           else ("window", "max"),
                           progress=not args.quiet, combinations=combinations_from(args),
                           combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc,
-                          auto=AutoSettings(windows=args.auto_windows, budget=args.auto_budget,
-                                            step_limit=args.step_limit) if args.auto else None)
+                          auto=options.auto_from(args))
 
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:
@@ -341,7 +320,7 @@ def summary(result: EvaluationResult, markdown: Path) -> str:
 
 
 def check_cluster(args: argparse.Namespace) -> None:
-    """Refuse ``--ray-cpus`` without a local Ray instance (:class:`ValueError`)."""
+    """Refuse ``--ray-cpus`` without a local Ray instance (:class:`UsageError`)."""
     if args.ray_cpus is None:
         return
     if args.ray is None:
@@ -359,14 +338,11 @@ def run(args: argparse.Namespace) -> int:
     for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
         check_directory(directory)
     datasets = datasets_from(args)
-    try:  # the settings' own checks (methods, combinations, seeds, ...) raise ValueError: here they are the flags'
-        external = parse_scores(args.scores)
-        args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
-        settings = settings_from(args, external)
-        options.fk_of(settings.method_settings.robot)
-        check_evaluation(datasets, settings)
-    except ValueError as error:
-        raise UsageError(str(error)) from error
+    external = parse_scores(args.scores)
+    args.methods = (*methods_for(args.methods, datasets), *(e.stream for e in external))
+    settings = settings_from(args, external)
+    options.fk_of(settings.method_settings.robot)
+    check_evaluation(datasets, settings)
     check_cluster(args)
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
     # +inf CP thresholds (ceil((M+1)(1-delta)) > M for the smallest deltas) are expected in a sweep.

@@ -2,7 +2,9 @@
 
 Live bags (``fiper record``, ``fiper snapshot``): how a live bag goes to disk (``--chunk-s``, ``--chunk-mb``:
 :class:`~fiper_ros.bagio.chunks.LiveChunks`), i.e. how much a crash can lose. Reading commands (``fiper
-replay``, ``calibrate`` and ``evaluate``): whether an unfinished bag is taken (``--strict``). No heavy imports:
+replay``, ``calibrate`` and ``evaluate``): whether an unfinished bag is taken (``--strict``). Lists of integers
+(:func:`int_list`), action channels (:func:`parse_channels`) and the automatic choice of ``fiper calibrate --auto``
+and ``fiper evaluate --auto`` (:func:`add_auto_arguments`, :func:`auto_from`). No heavy imports:
 ``fiper evaluate`` reads its options without the ROS message build, and ``fiper launch`` without numpy or
 pinocchio (the robot model is imported where one is built: the launcher's start-up).
 
@@ -21,7 +23,80 @@ from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, DEFAULT_CHUNK_S, LiveChunks
 from fiper_ros.commands.errors import UsageError
 
 if TYPE_CHECKING:
+    from fiper_ros.core.auto import AutoSettings
     from fiper_ros.core.kinematics import PinocchioFK, RobotModel
+
+#: The most integers one list option (:func:`int_list`) expands to: a range is bounded before it is built.
+MAX_INTS = 10_000
+
+
+def int_list(text: str) -> tuple[int, ...]:
+    """``"1-50"``, ``"1,5,10"`` or a mix -> the sorted distinct integers (a negative one alone, ``"-1"``, is an
+    integer, not a range); :class:`argparse.ArgumentTypeError` for no integers, a reversed range or more than
+    :data:`MAX_INTS`."""
+    values: set[int] = set()
+    for part in (p.strip() for p in text.split(",")):
+        if "-" in part[1:]:
+            cut = part.index("-", 1)
+            low, high = int(part[:cut]), int(part[cut + 1:])
+            if low > high or high - low + 1 > MAX_INTS:
+                raise argparse.ArgumentTypeError(f"range {part!r}: expected LOW-HIGH with LOW <= HIGH, at most "
+                                                 f"{MAX_INTS} integers")
+            values.update(range(low, high + 1))
+        elif part:
+            values.add(int(part))
+        if len(values) > MAX_INTS:
+            raise argparse.ArgumentTypeError(f"{text!r} names more than {MAX_INTS} integers")
+    if not values:
+        raise argparse.ArgumentTypeError(f"no integers in {text!r}")
+    return tuple(sorted(values))
+
+
+def parse_channels(text: str, flag: str = "--channels") -> tuple[int, int] | str:
+    """The action channel option ``flag`` (``fiper convert --channels``): ``"START:STOP"`` (a Python slice of the
+    action channels), ``"all"`` or ``"auto"`` (:data:`fiper_ros.converters.options.ALL`, ``AUTO``);
+    :class:`UsageError` naming ``flag`` otherwise."""
+    from fiper_ros.converters.options import ALL, AUTO  # noqa: PLC0415 - numpy only for the commands that convert
+
+    if text in (ALL, AUTO):
+        return text
+    try:
+        start, stop = (int(part) for part in text.split(":"))
+    except ValueError:
+        raise UsageError(f"{flag} must be START:STOP, 'all' or 'auto', got {text!r}") from None
+    if not 0 <= start < stop:
+        raise UsageError(f"{flag} {text}: need 0 <= START < STOP")
+    return start, stop
+
+
+def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, folds: bool = False) -> None:
+    """The options of the automatic choice (:class:`~fiper_ros.core.auto.AutoSettings`): ``--auto-windows``,
+    ``--auto-budget``, ``--step-limit`` and (``folds``: ``fiper calibrate``, whose fit part it splits)
+    ``--auto-folds``."""
+    from fiper_ros.core.auto import AutoSettings  # noqa: PLC0415 - numpy only for the commands that choose
+
+    defaults = AutoSettings()
+    parser.add_argument("--auto-windows", type=int_list, default=defaults.windows, metavar="W,...",
+                        help="with --auto: the windows tried, a comma list and/or ranges, e.g. 1,3,5-10 (default "
+                             f"{','.join(map(str, defaults.windows))})")
+    if folds:
+        parser.add_argument("--auto-folds", type=int, default=defaults.folds, metavar="K",
+                            help="with --auto: folds of the fit part (also the calibration's --shape-folds)")
+    parser.add_argument("--auto-budget", type=int, default=defaults.budget, metavar="N",
+                        help="with --auto: most candidate configurations per task (more is refused)")
+    parser.add_argument("--step-limit", type=int, default=None, metavar="STEPS",
+                        help="with --auto: every task's step limit (a stalled proxy rollout runs to it)")
+
+
+def auto_from(args: argparse.Namespace) -> AutoSettings | None:
+    """The :class:`~fiper_ros.core.auto.AutoSettings` of :func:`add_auto_arguments`' options (``None`` without
+    ``--auto``); the settings refuse a bad value themselves (:class:`~fiper_ros.core.auto.AutoError`)."""
+    if not args.auto:
+        return None
+    from fiper_ros.core.auto import AutoSettings  # noqa: PLC0415
+
+    folds = {"folds": args.auto_folds} if hasattr(args, "auto_folds") else {}
+    return AutoSettings(windows=args.auto_windows, budget=args.auto_budget, step_limit=args.step_limit, **folds)
 
 
 def add_robot_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, control_dt: bool = True) -> None:

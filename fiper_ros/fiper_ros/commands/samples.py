@@ -31,14 +31,13 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.bagio.atomic import atomic_output
-from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.reader import BagReader
 from fiper_ros.bagio.writer import BagWriter
 from fiper_ros.commands import convert
 from fiper_ros.commands.calibrate import calibrate_bags
 from fiper_ros.converters.options import ConvertOptions
 from fiper_ros.core.calibration import CalibrationSettings
-from fiper_ros.errors import one_line
+from fiper_ros.errors import FiperError, one_line
 from fiper_ros.interface.topics import ACTIONS_TOPIC, JOINT_STATES_TOPIC
 
 LATENT_DIM = 8
@@ -295,13 +294,13 @@ def main(argv: list[str] | None = None) -> int:
     for bag in args.observation_only or ():
         try:
             print(observation_only(bag, args.out / bag.name, args.force))
-        except BagError as error:
+        except FiperError as error:
             print(f"fiper samples: {one_line(error)}", file=sys.stderr)
             return 2
     for name in () if args.observation_only else args.sets:
         try:
             target = make_set(SETS[name], args.out, args.seed, args.force)
-        except BagError as error:
+        except FiperError as error:
             print(f"fiper samples: {one_line(error)}", file=sys.stderr)
             return 2
         size = sum(p.stat().st_size for p in target.rglob("*") if p.is_file())

@@ -21,6 +21,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from fiper_ros.commands.errors import UsageError
 from fiper_ros.commands.grants import (Deployment, Grants, Policy, effective_parameters, node_grants,
                                        nodes_policy, resolve, shipped_deployments, shipped_policy, split_node)
 from fiper_ros.launcher.config import NodeSpec, load_launch
@@ -59,11 +60,15 @@ def policy_xml(policy: Policy, generated_by: str) -> str:
             f'-->\n{ET.tostring(root, encoding="unicode")}\n')
 
 
-def read_policy(text: str) -> dict[str, Grants]:
-    """The grants a policy file gives, per enclave's node (ALLOW rules only; names made absolute)."""
-    root = ET.fromstring(text)  # noqa: S314 - our own policy file
+def read_policy(text: str, where: str = "policy") -> dict[str, Grants]:
+    """The grants a policy file gives, per enclave's node (ALLOW rules only; names made absolute);
+    :class:`UsageError` naming ``where`` (the file) for text that is no SROS2 policy of :data:`POLICY_VERSION`."""
+    try:
+        root = ET.fromstring(text)  # noqa: S314 - our own policy file
+    except ET.ParseError as error:
+        raise UsageError(f"{where}: not an SROS2 policy (not XML: {error})") from None
     if root.tag != "policy" or root.get("version") != POLICY_VERSION:
-        raise ValueError(f"not an SROS2 policy of version {POLICY_VERSION}")
+        raise UsageError(f"{where}: not an SROS2 policy of version {POLICY_VERSION}")
     policy: dict[str, dict[str, set[str]]] = {}
     for profile in root.iterfind("enclaves/enclave/profiles/profile"):
         namespace, node = profile.get("ns", "/"), profile.get("node", "")
@@ -253,7 +258,11 @@ def run(args: argparse.Namespace) -> int:
         return 1
     what = " ".join(map(_shown, args.configs)) or "every suite the project starts and its tools"
     if args.check is not None:
-        found = differences(read_policy(args.check.read_text()), policy, (str(args.check), "the code"))
+        try:
+            text = args.check.read_text()
+        except OSError as error:
+            raise UsageError(f"--check {args.check}: cannot read the policy ({error.strerror or error})") from None
+        found = differences(read_policy(text, f"--check {args.check}"), policy, (str(args.check), "the code"))
         for line in found:
             print(f"fiper security: {line}")
         print(f"fiper security: {args.check} {'differs from' if found else 'is'} the policy of {what}")

@@ -1,5 +1,5 @@
 """What the converters share: their options, the bound on what they read, the action-channel selection and
-their result type."""
+their result type (the channel option itself is parsed by :func:`fiper_ros.commands.options.parse_channels`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
@@ -22,19 +22,6 @@ MB = 1_000_000
 
 #: split name (or ``NO_SPLIT``: the source gives none, :mod:`fiper_ros.core.data_split`) -> [(rollout, source file name)]
 Converted = dict[str, list[tuple[Rollout, str]]]
-
-
-def parse_channels(text: str) -> tuple[int, int] | str:
-    """``"START:STOP"`` (Python slice of the action channels), ``"all"`` or ``"auto"``."""
-    if text in (ALL, AUTO):
-        return text
-    try:
-        start, stop = (int(part) for part in text.split(":"))
-    except ValueError as error:
-        raise BagError(f"--channels must be START:STOP, 'all' or 'auto', got {text!r}") from error
-    if not 0 <= start < stop:
-        raise BagError(f"--channels {text}: need 0 <= START < STOP")
-    return start, stop
 
 
 def select_channels(actions: np.ndarray, channels: tuple[int, int] | str, where: Path) -> np.ndarray:

@@ -22,6 +22,7 @@ from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.distributed import score_on_ray, sweep_on_ray
 from fiper_ros.evaluation.dump import Dump
 from fiper_ros.evaluation.early import DEFAULT_Q, EarlyDetection, TaskStatistics, areas, early_detection
+from fiper_ros.evaluation.errors import SettingsError
 from fiper_ros.evaluation.external import check_external
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
 from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSettings, method_of, pooled_methods,
@@ -83,24 +84,24 @@ class EngineSettings:
         streams_of(list(self.methods))
         names = [*self.methods, *(c.name for c in self.combinations)]
         if len(set(names)) != len(names):
-            raise ValueError(f"method and combination names must be distinct, got {names}")
+            raise SettingsError(f"method and combination names must be distinct, got {names}")
         if self.auto is not None and self.method_settings.split != "split":
-            raise ValueError("--auto chooses on the fit part of a split conformal calibration (--split split), not "
+            raise SettingsError("--auto chooses on the fit part of a split conformal calibration (--split split), not "
                              f"--split {self.method_settings.split}")
         if (self.combinations or self.pooled) and self.method_settings.split != "split":
-            raise ValueError("combinations and pooled thresholds take their shapes from the fit part of a split "
+            raise SettingsError("combinations and pooled thresholds take their shapes from the fit part of a split "
                              f"conformal calibration (--split split), not from --split {self.method_settings.split}")
         if self.pooled and any(k not in SHAPE_KINDS for k in self.sweep.kinds):
-            raise ValueError(f"pooled thresholds normalise each task by its shapes: kinds among {SHAPE_KINDS}, got "
+            raise SettingsError(f"pooled thresholds normalise each task by its shapes: kinds among {SHAPE_KINDS}, got "
                              f"{self.sweep.kinds}")
         if any(p not in PROTOCOLS for p in self.protocols):
-            raise ValueError(f"protocols must be among {PROTOCOLS}, got {self.protocols}")
+            raise SettingsError(f"protocols must be among {PROTOCOLS}, got {self.protocols}")
         if not self.seeds:
-            raise ValueError("at least one seed is needed")
+            raise SettingsError("at least one seed is needed")
         if not 0.0 < self.q_auc <= 1.0:
-            raise ValueError(f"--q-auc must be in (0, 1], got {self.q_auc:g}")
+            raise SettingsError(f"--q-auc must be in (0, 1], got {self.q_auc:g}")
         if min(*self.seeds, self.split_seed) < 0:
-            raise ValueError(f"seeds must be >= 0, got --seeds {','.join(map(str, self.seeds))} and --split-seed "
+            raise SettingsError(f"seeds must be >= 0, got --seeds {','.join(map(str, self.seeds))} and --split-seed "
                              f"{self.split_seed}")
 
     def calibration_settings(self, seed: int) -> CalibrationSettings:

@@ -6,3 +6,8 @@ from fiper_ros.errors import FiperError
 
 class EvaluationError(FiperError):
     """Data, a calibration or settings the offline evaluation or the replay oracle refuses."""
+
+
+class SettingsError(EvaluationError):
+    """Evaluation settings the engine refuses before any work: a method, a combination, the sweep's grid or a
+    protocol option (the message names the setting, and the ``fiper evaluate`` flag where it has one)."""

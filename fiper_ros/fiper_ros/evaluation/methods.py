@@ -30,7 +30,8 @@ from typing import Any
 from fiper_ros.baselines.rnd_a import RNDAConfig
 from fiper_ros.core.calibration import SPLITS, CalibrationSettings
 from fiper_ros.core.consistency import ConsistencySettings
-from fiper_ros.core.detectors import ACE, CONSISTENCY, EXTERNAL_PREFIX, PROGRESS, RND_OE, info, signal_stream
+from fiper_ros.core.detectors import (ACE, CONSISTENCY, EXTERNAL_PREFIX, PROGRESS, RND_OE, DetectorInfo, info,
+                                      signal_stream)
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, check_equalisation
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZOConfig
@@ -39,6 +40,7 @@ from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.progress import ProgressSettings
 from fiper_ros.core.rnd_oe import RNDConfig
 from fiper_ros.core.scorers import DetectorOptions
+from fiper_ros.evaluation.errors import SettingsError
 from fiper_ros.evaluation.external import ExternalScores
 
 
@@ -71,14 +73,23 @@ METHODS: dict[str, Method] = {
 }
 
 
+def stream_info(name: str) -> DetectorInfo:
+    """The core's :func:`~fiper_ros.core.detectors.info` of a stream an evaluation is asked for; a name that is no
+    stream is a :class:`SettingsError` naming the known ones."""
+    try:
+        return info(name)
+    except ValueError as error:
+        raise SettingsError(str(error)) from None
+
+
 def method_of(name: str) -> Method:
     """The method ``name``: a built-in one (:data:`METHODS`) or a user's external scores (``external_<name>``, one
-    stream); ``ValueError`` naming the methods otherwise."""
+    stream); :class:`SettingsError` naming the methods otherwise."""
     if name in METHODS:
         return METHODS[name]
     if name.startswith(EXTERNAL_PREFIX):
-        return Method(info(name).label, (name,))  # info refuses a name that is no stream
-    raise ValueError(f"unknown method {name!r}; expected some of {list(METHODS)} or external_<name>")
+        return Method(stream_info(name).label, (name,))
+    raise SettingsError(f"unknown method {name!r}; expected some of {list(METHODS)} or external_<name>")
 
 
 def fitted(stream: str) -> bool:
@@ -130,9 +141,12 @@ class MethodSettings:
     external: tuple[ExternalScores, ...] = ()
 
     def __post_init__(self) -> None:
-        get_profile(self.profile)
+        try:
+            get_profile(self.profile)
+        except ValueError as error:
+            raise SettingsError(str(error)) from None
         if self.split not in SPLITS:
-            raise ValueError(f"unknown split {self.split!r}; expected one of {SPLITS}")
+            raise SettingsError(f"unknown split {self.split!r}; expected one of {SPLITS}")
         self.calibration_settings(0)  # shape_folds: refused now, in the core's words
 
     def detector_options(self, robot: RobotModel | None = None) -> DetectorOptions:
@@ -226,9 +240,9 @@ class Combination:
 
     def __post_init__(self) -> None:
         if not self.detectors or len(set(self.detectors)) != len(self.detectors):
-            raise ValueError(f"combination {self.name!r}: distinct detectors needed, got {self.detectors}")
+            raise SettingsError(f"combination {self.name!r}: distinct detectors needed, got {self.detectors}")
         for detector in self.detectors:
-            info(detector)
+            stream_info(detector)
         check_equalisation(self.equalise, self.level)
 
     def equalised(self, equalise: str, level: float = DEFAULT_LEVEL) -> Combination:
@@ -243,12 +257,12 @@ class Combination:
 
 
 def parse_combination(text: str) -> Combination:
-    """``NAME=a+b+c`` (streams) as a :class:`Combination`; ``ValueError`` in one line otherwise."""
+    """``NAME=a+b+c`` (streams) as a :class:`Combination`; :class:`SettingsError` in one line otherwise."""
     name, _, members = text.partition("=")
     if not name or not members:
-        raise ValueError(f"combination {text!r}: expected NAME=DETECTOR+DETECTOR+... (e.g. obs=rnd_oe+logpzo+elapsed)")
+        raise SettingsError(f"combination {text!r}: expected NAME=DETECTOR+DETECTOR+... (e.g. obs=rnd_oe+logpzo+elapsed)")
     if name.strip() in METHODS:
-        raise ValueError(f"combination {text!r}: {name.strip()!r} is the name of a built-in method")
+        raise SettingsError(f"combination {text!r}: {name.strip()!r} is the name of a built-in method")
     return Combination(name.strip(), tuple(m.strip() for m in members.split("+") if m.strip()))
 
 
@@ -259,8 +273,13 @@ def pooled_methods(methods: tuple[str, ...]) -> tuple[Combination, ...]:
 
 
 def signal_methods(signals: tuple[str, ...]) -> tuple[Combination, ...]:
-    """A logged per-step signal ``name`` as a method of its own (the stream ``signal_<name>``)."""
-    return tuple(Combination(signal_stream(name), (signal_stream(name),), f"signal {name}") for name in signals)
+    """A logged per-step signal ``name`` as a method of its own (the stream ``signal_<name>``); a name that cannot
+    be a stream is a :class:`SettingsError`."""
+    try:
+        streams = [signal_stream(name) for name in signals]
+    except ValueError as error:
+        raise SettingsError(str(error)) from None
+    return tuple(Combination(stream, (stream,), f"signal {name}") for stream, name in zip(streams, signals))
 
 
 def default_combinations(methods: tuple[str, ...], extra_streams: tuple[str, ...] = ()) -> tuple[Combination, ...]:

@@ -39,6 +39,7 @@ from fiper_ros.core.combine_mode import COMBINES
 from fiper_ros.core.fusion import exceeds, fuse
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
+from fiper_ros.evaluation.errors import SettingsError
 from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.threshold_grid import GRID_KINDS, fit_threshold_grid
 
@@ -68,17 +69,17 @@ class SweepSettings:
 
     def __post_init__(self) -> None:
         if not self.windows or min(self.windows) < 1:
-            raise ValueError(f"windows must be integers >= 1, got {self.windows}")
+            raise SettingsError(f"windows must be integers >= 1, got {self.windows}")
         if self.max_pool and min(self.max_pool) < 2:
-            raise ValueError(f"max-pooled windows must be integers >= 2 (1 is the single step), got {self.max_pool}")
+            raise SettingsError(f"max-pooled windows must be integers >= 2 (1 is the single step), got {self.max_pool}")
         if any(kind not in GRID_KINDS for kind in self.kinds):
-            raise ValueError(f"threshold kinds must be among {GRID_KINDS}, got {self.kinds}")
+            raise SettingsError(f"threshold kinds must be among {GRID_KINDS}, got {self.kinds}")
         if any(combine not in COMBINES for combine in self.combines):
-            raise ValueError(f"combines must be among {COMBINES}, got {self.combines}")
+            raise SettingsError(f"combines must be among {COMBINES}, got {self.combines}")
         if self.pairs not in PAIR_GRIDS:
-            raise ValueError(f"pairs must be one of {PAIR_GRIDS}, got {self.pairs!r}")
+            raise SettingsError(f"pairs must be one of {PAIR_GRIDS}, got {self.pairs!r}")
         if not self.deltas or any(not 0.0 < d < 1.0 for d in self.deltas):
-            raise ValueError(f"deltas must be in (0, 1), at least one, got {self.deltas}")
+            raise SettingsError(f"deltas must be in (0, 1), at least one, got {self.deltas}")
 
     def labels(self) -> list[str]:
         """Window labels in sweep order: ``"1"``, ``"2"``, ..., ``"cum"``, then ``"max2"``, ``"max3"``, ..."""
