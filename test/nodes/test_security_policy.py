@@ -75,6 +75,13 @@ def test_the_cli_writes_and_checks_the_shipped_policy(tmp_path: Path, monkeypatc
     assert main(["security", "--check", str(tmp_path / "fewer.xml")]) == 1
     out = capsys.readouterr().out
     assert "/fiper/ace_node subscribe /joint_states: only in the code" in out and "differs from" in out
+    (tmp_path / "other.xml").write_text("<html/>")
+    assert main(["security", "--check", str(tmp_path / "other.xml")]) == 2  # before: a ValueError's traceback
+    assert capsys.readouterr().err == (f"fiper security: --check {tmp_path / 'other.xml'}: not an SROS2 policy of "
+                                       "version 0.2.0\n")
+    assert main(["security", "--check", str(tmp_path / "missing.xml")]) == 2  # before: FileNotFoundError's
+    assert capsys.readouterr().err == (f"fiper security: --check {tmp_path / 'missing.xml'}: cannot read the policy "
+                                       "(No such file or directory)\n")
 
 
 @pytest.mark.slow
