@@ -344,8 +344,8 @@ class Pipeline:
         fusion_in = callbacks(self.fusion)
         self.ledgers = {}
         for node in (self.rnd, self.ace):
-            topic = f"/fiper/scores/{node.detector}"
-            self.ledgers[node.detector] = ScoringLedger(node, self.contract.on_score, fusion_in[topic])
+            topic = f"/fiper/scores/{node.settings.detector}"
+            self.ledgers[node.settings.detector] = ScoringLedger(node, self.contract.on_score, fusion_in[topic])
         self.inputs = {"embedding": callbacks(self.rnd)["/fiper/observation_embedding"],
                        "batch": callbacks(self.ace)["/fiper/action_chunks"]}
         self.event_callbacks = [callbacks(n)["/fiper/rollout_events"] for n in (self.rnd, self.ace, self.fusion)]

@@ -6,4 +6,4 @@ from __future__ import annotations
 from fiper_ros.nodes.errors import NodeError
 
 __all__ = ["NodeError", "ace_node", "base", "detector_node", "errors", "fusion_node", "graph_watch",
-           "policy_node", "rnd_oe_node", "supervisor_node", "view_node"]
+           "policy_node", "rnd_oe_node", "settings", "supervisor_node", "view_node"]

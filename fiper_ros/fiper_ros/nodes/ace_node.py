@@ -9,6 +9,7 @@ a batch is scored once a joint state stamped at or after it has arrived, or ``jo
 from __future__ import annotations
 
 import sys
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,7 @@ from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ARM_JOINT_NAMES, JOINT_STATES_TOPIC
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector_node import DetectorNode
+from fiper_ros.nodes.settings import AceSettings, ace_settings
 from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.joint_history import JointHistory, StampGate
@@ -36,8 +38,20 @@ class AceNode(DetectorNode):
 
     preset = ACE
 
+    settings: AceSettings
+
     def __init__(self, **kwargs: Any) -> None:
+        self._joints = JointHistory()
+        self._joint_sub: Any = None
+        self._gate_timer: Any = None
+        #: Batches scored after joint_state_wait_s without a joint state at or after their stamp.
+        self.joint_state_waits_out = 0
         super().__init__("ace_node", **kwargs)
+        if self.settings is not None:
+            self._gate = StampGate(self.settings.joint_state_wait_ns)
+
+    def declare_preset_parameters(self) -> None:
+        """The robot's parameters."""
         self.declare_parameter("urdf_path", "", describe("robot URDF for joint-space actions", read_only=True))
         self.declare_parameter("ee_frame", "panda_hand", describe("end-effector frame of the URDF", read_only=True))
         self.declare_parameter("joint_state_topic", JOINT_STATES_TOPIC,
@@ -47,29 +61,26 @@ class AceNode(DetectorNode):
         self.declare_parameter("joint_state_wait_s", 0.5,
                                describe("longest wait of a joint-velocity batch for the joint state of its stamp",
                                         read_only=True, low=0.0, high=10.0))
-        self._joint_names = tuple(str(name) for name in self.get_parameter("joint_names").value)
-        self._joints = JointHistory()
-        self._joint_sub: Any = None
-        self._gate = StampGate(int(self.get_parameter("joint_state_wait_s").value * 1e9))
-        self._gate_timer: Any = None
-        #: Batches scored after joint_state_wait_s without a joint state at or after their stamp.
-        self.joint_state_waits_out = 0
+
+    @staticmethod
+    def build_settings(values: Mapping[str, Any]) -> AceSettings:
+        """The node's settings from its parameters' values (:func:`~fiper_ros.nodes.settings.ace_settings`)."""
+        return ace_settings(values)
 
     def forward_kinematics(self, calibration: Calibration) -> ForwardKinematics | None:
         """The robot's FK for joint-space actions (parameters ``urdf_path``, ``ee_frame``)."""
         if calibration.layout.action_space not in JOINT_SPACES:
             return None
-        urdf = self.get_parameter("urdf_path").value
-        if not urdf:
+        if not self.settings.urdf_path:
             raise ValueError(f"calibration action space is {calibration.layout.action_space}: set parameter urdf_path")
-        return PinocchioFK(urdf, self.get_parameter("ee_frame").value)
+        return PinocchioFK(self.settings.urdf_path, self.settings.ee_frame)
 
     def activate(self) -> None:
         super().activate()
         if self.calibration is not None and \
                 self.calibration.layout.action_space == ActionChunkBatch.ACTION_SPACE_JOINT_VELOCITY:
             self._joint_sub = self.create_subscription(
-                JointState, self.get_parameter("joint_state_topic").value, self._on_joint_state, qos.INPUT)
+                JointState, self.settings.joint_state_topic, self._on_joint_state, qos.INPUT)
             self._inputs.append(self._joint_sub)
             self._gate_timer = self.create_timer(0.05, self._release, clock=self.steady)
 
@@ -100,11 +111,11 @@ class AceNode(DetectorNode):
                                                         f"{len(msg.position)} positions"))
             return
         positions = dict(zip(msg.name, msg.position))
-        names = self._joint_names
+        names = self.settings.joint_names
         if all(name in positions for name in names):
             try:
                 q = validation.vector([positions[name] for name in names], len(names), "joint state",
-                                      self.max_abs_value, np.float64)
+                                      self.settings.max_abs_value, np.float64)
             except InputRejected as error:
                 self.reject(error)
                 return
@@ -133,6 +144,8 @@ class AceNode(DetectorNode):
         return actions, q_current
 
     def diagnostic_values(self) -> dict[str, str]:
+        if self.settings is None:
+            return {}
         return super().diagnostic_values() | {"waiting_for_joint_state": str(len(self._gate)),
                                               "joint_state_waits_out": str(self.joint_state_waits_out)}
 

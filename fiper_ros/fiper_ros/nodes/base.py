@@ -1,7 +1,9 @@
 """Common shell of the suite's managed nodes: parameters, autostart, diagnostics, rejections.
 
 Every node is a lifecycle node: ``configure`` loads what it needs (calibration, models), ``activate``
-creates its subscriptions. With the ``autostart`` parameter (default true) the node walks itself to
+creates its subscriptions. Its parameters are read once, when it is built, into frozen settings
+(:mod:`fiper_ros.nodes.settings`): the shell's own in :attr:`FiperNode.shell`, the node's in ``settings`` (a value
+the node's builder refuses leaves ``settings`` ``None`` and fails every ``configure`` with the refusal). With the ``autostart`` parameter (default true) the node walks itself to
 ACTIVE and retries ``configure`` every ``configure_retry_s`` while it fails (e.g. the calibration is
 missing), so it keeps running and says why on ``/diagnostics`` instead of dying.
 """
@@ -9,13 +11,14 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -27,7 +30,9 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import CdrError, EncapsulationError, codec
 from fiper_ros.interface.conversions import header_view
 from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC
+from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.graph_watch import PublisherCheck
+from fiper_ros.nodes.settings import ShellSettings, shell_settings
 from fiper_ros.platform.process import process_age_s
 from fiper_ros.runtime.stats import LatencyStats, RateLimitedLog, RateMeter
 from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
@@ -51,8 +56,8 @@ def own_topic(topic: str) -> bool:
 def describe(description: str, *, read_only: bool = True, low: float | None = None, high: float | None = None,
              integer: bool = False) -> ParameterDescriptor:
     """A parameter descriptor with an optional range. Read-only unless asked otherwise: the nodes read their
-    parameters at construction or configure and apply none live (no set-parameters callback), so a
-    ``ros2 param set`` is refused with a reason rather than accepted and ignored."""
+    parameters once into their settings (:func:`parameter_values`) and apply none live (no set-parameters
+    callback), so a ``ros2 param set`` is refused with a reason rather than accepted and ignored."""
     descriptor = ParameterDescriptor(description=description, read_only=read_only)
     if low is not None and high is not None:
         if integer:
@@ -60,6 +65,18 @@ def describe(description: str, *, read_only: bool = True, low: float | None = No
         else:
             descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
     return descriptor
+
+
+def parameter_values(node: Node) -> dict[str, Any]:
+    """Every parameter ``node`` has declared, by name, read once (what a settings builder of
+    :mod:`fiper_ros.nodes.settings` takes); one declared with a type and no value is ``None``."""
+    values: dict[str, Any] = {}
+    for name in node.list_parameters([], 0).names:
+        try:
+            values[name] = node.get_parameter(name).value
+        except ParameterUninitializedException:
+            values[name] = None
+    return values
 
 
 _DIAGNOSTICS = codec(DiagnosticArray)
@@ -89,21 +106,27 @@ class FiperNode(LifecycleNode):
                                describe("period of /diagnostics messages", read_only=True, low=0.05, high=60.0))
         self.declare_parameter("log_period_s", 10.0,
                                describe("at most one log line per rejection reason in this period", low=0.0, high=3600.0))
+        #: The shell's settings (autostart, retry, diagnostics and log periods).
+        self.shell: ShellSettings = shell_settings(parameter_values(self))
+        self.settings: Any = None
+        """The node's settings (:meth:`settle`; ``None`` until built, or when a value was refused)."""
+        self.settings_refusal: NodeError | None = None
+        """Why the node's builder refused its parameters (every configure fails with it)."""
         self.rejected: Counter[str] = Counter()
         self.qos_incompatible: Counter[str] = Counter()
         self.latency = LatencyStats()
         self.rates: dict[str, RateMeter] = {}
         self.config_error = ""
-        self._log_limit = RateLimitedLog(self.get_parameter("log_period_s").value)
+        self._log_limit = RateLimitedLog(self.shell.log_period_s)
         #: Wall-clock (steady) time for what must not stall with a paused /clock: heartbeats, retries.
         self.steady = Clock(clock_type=ClockType.STEADY_TIME)
         #: The node clock's handle (:meth:`now_ns`); the clock object is the node's for its life, sim time included.
         self._clock_handle = self.get_clock().handle
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
-        self.create_timer(self.get_parameter("diagnostics_period_s").value, self.publish_diagnostics, clock=self.steady)
+        self.create_timer(self.shell.diagnostics_period_s, self.publish_diagnostics, clock=self.steady)
         self.publisher_check: PublisherCheck | None = None
         self._autostart_timer = None
-        if self.get_parameter("autostart").value:
+        if self.shell.autostart:
             self._autostart_timer = self.create_timer(0.0, self._autostart, clock=self.steady)
 
     # lifecycle ----------------------------------------------------------------------------------------
@@ -112,7 +135,7 @@ class FiperNode(LifecycleNode):
         state = self.lifecycle_state()
         if state == "unconfigured":
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
-                self._autostart_timer = self.create_timer(self.get_parameter("configure_retry_s").value,
+                self._autostart_timer = self.create_timer(self.shell.configure_retry_s,
                                                           self._autostart, clock=self.steady)
                 return
             state = "inactive"
@@ -120,8 +143,11 @@ class FiperNode(LifecycleNode):
             self.trigger_activate()
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Load what the node needs; failure keeps it alive, UNCONFIGURED, reporting why."""
+        """Load what the node needs; failure (a refused parameter value too) keeps it alive, UNCONFIGURED,
+        reporting why."""
         try:
+            if self.settings_refusal is not None:
+                raise self.settings_refusal
             self.configure()
         except Exception as error:  # noqa: BLE001 - any load error is reported, never fatal
             message = f"configure failed: {error}"
@@ -166,6 +192,18 @@ class FiperNode(LifecycleNode):
         """Drop loaded state."""
 
     # helpers for subclasses ---------------------------------------------------------------------------
+    def settle(self, build: Callable[[Mapping[str, Any]], Any]) -> bool:
+        """Read the declared parameters once into :attr:`settings` with the node's builder ``build``, after the
+        node declared them all; whether it built them. A value it refuses (a :class:`NodeError`) leaves
+        :attr:`settings` ``None``: the node then builds nothing that needs them, and every configure fails with the
+        refusal, reported on /diagnostics."""
+        try:
+            self.settings = build(parameter_values(self))
+        except NodeError as error:
+            self.settings_refusal = error
+            return False
+        return True
+
     def lifecycle_state(self) -> str:
         """Label of the current lifecycle state ("unconfigured", "inactive", "active", ...)."""
         return self._state_machine.current_state[1]  # rclpy offers no public getter
@@ -239,17 +277,16 @@ class FiperNode(LifecycleNode):
         self.publisher_check = PublisherCheck(self, self.expected_publishers, PUBLISHER_CHECK_PERIOD_S, on_change)
         return self.publisher_check
 
-    def allowed(self, parameter: str) -> frozenset[str]:
-        """The fully qualified node names a string-array parameter lists."""
-        return frozenset(resolve_node(name, self.get_namespace())
-                         for name in self.get_parameter_or(parameter).value or () if name)
+    def allowed(self, names: Iterable[str]) -> frozenset[str]:
+        """The fully qualified names of the nodes ``names`` lists (relative: in this node's namespace)."""
+        return frozenset(resolve_node(name, self.get_namespace()) for name in names)
 
     def expected_publishers(self) -> list[Expected]:
         """What the node expects of its topics' publishers: for each input (a subscription now open) one
         publisher, or one per node of ``allowed_publishers`` if that is set (and no other node); for each output
         only this node (a second publisher of the same name is for the topic's consumer to tell: only it sees
         the liveliness)."""
-        allowed = self.allowed("allowed_publishers")
+        allowed = self.allowed(self.settings.allowed_publishers if self.settings is not None else ())
         me = frozenset({self.get_fully_qualified_name()})
         inputs = {s.topic_name: Expected(s.topic_name, allowed) for s in self.subscriptions if own_topic(s.topic_name)}
         outputs = {p.topic_name: Expected(p.topic_name, me, limited=False) for p in self.publishers

@@ -13,13 +13,14 @@ and the Score message.
 from __future__ import annotations
 
 import sys
+from collections.abc import Mapping
 from typing import Any
 
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from fiper_msgs.msg import ActionChunkBatch, ObservationEmbedding, RolloutEvent, Score, StepSignals
 from fiper_ros.core.calibration import Calibration, CalibrationMismatch, load_calibration
-from fiper_ros.core.detectors import SIGNAL_PREFIX, info
+from fiper_ros.core.detectors import SIGNAL_PREFIX
 from fiper_ros.core.errors import CoreError
 from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.monitor import DetectorMonitor, StepScore
@@ -31,6 +32,7 @@ from fiper_ros.interface.conversions import floats_of
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import EVENTS_TOPIC, input_topic, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.settings import DetectorSettings, detector_settings
 from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.rollout_gate import RolloutGate, Route
@@ -50,6 +52,7 @@ class DetectorNode(FiperNode):
 
     #: A preset's detector; ``""``: the ``detector`` parameter names it.
     preset: str = ""
+    settings: DetectorSettings
 
     def __init__(self, name: str = "detector_node", **kwargs: Any) -> None:  # rclpy's Node kwargs
         super().__init__(name, **kwargs)
@@ -74,8 +77,8 @@ class DetectorNode(FiperNode):
         self.declare_parameter("start_wait_max_elements", DEFAULT_MAX_PENDING_ELEMENTS,
                                describe("largest number of values waiting for their rollout's START", read_only=True,
                                         low=1, high=1 << 32, integer=True))
-        self.detector = str(self.get_parameter("detector").value)
-        self.reads = self._reads()
+        self.declare_preset_parameters()
+        self.watch_publishers()  # one publisher per input (of allowed_publishers, if set); the scores only from here
         self.calibration: Calibration | None = None
         self.calibration_hash = ""
         self.fk: ForwardKinematics | None = None
@@ -84,62 +87,57 @@ class DetectorNode(FiperNode):
         self._monitors: dict[str, DetectorMonitor] = {}
         self.task_refusal = ""
         """Why the running rollout's task cannot be judged (``""``: it can)."""
-        self.gate: RolloutGate[Any] = RolloutGate(
-            self.get_parameter("auto_start_rollouts").value, self.get_parameter("max_step_gap").value,
-            int(self.get_parameter("start_wait_s").value * 1e9),
-            max_waiting_size=self.get_parameter("start_wait_max_elements").value)
-        self.max_elements = int(self.get_parameter("max_elements").value)
-        self.max_abs_value = float(self.get_parameter("max_abs_value").value)
         self.published = 0
         self._inputs: list[Any] = []
-        self._score_pub = None
-        if self.reads:
-            score = relative(score_topic(self.detector))
-            self._score_pub = self.create_lifecycle_publisher(
-                Score, score, qos.SCORE_PUB, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                event_callbacks=self.publisher_events(score))
-            # Liveliness is a wall-clock contract (DDS lease): assert it on the steady clock, also under sim time.
-            self.create_timer(qos.SCORE_HEARTBEAT_S, self._score_pub.assert_liveliness, clock=self.steady)
+        if not self.settle(self.build_settings):
+            return  # a detector no calibration can declare: nothing to score (configure says why)
+        settings = self.settings
+        self.gate: RolloutGate[Any] = RolloutGate(settings.auto_start_rollouts, settings.max_step_gap,
+                                                  settings.start_wait_ns,
+                                                  max_waiting_size=settings.start_wait_max_elements)
+        score = relative(score_topic(settings.detector))
+        self._score_pub = self.create_lifecycle_publisher(
+            Score, score, qos.SCORE_PUB, qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            event_callbacks=self.publisher_events(score))
+        # Liveliness is a wall-clock contract (DDS lease): assert it on the steady clock, also under sim time.
+        self.create_timer(qos.SCORE_HEARTBEAT_S, self._score_pub.assert_liveliness, clock=self.steady)
         # Events are followed in every state, so a rollout started before activation is known.
         self.create_subscription(RolloutEvent, relative(EVENTS_TOPIC), self._on_event, qos.EVENT,
                                  event_callbacks=self.subscription_events(relative(EVENTS_TOPIC)))
-        self.input_topic = relative(input_topic(self.reads)) if self.reads else ""
-        self.watch_publishers()  # one publisher per input (of allowed_publishers, if set); the scores only from here
+        self.input_topic = relative(input_topic(settings.reads))
 
-    def _reads(self) -> str:
-        """What the detector reads, or ``""`` for a name no calibration can declare (configure says why)."""
-        try:
-            return info(self.detector).reads if self.detector else ""
-        except ValueError:
-            return ""
+    def declare_preset_parameters(self) -> None:
+        """Declare the parameters a preset adds (:class:`AceNode`'s robot); none here."""
+
+    @staticmethod
+    def build_settings(values: Mapping[str, Any]) -> DetectorSettings:
+        """The node's settings from its parameters' values (:func:`~fiper_ros.nodes.settings.detector_settings`)."""
+        return detector_settings(values)
 
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
-        if not self.reads:
-            raise ValueError(f"parameter detector is {self.detector!r}: name a detector of the calibration (rnd_oe, "
-                             "ace, logpzo, pca_kmeans, progress, consistency, elapsed, signal_<name>)")
-        directory = self.get_parameter("calibration_dir").value
+        directory = self.settings.calibration_dir
         if not directory:
             raise ValueError("parameter calibration_dir is empty")
         directory = resolve_data_path(directory)  # relative: the working directory, the share, $FIPER_MODELS
         calibration = load_calibration(directory)
-        if self.detector not in calibration.detectors:
+        if self.settings.detector not in calibration.detectors:
             raise ValueError(f"calibration {directory} declares {', '.join(calibration.detectors)}, not "
-                             f"{self.detector}: nothing for {self.get_name()} to score; launch the suite of its detectors "
+                             f"{self.settings.detector}: nothing for {self.get_name()} to score; launch the suite of its detectors "
                              "(fiper.launch.yaml)")
         self.fk = self.forward_kinematics(calibration)
         self.calibration = calibration
         self.calibration_hash = calibration.content_hash
         self._monitors.clear()
         self.monitor = self._monitor_of(self.gate.current.task if self.gate.current else "")
-        self.get_logger().info(f"{self.detector}: calibration {directory} loaded (hash {self.calibration_hash[:12]})")
+        self.get_logger().info(f"{self.settings.detector}: calibration {directory} loaded (hash {self.calibration_hash[:12]})")
 
     def forward_kinematics(self, calibration: Calibration) -> ForwardKinematics | None:
         """The robot model the detector needs (ACE on joint-space actions: :class:`AceNode`); none here."""
         return None
 
     def activate(self) -> None:
-        topic, msg_type = input_topic(self.reads), INPUTS[self.reads]
+        topic, msg_type = input_topic(self.settings.reads), INPUTS[self.settings.reads]
         self._inputs.append(self.create_wire_subscription(
             msg_type, relative(topic), self._on_input, qos.INPUT,
             event_callbacks=self.subscription_events(relative(topic))))
@@ -168,7 +166,7 @@ class DetectorNode(FiperNode):
             return None
         key = next(name for name, own in self.calibration.tasks.items() if own is part)
         if key not in self._monitors:
-            self._monitors[key] = DetectorMonitor(self.calibration, self.detector, key, self.fk)
+            self._monitors[key] = DetectorMonitor(self.calibration, self.settings.detector, key, self.fk)
         monitor = self._monitors[key]
         monitor.reset()
         return monitor
@@ -176,21 +174,21 @@ class DetectorNode(FiperNode):
     # input ------------------------------------------------------------------------------------------
     def to_value(self, msg: Any) -> Any:  # a message in, what the detector reads out
         """Validate ``msg`` and return what the detector reads at its step; raise InputRejected."""
-        layout = self.calibration.layout
-        if self.reads == "embedding":
-            return validation.embedding(floats_of(msg.data), msg.shape, layout.embedding_dim, self.max_elements,
-                                        self.max_abs_value)
-        if self.reads == "signal":
-            return validation.signal(msg.names, msg.values, self.detector.removeprefix(SIGNAL_PREFIX),
-                                     self.max_elements, self.max_abs_value)
-        if self.reads == "actions":
+        layout, settings = self.calibration.layout, self.settings
+        if settings.reads == "embedding":
+            return validation.embedding(floats_of(msg.data), msg.shape, layout.embedding_dim, settings.max_elements,
+                                        settings.max_abs_value)
+        if settings.reads == "signal":
+            return validation.signal(msg.names, msg.values, settings.detector.removeprefix(SIGNAL_PREFIX),
+                                     settings.max_elements, settings.max_abs_value)
+        if settings.reads == "actions":
             return self.batch(msg), None
         return None  # the elapsed time reads the step alone
 
     def batch(self, msg: ActionChunkBatch) -> Any:  # the checked batch [B, H, D]
         """An action batch checked on its own and against the calibration's layout."""
         actions = validation.action_batch(floats_of(msg.data), msg.batch_size, msg.horizon, msg.action_dim,
-                                          msg.exec_steps, self.max_elements, self.max_abs_value)
+                                          msg.exec_steps, self.settings.max_elements, self.settings.max_abs_value)
         layout = self.calibration.layout
         if msg.action_space != layout.action_space:
             raise InputRejected(validation.ACTION_SPACE,
@@ -213,7 +211,7 @@ class DetectorNode(FiperNode):
         elif msg.event == RolloutEvent.EVENT_END:
             record = self.gate.end(msg.rollout_id, outcome_name(msg.outcome))
             if record is not None:
-                self.get_logger().info(f"{self.detector}: {record.summary()}")
+                self.get_logger().info(f"{self.settings.detector}: {record.summary()}")
 
     def _on_input(self, msg: Any) -> None:  # a message of the detector's input type
         now = self.now_ns()
@@ -267,15 +265,18 @@ class DetectorNode(FiperNode):
 
     def _publish(self, msg: Any, result: StepScore, latency_ms: float) -> None:
         self._score_pub.publish(SCORE.encode(SCORE.view(
-            header=msg.header, rollout_id=msg.rollout_id, step=msg.step, detector=self.detector, score=result.score,
+            header=msg.header, rollout_id=msg.rollout_id, step=msg.step, detector=self.settings.detector,
+            score=result.score,
             windowed_score=result.windowed, threshold=result.threshold, exceeded=bool(result.exceeded),
             window=self.monitor.window if self.monitor is not None else 0, complete=bool(result.complete),
             latency_ms=latency_ms)))
         self.published += 1
 
     def diagnostic_values(self) -> dict[str, str]:
+        if self.settings is None:
+            return {}
         self._expire_waiting(self.now_ns())
-        values = {"detector": self.detector, "published": str(self.published),
+        values = {"detector": self.settings.detector, "published": str(self.published),
                   "calibration_hash": self.calibration_hash or "none", "waiting_for_start": str(len(self.gate.waiting)),
                   "repeated_starts": str(self.gate.repeated_starts)}
         active = self.gate.active

@@ -33,6 +33,7 @@ from fiper_ros.interface.conversions import header_view, stamp_ns
 from fiper_ros.interface.messages import AlarmStateName, outcome_name
 from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, RESET_ALARM_SERVICE, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.settings import FROM_CALIBRATION, FusionSettings, fusion_settings
 from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.rollout_gate import Route
@@ -41,12 +42,11 @@ from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, Inpu
 
 #: The FailureAlarm on the wire: the node publishes its bytes.
 ALARM_WIRE = codec(FailureAlarm)
-#: The ``combine`` parameter's value that takes the calibration's own combine.
-FROM_CALIBRATION = "calibration"
-
 
 class FusionNode(FiperNode):
     """Publishes the fused failure prediction on ``alarm``."""
+
+    settings: FusionSettings
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("fusion_node", **kwargs)
@@ -86,8 +86,6 @@ class FusionNode(FiperNode):
         self.lost: set[str] = set()
         self.states = dict.fromkeys(AlarmStateName, 0)
         self._last_publish_ns = 0
-        self._heartbeat_ns = 0
-        self._allow_reset = bool(self.get_parameter("allow_reset").value)
         self._last_published: tuple[int, str, str] | None = None
         self._inputs: list[Any] = []
         self._timer: Any = None
@@ -103,6 +101,7 @@ class FusionNode(FiperNode):
         self.resets: Counter[str] = Counter()
         self._declare_streams(DETECTORS)
         self.watch_publishers(self._on_publishers)
+        self.settle(fusion_settings)  # a refused combine: every configure fails with it
 
     def _declare_streams(self, detectors: tuple[str, ...]) -> None:
         """The score topics of ``detectors``: what the node subscribes to and watches, and the keys of their rates on
@@ -111,8 +110,8 @@ class FusionNode(FiperNode):
         self.score_topics = {d: self.resolve_topic_name(topic) for d, topic in self.score_streams.items()}
 
     def configure(self) -> None:
-        combine = self.get_parameter("combine").value
-        directory = self.get_parameter("calibration_dir").value
+        settings = self.settings
+        combine, directory = settings.combine, settings.calibration_dir
         detectors = DETECTORS
         if directory:  # relative: the working directory, the share, $FIPER_MODELS (as the scoring nodes)
             directory = str(resolve_data_path(directory))
@@ -122,11 +121,9 @@ class FusionNode(FiperNode):
                                  f"{own.combine!r}: set combine {FROM_CALIBRATION!r}, or calibrate for it")
             detectors, combine = own.detectors, own.combine
         self._declare_streams(detectors)
-        self._heartbeat_ns = int(self.get_parameter("heartbeat_s").value * 1e9)
-        self.fuser = AlarmFuser(CombineMode.AND if combine == FROM_CALIBRATION else combine, int(self.get_parameter("deadline_s").value * 1e9),
-                                self.get_parameter("buffer_size").value, self.get_parameter("deadline_periods").value,
-                                int(self.get_parameter("deadline_floor_s").value * 1e9), detectors,
-                                int(self.get_parameter("start_wait_s").value * 1e9))
+        self.fuser = AlarmFuser(CombineMode.AND if combine == FROM_CALIBRATION else combine, settings.deadline_ns,
+                                settings.buffer_size, settings.deadline_periods, settings.deadline_floor_ns, detectors,
+                                settings.start_wait_ns)
         alone = "" if self.fuser.combined else ": alone, combine does not apply"
         self.get_logger().info(f"fusing {', '.join(detectors)}{alone}"
                                + (f" (calibration {directory})" if directory else ""))
@@ -142,7 +139,7 @@ class FusionNode(FiperNode):
         self._inputs.append(self.create_subscription(
             RolloutEvent, relative(EVENTS_TOPIC), self._on_event, qos.EVENT,
             event_callbacks=self.subscription_events(relative(EVENTS_TOPIC))))
-        self._timer = self.create_timer(self.get_parameter("check_period_s").value, self._on_timer)
+        self._timer = self.create_timer(self.settings.check_period_s, self._on_timer)
 
     def deactivate(self) -> None:
         for subscription in self._inputs:
@@ -158,7 +155,8 @@ class FusionNode(FiperNode):
     def expected_publishers(self) -> list[Expected]:
         """The shell's expectations, with each score topic published by one of ``score_publishers`` (empty: each
         declared detector's own node)."""
-        scorers = self.allowed("score_publishers") or frozenset(resolve_node(f"{d}_node", self.get_namespace())
+        named = self.settings.score_publishers if self.settings is not None else ()
+        scorers = self.allowed(named) or frozenset(resolve_node(f"{d}_node", self.get_namespace())
                                                               for d in self.score_streams)
         topics = set(self.score_topics.values())
         return [replace(e, nodes=scorers) if e.topic in topics else e for e in super().expected_publishers()]
@@ -232,13 +230,14 @@ class FusionNode(FiperNode):
         if self.fuser is None:
             return
         now = self.now_ns()
-        state = self.fuser.heartbeat(now, self._heartbeat_ns, self._last_publish_ns, self._last_published,
+        state = self.fuser.heartbeat(now, self.settings.heartbeat_ns, self._last_publish_ns, self._last_published,
                                      frozenset(self.lost))
         if state is not None:
             self.publish(state, now, heartbeat=True)
 
     def _on_reset(self, request: ResetAlarm.Request, response: ResetAlarm.Response) -> ResetAlarm.Response:
-        refusal = reset_refusal(self._allow_reset, request.requester, request.reason)
+        refusal = "" if self.settings is None else reset_refusal(self.settings.allow_reset, request.requester,
+                                                                 request.reason)
         if not refusal and self.fuser is None:
             refusal = "fusion node is not configured"
         if refusal:

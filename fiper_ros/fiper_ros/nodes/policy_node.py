@@ -31,6 +31,7 @@ from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, EMBEDDING_TOPIC,
                                         EVENTS_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.settings import PolicySettings, policy_settings
 from fiper_ros.platform.process import run_node
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
@@ -41,12 +42,14 @@ from fiper_ros.runtime.observation_sync import ObservationSync
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
 
 PROPRIO = "proprio"
-#: Observation key -> parameter naming its image topic.
+#: Observation key -> parameter (and setting) naming its image topic.
 IMAGE_TOPIC_PARAMS = {"wrist_rgb": "wrist_image_topic", "third_rgb": "third_image_topic"}
 
 
 class PolicyNode(FiperNode):
     """Acts on every observation of the running rollout: embedding, sampled batch, command."""
+
+    settings: PolicySettings
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("policy_node", **kwargs)
@@ -66,6 +69,8 @@ class PolicyNode(FiperNode):
         declare("embedding_topic", EMBEDDING_TOPIC, describe("ObservationEmbedding output", read_only=True))
         declare("action_chunks_topic", ACTIONS_TOPIC, describe("ActionChunkBatch output", read_only=True))
         declare("action_topic", SIM_ACTION_TOPIC, describe("ActionCommand output (the robot's input)", read_only=True))
+        self.settle(policy_settings)
+        settings = self.settings
         self.policy: Policy | None = None
         self.session: PolicySession | None = None
         self.sync: ObservationSync[np.ndarray] = ObservationSync((*CAMERAS, PROPRIO))
@@ -81,36 +86,35 @@ class PolicyNode(FiperNode):
         self._inputs: list[Any] = []
 
         # The policy side of the contract (the sim bridge publishes the rollout events): fiper_ros.publishing.
-        self.fiper = FiperPublisher(self, embedding_topic=self.get_parameter("embedding_topic").value,
-                                    actions_topic=self.get_parameter("action_chunks_topic").value, events_topic=None,
+        self.fiper = FiperPublisher(self, embedding_topic=settings.embedding_topic,
+                                    actions_topic=settings.action_chunks_topic, events_topic=None,
                                     event_callbacks=self.publisher_events)
-        command_topic = self.get_parameter("action_topic").value
-        self._command_pub = self.create_publisher(ActionCommand, command_topic, qos.INPUT,
-                                                  event_callbacks=self.publisher_events(command_topic))
+        self._command_pub = self.create_publisher(ActionCommand, settings.action_topic, qos.INPUT,
+                                                  event_callbacks=self.publisher_events(settings.action_topic))
 
     # lifecycle ----------------------------------------------------------------------------------------
     def configure(self) -> None:
-        model = resolve_data_path(self.get_parameter("model").value)  # the rule of fiper_ros/data_paths.py
-        torch.set_num_threads(self.get_parameter("torch_threads").value)
+        settings = self.settings
+        model = resolve_data_path(settings.model)  # the rule of fiper_ros/data_paths.py
+        torch.set_num_threads(settings.torch_threads)
         policy = Policy.load(model)  # a missing file is named in the error (the parameter is `model`)
         self.fiper.set_layout(policy.config.action_space, policy.config.exec_steps)
-        self.session = PolicySession(policy, self.get_parameter("batch").value or None, self.reject,
-                                     int(self.get_parameter("start_wait_s").value * 1e9))
+        self.session = PolicySession(policy, settings.batch or None, self.reject, settings.start_wait_ns)
         self.policy = policy
         c = policy.config
         self.get_logger().info(f"policy {model} loaded: {c.task} ({c.head}), B x H x D = {self.batch_size} x "
                                f"{c.horizon} x {c.action_dim}, E = {c.embed_dim}, T_h = {c.obs_horizon}, "
                                f"h = {c.exec_steps}, {c.action_space}")
         # Followed from here on in every state: a rollout started before activation is known.
-        topic = self.get_parameter("events_topic").value
+        topic = settings.events_topic
         self._events_sub = self.create_subscription(RolloutEvent, topic, self._on_event, qos.EVENT,
                                                     callback_group=self._events_group,
                                                     event_callbacks=self.subscription_events(topic))
 
     def activate(self) -> None:
         for key, parameter in IMAGE_TOPIC_PARAMS.items():
-            self._subscribe(Image, parameter, lambda msg, key=key: self._on_image(key, msg))
-        self._subscribe(JointState, "proprio_topic", self._on_proprio)
+            self._subscribe(Image, getattr(self.settings, parameter), lambda msg, key=key: self._on_image(key, msg))
+        self._subscribe(JointState, self.settings.proprio_topic, self._on_proprio)
 
     def deactivate(self) -> None:
         for subscription in self._inputs:
@@ -127,8 +131,7 @@ class PolicyNode(FiperNode):
             self.session = None
             self.policy = None
 
-    def _subscribe(self, msg_type: Any, parameter: str, callback: Callable[[Any], None]) -> None:
-        topic = self.get_parameter(parameter).value
+    def _subscribe(self, msg_type: Any, topic: str, callback: Callable[[Any], None]) -> None:
         self._inputs.append(self.create_subscription(msg_type, topic, callback, qos.INPUT,
                                                      event_callbacks=self.subscription_events(topic)))
 
@@ -137,7 +140,7 @@ class PolicyNode(FiperNode):
         """``B`` of the published batches (0 before configure)."""
         if self.policy is None:
             return 0
-        return self.get_parameter("batch").value or self.policy.config.sample_batch
+        return self.settings.batch or self.policy.config.sample_batch
 
     # callbacks ----------------------------------------------------------------------------------------
     def _on_event(self, msg: RolloutEvent) -> None:
@@ -230,7 +233,7 @@ class PolicyNode(FiperNode):
 
     def _values(self) -> dict[str, str]:
         sync = self.sync
-        values = {"model": self.get_parameter("model").value, "published": str(self.published),
+        values = {"model": self.settings.model, "published": str(self.published),
                   "steps_dropped_after_end": str(self.dropped_after_end),
                   "ticks.complete": str(sync.completed), "ticks.partial_dropped": str(sync.dropped_partial),
                   "ticks.stale": str(sync.stale), "ticks.duplicate": str(sync.duplicates)}

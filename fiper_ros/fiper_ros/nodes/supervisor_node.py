@@ -24,8 +24,9 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.messages import AlarmStateName
 from fiper_ros.interface.topics import ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, SIM_HALT_SERVICE
-from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array
+from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array, parameter_values
 from fiper_ros.nodes.graph_watch import PublisherCheck
+from fiper_ros.nodes.settings import SupervisorSettings, supervisor_settings
 from fiper_ros.platform.process import run_node
 from fiper_ros.runtime.halt_delivery import HaltDelivery
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
@@ -67,31 +68,29 @@ class SupervisorNode(Node):
         self.declare_parameter("halt_retry_s", 0.5,
                                describe("wait before asking again for a halt the service did not confirm (not available, "
                                         "refused, unanswered)", read_only=True, low=0.01, high=60.0))
-        self.logic = SupervisorLogic(int(self.get_parameter("deadline_s").value * 1e9),
-                                     self.get_parameter("silence_periods").value,
-                                     int(self.get_parameter("silence_floor_s").value * 1e9))
+        self.settings: SupervisorSettings = supervisor_settings(parameter_values(self))
+        settings = self.settings
+        self.logic = SupervisorLogic(settings.deadline_ns, settings.silence_periods, settings.silence_floor_ns)
         self.halts: list[HaltDecision] = []
         #: Halts decided since the start (``halts`` keeps only the recent ones).
         self.halted = 0
-        self.delivery = HaltDelivery(int(self.get_parameter("halt_timeout_s").value * 1e9),
-                                     int(self.get_parameter("halt_retry_s").value * 1e9))
+        self.delivery = HaltDelivery(settings.halt_timeout_ns, settings.halt_retry_ns)
         self._halt_future: Any = None
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._halt = self.create_client(Trigger, self.get_parameter("halt_service").value)
+        self._halt = self.create_client(Trigger, settings.halt_service)
         # The contract: TRANSIENT_LOCAL, so a supervisor that starts late still gets the latest state; with the
         # lease, liveliness counts the live publishers of the alarm.
-        self.alarm_topic = self.resolve_topic_name(self.get_parameter("alarm_topic").value)
+        self.alarm_topic = self.resolve_topic_name(settings.alarm_topic)
         self.publisher_check = PublisherCheck(self, self._expected, PUBLISHER_CHECK_PERIOD_S, self._on_publishers)
         self.create_subscription(FailureAlarm, self.alarm_topic, self._on_alarm, qos.ALARM_LIVE,
                                  event_callbacks=SubscriptionEventCallbacks(
                                      liveliness=lambda info: self.publisher_check.set_liveliness(
                                          self.alarm_topic, info.not_alive_count)))
-        self.create_subscription(RolloutEvent, self.get_parameter("events_topic").value, self._on_event, qos.EVENT)
+        self.create_subscription(RolloutEvent, settings.events_topic, self._on_event, qos.EVENT)
         self.create_timer(0.02, self._on_clock)
         self.create_timer(HALT_POLL_S, self._deliver, clock=self._steady)
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
-        self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics,
-                          clock=self._steady)
+        self.create_timer(settings.diagnostics_period_s, self._publish_diagnostics, clock=self._steady)
 
     def _now(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -107,7 +106,7 @@ class SupervisorNode(Node):
         self._act(decision)
 
     def _expected(self) -> list[Expected]:
-        names = self.get_parameter("alarm_publishers").value
+        names = self.settings.alarm_publishers
         return [Expected(self.alarm_topic, frozenset(resolve_node(n, self.get_namespace()) for n in names))]
 
     def _on_publishers(self) -> None:

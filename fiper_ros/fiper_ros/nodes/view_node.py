@@ -33,11 +33,13 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from fiper_msgs.msg import FailureAlarm, RolloutEvent, Score
-from fiper_ros.core.detectors import CALIBRATED, check_declared
+from fiper_ros.core.detectors import CALIBRATED
 from fiper_ros.interface import qos
 from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_TOPICS, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, relative,
                                         score_topic)
-from fiper_ros.nodes.base import describe, diagnostic_array
+from fiper_ros.nodes.base import describe, diagnostic_array, parameter_values
+from fiper_ros.nodes.errors import NodeError
+from fiper_ros.nodes.settings import ViewSettings, view_settings
 from fiper_ros.platform.process import run_node
 from fiper_ros.view.layout import installed_layout
 from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, HOW_TO_OPEN, ViewError, ViewServer
@@ -76,43 +78,31 @@ class ViewNode(Node):
         self.declare_parameter("on_demand", True, describe(
             "subscribe to a topic only while a client shows it (false: to every topic from the start)",
             read_only=True))
+        #: The node's settings (:class:`NodeError` naming a detector no suite scores).
+        self.settings: ViewSettings = view_settings(parameter_values(self))
         self.server: ViewServer | None = None
         #: Every topic served (resolved) -> its message class and subscription QoS.
         self.streams: dict[str, tuple[type, QoSProfile]] = {
-            self.resolve_topic_name(relative(score_topic(d))): (Score, qos.SCORE_SUB) for d in self._detectors()}
+            self.resolve_topic_name(relative(score_topic(d))): (Score, qos.SCORE_SUB) for d in self.settings.detectors}
         self.streams |= {self.resolve_topic_name(name): spec for name, spec in JSON_TOPICS.items()}
-        self._cameras = [self.resolve_topic_name(name) for name in self.get_parameter("cameras").value]
+        self._cameras = [self.resolve_topic_name(name) for name in self.settings.cameras]
         self.streams |= {topic: (Image, qos.VIEW_IMAGE) for topic in self._cameras}
         self._readers: dict[str, Subscription] = {}
-        self._on_demand = self.get_parameter("on_demand").value
-        if not self._on_demand:
+        if not self.settings.on_demand:
             for topic in self.streams:
                 self._subscribe(topic)
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(self.get_parameter("diagnostics_period_s").value, self._publish_diagnostics, clock=steady)
+        self.create_timer(self.settings.diagnostics_period_s, self._publish_diagnostics, clock=steady)
         self._start = self.create_timer(0.0, self._serve, clock=steady)
-        if self._on_demand:
+        if self.settings.on_demand:
             self.create_timer(SYNC_PERIOD_S, self._sync, clock=steady)
-
-    def _detectors(self) -> list[str]:
-        """The ``detectors`` parameter, each a detector a calibration may declare (:class:`ViewError` naming one that
-        is not)."""
-        names = [str(name) for name in self.get_parameter("detectors").value]
-        for name in names:
-            try:
-                check_declared(name)
-            except ValueError:
-                raise ViewError(f"parameter detectors: {name!r} is not a detector a suite scores ("
-                                f"{', '.join(CALIBRATED)} or signal_<name>)") from None
-        return names
 
     def _serve(self) -> None:
         """Start the server (once, when the node first spins: building the node binds no port)."""
         self._start.cancel()
-        port = self.get_parameter("port").value
-        server = ViewServer(self.get_fully_qualified_name(), self.get_parameter("host").value, port,
-                            self.get_parameter("backlog").value)
+        settings = self.settings
+        server = ViewServer(self.get_fully_qualified_name(), settings.host, settings.port, settings.backlog)
         for topic, (cls, _) in self.streams.items():
             if topic not in self._cameras:
                 server.add_json(topic, cls)
@@ -167,7 +157,8 @@ NODE_CLASS = ViewNode
 
 
 def serve(args: list[str] | None = None) -> int:
-    """Run the node until interrupted; :class:`~fiper_ros.view.server.ViewError` when it cannot serve."""
+    """Run the node until interrupted; :class:`~fiper_ros.view.server.ViewError` when it cannot serve,
+    :class:`~fiper_ros.nodes.errors.NodeError` for a parameter it refuses."""
     return run_node(ViewNode, args)
 
 
@@ -175,7 +166,7 @@ def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.view_node --ros-args -r __ns:=/fiper -p port:=8765``."""
     try:
         return serve(args)
-    except ViewError as error:
+    except (ViewError, NodeError) as error:
         print(f"view_node: {error}", file=sys.stderr)
         return 2
 
