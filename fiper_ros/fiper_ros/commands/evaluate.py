@@ -51,7 +51,7 @@ from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.core.auto import AutoSettings
+from fiper_ros.core.auto import RULES, AutoSettings
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import COMBINES
@@ -196,6 +196,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     protocol.add_argument("--auto", action="store_true",
                           help="also choose each task's configuration as fiper calibrate --auto does, from its "
                                "calibration successes alone, and report it beside the protocols")
+    protocol.add_argument("--auto-rule", choices=tuple(RULES), default=AutoSettings().rule,
+                          help="with --auto: proxy-twa scores failure proxies made from successes, margin held-out "
+                               "successes only (docs/method.md)")
     protocol.add_argument("--auto-windows", type=int_list, default=AutoSettings().windows, metavar="W,...",
                           help="with --auto: the windows it tries (default 1,3,5,10,20)")
     protocol.add_argument("--auto-budget", type=int, default=AutoSettings().budget, metavar="N",
@@ -304,7 +307,7 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           else ("window", "max"),
                           progress=not args.quiet, combinations=combinations_from(args),
                           combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc,
-                          auto=AutoSettings(windows=args.auto_windows, budget=args.auto_budget,
+                          auto=AutoSettings(rule=args.auto_rule, windows=args.auto_windows, budget=args.auto_budget,
                                             step_limit=args.step_limit) if args.auto else None)
 
 
