@@ -68,3 +68,19 @@ def test_calibrate_auto_refuses_a_budget_it_would_exceed(tmp_path: Path, signal_
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "exceed the auto budget of 3 (--auto-budget)" in err
     assert not out.exists()
+
+
+def test_calibrate_auto_rule_margin_prints_and_stores_its_margins(tmp_path: Path, signal_bag: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "margin", "--detectors",
+                 "signal_a,signal_b,elapsed", "--auto-windows", "1,3", "--auto-folds", "3", "--delta", "0.3",
+                 "--seed", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    record = load_calibration(out).auto
+    assert record["rule"] == "margin" and record["settings"]["rule"] == "margin"
+    head = lines.index(next(line for line in lines if line.startswith("auto (margin v1, delta 0.3): ")))
+    assert lines[head + 1].split() == ["rank", "margin", "held-out", "FA", "candidate"]
+    first = lines[head + 2].split()
+    assert first[0] == "1" and float(first[1]) == pytest.approx(record["top"][0]["figures"]["margin"], abs=1e-3)
+    assert "elapsed" not in record["chosen"]["detectors"]  # no spread: an infinite margin

@@ -219,3 +219,60 @@ def test_scores_are_rates_and_the_choice_ignores_the_order_of_the_detectors(seed
     assert all(0.0 <= v <= 1.0 for s in choice.ranking for v in s.caught.values())
     again = choose({"t": data}, names[::-1] if reverse else names, auto, base, seed)
     assert again.record() == choice.record()
+
+
+MARGIN_ONE = AutoSettings(rule="margin", windows=(1,), kinds=("cp_constant",), folds=4)
+
+
+def _margin_choice(successes: dict[str, list[np.ndarray]], settings: AutoSettings = MARGIN_ONE,
+                   delta: float = 0.2) -> Any:
+    return choose({"t": TaskScores(successes)}, sorted(successes), settings, ThresholdSettings(delta=delta), seed=3)
+
+
+@settings(max_examples=25, deadline=None)
+@given(scale=st.floats(0.01, 100.0), offset=st.floats(-50.0, 50.0))
+def test_the_margin_is_in_units_of_the_successes_spread(scale: float, offset: float) -> None:
+    # signal_b is signal_a moved and scaled: the threshold and every success move with it, so the gap in units of
+    # the per-step spread (and the held-out false alarms) are the same; the tie goes to the candidate order.
+    rng = np.random.default_rng(7)
+    a = [rng.normal(size=12) for _ in range(12)]
+    choice = _margin_choice({"signal_a": a, "signal_b": [offset + scale * s for s in a]})
+    first, second = choice.ranking
+    assert first.caught["margin"] == pytest.approx(second.caught["margin"], rel=1e-9, abs=1e-9)
+    assert first.false_alarms == second.false_alarms
+    assert np.isfinite(first.caught["margin"]) and first.score == -first.caught["margin"]
+
+
+def test_the_margin_prefers_the_threshold_closest_to_the_successes_band() -> None:
+    # Same per-step noise, but every success of signal_b has one spike of +8 at its own step: its rollout maxima
+    # (so its threshold) sit far above its typical step, while signal_a's threshold sits a spread or two above it.
+    rng = np.random.default_rng(1)
+    a = [rng.normal(size=16) for _ in range(12)]
+    b = [s + 8.0 * (np.arange(16) == i) for i, s in enumerate(a)]
+    choice = _margin_choice({"signal_a": a, "signal_b": b})
+    assert choice.chosen.detectors == ("signal_a",)
+    assert choice.ranking[0].caught["margin"] < choice.ranking[1].caught["margin"]
+    assert "smallest margin" in choice.why() and choice.record()["rule"] == "margin"
+    assert choice.record()["top"][0]["figures"] == {"margin": pytest.approx(choice.ranking[0].caught["margin"],
+                                                                            abs=1e-6)}
+
+
+def test_a_detector_without_spread_has_an_infinite_margin_and_is_never_chosen() -> None:
+    # The elapsed time's curve is the same for every success: no step has a spread, so no gap can be measured.
+    rng = np.random.default_rng(2)
+    successes = {"elapsed": [np.arange(1.0, 11.0)] * 10, "signal_a": [rng.normal(size=10) for _ in range(10)]}
+    choice = _margin_choice(successes)
+    assert choice.chosen.detectors == ("signal_a",)
+    assert [s.caught["margin"] for s in choice.ranking if s.candidate.detectors == ("elapsed",)] == [np.inf]
+
+
+def test_the_margin_rule_builds_no_proxy_is_deterministic_and_an_unknown_rule_is_refused() -> None:
+    successes = _signal_rollouts(14)
+    margin = AutoSettings(rule="margin", windows=(1, 3), folds=3)
+    choice = choose_configuration(successes, FAST, margin, SIGNALS)
+    assert choice.settings.rule == "margin" and all(set(s.caught) == {"margin"} for s in choice.ranking)
+    assert choice.record() == choose_configuration(successes, FAST, margin, SIGNALS).record()
+    assert choose_configuration([*successes[:5], SealedFailure(), *successes[5:]], FAST, margin,
+                                SIGNALS).record() == choice.record()  # a failure is never opened
+    with pytest.raises(AutoError, match="auto rule must be one of proxy-twa, margin, got 'best'"):
+        AutoSettings(rule="best")

@@ -42,7 +42,7 @@ from fiper_ros.bagio.reader import find_bags
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.core.auto import AutoChoice, AutoSettings
+from fiper_ros.core.auto import MARGIN, AutoChoice, AutoSettings
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationSettings, calibrate,
                                         upgrade_calibration)
 from fiper_ros.core.calibration.auto import auto_calibrate
@@ -149,15 +149,18 @@ def _note(text: str) -> None:
 
 
 def auto_lines(choice: AutoChoice, top: int = 8) -> list[str]:
-    """What ``--auto`` chose and why, with its best candidates (lines to print)."""
-    kinds = list(choice.ranking[0].caught)
+    """What ``--auto`` chose and why, with its best candidates (lines to print): the proxy TWA and each proxy kind's
+    catch (``proxy-twa``), or the margin (``margin``)."""
+    margin = choice.settings.rule == MARGIN
+    kinds = [] if margin else list(choice.ranking[0].caught)
+    head = "margin" if margin else "proxy TWA"
     lines = [f"auto ({choice.record()['rule']} v{choice.record()['version']}, delta {choice.delta:g}): "
              f"{len(choice.ranking)} candidates of {', '.join(choice.detectors)}",
-             f"  {'rank':>4}  {'proxy TWA':>9}  {'held-out FA':>11}  " + "  ".join(f"{k:>6}" for k in kinds)
-             + "  candidate"]
+             f"  {'rank':>4}  {head:>9}  {'held-out FA':>11}  " + "".join(f"{k:>6}  " for k in kinds) + "candidate"]
     for rank, score in enumerate(choice.ranking[:top], 1):
-        lines.append(f"  {rank:>4}  {score.score:>9.3f}  {score.false_alarms:>11.3f}  "
-                     + "  ".join(f"{score.caught.get(k, 0.0):>6.3f}" for k in kinds) + f"  {score.candidate.label()}")
+        value = score.caught[MARGIN] if margin else score.score
+        lines.append(f"  {rank:>4}  {value:>9.3f}  {score.false_alarms:>11.3f}  "
+                     + "".join(f"{score.caught.get(k, 0.0):>6.3f}  " for k in kinds) + score.candidate.label())
     lines.append(f"chosen: {choice.why()}")
     return lines
 

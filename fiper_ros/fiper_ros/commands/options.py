@@ -70,12 +70,15 @@ def parse_channels(text: str, flag: str = "--channels") -> tuple[int, int] | str
 
 
 def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, folds: bool = False) -> None:
-    """The options of the automatic choice (:class:`~fiper_ros.core.auto.AutoSettings`): ``--auto-windows``,
-    ``--auto-budget``, ``--step-limit`` and (``folds``: ``fiper calibrate``, whose fit part it splits)
-    ``--auto-folds``."""
-    from fiper_ros.core.auto import AutoSettings  # noqa: PLC0415 - numpy only for the commands that choose
+    """The options of the automatic choice (:class:`~fiper_ros.core.auto.AutoSettings`): ``--auto-rule``,
+    ``--auto-windows``, ``--auto-budget``, ``--step-limit`` and (``folds``: ``fiper calibrate``, whose fit part it
+    splits) ``--auto-folds``."""
+    from fiper_ros.core.auto import RULES, AutoSettings  # noqa: PLC0415 - numpy only for the commands that choose
 
     defaults = AutoSettings()
+    parser.add_argument("--auto-rule", choices=tuple(RULES), default=defaults.rule,
+                        help="with --auto: proxy-twa scores failure proxies made from the successes, margin the "
+                             "held-out successes only (docs/method.md)")
     parser.add_argument("--auto-windows", type=int_list, default=defaults.windows, metavar="W,...",
                         help="with --auto: the windows tried, a comma list and/or ranges, e.g. 1,3,5-10 (default "
                              f"{','.join(map(str, defaults.windows))})")
@@ -96,7 +99,8 @@ def auto_from(args: argparse.Namespace) -> AutoSettings | None:
     from fiper_ros.core.auto import AutoSettings  # noqa: PLC0415
 
     folds = {"folds": args.auto_folds} if hasattr(args, "auto_folds") else {}
-    return AutoSettings(windows=args.auto_windows, budget=args.auto_budget, step_limit=args.step_limit, **folds)
+    return AutoSettings(rule=args.auto_rule, windows=args.auto_windows, budget=args.auto_budget,
+                        step_limit=args.step_limit, **folds)
 
 
 def add_robot_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, control_dt: bool = True) -> None:

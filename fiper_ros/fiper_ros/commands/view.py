@@ -44,4 +44,4 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(problem)
     from fiper_ros.nodes.view_node import serve  # noqa: PLC0415 - rclpy only once the arguments are good
 
-    return serve(ros_arguments(args))  # a ViewError if the port was taken in the meantime or a detector is unknown
+    return serve(ros_arguments(args))  # a ViewError if the port was taken in the meantime, a NodeError if a detector is unknown

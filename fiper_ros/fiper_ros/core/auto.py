@@ -35,6 +35,14 @@ is not rewarded, because the threshold is always set on other successes than tho
 which kind of failure a task has: the proxies weigh the three kinds equally (docs/method.md, "Choosing the
 configuration from successes").
 
+The second rule, ``margin``, reads held-out successes only (no proxy): steps 1 and 3 as above, then per inner fold
+the gap ``(k - c(t)) / s(t)`` between the threshold and every held-out success's statistic at each of its steps, in
+units of ``s(t)``, the spread (standard deviation) of the shape half's statistic at that step; the candidate's
+**margin** is the median gap over the folds' held-out successes and steps. The smallest margin wins (ties as
+above): its threshold sits closest to the successes' own spread for the same promise, so a failure that leaves
+the successes' band by a given number of spreads crosses it first. A candidate whose statistic has no spread at
+any step (the elapsed time: every success has the same curve) has an infinite margin and is never chosen.
+
 No failure is ever read: the functions here take per-step scores of successes and of proxies made from them.
 """
 
@@ -55,9 +63,10 @@ from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, ThresholdSettings, _quantile
 from fiper_ros.core.window import aggregate
 
-#: The rule's name and version (stored in the calibration with its choice).
-RULE = "proxy-twa"
-RULE_VERSION = 1
+#: The rules (module docstring) and their versions (stored in the calibration with the choice).
+PROXY_TWA = "proxy-twa"
+MARGIN = "margin"
+RULES = {PROXY_TWA: 1, MARGIN: 1}
 #: The failure proxies the rule can build from a success.
 PROXIES = ("stall", "drift", "skip")
 #: Share of a success's steps before a proxy's onset: drawn uniformly in this range.
@@ -75,6 +84,7 @@ class AutoSettings:
     """What ``--auto`` tries and how it scores (module docstring).
 
     Attributes:
+        rule: The rule (:data:`RULES`): ``proxy-twa`` scores failure proxies, ``margin`` held-out successes only.
         windows: The windows tried for every detector whose aggregation is not fixed.
         kinds: Threshold kinds tried (guaranteed ones only); a combination of several detectors takes the kinds
             with a shape among them.
@@ -89,6 +99,7 @@ class AutoSettings:
         step_limit: The task's step limit (a stall proxy runs to it), if given.
     """
 
+    rule: str = PROXY_TWA
     windows: tuple[int, ...] = (1, 3, 5, 10, 20)
     kinds: tuple[str, ...] = GUARANTEED_KINDS
     combines: tuple[str, ...] = ("max", "kth:2")
@@ -103,6 +114,8 @@ class AutoSettings:
     def __post_init__(self) -> None:
         for name in ("windows", "kinds", "combines", "proxies"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
+        if self.rule not in RULES:
+            raise AutoError(f"auto rule must be one of {', '.join(RULES)}, got {self.rule!r}")
         if not self.windows or min(self.windows) < 1:
             raise AutoError(f"auto windows must be >= 1, at least one, got {self.windows}")
         if not self.kinds or any(k not in GUARANTEED_KINDS for k in self.kinds):
@@ -273,8 +286,8 @@ class TaskScores:
 
 @dataclass(frozen=True)
 class Score:
-    """One candidate's figures: the score, the held-out false-alarm rate and each proxy kind's mean
-    ``1 - t/T`` (0 where never alarmed), averaged over tasks."""
+    """One candidate's figures: the score, the held-out false-alarm rate and what the rule measured, averaged over
+    tasks: ``proxy-twa`` each proxy kind's mean ``1 - t/T`` (0 where never alarmed), ``margin`` the ``margin``."""
 
     candidate: Candidate
     score: float
@@ -285,7 +298,7 @@ class Score:
         """Plain data."""
         return {"candidate": self.candidate.label(), "score": round(self.score, 6),
                 "false_alarms": round(self.false_alarms, 6),
-                "proxies": {k: round(v, 6) for k, v in self.caught.items()}}
+                "figures": {k: round(v, 6) for k, v in self.caught.items()}}
 
 
 @dataclass(frozen=True)
@@ -301,9 +314,14 @@ class AutoChoice:
     def why(self) -> str:
         """One sentence: why the winner won."""
         best = self.ranking[0]
-        caught = ", ".join(f"{k} {v:.2f}" for k, v in best.caught.items())
-        text = (f"{best.candidate.label()} has the highest proxy TWA {best.score:.3f} of {len(self.ranking)} "
-                f"candidates (held-out successes alarmed {best.false_alarms:.2f}; proxies caught, 1 - t/T: {caught})")
+        if self.settings.rule == MARGIN:
+            text = (f"{best.candidate.label()} has the smallest margin {best.caught[MARGIN]:.3f} of "
+                    f"{len(self.ranking)} candidates (held-out successes alarmed {best.false_alarms:.2f})")
+        else:
+            caught = ", ".join(f"{k} {v:.2f}" for k, v in best.caught.items())
+            text = (f"{best.candidate.label()} has the highest proxy TWA {best.score:.3f} of {len(self.ranking)} "
+                    f"candidates (held-out successes alarmed {best.false_alarms:.2f}; proxies caught, 1 - t/T: "
+                    f"{caught})")
         if len(self.ranking) > 1:
             second = self.ranking[1]
             text += f"; next {second.candidate.label()} {second.score:.3f}"
@@ -311,7 +329,7 @@ class AutoChoice:
 
     def record(self, top: int = 10) -> dict[str, Any]:
         """What a calibration stores of the choice."""
-        return {"rule": RULE, "version": RULE_VERSION, "delta": self.delta, "settings": self.settings.to_dict(),
+        return {"rule": self.settings.rule, "version": RULES[self.settings.rule], "delta": self.delta, "settings": self.settings.to_dict(),
                 "detectors": list(self.detectors), "chosen": self.chosen.to_dict(), "candidates": len(self.ranking),
                 "why": self.why(), "top": [s.row() for s in self.ranking[:top]]}
 
@@ -377,13 +395,40 @@ class _TaskRule:
             self._z[key] = (curves - shape.offset[None, :]) / shape.scale[None, :]
         return self._z[key]
 
+    def combined(self, candidate: Candidate, fold: int) -> np.ndarray:
+        """The candidate's statistic ``c(t)`` of every row in ``fold`` (``-inf`` past each end)."""
+        z = np.stack([self.statistic(d, candidate.window, candidate.kind, fold) for d in candidate.detectors])
+        return np.sort(np.nan_to_num(z, nan=-np.inf), axis=0)[z.shape[0] - candidate.votes]
+
+    def margin(self, candidate: Candidate, delta: float) -> tuple[float, float]:
+        """Held-out false-alarm rate and the margin (module docstring) over the inner folds."""
+        alarms = 0
+        gaps: list[float] = []
+        for f, (held, shape_rows, quantile_rows) in enumerate(self.folds):
+            c = self.combined(candidate, f)
+            peaks = c.max(axis=1)
+            k = _quantile(peaks[quantile_rows], delta, False)
+            alarms += int(np.sum(peaks[held] > k))
+            reference = c[shape_rows]
+            counted = np.isfinite(reference)
+            steps = counted.sum(axis=0)
+            mean = np.where(counted, reference, 0.0).sum(axis=0) / np.maximum(steps, 1)
+            spread = np.sqrt(np.where(counted, (reference - mean) ** 2, 0.0).sum(axis=0) / np.maximum(steps, 1))
+            for i in held:
+                length = self.lengths[i]
+                usable = (steps[:length] >= 2) & (spread[:length] > 0)
+                if not np.isfinite(k) or not usable.any():
+                    gaps.append(math.inf)
+                    continue
+                gaps.append(float(np.median((k - c[i, :length][usable]) / spread[:length][usable])))
+        return alarms / (self.data.count * self.repeats), float(np.median(gaps))
+
     def judge(self, candidate: Candidate, delta: float) -> tuple[float, dict[str, float]]:
         """Held-out false-alarm rate and per proxy kind the mean ``1 - t/T``, over the inner folds."""
         alarms = 0
         caught: dict[str, list[float]] = {}
         for f, (held, _, quantile_rows) in enumerate(self.folds):
-            z = np.stack([self.statistic(d, candidate.window, candidate.kind, f) for d in candidate.detectors])
-            c = np.sort(np.nan_to_num(z, nan=-np.inf), axis=0)[z.shape[0] - candidate.votes]
+            c = self.combined(candidate, f)
             peaks = c.max(axis=1)
             k = _quantile(peaks[quantile_rows], delta, False)
             alarms += int(np.sum(peaks[held] > k))
@@ -406,6 +451,13 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
     detectors = in_fusion_order(sorted(set(detectors)))
     pool = candidates(detectors, settings)
     rules = {name: _TaskRule(data, base, settings.folds, settings.repeats, seed) for name, data in tasks.items()}
+    if settings.rule == MARGIN:
+        scores = []
+        for candidate in pool:
+            rates, margins = zip(*(rule.margin(candidate, base.delta) for rule in rules.values()))
+            margin = float(np.mean(margins))
+            scores.append(Score(candidate, -margin, float(np.mean(rates)), {MARGIN: margin}))
+        return _ranked(pool, scores, settings, base.delta, detectors)
     judged = []
     for candidate in pool:
         rates, caught = [], []
@@ -423,7 +475,14 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
         relative = [mean_caught.get(k, 0.0) / best[k] for k in settings.proxies if best[k] > 0]
         positive = float(np.mean(relative)) if relative else 0.0
         scores.append(Score(candidate, 0.5 * (1.0 - false_alarms) + 0.5 * positive, false_alarms, mean_caught))
+    return _ranked(pool, scores, settings, base.delta, detectors)
+
+
+def _ranked(pool: Sequence[Candidate], scores: Sequence[Score], settings: AutoSettings, delta: float,
+            detectors: Sequence[str]) -> AutoChoice:
+    """The choice: the highest score; ties to fewer held-out false alarms, fewer detectors, the smaller window, then
+    the candidate order."""
     order = sorted(range(len(scores)), key=lambda i: (-scores[i].score, scores[i].false_alarms,
                                                       len(pool[i].detectors), pool[i].window, i))
     ranking = tuple(scores[i] for i in order)
-    return AutoChoice(ranking[0].candidate, ranking, settings, base.delta, tuple(detectors))
+    return AutoChoice(ranking[0].candidate, ranking, settings, delta, tuple(detectors))

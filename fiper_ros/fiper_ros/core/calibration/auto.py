@@ -16,8 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from fiper_ros.core.auto import (AutoChoice, AutoError, AutoSettings, EmbeddingSpread, TaskScores, choose,
-                                 make_proxy, stall_length)
+from fiper_ros.core.auto import (PROXY_TWA, AutoChoice, AutoError, AutoSettings, EmbeddingSpread, TaskScores,
+                                 choose, make_proxy, stall_length)
 from fiper_ros.core.calibration.fit import calibrate, split_successes
 from fiper_ros.core.calibration.model import Calibration
 from fiper_ros.core.calibration.settings import CalibrationSettings
@@ -48,14 +48,15 @@ def auto_scores(good: Sequence[Rollout], members: Sequence[int], folds: Sequence
                 detectors: Sequence[str], context: FitContext, fk: ForwardKinematics | None, settings: AutoSettings,
                 seed: int, note: Note | None = None) -> TaskScores:
     """Per detector, the scores of ``good[i]`` for every ``i`` of ``members`` (in that order) and of the proxies
-    made from them, each fold's by the models fitted on the other members (the fitted ones; the others fit
-    nothing)."""
+    made from them (none for a rule that reads no proxy), each fold's by the models fitted on the other members (the
+    fitted ones; the others fit nothing)."""
     position = {index: n for n, index in enumerate(members)}
     successes: dict[str, list[np.ndarray]] = {d: [np.empty(0)] * len(members) for d in detectors}
     proxies: dict[str, list[np.ndarray]] = {d: [] for d in detectors}
     kinds: list[str] = []
     sources: list[int] = []
     stall = stall_length([good[i] for i in members], settings)
+    made_kinds = settings.proxies if settings.rule == PROXY_TWA else ()
     for number, fold in enumerate(folds, 1):
         train = [good[i] for i in members if i not in fold]
         scorers = {}
@@ -66,11 +67,11 @@ def auto_scores(good: Sequence[Rollout], members: Sequence[int], folds: Sequence
         spread = EmbeddingSpread.of(train)
         for i in fold:
             rng = np.random.default_rng([seed, 37, i])
-            made = [make_proxy(good[i], kind, rng, spread, stall, settings.drift_scale) for kind in settings.proxies]
+            made = [make_proxy(good[i], kind, rng, spread, stall, settings.drift_scale) for kind in made_kinds]
             for d, scorer in scorers.items():
                 successes[d][position[i]] = scorer.scores(good[i], fk)
                 proxies[d].extend(scorer.scores(p, fk) for p in made)
-            kinds.extend(settings.proxies)
+            kinds.extend(made_kinds)
             sources.extend([position[i]] * len(made))
     return TaskScores(successes, proxies, tuple(kinds), tuple(sources))
 
