@@ -60,6 +60,22 @@ def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
     document = json.loads((out / "results.json").read_text())
     assert set(document["auto"]["subsets"]) == {"all", "report"}
     assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "proxy-twa"
+    assert "Rule proxy-twa v1 (docs/method.md, 'Choosing the configuration from successes'): candidates scored on " \
+           "the fit part's successes by fold models, with stall, drift and skip proxies made from them;" in section
+
+
+def test_evaluate_auto_rule_margin_says_what_it_reads(tmp_path: Path) -> None:
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--synthetic", "sorting", "--synthetic-test", "24", "--synthetic-scale", "0.25", "--tiny",
+                 "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--deltas", "0.3",
+                 "--no-default-combos", "--protocol", "clean", "--auto", "--auto-rule", "margin", "--auto-windows",
+                 "1,3", "--no-plots", "--no-cache", "--quiet", "--out", str(out)]) == 0
+    text = (out / "results.md").read_text()
+    assert "Rule margin v1 (docs/method.md, 'Choosing the configuration from successes'): candidates scored on the " \
+           "fit part's held-out successes alone (fold models; no proxy)" in text
+    assert "proxies" not in text[text.index("## --auto"):]
+    document = json.loads((out / "results.json").read_text())
+    assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "margin"
 
 
 def test_evaluate_auto_needs_a_split_conformal_calibration(tiny_settings: MethodSettings) -> None:

@@ -67,6 +67,13 @@ from fiper_ros.core.window import aggregate
 PROXY_TWA = "proxy-twa"
 MARGIN = "margin"
 RULES = {PROXY_TWA: 1, MARGIN: 1}
+#: What each rule reads, in one sentence (reports say it).
+RULE_SUMMARIES = {
+    PROXY_TWA: "candidates scored on the fit part's successes by fold models, with stall, drift and skip proxies "
+               "made from them",
+    MARGIN: "candidates scored on the fit part's held-out successes alone (fold models; no proxy): the smallest "
+            "margin between the threshold and the successes' statistic, in units of its per-step spread, wins",
+}
 #: The failure proxies the rule can build from a success.
 PROXIES = ("stall", "drift", "skip")
 #: Share of a success's steps before a proxy's onset: drawn uniformly in this range.

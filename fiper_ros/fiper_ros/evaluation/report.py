@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.auto import RULE_SUMMARIES
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
@@ -555,8 +556,7 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     return "\n".join([
         "## --auto: each task's configuration chosen from its own calibration successes (fiper calibrate --auto)", "",
         f"Rule {record['rule']} v{record['version']} (docs/method.md, 'Choosing the configuration from successes'): "
-        "candidates scored on the fit part's successes by fold models, with stall, drift and skip proxies made from "
-        "them; no label and no other task is read. The choice is made at every δ; metrics are averaged over the "
+        f"{RULE_SUMMARIES[record['rule']]}; no label and no other task is read. The choice is made at every δ; metrics are averaged over the "
         "finite δ on all test rollouts; the choice is shown at the finite δ closest to 0.05, FA: the held-out ID "
         "successes alarmed there. The LOTO and clean "
         "columns are the best method those protocols chose with failures (of other tasks, or of the task's "
