@@ -24,7 +24,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 #: package -> the error of its layer, which its ``__init__`` exports.
 LAYER_ERRORS = {"core": "CoreError", "bagio": "BagError", "launcher": "LaunchError", "evaluation": "EvaluationError",
-                "nodes": "NodeError", "client": "ClientError", "commands": "UsageError", "policy": "PolicyError"}
+                "nodes": "NodeError", "client": "ClientError", "commands": "UsageError", "policy": "PolicyError",
+                "platform": "PlatformError"}
 #: Exception classes of the tree that are programming errors, not user errors (none today).
 PROGRAMMING_ERRORS: frozenset[str] = frozenset()
 #: A custom exception that keeps a builtin base beside FiperError, and why: a caller outside the project relies on it.
