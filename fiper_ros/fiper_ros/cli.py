@@ -3,8 +3,9 @@
 Each sub-command lives in its own module and is imported only when it runs, so ``fiper --help`` is
 fast and a missing part of the environment is reported as a clear message, not a traceback. This is the one
 place a user error is caught: a :class:`~fiper_ros.errors.FiperError` a command raises is printed on one line
-(:func:`fail`, exit status :data:`EXIT_USAGE`) and a :class:`~fiper_ros.errors.FiperWarning` on one line
-(:func:`warn`); any other exception is a bug and shows its traceback.
+(:func:`~fiper_ros.errors.fail`, exit status :data:`~fiper_ros.errors.EXIT_USAGE`) and a
+:class:`~fiper_ros.errors.FiperWarning` on one line (:func:`~fiper_ros.errors.warn`); any other exception is a bug
+and shows its traceback.
 """
 from __future__ import annotations
 
@@ -17,11 +18,8 @@ from contextlib import contextmanager
 from typing import TextIO
 
 from fiper_ros import __version__
-from fiper_ros.errors import FiperError, FiperWarning, one_line
+from fiper_ros.errors import EXIT_USAGE, FiperError, FiperWarning, fail, warn
 from fiper_ros.platform.dds import interruptible
-
-#: Exit status of a command refused because of its input (bad bag, calibration, arguments).
-EXIT_USAGE = 2
 
 #: name -> (module, one-line help). Each module provides ``add_arguments(parser)`` and ``run(args)``; one whose
 #: ``INTERMIXED`` is true has its options parsed anywhere among its positional arguments.
@@ -52,17 +50,6 @@ NOT_SET_UP = (
     "fiper: the workspace environment is incomplete ({missing} cannot be imported).\n"
     "fiper: run 'make setup' in the repository, then '. ./env.sh' (or use bin/fiper, which sources it)."
 )
-
-
-def fail(command: str, error: object) -> int:
-    """Print ``fiper COMMAND: ERROR`` on one line to stderr and return :data:`EXIT_USAGE`."""
-    print(f"fiper {command}: {one_line(error)}", file=sys.stderr)
-    return EXIT_USAGE
-
-
-def warn(command: str, text: object) -> None:
-    """Print ``fiper COMMAND: warning: TEXT`` on one line to stderr (the command goes on)."""
-    print(f"fiper {command}: warning: {one_line(text)}", file=sys.stderr, flush=True)
 
 
 @contextmanager
@@ -105,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] not in COMMANDS:
         build_parser().parse_args(argv)  # prints help, version or the usage error, and exits
-        return 2
+        return EXIT_USAGE
     name = argv[0]
     label = [name]  # what the one-line reports name: ``bag recover`` once the action is parsed
     try:

@@ -5,9 +5,16 @@ environment that the code refuses, with a one-line reason. ``fiper`` (:func:`fip
 one on one line and exits 2. Every package's errors derive from it through that package's own class
 (``core.CoreError``, ``bagio.BagError``, ``launcher.LaunchError``, ``evaluation.EvaluationError``,
 ``nodes.NodeError``, ``client.ClientError``, ...). A programming error (a broken invariant, a wrong argument
-of a function of this code) is an ordinary exception and is shown with its traceback.
+of a function of this code) is an ordinary exception and is shown with its traceback. :func:`fail` and
+:func:`warn` print a report in one line, for ``fiper`` and for the entry points outside it
+(``python -m fiper_ros.commands.policy``).
 """
 from __future__ import annotations
+
+import sys
+
+#: Exit status of a command refused because of its input (bad bag, calibration, arguments).
+EXIT_USAGE = 2
 
 
 class FiperError(Exception):
@@ -21,3 +28,14 @@ class FiperWarning(UserWarning):
 def one_line(text: object) -> str:
     """``text`` with every run of whitespace (newlines included) as one space: how a report shows an error."""
     return " ".join(str(text).split())
+
+
+def fail(command: str, error: object) -> int:
+    """Print ``fiper COMMAND: ERROR`` on one line to stderr and return :data:`EXIT_USAGE`."""
+    print(f"fiper {command}: {one_line(error)}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def warn(command: str, text: object) -> None:
+    """Print ``fiper COMMAND: warning: TEXT`` on one line to stderr (the command goes on)."""
+    print(f"fiper {command}: warning: {one_line(text)}", file=sys.stderr, flush=True)

@@ -87,6 +87,23 @@ def test_candidate_sets_and_the_budget() -> None:
         AutoSettings(kinds=("time_varying",))
 
 
+
+def test_the_windows_are_sorted_and_distinct_whoever_builds_the_settings() -> None:
+    """A caller of the core gets the candidates ``--auto-windows`` gives (the CLI's list parser sorted; the settings
+    kept the order given, so a fixed-aggregation detector was tried with the first window, not the smallest)."""
+    given = AutoSettings(windows=(5, 1, 5), kinds=("cp_band",), combines=("max",))
+    assert given.windows == (1, 5) and given == AutoSettings(windows=(1, 5), kinds=("cp_band",), combines=("max",))
+    assert candidates(["rnd_oe", "elapsed"], given) == [
+        Candidate(("rnd_oe",), 1, "cp_band"), Candidate(("rnd_oe",), 5, "cp_band"),
+        Candidate(("elapsed",), 1, "cp_constant"),
+        Candidate(("rnd_oe", "elapsed"), 1, "cp_band", "max"), Candidate(("rnd_oe", "elapsed"), 5, "cp_band", "max")]
+
+
+@given(st.lists(st.integers(1, 60), min_size=1, max_size=12))
+def test_auto_windows_of_any_order_are_one_setting(windows: list[int]) -> None:
+    assert AutoSettings(windows=windows).windows == tuple(sorted(set(windows)))
+    assert AutoSettings(windows=windows) == AutoSettings(windows=windows[::-1])
+
 def _rollout(index: int, length: int = 20, *, success: bool | None = True, signals: dict | None = None) -> Rollout:
     rng = np.random.default_rng(index)
     embeddings = rng.normal(size=(length, 3)).astype(np.float32)

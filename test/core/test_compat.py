@@ -9,6 +9,7 @@ import pytest
 
 from fiper_ros.core.ace import ace_score, step_entropies
 from fiper_ros.core.calibration import CalibrationSettings
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.profiles import PAPER, REFERENCE, get_profile
 from fiper_ros.core.scores import act_score
 
@@ -38,7 +39,7 @@ def test_profile_fields() -> None:
     assert (PAPER.conformal, PAPER.band_sign, PAPER.extension) == (True, "upper", "last")
     assert (REFERENCE.conformal, REFERENCE.band_sign, REFERENCE.extension) == (False, "lower", "mean")
     assert get_profile("reference") is REFERENCE
-    with pytest.raises(ValueError, match="profile"):
+    with pytest.raises(ChoiceError, match="profile"):
         get_profile("fast")
 
 

@@ -9,6 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fiper_ros.core.combine_mode import COMBINES, CombineMode
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine, alarms_over_rollout, exceeds, first_alarm, fuse, fuse_declared, fuse_votes
 
 
@@ -22,7 +23,7 @@ def test_truth_tables() -> None:
     act = np.array([False, True, False, True])
     assert np.array_equal(fuse(obs, act, "and"), [False, False, False, True])
     assert np.array_equal(fuse(obs, act, "or"), [False, True, True, True])
-    with pytest.raises(ValueError, match="combine"):
+    with pytest.raises(ChoiceError, match="combine"):
         fuse(obs, act, "xor")
 
 
@@ -82,7 +83,7 @@ def test_combine_modes_by_hand() -> None:
     assert COMBINES == ("and", "or") and [mode.joint for mode in CombineMode] == [False, False, True, True]
     assert [mode.written for mode in CombineMode] == ["and", "or", "max", "kth:K"]
     assert Combine("or").mode is CombineMode.OR and Combine.parse("kth:2") == Combine(CombineMode.KTH, 2)
-    with pytest.raises(ValueError, match=r"^or takes no K$"):
+    with pytest.raises(ChoiceError, match=r"^or takes no K$"):
         Combine(CombineMode.OR, 2)
 
 
@@ -94,7 +95,7 @@ def test_combine_modes_by_hand() -> None:
     ("max:2", r"^combine 'max:2': only kth takes a count \(kth:K\)$"),
 ])
 def test_combine_refusals_are_one_line(text: str, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ChoiceError, match=message):
         Combine.parse(text)
 
 

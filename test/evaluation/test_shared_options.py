@@ -104,3 +104,23 @@ def test_calibrate_refuses_bad_action_dims_in_one_line(tmp_path: Path, capsys: p
                           ("all", "--action-dims must be START:STOP, got 'all'")):
         assert main(["calibrate", str(tmp_path / "no-bag"), "-o", str(tmp_path / "cal"), "--action-dims", dims]) == 2
         assert capsys.readouterr().err == f"fiper calibrate: {message}\n"
+
+
+@pytest.mark.parametrize(("parse", "value", "message"), [
+    (calibrate._combine, "kth:0", "combine 'kth:0': kth:K needs an integer K >= 1 (e.g. kth:2)"),
+    (evaluate.combine_list, "max,xor", "unknown combine 'xor'; expected one of and, or, max, kth:K"),
+])
+def test_a_combine_option_refuses_as_argparse_expects(parse: object, value: str, message: str) -> None:
+    """argparse prints a usage error only for a ValueError, TypeError or ArgumentTypeError of a ``type=``: the core's
+    ChoiceError (no ValueError) goes to argparse in its own words."""
+    with pytest.raises(argparse.ArgumentTypeError) as raised:
+        parse(value)  # type: ignore[operator]
+    assert str(raised.value) == message
+
+
+def test_fiper_calibrate_with_a_bad_combine_prints_its_usage(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as raised:
+        main(["calibrate", "--combine", "max:2", "bag"])
+    assert raised.value.code == 2
+    assert capsys.readouterr().err.endswith(
+        "fiper calibrate: error: argument --combine: combine 'max:2': only kth takes a count (kth:K)\n")

@@ -13,6 +13,7 @@ import pytest
 
 from fiper_ros.data_paths import package_share
 from fiper_ros.platform import process
+from fiper_ros.platform import PlatformError
 from fiper_ros.platform.dds import interrupt_group, local_env
 from fiper_ros.platform.process import DISCOVERY_PROFILE, FASTDDS_PROFILES_ENV, process_age_s, use_discovery_profile
 
@@ -143,3 +144,12 @@ print("ok")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False,
                             cwd=ROOT)
     assert result.returncode == 0 and result.stdout.endswith("ok\n"), result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("kind", ["threads", "Events"])
+def test_an_executor_kind_not_offered_is_a_platform_error(monkeypatch: pytest.MonkeyPatch, kind: str) -> None:
+    """A user's error (the environment), named with its variable and the kinds offered; was a ValueError."""
+    monkeypatch.setenv(process.EXECUTOR_ENV, kind)
+    with pytest.raises(PlatformError) as raised:
+        process.new_executor()
+    assert str(raised.value) == f"FIPER_EXECUTOR={kind!r}: expected 'events' or 'single'"

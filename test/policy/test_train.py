@@ -11,6 +11,8 @@ import torch
 import yaml
 from helpers.policy_fixtures import tiny_config, write_demos
 
+from fiper_ros.commands import policy as policy_command
+from fiper_ros.policy import PolicyError
 from fiper_ros.policy.dataset import DemoDataset
 from fiper_ros.policy.fit import open_loop_fit
 from fiper_ros.policy.normalizer import RangeNormalizer
@@ -83,13 +85,42 @@ def test_stop_after_writes_the_model_of_that_epoch_and_the_schedule_goes_on(tmp_
     info = yaml.safe_load((tmp_path / "one" / "policy.yaml").read_text())["info"]
     assert (info["epochs"], info["epochs_trained"]) == (3, 1)
     assert any(not torch.equal(a, b) for a, b in zip(one.state_dict().values(), full.state_dict().values()))
-    with pytest.raises(ValueError, match="cannot stop after epoch 4"):
+    with pytest.raises(PolicyError, match="cannot stop after epoch 4"):
         train(three, demo_dir, tmp_path / "x", tmp_path / "run", seed=2, progress=_quiet, stop_after=4)
     rest = _state(train(three, demo_dir, tmp_path / "rest", tmp_path / "run", seed=2, progress=_quiet))
     for key, value in _state(full).items():
         torch.testing.assert_close(value, rest[key], rtol=0, atol=0)  # the same schedule, resumed
-    with pytest.raises(ValueError, match="holds 3"):
+    with pytest.raises(PolicyError, match="holds 3"):
         train(three, demo_dir, tmp_path / "y", tmp_path / "run", seed=2, progress=_quiet, stop_after=2)
+
+
+def test_training_input_it_refuses_is_a_policy_error(tmp_path: Path, demo_dir: Path) -> None:
+    """No demonstrations, none successful, or of other dimensions than the config's: the user's to fix (each was a
+    FileNotFoundError or a ValueError)."""
+    config = tiny_config()
+    sizes = (config.obs_horizon, config.horizon, config.image_size)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(PolicyError, match=f"^no episode_\\*\\.npz demonstrations in {empty}$"):
+        DemoDataset(empty, *sizes)
+    failed = tmp_path / "failed"
+    failed.mkdir()
+    with np.load(demo_dir / "episode_000000.npz") as data:
+        np.savez(failed / "episode_000000.npz", **{**data, "success": False})
+    with pytest.raises(PolicyError, match=f"^no successful demonstrations in {failed}$"):
+        DemoDataset(failed, *sizes)
+    wider = tiny_config(action_dim=config.action_dim + 1)
+    with pytest.raises(PolicyError, match=f"^demos have action/proprio dims {config.action_dim}/{config.proprio_dim}, "
+                                          f"config expects {wider.action_dim}/{config.proprio_dim}$"):
+        train(wider, demo_dir, tmp_path / "model", tmp_path / "run", progress=_quiet)
+
+
+def test_the_policy_command_prints_a_user_error_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m fiper_ros.commands.policy`` reports as ``fiper`` does: one line, exit 2 (was a traceback)."""
+    threads = str(torch.get_num_threads())
+    assert policy_command.main(["--threads", threads, "train", "--task", "sorting", "--demos", str(tmp_path),
+                                "--out", str(tmp_path / "model"), "--run-dir", str(tmp_path / "run")]) == 2
+    assert capsys.readouterr().err == f"fiper policy: no episode_*.npz demonstrations in {tmp_path}\n"
 
 
 def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(tmp_path: Path) -> None:

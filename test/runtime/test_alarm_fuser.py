@@ -10,6 +10,7 @@ import pytest
 from helpers.alarm_pairs import fuse_pair as _pair
 from helpers.states import ALARM, OK, UNKNOWN
 
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import alarms_over_rollout
 from fiper_ros.runtime.alarm import (NO_ROLLOUT, AlarmFuser, AlarmState, DetectorScore, explanation, ratio_text,
                                      reset_refusal)
@@ -189,7 +190,7 @@ def test_each_bad_deadline_setting_is_refused_on_its_own(kwargs: dict[str, float
 def test_the_smallest_settings_are_accepted_and_a_bad_combine_is_named() -> None:
     fuser = AlarmFuser("and", deadline_ns=1, deadline_periods=0.0, deadline_floor_ns=0)
     assert fuser.deadline() == 1
-    with pytest.raises(ValueError, match="unknown combine 'xor'; expected one of and, or, max, kth:K"):
+    with pytest.raises(ChoiceError, match="unknown combine 'xor'; expected one of and, or, max, kth:K"):
         AlarmFuser("xor")
     with pytest.raises(ValueError, match=r"detector 'stac' is not fused here \(detectors rnd_oe, ace\)"):
         _started().add(DetectorScore("stac", 1, 0, 0.0, 1.0, 0), 0)

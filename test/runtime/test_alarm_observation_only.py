@@ -8,6 +8,7 @@ import math
 import pytest
 from helpers.states import ALARM, OK, UNKNOWN
 
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore
 
 S = 1_000_000_000
@@ -116,10 +117,10 @@ def test_an_ace_score_is_refused_and_no_state_waits_for_one() -> None:
     assert fuser.matched == 5 and fuser.evicted == 0
 
 
-@pytest.mark.parametrize(("detectors", "reason"), [
-    ((), "declare each detector once, at least one, got [(]none[)]"),
-    (("rnd_oe", "rnd_oe"), "declare each detector once, at least one, got rnd_oe,rnd_oe"),
-    (("rnd_oe", "nope"), "unknown detector 'nope'")])
-def test_an_unsupported_detector_set_is_refused(detectors: tuple[str, ...], reason: str) -> None:
-    with pytest.raises(ValueError, match=reason):
+@pytest.mark.parametrize(("detectors", "error", "reason"), [
+    ((), ValueError, "declare each detector once, at least one, got [(]none[)]"),
+    (("rnd_oe", "rnd_oe"), ValueError, "declare each detector once, at least one, got rnd_oe,rnd_oe"),
+    (("rnd_oe", "nope"), ChoiceError, "unknown detector 'nope'")])
+def test_an_unsupported_detector_set_is_refused(detectors: tuple[str, ...], error: type[Exception], reason: str) -> None:
+    with pytest.raises(error, match=reason):
         AlarmFuser("and", detectors=detectors)

@@ -24,7 +24,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 #: package -> the error of its layer, which its ``__init__`` exports.
 LAYER_ERRORS = {"core": "CoreError", "bagio": "BagError", "launcher": "LaunchError", "evaluation": "EvaluationError",
-                "nodes": "NodeError", "client": "ClientError", "commands": "UsageError", "policy": "PolicyError"}
+                "nodes": "NodeError", "client": "ClientError", "commands": "UsageError", "policy": "PolicyError",
+                "platform": "PlatformError"}
 #: Exception classes of the tree that are programming errors, not user errors (none today).
 PROGRAMMING_ERRORS: frozenset[str] = frozenset()
 #: A custom exception that keeps a builtin base beside FiperError, and why: a caller outside the project relies on it.
@@ -66,12 +67,13 @@ def test_every_custom_exception_is_a_user_error() -> None:
     assert {name: bases for name, bases in builtin.items() if bases} == {n: [b] for n, b in SECOND_BASES.items()}
 
 
-def test_fail_and_warn_live_in_the_cli_only() -> None:
-    """The one-line printers are the CLI's: no other module defines them (nor prints ``fiper COMMAND: warning``)."""
+def test_fail_and_warn_live_in_the_errors_module_only() -> None:
+    """The one-line printers are ``fiper_ros.errors``' (``fiper`` and the entry points outside it use them): no other
+    module defines them (nor prints ``fiper COMMAND: warning``)."""
     sources = [*(ROOT / "fiper_ros" / "fiper_ros").rglob("*.py"), *(ROOT / "sim_bridge" / "sim_bridge").rglob("*.py")]
     defined = sorted(str(path.relative_to(ROOT)) for path in sources for node in ast.walk(ast.parse(path.read_text()))
                      if isinstance(node, ast.FunctionDef) and node.name in ("fail", "warn"))
-    assert defined == ["fiper_ros/fiper_ros/cli.py", "fiper_ros/fiper_ros/cli.py"]
+    assert defined == ["fiper_ros/fiper_ros/errors.py", "fiper_ros/fiper_ros/errors.py"]
     assert sum("warning: " in path.read_text() and "fiper {" in path.read_text() for path in sources) == 1
 
 

@@ -49,6 +49,7 @@ from fiper_ros.core.calibration.auto import auto_calibrate
 from fiper_ros.core.calibration_file import FORMAT_VERSION
 from fiper_ros.core.detectors import info, judged_by
 from fiper_ros.core.equalisation import EQUALISATIONS
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine
 from fiper_ros.core.kinematics import ForwardKinematics, KinematicsError
 from fiper_ros.core.profiles import PROFILE_NAMES
@@ -340,7 +341,7 @@ def _combine(text: str) -> str:
     """``--combine``: and, or, max or kth:K."""
     try:
         return str(Combine.parse(text))
-    except ValueError as error:
+    except ChoiceError as error:
         raise argparse.ArgumentTypeError(str(error)) from error
 
 

@@ -56,6 +56,7 @@ from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import COMBINES
 from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitError, check_draw
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, EQUALISATIONS
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
@@ -111,7 +112,7 @@ def combine_list(text: str) -> tuple[str, ...]:
     for combine in combines:
         try:
             Combine.parse(combine)
-        except ValueError as error:
+        except ChoiceError as error:
             raise argparse.ArgumentTypeError(str(error)) from error
     return combines
 

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import torch
 
+from fiper_ros.commands.errors import UsageError
+from fiper_ros.errors import FiperError, fail
 from fiper_ros.policy.config import PRESETS
 
 
@@ -75,7 +77,7 @@ def _fit(args: argparse.Namespace) -> int:
     files = episode_files(args.demos)
     outside = [i for i in args.episodes if not 0 <= i < len(files)]
     if outside:
-        raise SystemExit(f"--episodes {outside}: {args.demos} has episodes 0..{len(files) - 1}")
+        raise UsageError(f"--episodes {outside}: {args.demos} has episodes 0..{len(files) - 1}")
     chosen = [files[i] for i in args.episodes]
     report = open_loop_fit(policy, chosen, args.batch, args.stride, args.seed)
     print(f"{args.task}: {report.states} states of {len(chosen)} demonstration episodes, B = {args.batch}")
@@ -87,7 +89,8 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point."""
+    """Entry point: a user error (:class:`~fiper_ros.errors.FiperError`) is one line ``fiper policy: ...``, exit
+    status 2, as ``fiper`` prints it; any other exception keeps its traceback."""
     parser = argparse.ArgumentParser(prog="fiper_ros.commands.policy", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -134,7 +137,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     torch.set_num_threads(args.threads)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except FiperError as error:
+        return fail("policy", error)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from fiper_ros.commands import convert
 from fiper_ros.commands.calibrate import calibrate_bags
 from fiper_ros.converters.options import ConvertOptions
 from fiper_ros.core.calibration import CalibrationSettings
-from fiper_ros.errors import FiperError, one_line
+from fiper_ros.errors import FiperError, fail
 from fiper_ros.interface.topics import ACTIONS_TOPIC, JOINT_STATES_TOPIC
 
 LATENT_DIM = 8
@@ -295,14 +295,12 @@ def main(argv: list[str] | None = None) -> int:
         try:
             print(observation_only(bag, args.out / bag.name, args.force))
         except FiperError as error:
-            print(f"fiper samples: {one_line(error)}", file=sys.stderr)
-            return 2
+            return fail("samples", error)
     for name in () if args.observation_only else args.sets:
         try:
             target = make_set(SETS[name], args.out, args.seed, args.force)
         except FiperError as error:
-            print(f"fiper samples: {one_line(error)}", file=sys.stderr)
-            return 2
+            return fail("samples", error)
         size = sum(p.stat().st_size for p in target.rglob("*") if p.is_file())
         print(f"{target}: {size / 1e6:.1f} MB")
     return 0

@@ -33,7 +33,8 @@ Modules, one concept each:
 - :mod:`.calibration`: a calibration's settings, model, fitting and files (one module each).
 - :mod:`.auto`: choosing a calibration's configuration from successes alone (``fiper calibrate --auto``).
 - :mod:`.monitor`: streaming and vectorised failure prediction.
-- :mod:`.errors`: :class:`CoreError`, what every error of the core derives from.
+- :mod:`.errors`: :class:`CoreError`, what every error of the core derives from, and :class:`.errors.ChoiceError`
+  (an unknown detector, combine or profile).
 """
 from __future__ import annotations
 

@@ -92,7 +92,9 @@ class AutoSettings:
 
     Attributes:
         rule: The rule (:data:`RULES`): ``proxy-twa`` scores failure proxies, ``margin`` held-out successes only.
-        windows: The windows tried for every detector whose aggregation is not fixed.
+        windows: The windows tried for every detector whose aggregation is not fixed, kept sorted and distinct
+            (their order means nothing and a repeat only spends the budget; a detector whose aggregation is fixed
+            is tried once, with the smallest).
         kinds: Threshold kinds tried (guaranteed ones only); a combination of several detectors takes the kinds
             with a shape among them.
         combines: Joint combines tried for sets of several detectors.
@@ -121,6 +123,7 @@ class AutoSettings:
     def __post_init__(self) -> None:
         for name in ("windows", "kinds", "combines", "proxies"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
+        object.__setattr__(self, "windows", tuple(sorted(set(self.windows))))
         if self.rule not in RULES:
             raise AutoError(f"auto rule must be one of {', '.join(RULES)}, got {self.rule!r}")
         if not self.windows or min(self.windows) < 1:

@@ -18,6 +18,8 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from fiper_ros.core.errors import ChoiceError
+
 RND_OE = "rnd_oe"
 ACE = "ace"
 #: What a detector reads at each policy step.
@@ -93,14 +95,14 @@ def external_stream(name: str) -> str:
 
 def info(name: str) -> DetectorInfo:
     """The :class:`DetectorInfo` of a stream name (``signal_<name>`` for a logged signal, ``external_<name>`` for
-    external scores); ``ValueError`` naming the known ones otherwise."""
+    external scores); :class:`~fiper_ros.core.errors.ChoiceError` naming the known ones otherwise."""
     if name in INFO:
         return INFO[name]
     for prefix, reads in ((SIGNAL_PREFIX, "signal"), (EXTERNAL_PREFIX, "external")):
         if name.startswith(prefix) and _SIGNAL_NAME.match(name[len(prefix):]):
             return DetectorInfo(name, f"{reads} {name[len(prefix):]}", reads, fitted=False)
-    raise ValueError(f"unknown detector {name!r}; expected one of {', '.join(INFO)}, signal_<name> or "
-                     "external_<name>")
+    raise ChoiceError(f"unknown detector {name!r}; expected one of {', '.join(INFO)}, signal_<name> or "
+                      "external_<name>")
 
 
 #: FIPER's detectors, in the order the fusion reports them (observation first).
@@ -140,11 +142,12 @@ def check_pair_format(names: Iterable[str]) -> tuple[str, ...]:
 
 
 def check_declared(name: str) -> str:
-    """``name`` if a calibration can declare it; ``ValueError`` naming the detectors that can."""
+    """``name`` if a calibration can declare it; :class:`~fiper_ros.core.errors.ChoiceError` naming the detectors
+    that can."""
     if name in CALIBRATED or info(name).reads == "signal":
         return name
-    raise ValueError(f"detector {name!r} cannot be calibrated (an evaluation baseline); declare some of "
-                     f"{', '.join(CALIBRATED)} or signal_<name>")
+    raise ChoiceError(f"detector {name!r} cannot be calibrated (an evaluation baseline); declare some of "
+                      f"{', '.join(CALIBRATED)} or signal_<name>")
 
 
 def judged_by(detectors: Iterable[str], combine: str) -> str:

@@ -18,11 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from fiper_ros.core.combine_mode import CombineMode
+from fiper_ros.core.errors import ChoiceError
 
 
 @dataclass(frozen=True)
 class Combine:
-    """How the declared detectors' decisions make the alarm: ``and``, ``or``, ``max`` or ``kth:K``."""
+    """How the declared detectors' decisions make the alarm: ``and``, ``or``, ``max`` or ``kth:K``; any other mode or
+    count is a :class:`~fiper_ros.core.errors.ChoiceError` in one line."""
 
     mode: CombineMode
     k: int = 0
@@ -30,22 +32,23 @@ class Combine:
 
     def __post_init__(self) -> None:
         if self.mode not in tuple(CombineMode):
-            raise ValueError(f"unknown combine {self.mode!r}; expected one of "
-                             f"{', '.join(mode.written for mode in CombineMode)}")
+            raise ChoiceError(f"unknown combine {self.mode!r}; expected one of "
+                              f"{', '.join(mode.written for mode in CombineMode)}")
         object.__setattr__(self, "mode", CombineMode(self.mode))
         if (self.mode is CombineMode.KTH) != (self.k >= 1):
-            raise ValueError("kth:K needs K >= 1" if self.mode is CombineMode.KTH else f"{self.mode} takes no K")
+            raise ChoiceError("kth:K needs K >= 1" if self.mode is CombineMode.KTH else f"{self.mode} takes no K")
 
     @classmethod
     def parse(cls, text: str) -> Combine:
-        """``"and"``, ``"or"``, ``"max"`` or ``"kth:K"``; ``ValueError`` in one line otherwise."""
+        """``"and"``, ``"or"``, ``"max"`` or ``"kth:K"``; :class:`~fiper_ros.core.errors.ChoiceError` in one line
+        otherwise."""
         mode, _, count = str(text).partition(":")
         if mode == CombineMode.KTH:
             if not count.isdigit() or int(count) < 1:
-                raise ValueError(f"combine {text!r}: kth:K needs an integer K >= 1 (e.g. kth:2)")
+                raise ChoiceError(f"combine {text!r}: kth:K needs an integer K >= 1 (e.g. kth:2)")
             return cls(CombineMode.KTH, int(count))
         if count:
-            raise ValueError(f"combine {text!r}: only kth takes a count (kth:K)")
+            raise ChoiceError(f"combine {text!r}: only kth takes a count (kth:K)")
         return cls(mode)  # type: ignore[arg-type]  # checked and converted by __post_init__
 
     @property

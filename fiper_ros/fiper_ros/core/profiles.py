@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from fiper_ros.core.errors import ChoiceError
+
 PROFILE_NAMES = ("paper", "reference")
 
 
@@ -94,8 +96,8 @@ REFERENCE = Profile(
 
 
 def get_profile(name: str) -> Profile:
-    """The profile called ``name``."""
+    """The profile called ``name``; :class:`~fiper_ros.core.errors.ChoiceError` naming the profiles otherwise."""
     profiles = {"paper": PAPER, "reference": REFERENCE}
     if name not in profiles:
-        raise ValueError(f"unknown profile {name!r}; expected one of {PROFILE_NAMES}")
+        raise ChoiceError(f"unknown profile {name!r}; expected one of {PROFILE_NAMES}")
     return profiles[name]

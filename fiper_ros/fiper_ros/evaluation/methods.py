@@ -33,6 +33,7 @@ from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, EXTERNAL_PREFIX, PROGRESS, RND_OE, DetectorInfo, info,
                                       signal_stream)
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, check_equalisation
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.kinematics import RobotModel
 from fiper_ros.core.logpzo import LogpZOConfig
 from fiper_ros.core.pca_kmeans import PCAKMeansConfig
@@ -78,7 +79,7 @@ def stream_info(name: str) -> DetectorInfo:
     stream is a :class:`SettingsError` naming the known ones."""
     try:
         return info(name)
-    except ValueError as error:
+    except ChoiceError as error:
         raise SettingsError(str(error)) from None
 
 
@@ -143,7 +144,7 @@ class MethodSettings:
     def __post_init__(self) -> None:
         try:
             get_profile(self.profile)
-        except ValueError as error:
+        except ChoiceError as error:
             raise SettingsError(str(error)) from None
         if self.split not in SPLITS:
             raise SettingsError(f"unknown split {self.split!r}; expected one of {SPLITS}")

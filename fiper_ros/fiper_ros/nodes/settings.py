@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fiper_ros.core.detectors import CALIBRATED, check_declared, info
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine
 from fiper_ros.nodes.errors import NodeError
 
@@ -91,7 +92,7 @@ def _detector_fields(values: Values) -> dict[str, Any]:
     detector = str(values["detector"])
     try:
         reads = info(detector).reads if detector else ""
-    except ValueError:
+    except ChoiceError:
         reads = ""
     if not reads:
         raise NodeError(f"parameter detector is {detector!r}: name a detector of the calibration ({DETECTOR_NAMES})")
@@ -194,7 +195,7 @@ def fusion_settings(values: Values) -> FusionSettings:
     if combine != FROM_CALIBRATION:
         try:
             Combine.parse(combine)
-        except ValueError as error:
+        except ChoiceError as error:
             raise NodeError(f"parameter combine: {error}") from None
     return FusionSettings(combine=combine, calibration_dir=str(values["calibration_dir"]),
                           deadline_s=float(values["deadline_s"]), deadline_periods=float(values["deadline_periods"]),
@@ -332,7 +333,7 @@ def view_settings(values: Values) -> ViewSettings:
     for name in detectors:
         try:
             check_declared(name)
-        except ValueError:
+        except ChoiceError:
             raise NodeError(f"parameter detectors: {name!r} is not a detector a suite scores ("
                             f"{', '.join(CALIBRATED)} or signal_<name>)") from None
     return ViewSettings(host=str(values["host"]), port=int(values["port"]), backlog=int(values["backlog"]),

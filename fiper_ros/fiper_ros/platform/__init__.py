@@ -6,7 +6,10 @@ and the clients that all use it:
 - :mod:`.dds`: DDS isolation (a ROS domain of one's own, discovery on loopback), child processes that die with
   their parent, interrupting a process group.
 - :mod:`.shm`: Fast DDS shared-memory hygiene (the ``/dev/shm`` files of dead processes removed).
+- :mod:`.errors`: :class:`PlatformError`, what every error of the platform derives from.
 """
 from __future__ import annotations
 
-__all__ = ["dds", "process", "shm"]
+from fiper_ros.platform.errors import PlatformError
+
+__all__ = ["PlatformError", "dds", "errors", "process", "shm"]

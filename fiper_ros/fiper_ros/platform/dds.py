@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
-from fiper_ros.errors import FiperError
+from fiper_ros.platform.errors import PlatformError
 
 LOCK_DIR = Path(os.environ.get("FIPER_DOMAIN_LOCK_DIR", "/tmp/fiper-ros-domains"))
 #: Domain ids that are safe on Linux with the default RTPS port mapping.
@@ -35,7 +35,7 @@ INTERRUPTIBLE_WAIT_S = 2.0
 STACKS_SIGNAL = signal.SIGUSR1
 
 
-class DomainsExhausted(FiperError):
+class DomainsExhausted(PlatformError):
     """Every ROS_DOMAIN_ID of :data:`DOMAIN_RANGE` is taken: by the shell, a live process or another run's lock."""
 
 

@@ -44,6 +44,7 @@ from rclpy.experimental import EventsExecutor
 
 from fiper_ros.data_paths import package_share
 from fiper_ros.platform.dds import STACKS_SIGNAL, die_with_parent
+from fiper_ros.platform.errors import PlatformError
 
 CALLBACK_DRAIN_S = 30.0
 """Longest wait at shutdown for callbacks still running (a policy step of a large batch takes seconds)."""
@@ -114,7 +115,8 @@ def discovery_note(profile: Path) -> str:
 
 def new_executor(threads: int = 1, default: str = EXECUTOR_SINGLE, context: Context | None = None) -> Any:
     """The executor of a node process (``threads`` > 1: a multi-threaded one); a single-threaded one is of the
-    kind :data:`EXECUTOR_ENV` names, else ``default``."""
+    kind :data:`EXECUTOR_ENV` names, else ``default``; :class:`~fiper_ros.platform.errors.PlatformError` naming the
+    variable and its values for another kind."""
     if threads > 1:
         return MultiThreadedExecutor(num_threads=threads, context=context)
     kind = os.environ.get(EXECUTOR_ENV) or default
@@ -122,7 +124,7 @@ def new_executor(threads: int = 1, default: str = EXECUTOR_SINGLE, context: Cont
         return EventsExecutor(context=context)
     if kind == EXECUTOR_SINGLE:
         return SingleThreadedExecutor(context=context)
-    raise ValueError(f"{EXECUTOR_ENV}={kind!r}: expected {EXECUTOR_EVENTS!r} or {EXECUTOR_SINGLE!r}")
+    raise PlatformError(f"{EXECUTOR_ENV}={kind!r}: expected {EXECUTOR_EVENTS!r} or {EXECUTOR_SINGLE!r}")
 
 
 def spin_until_shutdown(executor: Any) -> None:

@@ -15,16 +15,17 @@ import numpy as np
 import torch
 
 from .encoder import CAMERAS, preprocess_images
+from .errors import PolicyError
 
 LOG = logging.getLogger(__name__)
 
 
 def episode_files(directory: str | Path) -> list[Path]:
-    """The demo episodes of ``directory`` in seed order."""
+    """The demo episodes of ``directory`` in seed order; :class:`~fiper_ros.policy.errors.PolicyError` for none."""
     files = sorted(Path(directory).glob("episode_*.npz"))
     files = [f for f in files if not f.name.endswith(".tmp.npz")]
     if not files:
-        raise FileNotFoundError(f"no episode_*.npz demonstrations in {directory}")
+        raise PolicyError(f"no episode_*.npz demonstrations in {directory}")
     return files
 
 
@@ -57,7 +58,8 @@ class Batch:
 
 
 class DemoDataset:
-    """All (observation history, action chunk) pairs of the successful demonstrations, in memory."""
+    """All (observation history, action chunk) pairs of the successful demonstrations, in memory
+    (:class:`~fiper_ros.policy.errors.PolicyError` for a folder without a successful one)."""
 
     def __init__(self, directory: str | Path, obs_horizon: int, horizon: int, image_size: int,
                  max_episodes: int | None = None) -> None:
@@ -84,7 +86,7 @@ class DemoDataset:
             chunk_index.append(offset + chunk)
             offset += length
         if not proprio:
-            raise ValueError(f"no successful demonstrations in {directory}")
+            raise PolicyError(f"no successful demonstrations in {directory}")
         self.images = {cam: torch.cat(frames) for cam, frames in images.items()}
         self.proprio = torch.from_numpy(np.concatenate(proprio))
         self.actions = torch.from_numpy(np.concatenate(actions))

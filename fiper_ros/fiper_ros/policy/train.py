@@ -20,6 +20,7 @@ import torch
 
 from .config import PolicyConfig
 from .dataset import DemoDataset
+from .errors import PolicyError
 from .normalizer import RangeNormalizer
 from .policy import Policy
 
@@ -99,14 +100,15 @@ def train(config: PolicyConfig, demos: str | Path, out: str | Path, run_dir: str
     the whole schedule); a later call without it continues from the checkpoint.
 
     Raises:
-        ValueError: ``stop_after`` is not in 1..epochs, or the checkpoint is already past it.
+        PolicyError: no (successful) demonstrations, demonstrations whose action or proprio dimensions differ from
+            the config's, ``stop_after`` not in 1..epochs or a checkpoint already past it.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     dataset = DemoDataset(demos, config.obs_horizon, config.horizon, config.image_size, max_episodes)
     if dataset.actions.shape[-1] != config.action_dim or dataset.proprio.shape[-1] != config.proprio_dim:
-        raise ValueError(f"demos have action/proprio dims {dataset.actions.shape[-1]}/{dataset.proprio.shape[-1]}, "
-                         f"config expects {config.action_dim}/{config.proprio_dim}")
+        raise PolicyError(f"demos have action/proprio dims {dataset.actions.shape[-1]}/{dataset.proprio.shape[-1]}, "
+                          f"config expects {config.action_dim}/{config.proprio_dim}")
     torch.manual_seed(seed)
     model = Policy(config, RangeNormalizer.fit(dataset.actions.numpy()), RangeNormalizer.fit(dataset.proprio.numpy()))
     ema = copy.deepcopy(model)
@@ -119,8 +121,8 @@ def train(config: PolicyConfig, demos: str | Path, out: str | Path, run_dir: str
                                     model, ema, optimizer, scheduler)
     last_epoch = config.epochs if stop_after is None else stop_after
     if not 1 <= last_epoch <= config.epochs or start_epoch > last_epoch:
-        raise ValueError(f"cannot stop after epoch {last_epoch}: the schedule has {config.epochs} epochs and "
-                         f"{run_dir / CHECKPOINT_FILE} holds {start_epoch}")
+        raise PolicyError(f"cannot stop after epoch {last_epoch}: the schedule has {config.epochs} epochs and "
+                          f"{run_dir / CHECKPOINT_FILE} holds {start_epoch}")
     LOG.info("training %s: %d parameters, %d samples, %d steps", config.task,
              sum(p.numel() for p in model.parameters()), len(dataset), total_steps)
     loss_value = float("nan")
