@@ -42,7 +42,7 @@ from fiper_ros.bagio.reader import find_bags
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.core.auto import MARGIN, AutoChoice, AutoSettings
+from fiper_ros.core.auto import MARGIN, RULES, AutoChoice, AutoSettings
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationSettings, calibrate,
                                         upgrade_calibration)
 from fiper_ros.core.calibration.auto import auto_calibrate
@@ -155,7 +155,8 @@ def auto_lines(choice: AutoChoice, top: int = 8) -> list[str]:
     margin = choice.settings.rule == MARGIN
     kinds = [] if margin else list(choice.ranking[0].caught)
     head = "margin" if margin else "proxy TWA"
-    lines = [f"auto ({choice.record()['rule']} v{choice.record()['version']}, delta {choice.delta:g}): "
+    rule = choice.settings.rule
+    lines = [f"auto ({rule} v{RULES[rule]}, delta {choice.delta:g}): "
              f"{len(choice.ranking)} candidates of {', '.join(choice.detectors)}",
              f"  {'rank':>4}  {head:>9}  {'held-out FA':>11}  " + "".join(f"{k:>6}  " for k in kinds) + "candidate"]
     for rank, score in enumerate(choice.ranking[:top], 1):

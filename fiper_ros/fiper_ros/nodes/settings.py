@@ -20,7 +20,7 @@ from fiper_ros.nodes.errors import NodeError
 #: The ``combine`` parameter's value that takes the calibration's own combine.
 FROM_CALIBRATION = "calibration"
 #: The detectors a detector node may be asked to score, for its refusal.
-DETECTOR_NAMES = "rnd_oe, ace, logpzo, pca_kmeans, progress, consistency, elapsed, signal_<name>"
+DETECTOR_NAMES = ", ".join((*CALIBRATED, "signal_<name>"))
 
 Values = Mapping[str, Any]
 
