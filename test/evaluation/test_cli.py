@@ -63,6 +63,9 @@ def test_cli_reports_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert main(["evaluate", "--out", str(tmp_path)]) == 2
     assert main(["evaluate", "--synthetic", "sorting", "--windows", "1-3", "--out", str(tmp_path)]) == 2
     assert "default window 5 is not among the swept windows" in capsys.readouterr().err
+    # refused before the data is read (it was said only after loading every bag): the missing data is not named
+    assert main(["evaluate", "--data", f"x={tmp_path / 'missing'}", "--windows", "1", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip().endswith("the default window 5 is not among the swept windows")
 
 
 def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:

@@ -270,8 +270,6 @@ def methods_for(requested: tuple[str, ...] | None, datasets: list[Dataset]) -> t
 def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...] = ()) -> EngineSettings:
     """Engine settings from the parsed options (``--methods`` resolved by :func:`methods_for`, with the methods
     of the ``external`` scores of ``--scores``)."""
-    if args.default_window not in args.windows:
-        raise UsageError(f"the default window {args.default_window} is not among the swept windows")
     method_settings = MethodSettings.tiny(args.profile) if args.tiny else MethodSettings(profile=args.profile)
     method_settings = replace(method_settings, robot=options.robot_from(args), split=args.split,
                               shape_folds=args.shape_folds, external=external)
@@ -335,6 +333,8 @@ def check_cluster(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the evaluation; 0 on success, 2 on bad input."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if args.default_window not in args.windows:  # before any data is read
+        raise UsageError(f"the default window {args.default_window} is not among the swept windows")
     check_directory(args.out)
     for directory in ([] if args.no_cache else [args.cache_dir]) + ([] if args.dump is None else [args.dump]):
         check_directory(directory)
