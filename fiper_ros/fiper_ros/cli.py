@@ -42,6 +42,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 #: A sub-command's parser may set this default (``set_defaults``) to the name its reports give, e.g. ``bag recover``.
 LABEL = "fiper_command"
+#: The parsed arguments carry the whole command line under this name, for a file that names the command that made
+#: it (``fiper evaluate --write-prior``).
+ARGV = "fiper_argv"
 
 #: Modules whose absence means the workspace was not set up or not sourced.
 _ENVIRONMENT_MODULES = {"rclpy", "fiper_msgs", "torch", "numpy", "mujoco", "pinocchio", "rosbags", "mcap", "yaml"}
@@ -102,6 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             add_arguments(sub_parser)
             args = (sub_parser.parse_intermixed_args if intermixed else sub_parser.parse_args)(argv[1:])
             label[0] = getattr(args, LABEL, name)
+            setattr(args, ARGV, ["fiper", *argv])
             return run(args)
     except FiperError as error:
         return fail(label[0], error)

@@ -3,6 +3,7 @@ the successes alone, prints the best candidates and why the winner won, and stor
 the same choice as :func:`fiper_ros.core.calibration.auto.auto_calibrate` with the same settings."""
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +12,13 @@ import pytest
 from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.cli import main
+from fiper_ros.commands.errors import UsageError
+from fiper_ros.commands.options import DEFAULT_PRIOR, prior_from
 from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings, load_calibration
 from fiper_ros.core.calibration.auto import auto_calibrate
 from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.transfer import Prior, PriorEntry
 
 
 def _rollout(index: int, *, fail: bool = False) -> Rollout:
@@ -84,3 +88,84 @@ def test_calibrate_auto_rule_margin_prints_and_stores_its_margins(tmp_path: Path
     first = lines[head + 2].split()
     assert first[0] == "1" and float(first[1]) == pytest.approx(record["top"][0]["figures"]["margin"], abs=1e-3)
     assert "elapsed" not in record["chosen"]["detectors"]  # no spread: an infinite margin
+
+
+PRIOR_ENTRIES = (
+    PriorEntry(("rnd_oe", "ace"), "window", {"rnd_oe": 8, "ace": 50}, "cp_band", "or", method="fiper", twa=0.9),
+    PriorEntry(("signal_b",), "window", {"signal_b": 3}, "cp_constant", method="signal_b", twa=0.8),
+    PriorEntry(("signal_a",), "window", {"signal_a": 1}, "cp_band", method="signal_a", twa=0.7),
+)
+
+
+@pytest.fixture()
+def prior_file(tmp_path: Path) -> Path:
+    return Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {}, {}, "hand-made", "by hand", "0").save(
+        tmp_path / "prior.yaml")
+
+
+def test_calibrate_auto_rule_transfer_takes_the_first_entry_it_can_feed(tmp_path: Path, signal_bag: Path,
+                                                                       prior_file: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--auto-prior",
+                 str(prior_file), "--delta", "0.3", "--seed", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    calibration = load_calibration(out)
+    record = calibration.auto
+    prior = Prior.load(prior_file)
+    assert record["rule"] == "transfer" and record["rank"] == 2
+    assert record["prior"]["content_hash"] == prior.content_hash and record["prior"]["tasks"] == ["sorting", "stacking"]
+    assert calibration.settings.detectors == ("signal_b",) and calibration.settings.threshold == "cp_constant"
+    assert calibration.settings.window_of("signal_b") == 3 and calibration.num_rollouts == 12
+    head = lines.index(next(line for line in lines if line.startswith("auto (transfer v1, delta 0.3): prior ")))
+    assert lines[head + 2].split()[:2] == ["1", "0.900"] and "skipped (need a detector the successes cannot feed)" \
+        in lines[head + 2]
+    assert lines[head + 3].split()[:2] == ["2", "0.800"] and lines[head + 3].endswith("signal_b w3 cp_constant: chosen")
+    assert f"chosen: {record['why']}" in lines
+
+
+def test_calibrate_auto_rule_transfer_refuses_a_modified_prior_in_one_line(tmp_path: Path, signal_bag: Path,
+                                                                         prior_file: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    prior_file.write_text(prior_file.read_text().replace("twa: 0.8", "twa: 0.95"))
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--auto-prior",
+                 str(prior_file), "--delta", "0.3"]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"fiper calibrate: {prior_file}: content hash mismatch (the prior was modified after it was "
+                   "written)\n")
+    assert not out.exists()
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-prior", str(prior_file)]) == 2
+    assert "--auto-prior is the prior of --auto --auto-rule transfer" in capsys.readouterr().err
+
+
+def test_the_default_prior_comes_from_the_package_share_never_the_working_directory(
+        tmp_path: Path, prior_file: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    share = tmp_path / "share"
+    (share / DEFAULT_PRIOR).parent.mkdir(parents=True)
+    (share / DEFAULT_PRIOR).write_text(prior_file.read_text())
+    here = tmp_path / "cwd"
+    (here / DEFAULT_PRIOR).parent.mkdir(parents=True)
+    (here / DEFAULT_PRIOR).write_text("not a prior")
+    monkeypatch.chdir(here)
+    monkeypatch.setattr("fiper_ros.data_paths.package_share", lambda: share)
+    args = argparse.Namespace(auto=True, auto_rule="transfer", auto_prior=None)
+    prior = prior_from(args, default=True)
+    assert prior is not None and prior == Prior.load(prior_file)
+    assert prior_from(args, default=False) is None  # fiper evaluate: each task's prior of the run's other tasks
+    monkeypatch.setattr("fiper_ros.data_paths.package_share", lambda: None)
+    with pytest.raises(UsageError, match="give --auto-prior FILE"):
+        prior_from(args, default=True)
+
+
+def test_calibrate_auto_rule_transfer_reads_the_shipped_prior_by_default(tmp_path: Path, signal_bag: Path,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    shipped = Prior.load(Path(__file__).resolve().parents[2] / DEFAULT_PRIOR)  # the checkout's, installed in the share
+    assert shipped.tasks == ("sorting", "stacking", "push_t") and len(shipped.entries) == 200
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--delta", "0.3",
+                 "--seed", "2"]) == 0
+    record = load_calibration(out).auto
+    assert record["prior"]["content_hash"] == shipped.content_hash
+    assert record["chosen"] == shipped.entries[record["rank"] - 1].to_dict()
+    assert all(skipped["why"] == "need a detector the successes cannot feed" for skipped in record["skipped"])

@@ -291,5 +291,5 @@ def test_the_margin_rule_builds_no_proxy_is_deterministic_and_an_unknown_rule_is
     assert choice.record() == choose_configuration(successes, FAST, margin, SIGNALS).record()
     assert choose_configuration([*successes[:5], SealedFailure(), *successes[5:]], FAST, margin,
                                 SIGNALS).record() == choice.record()  # a failure is never opened
-    with pytest.raises(AutoError, match="auto rule must be one of proxy-twa, margin, got 'best'"):
+    with pytest.raises(AutoError, match="auto rule must be one of proxy-twa, margin, transfer, got 'best'"):
         AutoSettings(rule="best")

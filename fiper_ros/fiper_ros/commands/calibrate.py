@@ -22,7 +22,10 @@ models and shapes; ``--pool`` pools the conformal factor over the tasks.
 the threshold kind and the combine from the successes alone (:mod:`fiper_ros.core.auto`: the fit part's fold
 curves and failure proxies made from them; ``--auto-windows``, ``--auto-folds``, ``--auto-budget``,
 ``--step-limit``), calibrates that, prints its best candidates and why the winner won, and stores the choice in
-the calibration (``auto``); the other configuration options are then not used.
+the calibration (``auto``); the other configuration options are then not used. ``--auto-rule transfer`` takes the
+best entry of a prior learned on other tasks' labelled rollouts (:mod:`fiper_ros.core.transfer`; ``--auto-prior
+FILE``, default the one shipped in the installed package's share) that the successes can feed and whose threshold
+is finite at ``--delta``, and stores the prior's content hash and the entry's rank.
 
 ``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
 file ``rnd_oe.pt``, which the nodes no longer read) or 2 to the current format: the same thresholds, weights
@@ -56,6 +59,7 @@ from fiper_ros.core.profiles import PROFILE_NAMES
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.thresholds import KINDS, Threshold
+from fiper_ros.core.transfer import Prior, TransferChoice
 from fiper_ros.core.window import MODES
 from fiper_ros.interface.topics import ACTIONS_TOPIC
 
@@ -106,11 +110,12 @@ def window_warnings(settings: CalibrationSettings, successes: Sequence[Rollout])
 
 def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSettings, *, overwrite: bool = False,
                    quiet: bool = False, fk: ForwardKinematics | None = None, auto: AutoSettings | None = None,
-                   candidates: Sequence[str] | None = None) -> tuple[Calibration, list[Rollout]]:
+                   candidates: Sequence[str] | None = None, prior: Prior | None = None
+                   ) -> tuple[Calibration, list[Rollout]]:
     """Calibrate on the successful rollouts of ``bags`` and write the calibration directory ``out``
     (``fk``: the robot's forward kinematics, for joint-space actions); the calibration and the successes. With
     ``auto`` the configuration is chosen from the successes first (:func:`auto_calibrate`, among ``candidates`` or
-    every detector they can feed) and the choice printed."""
+    every detector they can feed; the transfer rule from ``prior``) and the choice printed."""
     check_new(out, overwrite)
     rollouts = load_rollouts(bags)
     good = successful(rollouts)
@@ -134,7 +139,7 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
             calibration = calibrate(rollouts, settings, fk=fk, progress=progress)
         else:
             calibration, choice = auto_calibrate(rollouts, settings, auto, candidates, fk, progress,
-                                                 None if quiet else _note)
+                                                 None if quiet else _note, prior)
             if not quiet:
                 print("\n".join(auto_lines(choice)), flush=True)
     except KinematicsError as error:
@@ -149,9 +154,11 @@ def _note(text: str) -> None:
     print(f"  auto: {text}", file=sys.stderr, flush=True)
 
 
-def auto_lines(choice: AutoChoice, top: int = 8) -> list[str]:
+def auto_lines(choice: AutoChoice | TransferChoice, top: int = 8) -> list[str]:
     """What ``--auto`` chose and why, with its best candidates (lines to print): the proxy TWA and each proxy kind's
-    catch (``proxy-twa``), or the margin (``margin``)."""
+    catch (``proxy-twa``), or the margin (``margin``); the prior's entries down to the chosen one (``transfer``)."""
+    if isinstance(choice, TransferChoice):
+        return transfer_lines(choice, top)
     margin = choice.settings.rule == MARGIN
     kinds = [] if margin else list(choice.ranking[0].caught)
     head = "margin" if margin else "proxy TWA"
@@ -163,6 +170,22 @@ def auto_lines(choice: AutoChoice, top: int = 8) -> list[str]:
         value = score.caught[MARGIN] if margin else score.score
         lines.append(f"  {rank:>4}  {value:>9.3f}  {score.false_alarms:>11.3f}  "
                      + "".join(f"{score.caught.get(k, 0.0):>6.3f}  " for k in kinds) + score.candidate.label())
+    lines.append(f"chosen: {choice.why()}")
+    return lines
+
+
+def transfer_lines(choice: TransferChoice, top: int = 8) -> list[str]:
+    """The transfer rule's choice: the prior, its entries ranked above the chosen one (why each did not fit, the
+    first ``top``) and the chosen one."""
+    prior = choice.prior
+    rule = choice.settings.rule
+    lines = [f"auto ({rule} v{RULES[rule]}, delta {choice.delta:g}): prior {prior.content_hash[:12]} of "
+             f"{len(prior.entries)} entries learned on {', '.join(prior.tasks)}; the successes feed "
+             f"{', '.join(choice.detectors)}",
+             f"  {'rank':>4}  {'TWA':>6}  entry"]
+    for rank, entry, why in choice.skipped[:top]:
+        lines.append(f"  {rank:>4}  {entry.twa:>6.3f}  {entry.label()}: skipped ({why})")
+    lines.append(f"  {choice.rank:>4}  {choice.chosen.twa:>6.3f}  {choice.chosen.label()}: chosen")
     lines.append(f"chosen: {choice.why()}")
     return lines
 
@@ -260,10 +283,11 @@ def run(args: argparse.Namespace) -> int:
         return upgrade(args)
     settings = settings_from(args)
     auto = options.auto_from(args)
+    prior = options.prior_from(args, default=True)
     fk = options.fk_of(options.robot_from(args))
     bags = find_bags(args.bags, strict=args.strict)
     calibration, successes = calibrate_bags(bags, args.out, settings, overwrite=args.force, fk=fk, auto=auto,
-                                            candidates=args.detectors)
+                                            candidates=args.detectors, prior=prior)
     settings = calibration.settings
     shown = {k: v for k, v in settings.to_dict().items() if k not in ("rnd", "progress", "consistency", "logpzo",
                                                                         "pca_kmeans")}

@@ -25,6 +25,10 @@ action batches (ACE, FIPER, STAC, RND-A) is refused in one line.
 ``--scores NAME=FILE`` evaluates per-step scores computed elsewhere (:mod:`fiper_ros.evaluation.external`) as the
 method ``external_<NAME>``, alone and in the default combination, like a built-in method. ``--dump DIR`` writes
 every configuration's thresholds per step and first alarm per rollout (:mod:`fiper_ros.evaluation.dump`).
+``--auto --auto-rule transfer`` chooses each task's configuration by a prior: of the other tasks' labelled metrics of
+the run (two tasks or more), or ``--auto-prior FILE`` (:mod:`fiper_ros.evaluation.transfer`). ``--write-prior FILE``
+writes the prior of every task of the run (its best ``--prior-top`` configurations), for ``fiper calibrate --auto
+--auto-rule transfer --auto-prior FILE``.
 ``--ray [ADDRESS]`` computes the scores and the sweep as Ray tasks (:mod:`fiper_ros.evaluation.distributed`) on a
 local instance (``--ray-cpus N`` CPUs) or an existing cluster, to the same results (docs/scale.md).
 """
@@ -39,6 +43,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import logging
+import shlex
 import sys
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -58,11 +63,12 @@ from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitE
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, EQUALISATIONS
 from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine
+from fiper_ros.core.transfer import PRIOR_TOP
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX
 from fiper_ros.evaluation.early import DEFAULT_Q
-from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation, run_prior
 from fiper_ros.evaluation.external import ExternalScores, parse_scores
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS
 from fiper_ros.evaluation.methods import (ELAPSED, METHODS, Combination, MethodSettings, default_combinations,
@@ -210,6 +216,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument("--dump", type=Path, default=None, metavar="DIR",
                         help="also write every configuration's thresholds per step and first alarm per rollout: one "
                              f".npz per task and seed and {INDEX} naming the configurations (docs/evaluation.md)")
+    output.add_argument("--write-prior", type=Path, default=None, metavar="FILE",
+                        help="also write the prior of every task of the run for fiper calibrate --auto --auto-rule "
+                             "transfer: its best --prior-top configurations a calibration can declare, ranked by their "
+                             "TWA on all test rollouts (docs/method.md, 'The third rule')")
+    output.add_argument("--prior-top", type=int, default=PRIOR_TOP, metavar="N",
+                        help=f"entries a prior made of the run keeps (default {PRIOR_TOP})")
     output.add_argument("--quiet", action="store_true", help="no progress lines")
     cluster = parser.add_argument_group("cluster")
     cluster.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
@@ -283,7 +295,8 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           else ("window", "max"),
                           progress=not args.quiet, combinations=combinations_from(args),
                           combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc,
-                          auto=options.auto_from(args))
+                          auto=options.auto_from(args), auto_prior=options.prior_from(args, default=False),
+                          prior_top=args.prior_top)
 
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:
@@ -345,6 +358,12 @@ def run(args: argparse.Namespace) -> int:
     options.fk_of(settings.method_settings.robot)
     check_evaluation(datasets, settings)
     check_cluster(args)
+    if args.write_prior is not None:
+        if args.pool:
+            raise UsageError("--write-prior: a prior holds per-task configurations, not thresholds pooled over the "
+                             "tasks (--pool)")
+        if not args.write_prior.parent.is_dir():
+            raise UsageError(f"--write-prior {args.write_prior}: no directory {args.write_prior.parent}")
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
     # +inf CP thresholds (ceil((M+1)(1-delta)) > M for the smallest deltas) are expected in a sweep.
     threshold_log = logging.getLogger("fiper_ros.core.thresholds")
@@ -365,4 +384,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         threshold_log.setLevel(previous)
     print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))
+    if args.write_prior is not None:
+        argv = getattr(args, "fiper_argv", None)  # cli.ARGV
+        prior = run_prior(result, args.prior_top, shlex.join(argv) if argv else "fiper evaluate (command line not given)")
+        prior.save(args.write_prior)
+        print(f"fiper evaluate: prior of {', '.join(prior.tasks)} ({len(prior.entries)} entries, hash "
+              f"{prior.content_hash[:12]}) -> {args.write_prior}")
     return 0

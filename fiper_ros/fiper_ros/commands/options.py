@@ -17,6 +17,7 @@ first (``--control-dt``). The ACE node takes the same as parameters (``urdf_path
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fiper_ros.bagio.chunks import DEFAULT_CHUNK_MB, DEFAULT_CHUNK_S, LiveChunks
@@ -25,6 +26,10 @@ from fiper_ros.commands.errors import UsageError
 if TYPE_CHECKING:
     from fiper_ros.core.auto import AutoSettings
     from fiper_ros.core.kinematics import PinocchioFK, RobotModel
+    from fiper_ros.core.transfer import Prior
+
+#: The prior ``--auto-rule transfer`` reads without ``--auto-prior``: this path of the installed package's share.
+DEFAULT_PRIOR = Path("models") / "priors" / "sim-three-tasks.yaml"
 
 #: The most integers one list option (:func:`int_list`) expands to: a range is bounded before it is built.
 MAX_INTS = 10_000
@@ -78,7 +83,12 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
     defaults = AutoSettings()
     parser.add_argument("--auto-rule", choices=tuple(RULES), default=defaults.rule,
                         help="with --auto: proxy-twa scores failure proxies made from the successes, margin the "
-                             "held-out successes only (docs/method.md)")
+                             "held-out successes only, transfer takes the best entry of a prior learned on other "
+                             "tasks' labelled rollouts (docs/method.md)")
+    parser.add_argument("--auto-prior", type=Path, default=None, metavar="FILE",
+                        help="with --auto-rule transfer: the prior (fiper evaluate --write-prior); default: "
+                             + ("each task's of the other tasks of the run" if not folds else
+                                f"{DEFAULT_PRIOR} of the installed fiper_ros share"))
     parser.add_argument("--auto-windows", type=int_list, default=defaults.windows, metavar="W,...",
                         help="with --auto: the windows tried, a comma list and/or ranges, e.g. 1,3,5-10 (default "
                              f"{','.join(map(str, defaults.windows))})")
@@ -89,6 +99,30 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
                         help="with --auto: most candidate configurations per task (more is refused)")
     parser.add_argument("--step-limit", type=int, default=None, metavar="STEPS",
                         help="with --auto: every task's step limit (a stalled proxy rollout runs to it)")
+
+
+def prior_from(args: argparse.Namespace, default: bool) -> Prior | None:
+    """The prior of ``--auto-prior`` (:class:`~fiper_ros.core.transfer.PriorError` in one line for a bad file);
+    without it ``None``, or with ``default`` the shipped one (:data:`DEFAULT_PRIOR`, looked up in the installed
+    package's share only, never the working directory). ``--auto-prior`` without ``--auto-rule transfer`` is a
+    :class:`UsageError`."""
+    from fiper_ros.core.auto import TRANSFER  # noqa: PLC0415
+    from fiper_ros.core.transfer import Prior  # noqa: PLC0415
+    from fiper_ros.data_paths import package_share  # noqa: PLC0415
+
+    if args.auto_rule != TRANSFER or not args.auto:
+        if args.auto_prior is not None:
+            raise UsageError("--auto-prior is the prior of --auto --auto-rule transfer")
+        return None
+    if args.auto_prior is not None:
+        return Prior.load(args.auto_prior)
+    if not default:
+        return None
+    share = package_share()
+    if share is None:
+        raise UsageError(f"the default prior ({DEFAULT_PRIOR}) is in the installed fiper_ros share, which is not on "
+                         "AMENT_PREFIX_PATH (. ./env.sh): give --auto-prior FILE")
+    return Prior.load(share / DEFAULT_PRIOR)
 
 
 def auto_from(args: argparse.Namespace) -> AutoSettings | None:

@@ -32,6 +32,7 @@ Modules, one concept each:
 - :mod:`.calibration_file`: reading ``calibration.yaml`` without torch (what a calibration declares).
 - :mod:`.calibration`: a calibration's settings, model, fitting and files (one module each).
 - :mod:`.auto`: choosing a calibration's configuration from successes alone (``fiper calibrate --auto``).
+- :mod:`.transfer`: ``--auto``'s ``transfer`` rule: a prior learned on other tasks' labelled rollouts, its file.
 - :mod:`.monitor`: streaming and vectorised failure prediction.
 - :mod:`.errors`: :class:`CoreError`, what every error of the core derives from, and :class:`.errors.ChoiceError`
   (an unknown detector, combine or profile).
@@ -43,4 +44,4 @@ from fiper_ros.core.errors import CoreError
 __all__ = ["CoreError", "ace", "auto", "calibration", "calibration_file", "combination", "combine_mode", "consistency",
            "data_split", "detector_model", "detectors", "equalisation", "errors", "fusion", "kinematics", "logpzo",
            "metrics", "mlp", "monitor", "pca", "pca_kmeans", "profiles", "progress", "rnd_oe", "rollout", "scorers",
-           "scores", "step_stream", "thresholds", "window"]
+           "scores", "step_stream", "thresholds", "transfer", "window"]

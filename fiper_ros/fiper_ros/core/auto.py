@@ -43,6 +43,9 @@ above): its threshold sits closest to the successes' own spread for the same pro
 the successes' band by a given number of spreads crosses it first. A candidate whose statistic has no spread at
 any step (the elapsed time: every success has the same curve) has an infinite margin and is never chosen.
 
+The third rule, ``transfer``, scores nothing of the task: it takes the best configuration of a prior learned on
+other tasks' labelled rollouts that the task's successes can feed (:mod:`fiper_ros.core.transfer`).
+
 No failure is ever read: the functions here take per-step scores of successes and of proxies made from them.
 """
 
@@ -66,13 +69,16 @@ from fiper_ros.core.window import aggregate
 #: The rules (module docstring) and their versions (stored in the calibration with the choice).
 PROXY_TWA = "proxy-twa"
 MARGIN = "margin"
-RULES = {PROXY_TWA: 1, MARGIN: 1}
+TRANSFER = "transfer"
+RULES = {PROXY_TWA: 1, MARGIN: 1, TRANSFER: 1}
 #: What each rule reads, in one sentence (reports say it).
 RULE_SUMMARIES = {
     PROXY_TWA: "candidates scored on the fit part's successes by fold models, with stall, drift and skip proxies "
                "made from them",
     MARGIN: "candidates scored on the fit part's held-out successes alone (fold models; no proxy): the smallest "
             "margin between the threshold and the successes' statistic, in units of its per-step spread, wins",
+    TRANSFER: "the highest-ranked configuration of a prior learned on other tasks' labelled rollouts that the "
+              "task's successes can feed and whose threshold is finite at delta with its conformal successes",
 }
 #: The failure proxies the rule can build from a success.
 PROXIES = ("stall", "drift", "skip")
@@ -91,7 +97,8 @@ class AutoSettings:
     """What ``--auto`` tries and how it scores (module docstring).
 
     Attributes:
-        rule: The rule (:data:`RULES`): ``proxy-twa`` scores failure proxies, ``margin`` held-out successes only.
+        rule: The rule (:data:`RULES`): ``proxy-twa`` scores failure proxies, ``margin`` held-out successes only,
+            ``transfer`` takes a prior's entry (:mod:`fiper_ros.core.transfer`; the candidate options do not apply).
         windows: The windows tried for every detector whose aggregation is not fixed, kept sorted and distinct
             (their order means nothing and a repeat only spends the budget; a detector whose aggregation is fixed
             is tried once, with the smallest).
@@ -456,6 +463,8 @@ def choose(tasks: Mapping[str, TaskScores], detectors: Sequence[str], settings: 
            base: ThresholdSettings, seed: int) -> AutoChoice:
     """The rule (module docstring) over ``tasks`` at ``base.delta``: every candidate of ``detectors`` (in the fusion's
     order, whatever their order here) scored, the best chosen. Deterministic for ``seed``."""
+    if settings.rule == TRANSFER:
+        raise ValueError("the transfer rule chooses from a prior (core.transfer.choose_from_prior), not from scores")
     if not tasks:
         raise AutoError("auto needs the successes of at least one task")
     detectors = in_fusion_order(sorted(set(detectors)))

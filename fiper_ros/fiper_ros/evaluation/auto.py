@@ -14,13 +14,14 @@ label of the task, and no rollout of another task, enters the choice.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from fiper_ros.core.auto import AutoChoice, AutoSettings, TaskScores, choose
+from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.calibration.auto import auto_scores, auto_split_settings, chosen_settings
 from fiper_ros.core.calibration.fit import fit_thresholds, split_successes
 from fiper_ros.core.detectors import ACE, CALIBRATED, info
@@ -86,21 +87,30 @@ def _windowed(scores: Sequence[np.ndarray], detector: str, settings: Any) -> lis
             for s in scores]
 
 
+def calibrated_alarms(dataset: Dataset, shape: dict[str, list[np.ndarray]], streams: dict[str, StreamScores],
+                      settings: CalibrationSettings) -> tuple[np.ndarray, bool]:
+    """The first alarm on every test rollout of ``dataset`` of the configuration ``settings``, calibrated as
+    :func:`fiper_ros.core.calibration.calibrate` does it: its shapes from the per-step scores ``shape`` (the fit
+    part's, per detector), its conformal quantile from the conformal part's curves of ``streams``; whether its
+    threshold is +inf (then no alarm)."""
+    own_shape = {d: _windowed(shape[d], d, settings) for d in settings.detectors}
+    conformal = {d: _windowed(streams[d].conformal, d, settings) for d in settings.detectors}
+    thresholds, _ = fit_thresholds({dataset.task: conformal}, {dataset.task: own_shape}, settings)
+    own = thresholds[dataset.task]
+    if not all(np.isfinite(t.values).all() for t in own.values()):
+        return np.full(len(dataset.test), -1, dtype=np.int64), True
+    test = {d: _windowed(streams[d].test, d, settings) for d in settings.detectors}
+    return _first_alarms(test, own, settings.votes), False
+
+
 def task_choice(dataset: Dataset, data: TaskScores, streams: dict[str, StreamScores], pool: tuple[str, ...],
                 method_settings: MethodSettings, auto: AutoSettings, seed: int, delta: float
                 ) -> tuple[AutoChoice, np.ndarray, bool]:
     """The choice at ``delta`` and its first alarm on every test rollout; whether its threshold is +inf."""
     base = replace(method_settings.calibration_settings(seed), delta=delta)
     choice = choose({dataset.task: data}, pool, auto, base.threshold_settings(), seed)
-    settings = chosen_settings(base, choice)
-    shape = {d: _windowed(data.successes[d], d, settings) for d in settings.detectors}
-    conformal = {d: _windowed(streams[d].conformal, d, settings) for d in settings.detectors}
-    thresholds, _ = fit_thresholds({dataset.task: conformal}, {dataset.task: shape}, settings)
-    own = thresholds[dataset.task]
-    if not all(np.isfinite(t.values).all() for t in own.values()):
-        return choice, np.full(len(dataset.test), -1, dtype=np.int64), True
-    test = {d: _windowed(streams[d].test, d, settings) for d in settings.detectors}
-    return choice, _first_alarms(test, own, settings.votes), False
+    alarms, infinite = calibrated_alarms(dataset, data.successes, streams, chosen_settings(base, choice))
+    return choice, alarms, infinite
 
 
 def task_scores(dataset: Dataset, pool: tuple[str, ...], method_settings: MethodSettings, auto: AutoSettings,
@@ -117,36 +127,33 @@ def task_scores(dataset: Dataset, pool: tuple[str, ...], method_settings: Method
         return auto_scores(good, split.fit, split.shape_folds, pool, context, fk, auto, seed)
 
 
-def auto_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
-                    streams: Sequence[str], method_settings: MethodSettings, seeds: Sequence[int],
-                    deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
-                    held_out: dict[str, list[np.ndarray]], threads: int = 1, progress: bool = True) -> AutoOutcome:
-    """``--auto`` on every task and seed (module docstring); metrics on ``subsets`` of every task's test rollouts
-    (``None``: all) and false alarms on ``held_out`` ID successes."""
+#: Per task (its index and dataset) and seed: for every delta the chosen configuration's label, its record, its
+#: first alarm on every test rollout and whether its threshold is +inf.
+Choices = Callable[[int, Dataset, int], tuple[list[str], list[dict[str, Any]], np.ndarray, np.ndarray]]
+
+
+def evaluate_choices(datasets: Sequence[Dataset], method_settings: MethodSettings, seeds: Sequence[int],
+                     deltas: Sequence[float], subsets: dict[str, list[np.ndarray | None]],
+                     held_out: dict[str, list[np.ndarray]], choices: Choices, progress: bool = True) -> AutoOutcome:
+    """Every task's and seed's ``choices`` (a rule's, at every delta) and their metrics on ``subsets`` of every task's
+    test rollouts (``None``: all) and false alarms on ``held_out`` ID successes."""
     started = time.perf_counter()
-    pool = candidate_streams(streams)
     profile = get_profile(method_settings.profile)
     bar = Progress("auto", len(datasets) * len(seeds), progress)
     metrics = {name: np.full((len(datasets), len(seeds), len(deltas), len(METRICS)), np.nan) for name in subsets}
     rates = {name: np.full((len(datasets), len(seeds), len(deltas)), np.nan) for name in held_out}
     infinite = np.zeros((len(datasets), len(seeds), len(deltas)), dtype=bool)
-    choices: list[list[list[str]]] = []
+    labels: list[list[list[str]]] = []
     records: list[list[list[dict[str, Any]]]] = []
     tnr = METRICS.index("tnr")
     for t, dataset in enumerate(datasets):
         horizons = dataset.lengths if profile.dt_mode == "paper" else dataset.max_length
-        choices.append([])
+        labels.append([])
         records.append([])
         for s, seed in enumerate(seeds):
-            data = task_scores(dataset, pool, method_settings, auto, seed, threads)
-            alarms = np.full((len(deltas), len(dataset.test)), -1, dtype=np.int64)
-            made = []
-            for k, delta in enumerate(deltas):
-                choice, alarms[k], infinite[t, s, k] = task_choice(dataset, data, scores[(dataset.task, seed)], pool,
-                                                                   method_settings, auto, seed, delta)
-                made.append(choice)
-            choices[t].append([c.chosen.label() for c in made])
-            records[t].append([c.record(top=5) for c in made])
+            chosen, made, alarms, infinite[t, s] = choices(t, dataset, seed)
+            labels[t].append(chosen)
+            records[t].append(made)
             for name, per_task in subsets.items():
                 values = alarm_metrics(alarms, dataset.failed, horizons, profile.dt_mode, per_task[t],
                                        profile.metrics_rule)
@@ -158,4 +165,27 @@ def auto_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], d
                 rates[name][t, s] = rate
             bar.advance(note=f"{dataset.task} seed {seed}")
     bar.close()
-    return AutoOutcome(tuple(deltas), choices, metrics, infinite, rates, records, time.perf_counter() - started)
+    return AutoOutcome(tuple(deltas), labels, metrics, infinite, rates, records, time.perf_counter() - started)
+
+
+def auto_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+                    streams: Sequence[str], method_settings: MethodSettings, seeds: Sequence[int],
+                    deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
+                    held_out: dict[str, list[np.ndarray]], threads: int = 1, progress: bool = True) -> AutoOutcome:
+    """``--auto`` on every task and seed (module docstring); metrics on ``subsets`` of every task's test rollouts
+    (``None``: all) and false alarms on ``held_out`` ID successes."""
+    pool = candidate_streams(streams)
+
+    def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
+                                                              np.ndarray]:
+        data = task_scores(dataset, pool, method_settings, auto, seed, threads)
+        alarms = np.full((len(deltas), len(dataset.test)), -1, dtype=np.int64)
+        infinite = np.zeros(len(deltas), dtype=bool)
+        made = []
+        for k, delta in enumerate(deltas):
+            choice, alarms[k], infinite[k] = task_choice(dataset, data, scores[(dataset.task, seed)], pool,
+                                                         method_settings, auto, seed, delta)
+            made.append(choice)
+        return [c.chosen.label() for c in made], [c.record(top=5) for c in made], alarms, infinite
+
+    return evaluate_choices(datasets, method_settings, seeds, deltas, subsets, held_out, choices, progress)

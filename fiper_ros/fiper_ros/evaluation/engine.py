@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.cluster import connected
-from fiper_ros.core.auto import AutoSettings
+from fiper_ros.core.auto import TRANSFER, AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
+from fiper_ros.core.transfer import PRIOR_TOP, Prior
 from fiper_ros.evaluation.auto import AutoOutcome, auto_evaluation
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
@@ -32,6 +33,7 @@ from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, Protocol
                                            run_protocol, validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
+from fiper_ros.evaluation.transfer import members_of, prior_header, ranked_prior, transfer_evaluation
 
 LOG = logging.getLogger(__name__)
 
@@ -60,7 +62,11 @@ class EngineSettings:
         q_auc: ``q`` of the q-AUC: each rollout's maximum over its first ``ceil(q T_max)`` steps
             (:mod:`fiper_ros.evaluation.early`).
         auto: With settings: each task's configuration also chosen by ``fiper calibrate --auto`` on its calibration
-            successes alone (:mod:`fiper_ros.evaluation.auto`); ``None``: not.
+            successes alone (:mod:`fiper_ros.evaluation.auto`), or with the ``transfer`` rule by a prior
+            (:mod:`fiper_ros.evaluation.transfer`); ``None``: not.
+        auto_prior: The ``transfer`` rule's prior for every task; ``None``: each task's made of the other tasks' labelled
+            metrics of the run (two tasks or more).
+        prior_top: Entries a prior made of the run's metrics keeps.
     """
 
     methods: tuple[str, ...] = tuple(METHODS)
@@ -79,6 +85,8 @@ class EngineSettings:
     pooled: bool = False
     q_auc: float = DEFAULT_Q
     auto: AutoSettings | None = None
+    auto_prior: Prior | None = None
+    prior_top: int = PRIOR_TOP
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
@@ -88,6 +96,13 @@ class EngineSettings:
         if self.auto is not None and self.method_settings.split != "split":
             raise SettingsError("--auto chooses on the fit part of a split conformal calibration (--split split), not "
                              f"--split {self.method_settings.split}")
+        if self.auto is not None and self.auto.rule == TRANSFER and self.pooled:
+            raise SettingsError("--auto-rule transfer chooses a per-task configuration: not with thresholds pooled over "
+                                "the tasks (--pool)")
+        if self.auto_prior is not None and (self.auto is None or self.auto.rule != TRANSFER):
+            raise SettingsError("--auto-prior is the prior of --auto --auto-rule transfer")
+        if self.prior_top < 1:
+            raise SettingsError(f"--prior-top must be >= 1, got {self.prior_top}")
         if (self.combinations or self.pooled) and self.method_settings.split != "split":
             raise SettingsError("combinations and pooled thresholds take their shapes from the fit part of a split "
                              f"conformal calibration (--split split), not from --split {self.method_settings.split}")
@@ -201,6 +216,9 @@ def check_evaluation(datasets: Sequence[Dataset], settings: EngineSettings) -> N
     tasks = [d.task for d in datasets]
     if len(set(tasks)) != len(tasks):
         raise DatasetError(f"task names must be distinct, got {tasks}")
+    if settings.auto is not None and settings.auto.rule == TRANSFER and settings.auto_prior is None and len(tasks) < 2:
+        raise DatasetError(f"--auto-rule transfer takes each task's prior from the other tasks' labelled rollouts: with "
+                           f"one task ({tasks[0]}) give a prior file, --auto-prior FILE")
     if "loto" in settings.protocols and len(tasks) < 2:
         raise DatasetError(f"--protocol loto leaves one task out at a time: it needs two tasks or more, got "
                            f"{len(tasks)} ({', '.join(tasks)})")
@@ -392,7 +410,7 @@ def run_evaluation(
     selected = time.perf_counter()
     early = protocol_early(datasets, scores, settings, protocols)
     early_done = time.perf_counter()
-    auto = None if settings.auto is None else run_auto(datasets, scores, settings, settings.auto)
+    auto = None if settings.auto is None else run_auto(datasets, scores, settings, settings.auto, outcome)
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
                "early_detection": outcome.early_seconds + early_done - selected,
                **({} if auto is None else {"auto": auto.seconds}),
@@ -406,17 +424,35 @@ def run_evaluation(
 
 
 def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
-             settings: EngineSettings, auto: AutoSettings) -> AutoOutcome:
-    """``--auto`` on every task and seed (:func:`~fiper_ros.evaluation.auto.auto_evaluation`), its metrics on all
-    test rollouts and, with the clean protocol, on its report half."""
+             settings: EngineSettings, auto: AutoSettings, outcome: SweepOutcome) -> AutoOutcome:
+    """``--auto`` on every task and seed (:func:`~fiper_ros.evaluation.auto.auto_evaluation`; the ``transfer`` rule:
+    :func:`~fiper_ros.evaluation.transfer.transfer_evaluation`, its priors from ``outcome``'s metrics on all test
+    rollouts), its metrics on all test rollouts and, with the clean protocol, on its report half."""
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
     held_out = {"all": [d.held_out_id_successes for d in datasets]}
     if "clean" in settings.protocols:
         report = [validation_split(d.failed, settings.split_seed)[1] for d in datasets]
         subsets["report"] = list(report)
         held_out["report"] = [np.intersect1d(r, d.held_out_id_successes) for r, d in zip(report, datasets)]
+    if auto.rule == TRANSFER:
+        return transfer_evaluation(datasets, scores, settings.streams(), outcome.groups, outcome.metrics["all"],
+                                   outcome.infinite, members_of(settings.methods, settings.combinations),
+                                   settings.method_settings, settings.seeds, settings.sweep.deltas, auto, subsets,
+                                   held_out, settings.select_aggregations, settings.prior_top, settings.auto_prior,
+                                   settings.progress)
     return auto_evaluation(datasets, scores, settings.streams(), settings.method_settings, settings.seeds,
                            settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
+
+
+def run_prior(result: EvaluationResult, top: int, command: str) -> Prior:
+    """The prior of every task of the run (:func:`~fiper_ros.evaluation.transfer.ranked_prior`: its best ``top``
+    configurations on all test rollouts); ``command``: the command that made it."""
+    settings = result.settings
+    if settings.pooled:
+        raise SettingsError("a prior holds per-task configurations: not of thresholds pooled over the tasks (--pool)")
+    header = prior_header(result.datasets, settings.method_settings, settings.seeds, settings.sweep.deltas, command)
+    return ranked_prior(result.groups, result.metrics["all"], result.sweep.infinite, result.tasks,
+                        members_of(settings.methods, settings.combinations), settings.select_aggregations, top, header)
 
 
 def protocol_early(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],

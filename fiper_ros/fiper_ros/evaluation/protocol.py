@@ -163,6 +163,23 @@ def best_group(groups: Sequence[Group], scores: np.ndarray, allowed: Sequence[in
     return int(candidates[int(np.argmax(values))])
 
 
+def selection_twa(selection_metrics: np.ndarray, infinite: np.ndarray) -> np.ndarray:
+    """The selection statistic of every configuration ``[groups]``: its TWA averaged over the finite deltas, then
+    over the tasks and seeds of ``selection_metrics`` (``[tasks, seeds, groups, deltas, 5]``); NaN (never selected)
+    for a configuration with no finite delta on some task and seed of ``infinite`` (``[tasks, seeds, groups,
+    deltas]``)."""
+    twa = nanmean(delta_mean(selection_metrics)[..., METRICS.index("twa")], axis=(0, 1))
+    twa[infinite.all(axis=3).any(axis=(0, 1))] = np.nan  # no finite delta on some task and seed: never selected
+    return twa
+
+
+def selectable(group: Group, select_aggregations: Sequence[str]) -> bool:
+    """Whether a protocol may select ``group``: the one configuration of a method that has one, else one of the
+    aggregations ``select_aggregations``."""
+    fixed = METHODS[group.method].fixed if group.method in METHODS else None
+    return fixed is not None or group.aggregation in select_aggregations
+
+
 def run_protocol(
     protocol: str,
     groups: Sequence[Group],
@@ -184,8 +201,7 @@ def run_protocol(
     shape = report_metrics.shape[:-1]
     infinite = np.zeros(shape, dtype=bool) if infinite is None else infinite
     held_out = np.full(shape, np.nan) if held_out is None else held_out
-    twa = nanmean(delta_mean(selection_metrics)[..., METRICS.index("twa")], axis=(0, 1))
-    twa[infinite.all(axis=3).any(axis=(0, 1))] = np.nan  # no finite delta on some task and seed: never selected
+    twa = selection_twa(selection_metrics, infinite)
 
     def result(method: str, index: int) -> MethodResult:
         return MethodResult(method, groups[index], report_metrics[:, :, index], infinite[:, :, index],
@@ -196,8 +212,7 @@ def run_protocol(
     scores: dict[str, float] = {}
     for method in methods:
         fixed = METHODS[method].fixed if method in METHODS else None
-        members = [i for i, g in enumerate(groups)
-                   if g.method == method and (fixed is not None or g.aggregation in select_aggregations)]
+        members = [i for i, g in enumerate(groups) if g.method == method and selectable(g, select_aggregations)]
         if not members:
             continue
         best = best_group(groups, twa, members)

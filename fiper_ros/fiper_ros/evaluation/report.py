@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.core.auto import RULE_SUMMARIES
+from fiper_ros.core.auto import RULE_SUMMARIES, TRANSFER
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
@@ -545,7 +545,7 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     for t in range(len(result.tasks) + 1):
         name = result.tasks[t] if t < len(result.tasks) else "average"
         shown = auto.shown(t) if t < len(result.tasks) else 0
-        chosen = f"{auto.choices[t][0][shown]} (δ={auto.deltas[shown]:g})" if t < len(result.tasks) else ""
+        chosen = _auto_choice(auto, t, shown) if t < len(result.tasks) else ""
         rate = nanmean(auto.held_out["all"][t, :, shown], axis=0) if t < len(result.tasks) else math.nan
         cells = [name, chosen, *(_cell(float(mean[t, m]), float(std[t, m]), seeds, False)
                                  for m in (METRICS.index(k) for k in ("twa", "tpr", "tnr", "dt"))),
@@ -567,14 +567,34 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
                     cells.append("")
         rows.append("| " + " | ".join(cells) + " |")
     record = auto.records[0][0][0]
+    if record["rule"] == TRANSFER:
+        priors = "; ".join(f"{task}: {', '.join(auto.records[t][0][0]['prior']['tasks'])}"
+                           for t, task in enumerate(result.tasks))
+        head = ["## --auto: each task's configuration chosen by a prior of other tasks' labelled rollouts (fiper "
+                "calibrate --auto --auto-rule transfer)", "",
+                f"Rule {record['rule']} v{record['version']} (docs/method.md, 'The third rule'): "
+                f"{RULE_SUMMARIES[record['rule']]}; of the task only its calibration successes are read (which "
+                f"detectors they feed, how many are conformal), no label of it. The prior's tasks: {priors}. The "
+                "choice is made at every δ (the prior's rank in brackets); metrics are averaged over the "]
+    else:
+        head = ["## --auto: each task's configuration chosen from its own calibration successes (fiper calibrate "
+                "--auto)", "",
+                f"Rule {record['rule']} v{record['version']} (docs/method.md, 'Choosing the configuration from "
+                f"successes'): {RULE_SUMMARIES[record['rule']]}; no label and no other task is read. The choice is "
+                "made at every δ; metrics are averaged over the "]
     return "\n".join([
-        "## --auto: each task's configuration chosen from its own calibration successes (fiper calibrate --auto)", "",
-        f"Rule {record['rule']} v{record['version']} (docs/method.md, 'Choosing the configuration from successes'): "
-        f"{RULE_SUMMARIES[record['rule']]}; no label and no other task is read. The choice is made at every δ; metrics are averaged over the "
+        *head[:-1], head[-1] +
         "finite δ on all test rollouts; the choice is shown at the finite δ closest to 0.05, FA: the held-out ID "
         "successes alarmed there. The LOTO and clean "
         "columns are the best method those protocols chose with failures (of other tasks, or of the task's "
         "validation half).", "", *rows])
+
+
+def _auto_choice(auto: AutoOutcome, task: int, shown: int) -> str:
+    """The choice of a task's first seed at the delta ``shown`` (an index), with its prior rank where it has one."""
+    record = auto.records[task][0][shown]
+    rank = f"; rank {record['rank']}" if record.get("rank") is not None else ""
+    return f"{auto.choices[task][0][shown]} (δ={auto.deltas[shown]:g}{rank})"
 
 
 def _auto_rows(auto: AutoOutcome, subset: str) -> tuple[np.ndarray, np.ndarray]:

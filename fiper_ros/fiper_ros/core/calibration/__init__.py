@@ -4,8 +4,9 @@
 - :mod:`.model`: a fitted calibration (:class:`Calibration`: per task, each detector's scorer and threshold) and
   what it promises (:func:`guarantee`).
 - :mod:`.fit`: the split of the successes and the fit (:func:`calibrate`).
-- :mod:`.auto`: ``--auto``: the fold scores and failure proxies the choice rests on, and the calibration of the
-  chosen configuration (:func:`auto_calibrate`).
+- :mod:`.auto`: ``--auto``: the fold scores and failure proxies the choice rests on (the ``transfer`` rule: a
+  prior's entry the successes can feed, :func:`~.auto.transfer_choice`), and the calibration of the chosen
+  configuration (:func:`auto_calibrate`).
 - :mod:`.store`: reading ``calibration.yaml`` and the models' files (:func:`load_calibration`); a calibration
   writes itself (:meth:`Calibration.save`).
 

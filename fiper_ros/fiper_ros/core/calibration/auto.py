@@ -6,7 +6,8 @@ the chosen configuration.
 final calibration's cross-fitted shapes use, ``shape_folds``); :func:`choose_configuration` applies the rule of
 :mod:`fiper_ros.core.auto` to them; :func:`auto_calibrate` calibrates the chosen configuration and stores the
 choice in the calibration (``auto``). Only rollouts with ``success is True`` are read, and only those of the fit
-part: the conformal part is left to the final thresholds.
+part: the conformal part is left to the final thresholds. The ``transfer`` rule scores nothing: it reads what
+detectors the successes can feed and how many conformal successes each task has (:func:`transfer_choice`).
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from fiper_ros.core.auto import (PROXY_TWA, AutoChoice, AutoError, AutoSettings, EmbeddingSpread, TaskScores,
-                                 choose, make_proxy, stall_length)
-from fiper_ros.core.calibration.fit import calibrate, split_successes
+from fiper_ros.core.auto import (PROXY_TWA, TRANSFER, AutoChoice, AutoError, AutoSettings, EmbeddingSpread,
+                                 TaskScores, choose, make_proxy, stall_length)
+from fiper_ros.core.calibration.fit import calibrate, conformal_count, split_successes
 from fiper_ros.core.calibration.model import Calibration
 from fiper_ros.core.calibration.settings import CalibrationSettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, ELAPSED, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, info,
@@ -27,6 +28,8 @@ from fiper_ros.core.kinematics import ForwardKinematics
 from fiper_ros.core.rnd_oe import ProgressCallback
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scorers import FitContext, fit_scorer
+from fiper_ros.core.thresholds import minimum_conformal_set
+from fiper_ros.core.transfer import Prior, PriorEntry, TransferChoice, choose_from_prior
 
 #: Called with a short note as the fold models are fitted (progress of a long run).
 Note = Callable[[str], None]
@@ -85,41 +88,82 @@ def auto_split_settings(settings: CalibrationSettings, auto: AutoSettings) -> Ca
     return replace(settings, shape_folds=auto.folds)
 
 
-def choose_configuration(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
-                         detectors: Sequence[str] | None = None, fk: ForwardKinematics | None = None,
-                         note: Note | None = None) -> AutoChoice:
-    """The rule's choice (:func:`fiper_ros.core.auto.choose`) on the successes of ``rollouts`` (every task's fit part,
-    split as ``settings`` with ``auto.folds`` shape folds), among ``detectors`` (default: every one they can feed,
-    :func:`available_detectors`). Nothing but ``success is True`` rollouts is read."""
-    split_settings = auto_split_settings(settings, auto)
-    good_ones = [r for r in rollouts if r.success is True]  # the flag alone is read of any other rollout
-    names = sorted({r.task for r in good_ones})
-    pool = tuple(detectors) if detectors is not None else available_detectors(good_ones)
-    context = FitContext(settings.seed, settings.profile_obj, settings.options(), "ee_position", fk)
-    tasks = {}
-    for name in names:
-        good = [r for r in good_ones if r.task == name]
+def _successes_by_task(rollouts: Sequence[Rollout], settings: CalibrationSettings) -> dict[str, list[Rollout]]:
+    """Per task (sorted by name) its ``success is True`` rollouts, at least ``min_rollouts`` of each
+    (:class:`AutoError`); of any other rollout only the flag is read."""
+    good_ones = [r for r in rollouts if r.success is True]
+    tasks = {name: [r for r in good_ones if r.task == name] for name in sorted({r.task for r in good_ones})}
+    for name, good in tasks.items():
         if len(good) < settings.min_rollouts:
             raise AutoError(f"--auto needs at least {settings.min_rollouts} successful rollouts of task {name!r}, got "
                             f"{len(good)}")
+    return tasks
+
+
+def finite_at_delta(entry: PriorEntry, conformal_successes: Sequence[int], settings: CalibrationSettings) -> bool:
+    """Whether ``entry``'s threshold is finite at ``settings.delta`` on every task whose number of successes is in
+    ``conformal_successes`` (the conformal part of each task's split gets :func:`conformal_count` of them; the
+    conformal quantile is finite with at least :func:`minimum_conformal_set` scores; a plain quantile always is)."""
+    chosen = replace(settings, **entry.settings())
+    if not chosen.profile_obj.conformal:
+        return True
+    need = minimum_conformal_set(chosen.delta)
+    return all(conformal_count(n, chosen.split, chosen) >= need for n in conformal_successes)
+
+
+def transfer_choice(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings, prior: Prior,
+                    detectors: Sequence[str] | None = None) -> TransferChoice:
+    """The ``transfer`` rule's choice (:func:`fiper_ros.core.transfer.choose_from_prior`) for the successes of
+    ``rollouts``: the best entry of ``prior`` among ``detectors`` (default: every one they can feed,
+    :func:`available_detectors`) whose threshold is finite at ``settings.delta`` on every task
+    (:func:`finite_at_delta`). Of the successes only their streams and number are read."""
+    split_settings = auto_split_settings(settings, auto)
+    tasks = _successes_by_task(rollouts, settings)
+    if not tasks:
+        raise AutoError("auto needs the successes of at least one task")
+    good_ones = [r for good in tasks.values() for r in good]
+    pool = tuple(detectors) if detectors is not None else available_detectors(good_ones)
+    counts = [len(good) for good in tasks.values()]
+    return choose_from_prior(prior, pool, lambda entry: finite_at_delta(entry, counts, split_settings), auto,
+                             settings.delta)
+
+
+def choose_configuration(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
+                         detectors: Sequence[str] | None = None, fk: ForwardKinematics | None = None,
+                         note: Note | None = None, prior: Prior | None = None) -> AutoChoice | TransferChoice:
+    """The rule's choice (:func:`fiper_ros.core.auto.choose`) on the successes of ``rollouts`` (every task's fit part,
+    split as ``settings`` with ``auto.folds`` shape folds), among ``detectors`` (default: every one they can feed,
+    :func:`available_detectors`); the ``transfer`` rule's (:func:`transfer_choice`) from ``prior``, which it needs.
+    Nothing but ``success is True`` rollouts is read."""
+    if auto.rule == TRANSFER:
+        if prior is None:
+            raise AutoError("the transfer rule needs a prior (--auto-prior FILE)")
+        return transfer_choice(rollouts, settings, auto, prior, detectors)
+    split_settings = auto_split_settings(settings, auto)
+    tasks = _successes_by_task(rollouts, settings)
+    good_ones = [r for good in tasks.values() for r in good]
+    pool = tuple(detectors) if detectors is not None else available_detectors(good_ones)
+    context = FitContext(settings.seed, settings.profile_obj, settings.options(), "ee_position", fk)
+    scores = {}
+    for name, good in tasks.items():
         split = split_successes(len(good), split_settings)
         own = replace(context, action_space=good[0].action_space)
-        tasks[name] = auto_scores(good, split.fit, split.shape_folds, pool, own, fk, auto, settings.seed, note)
-    return choose(tasks, pool, auto, settings.threshold_settings(), settings.seed)
+        scores[name] = auto_scores(good, split.fit, split.shape_folds, pool, own, fk, auto, settings.seed, note)
+    return choose(scores, pool, auto, settings.threshold_settings(), settings.seed)
 
 
-def chosen_settings(settings: CalibrationSettings, choice: AutoChoice) -> CalibrationSettings:
+def chosen_settings(settings: CalibrationSettings, choice: AutoChoice | TransferChoice) -> CalibrationSettings:
     """``settings`` with the chosen configuration, its shapes cross-fitted in the rule's folds."""
     return replace(settings, **choice.chosen.settings(), shape_folds=choice.settings.folds)
 
 
 def auto_calibrate(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
                    detectors: Sequence[str] | None = None, fk: ForwardKinematics | None = None,
-                   progress: ProgressCallback | None = None, note: Note | None = None
-                   ) -> tuple[Calibration, AutoChoice]:
-    """Choose the configuration (:func:`choose_configuration`), calibrate it (:func:`calibrate`) and store the
-    choice in the calibration's ``auto`` record."""
-    choice = choose_configuration(rollouts, settings, auto, detectors, fk, note)
+                   progress: ProgressCallback | None = None, note: Note | None = None, prior: Prior | None = None
+                   ) -> tuple[Calibration, AutoChoice | TransferChoice]:
+    """Choose the configuration (:func:`choose_configuration`; the ``transfer`` rule from ``prior``), calibrate it
+    (:func:`calibrate`) and store the choice in the calibration's ``auto`` record."""
+    choice = choose_configuration(rollouts, settings, auto, detectors, fk, note, prior)
     calibration = calibrate(rollouts, chosen_settings(settings, choice), fk=fk, progress=progress)
     calibration.auto = choice.record()
     return calibration, choice

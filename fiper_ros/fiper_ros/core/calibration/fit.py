@@ -260,7 +260,7 @@ def false_alarm_estimate(conformal: Mapping[str, Curves], shape: Mapping[str, Cu
             "held_out_from_models": settings.split != "same"}
 
 
-def _conformal_count(successes: int, mode: str, settings: CalibrationSettings) -> int:
+def conformal_count(successes: int, mode: str, settings: CalibrationSettings) -> int:
     """How many scores a threshold's conformal quantile gets from ``successes`` successes of one task."""
     conformal = successes if mode != "split" else min(max(round(settings.conformal_fraction * successes), 1),
                                                          successes - 1)
@@ -280,7 +280,7 @@ def _check_finite(thresholds: Mapping[str, Mapping[str, Threshold]], tasks: Sequ
             have = int(threshold.params.get("m2", threshold.params.get("m", 0)))
             successes = len(task.good) if not settings.pooled else sum(len(t.good) for t in tasks)
             smallest = next(m for m in range(successes + 1, 1_000_000)
-                            if _conformal_count(m, task.split.mode, settings) >= need)
+                            if conformal_count(m, task.split.mode, settings) >= need)
             label = LABELS.get(d, d) if not settings.combine_rule.joint else str(settings.combine_rule)
             where = f" of task {task.name!r}" if task.name and not settings.pooled else ""
             hint = "" if settings.pooled or len(tasks) == 1 else ", or pool the tasks (--pool)"

@@ -1,0 +1,197 @@
+"""Priors of the ``transfer`` rule (:mod:`fiper_ros.core.transfer`) from a run's labelled metrics, and ``fiper
+evaluate --auto --auto-rule transfer``.
+
+:func:`ranked_prior` ranks every configuration of the sweep that a calibration can declare and that keeps a promise
+(:func:`entry_of`) by the statistic the paper and leave-one-task-out protocols select with
+(:func:`~fiper_ros.evaluation.protocol.selection_twa`: TWA averaged over the finite deltas, then over the tasks and
+seeds, on all test rollouts; a configuration with no finite delta on some task and seed is left out), over all
+methods and combinations at once, and keeps the best ``top`` (each configuration once: the first of the methods
+that sweep it). ``fiper evaluate --write-prior`` writes the one of every task of the run.
+
+:func:`transfer_evaluation`: for every task ``T`` the prior is the one of the other tasks' rows of the run's
+metrics (exactly the leave-one-task-out selection, over all methods at once), so no label of ``T`` enters it, or a
+prior file given for every task. At every delta the rule (:func:`fiper_ros.core.transfer.choose_from_prior`) picks
+its entry from what ``T``'s data feed and how many conformal successes ``T`` has, and the entry is calibrated on
+``T``'s calibration successes as the sweep calibrates it (its shapes from the fit part's curves of the run's score
+streams, its conformal quantile from the conformal part's) and judged on ``T``'s test rollouts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+import fiper_ros
+from fiper_ros.core.auto import RULES, TRANSFER, AutoSettings
+from fiper_ros.core.calibration.auto import finite_at_delta
+from fiper_ros.core.detectors import CALIBRATED, info
+from fiper_ros.core.thresholds import GUARANTEED_KINDS
+from fiper_ros.core.transfer import Prior, PriorEntry, PriorError, choose_from_prior
+from fiper_ros.evaluation.auto import AutoOutcome, calibrated_alarms, candidate_streams, evaluate_choices
+from fiper_ros.evaluation.cache import StreamScores
+from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.methods import Combination, MethodSettings, method_of
+from fiper_ros.evaluation.protocol import METRICS, delta_mean, nanmean, selectable, selection_twa
+from fiper_ros.evaluation.sweep import CUMULATIVE, MAX_POOL, Group
+
+#: How a prior's entries are ranked, as its file says.
+SELECTION = {"subset": "all test rollouts",
+             "statistic": "each configuration's TWA averaged over its finite deltas, then over the tasks and seeds (the "
+                          "paper and leave-one-task-out protocols' selection statistic), over all methods at once; "
+                          "configurations with no finite delta on some task and seed left out",
+             "kept": "guaranteed thresholds (CP constant, band, scaled); detectors a calibration declares; one "
+                     "aggregation for all detectors; OR with its promise N delta"}
+
+
+@dataclass(frozen=True)
+class Member:
+    """What a method or combination of the run sweeps: its detectors and its joint combines' equalisation."""
+
+    detectors: tuple[str, ...]
+    equalise: str = "none"
+    level: float = 0.9
+
+
+def members_of(methods: Sequence[str], combinations: Sequence[Combination]) -> dict[str, Member]:
+    """Every method's and combination's :class:`Member`, by name."""
+    out = {m: Member(method_of(m).streams) for m in methods}
+    out.update({c.name: Member(c.detectors, c.equalise, c.level) for c in combinations})
+    return out
+
+
+def _declarable(detector: str) -> bool:
+    return detector in CALIBRATED or info(detector).reads == "signal"
+
+
+def _window(label: str) -> tuple[str, int | None]:
+    """A sweep window label as ``(aggregation, window)``: ``"5"`` a window sum, ``"max5"`` max-pooled, ``"cum"``."""
+    if label == CUMULATIVE:
+        return "cumulative", None
+    if label.startswith(MAX_POOL):
+        return "max", int(label.removeprefix(MAX_POOL))
+    return "window", int(label)
+
+
+def entry_of(group: Group, member: Member) -> PriorEntry | None:
+    """The prior entry of a swept configuration, or ``None`` if no calibration can declare it or it keeps no promise
+    (a time-varying threshold, a baseline's or external detector, two detectors of different aggregations)."""
+    if group.kind not in GUARANTEED_KINDS or not all(_declarable(d) for d in member.detectors):
+        return None
+    windowed = [d for d in member.detectors if info(d).aggregation is None]
+    parts = [_window(label) for label in group.window.split("/")]
+    if len(parts) > 1 and len(parts) != len(windowed):
+        return None
+    if len({aggregation for aggregation, _ in parts}) > 1:
+        return None  # e.g. FIPER's cum/5: a calibration has one aggregation
+    aggregation = parts[0][0] if windowed else "cumulative"
+    windows = {} if aggregation == "cumulative" else \
+        {d: parts[i if len(parts) > 1 else 0][1] for i, d in enumerate(windowed)}
+    equalise = member.equalise if group.combine and member.equalise != "none" else "none"
+    return PriorEntry(member.detectors, aggregation, windows, group.kind, group.combine, equalise, member.level,
+                      group.method)
+
+
+def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray, tasks: Sequence[str],
+                 members: Mapping[str, Member], select_aggregations: Sequence[str], top: int,
+                 header: Mapping[str, Any]) -> Prior:
+    """The prior of ``tasks`` (module docstring) from their rows of ``metrics`` ``[tasks, seeds, groups, deltas, 5]``
+    (all test rollouts) and ``infinite`` ``[tasks, seeds, groups, deltas]``; ``header``: the :class:`Prior`'s other
+    fields (seeds, deltas, calibration, made_from, command, version)."""
+    if top < 1:
+        raise ValueError(f"a prior keeps at least one entry, got top {top}")
+    twa = selection_twa(metrics, infinite)
+    values = delta_mean(metrics)  # [tasks, seeds, groups, 5]
+    per_task = nanmean(values[..., METRICS.index("twa")], axis=1)  # [tasks, groups]
+    means = {m: nanmean(values[..., METRICS.index(m)], axis=(0, 1)) for m in ("tpr", "tnr")}
+    order = sorted((i for i, g in enumerate(groups) if selectable(g, select_aggregations) and not np.isnan(twa[i])),
+                   key=lambda i: (-twa[i], i))
+    entries: dict[tuple, PriorEntry] = {}
+    for i in order:
+        entry = entry_of(groups[i], members[groups[i].method])
+        if entry is None or entry.key() in entries:
+            continue
+        entries[entry.key()] = replace(entry, twa=float(twa[i]), tpr=float(means["tpr"][i]),
+                                       tnr=float(means["tnr"][i]),
+                                       per_task={t: float(per_task[n, i]) for n, t in enumerate(tasks)})
+        if len(entries) == top:
+            break
+    if not entries:
+        raise PriorError(f"no configuration of the run on {', '.join(tasks)} can be a prior entry (a guaranteed "
+                         "threshold, detectors a calibration declares, a finite delta on every task)")
+    return Prior(tuple(entries.values()), tuple(tasks), selection=SELECTION, **header)
+
+
+def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, seeds: Sequence[int],
+                 deltas: Sequence[float], command: str) -> dict[str, Any]:
+    """The header of a prior made from the labelled test rollouts of ``datasets``."""
+    made = ", ".join(f"{d.task} ({len(d.test)} test rollouts, {int(np.sum(d.failed))} failures)" for d in datasets)
+    return {"seeds": tuple(seeds), "deltas": tuple(deltas),
+            "calibration": {"profile": method_settings.profile, **method_settings.split_settings()},
+            "made_from": f"the labelled test rollouts of {made} in one fiper evaluate run", "command": command,
+            "version": fiper_ros.__version__}
+
+
+def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
+                members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
+                deltas: Sequence[float], select_aggregations: Sequence[str], top: int) -> list[Prior]:
+    """Per task ``T``, the prior of the other tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups,
+    deltas, 5]``) and ``infinite`` (:func:`ranked_prior`): the leave-one-task-out selection over all methods at once;
+    no row of ``T`` enters it."""
+    if len(datasets) < 2:
+        raise ValueError(f"a prior of other tasks needs two tasks or more, got {len(datasets)}")
+    names = [d.task for d in datasets]
+    priors = []
+    for t in range(len(datasets)):
+        others = [n for n in range(len(datasets)) if n != t]
+        header = prior_header([datasets[n] for n in others], method_settings, seeds, deltas,
+                              f"leave-one-task-out prior of this run for {names[t]}")
+        priors.append(ranked_prior(groups, metrics[others], infinite[others], [names[n] for n in others], members,
+                                   select_aggregations, top, header))
+    return priors
+
+
+def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+                        streams: Sequence[str], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
+                        members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
+                        deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
+                        held_out: dict[str, list[np.ndarray]], select_aggregations: Sequence[str], top: int,
+                        prior: Prior | None = None, progress: bool = True) -> AutoOutcome:
+    """``--auto --auto-rule transfer`` on every task and seed (module docstring): per task the prior of the other
+    tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups, deltas, 5]``) and ``infinite``, or
+    ``prior`` for every task; metrics on ``subsets`` and false alarms on ``held_out`` as
+    :func:`~fiper_ros.evaluation.auto.evaluate_choices` takes them."""
+    pool = candidate_streams(streams)
+    priors = [prior] * len(datasets) if prior is not None else \
+        loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
+                    top)
+
+    def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
+                                                              np.ndarray]:
+        base = method_settings.calibration_settings(seed)
+        successes = [len(dataset.calibration_successes)]
+        own = scores[(dataset.task, seed)]
+        alarms = np.full((len(deltas), len(dataset.test)), -1, dtype=np.int64)
+        bad = np.zeros(len(deltas), dtype=bool)
+        labels, records = [], []
+        for k, delta in enumerate(deltas):
+            at = replace(base, delta=delta)
+            try:
+                choice = choose_from_prior(priors[t], pool, lambda e: finite_at_delta(e, successes, at), auto, delta)
+            except PriorError as error:
+                bad[k] = True
+                labels.append("none")
+                records.append({"rule": TRANSFER, "version": RULES[TRANSFER], "delta": delta,
+                                "prior": {"content_hash": priors[t].content_hash, "tasks": list(priors[t].tasks)},
+                                "rank": None, "chosen": None, "why": str(error)})
+                continue
+            settings = replace(at, **choice.chosen.settings())
+            shape = {d: own[d].fit for d in settings.detectors}
+            alarms[k], bad[k] = calibrated_alarms(dataset, shape, own, settings)
+            labels.append(choice.chosen.label())
+            records.append(choice.record(top=5))
+        return labels, records, alarms, bad
+
+    return evaluate_choices(datasets, method_settings, seeds, deltas, subsets, held_out, choices, progress)

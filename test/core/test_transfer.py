@@ -1,0 +1,164 @@
+"""``--auto-rule transfer`` (:mod:`fiper_ros.core.transfer`, :func:`fiper_ros.core.calibration.auto.transfer_choice`):
+the rule by hand (an entry the data cannot feed or whose threshold is +inf at delta is skipped; the prior's order
+decides), the prior file (its hash, a modified file refused in one line) and that a failure is never opened."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fiper_ros.core.auto import TRANSFER, AutoError, AutoSettings
+from fiper_ros.core.calibration import CalibrationSettings, auto_calibrate
+from fiper_ros.core.calibration.auto import finite_at_delta, transfer_choice
+from fiper_ros.core.rollout import Rollout
+from fiper_ros.core.transfer import INFINITE, NOT_FED, Prior, PriorEntry, PriorError, choose_from_prior
+
+RULE = AutoSettings(rule=TRANSFER, folds=3)
+ACE_FIRST = PriorEntry(("rnd_oe", "ace"), "window", {"rnd_oe": 8, "ace": 50}, "cp_band", "or", method="fiper",
+                       twa=0.9, tpr=0.95, tnr=0.85, per_task={"a": 0.9, "b": 0.9})
+SIGNAL_B = PriorEntry(("signal_b",), "window", {"signal_b": 3}, "cp_constant", method="signal_b", twa=0.8,
+                      per_task={"a": 0.7, "b": 0.9})
+JOINT = PriorEntry(("signal_a", "signal_b", "elapsed"), "max", {"signal_a": 5, "signal_b": 5}, "cp_scaled", "kth:2",
+                   "quantile", 0.8, "combined", 0.7, per_task={"a": 0.7, "b": 0.7})
+PRIOR = Prior((ACE_FIRST, SIGNAL_B, JOINT), ("a", "b"), (0,), (0.05, 0.1), {"subset": "all"}, {"profile": "paper"},
+              "hand-made", "fiper evaluate --write-prior p.yaml", "0.1.0")
+SIGNALS = ("signal_a", "signal_b", "elapsed", "rnd_oe")
+
+
+def test_an_entry_the_data_cannot_feed_is_skipped_then_the_first_that_fits_wins() -> None:
+    choice = choose_from_prior(PRIOR, SIGNALS, lambda entry: True, RULE, 0.05)
+    assert choice.chosen == SIGNAL_B and choice.rank == 2
+    assert [(rank, why) for rank, _, why in choice.skipped] == [(1, NOT_FED)]
+    # with action batches (ACE fed) the first entry wins
+    assert choose_from_prior(PRIOR, (*SIGNALS, "ace"), lambda entry: True, RULE, 0.05).rank == 1
+
+
+def test_an_entry_infinite_at_delta_is_skipped() -> None:
+    choice = choose_from_prior(PRIOR, SIGNALS, lambda entry: entry is not SIGNAL_B, RULE, 0.05)
+    assert choice.chosen == JOINT and choice.rank == 3
+    assert [(rank, why) for rank, _, why in choice.skipped] == [(1, NOT_FED), (2, INFINITE)]
+    assert "above it 1 need a detector the successes cannot feed, 1 have a +inf threshold at delta" in choice.why()
+    record = choice.record()
+    assert record["rule"] == TRANSFER and record["rank"] == 3 and record["prior"]["content_hash"] == PRIOR.content_hash
+    assert record["chosen"] == JOINT.to_dict() and record["prior"]["tasks"] == ["a", "b"]
+
+
+def test_no_entry_fits_in_one_line() -> None:
+    with pytest.raises(PriorError) as error:
+        choose_from_prior(PRIOR, ("rnd_oe", "signal_b", "elapsed"), lambda entry: False, RULE, 0.01)
+    text = str(error.value)
+    assert "\n" not in text and "3 entries 2 need a detector" in text and "1 have a +inf threshold at delta 0.01" in text
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.booleans(), min_size=3, max_size=3), st.lists(st.booleans(), min_size=3, max_size=3))
+def test_the_rule_takes_the_first_entry_that_fits_and_is_deterministic(fed: list[bool], finite: list[bool]) -> None:
+    detectors = [d for d, keep in zip(("ace", "signal_b", "signal_a"), fed) if keep] + ["rnd_oe", "elapsed"]
+    finite_of = {id(e): f for e, f in zip(PRIOR.entries, finite)}
+    fits = [all(d in detectors for d in e.detectors) and finite_of[id(e)] for e in PRIOR.entries]
+    if not any(fits):
+        with pytest.raises(PriorError):
+            choose_from_prior(PRIOR, detectors, lambda e: finite_of[id(e)], RULE, 0.1)
+        return
+    choice = choose_from_prior(PRIOR, detectors, lambda e: finite_of[id(e)], RULE, 0.1)
+    assert choice.rank == fits.index(True) + 1 and len(choice.skipped) == choice.rank - 1
+    assert choose_from_prior(PRIOR, detectors, lambda e: finite_of[id(e)], RULE, 0.1).record() == choice.record()
+
+
+def test_finite_at_delta_by_hand() -> None:
+    base = CalibrationSettings(detectors=("signal_a",), delta=0.05)  # split conformal, half the successes conformal
+    # 50 successes: 25 conformal; delta 0.05 needs 19 (ceil(26 x 0.95) = 25 <= 25), 0.03 needs 33
+    assert finite_at_delta(SIGNAL_B, [50], base)
+    assert not finite_at_delta(SIGNAL_B, [50], CalibrationSettings(detectors=("signal_a",), delta=0.03))
+    assert not finite_at_delta(SIGNAL_B, [50, 36], base)  # 18 conformal successes of the second task
+    assert finite_at_delta(SIGNAL_B, [50, 36], CalibrationSettings(detectors=("signal_a",), delta=0.06))
+    # the authors' plain quantile is finite however few
+    assert finite_at_delta(SIGNAL_B, [6], CalibrationSettings(detectors=("signal_a",), delta=0.01, profile="reference"))
+
+
+def test_the_prior_file_round_trips_with_its_hash_and_a_modified_one_is_refused(tmp_path: Path) -> None:
+    path = PRIOR.save(tmp_path / "prior.yaml")
+    again = Prior.load(path)
+    assert again == PRIOR and again.content_hash == PRIOR.content_hash
+    data = yaml.safe_load(path.read_text())
+    assert data["format_version"] == 1 and data["content_hash"] == PRIOR.content_hash
+    assert data["entries"][0]["promise"] == "2 delta" and data["entries"][1]["promise"] == "1 delta"
+    data["entries"][1]["twa"] = 0.95  # a figure changed by hand
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(PriorError) as error:
+        Prior.load(path)
+    assert str(error.value) == f"{path}: content hash mismatch (the prior was modified after it was written)"
+    path.write_text("entries: [")
+    with pytest.raises(PriorError, match=r"not a readable prior"):
+        Prior.load(path)
+    path.write_text(yaml.safe_dump({**PRIOR.content(), "format_version": 2}))
+    with pytest.raises(PriorError, match=r"not a prior this code reads \(kind 'fiper-transfer-prior', format_version 2; "
+                                         r"expected 'fiper-transfer-prior', 1\)"):
+        Prior.load(path)
+
+
+def test_a_prior_entry_keeps_a_promise() -> None:
+    with pytest.raises(PriorError, match="keeps no promise"):
+        PriorEntry(("rnd_oe",), "window", {"rnd_oe": 5}, "time_varying")
+    with pytest.raises(PriorError, match="cannot be calibrated"):
+        PriorEntry(("rnd_a",), "window", {"rnd_a": 5}, "cp_band")
+    with pytest.raises(PriorError, match="need a combine"):
+        PriorEntry(("rnd_oe", "ace"), "window", {"rnd_oe": 5, "ace": 5}, "cp_band")
+    with pytest.raises(PriorError, match="applies to a joint combine"):
+        PriorEntry(("rnd_oe", "ace"), "window", {"rnd_oe": 5, "ace": 5}, "cp_band", "and", "quantile")
+    wrong = {**ACE_FIRST.to_dict(), "promise": "1 delta"}  # an OR of two thresholds promises 2 delta
+    with pytest.raises(PriorError, match="promise '1 delta', its combine promises 2 delta"):
+        PriorEntry.from_dict(wrong)
+    assert ACE_FIRST.label() == "rnd_oe+ace rnd_oe w8, ace w50 cp_band or (2 delta)"
+    assert JOINT.settings() == {"detectors": ("elapsed", "signal_a", "signal_b"), "window": 5,
+                                "windows": {"signal_a": 5, "signal_b": 5}, "aggregation": "max",
+                                "threshold": "cp_scaled", "combine": "kth:2", "equalise": "quantile",
+                                "equalise_level": 0.8}
+
+
+class SealedFailure:
+    """A failed rollout that refuses to be opened: anything but its flag raises."""
+
+    success = False
+
+    def __getattr__(self, name: str) -> Any:  # any attribute
+        raise AssertionError(f"a failure was opened: its {name!r} was read")
+
+
+def _successes(count: int, start: int = 0, actions: bool = False) -> list[Rollout]:
+    out = []
+    for i in range(start, start + count):
+        rng = np.random.default_rng(i)
+        signals = {"a": 1.0 + 0.1 * rng.random(20), "b": 1.0 + 0.1 * rng.random(20)}
+        batch = rng.normal(size=(20, 2, 4, 3)).astype(np.float32) if actions else None
+        out.append(Rollout(f"r{i}", "t", "id", rng.normal(size=(20, 4)).astype(np.float32), batch, 1, True,
+                           signals=signals))
+    return out
+
+
+def test_transfer_choice_reads_what_the_successes_feed_and_never_a_failure() -> None:
+    successes = _successes(12)
+    settings = CalibrationSettings(detectors=("signal_a",), delta=0.3, seed=1)
+    alone = transfer_choice(successes, settings, RULE, PRIOR).record()
+    assert alone["rank"] == 2  # no action batches: ACE cannot be fed
+    assert transfer_choice([*successes[:4], SealedFailure(), *successes[4:]], settings, RULE, PRIOR).record() == alone
+    with_actions = transfer_choice(_successes(12, actions=True), settings, RULE, PRIOR)
+    assert with_actions.rank == 1  # the test can fail: what the successes feed decides
+    # 12 successes, 6 conformal: delta 0.1 needs 9, so every entry is +inf there
+    with pytest.raises(PriorError, match=r"3 have a \+inf threshold at delta 0.1"):
+        transfer_choice(_successes(12, actions=True), CalibrationSettings(delta=0.1), RULE, PRIOR)
+
+
+def test_auto_calibrate_with_a_prior_calibrates_the_entry_and_stores_the_rank() -> None:
+    settings = CalibrationSettings(detectors=("signal_a",), delta=0.3, seed=1)
+    calibration, choice = auto_calibrate(_successes(12), settings, RULE, prior=PRIOR)
+    assert calibration.settings.detectors == ("signal_b",) and calibration.settings.threshold == "cp_constant"
+    assert calibration.settings.window_of("signal_b") == 3 and calibration.settings.shape_folds == 3
+    assert calibration.auto == choice.record() and calibration.auto["rank"] == 2
+    with pytest.raises(AutoError, match=r"needs a prior"):
+        auto_calibrate(_successes(12), settings, RULE)

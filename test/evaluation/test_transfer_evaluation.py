@@ -1,0 +1,165 @@
+"""``fiper evaluate --auto --auto-rule transfer`` and ``--write-prior``: each task's prior is ranked on the other tasks'
+labelled metrics only (changing the task's labels leaves its choice unchanged), the chosen entry's metrics are
+those the sweep measured for that configuration, and the prior written by a run is the one ``fiper calibrate``
+reads."""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from fiper_ros.cli import main
+from fiper_ros.core.auto import TRANSFER, AutoSettings
+from fiper_ros.core.transfer import Prior, PriorEntry
+from fiper_ros.evaluation.data import Dataset, DatasetError
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation
+from fiper_ros.evaluation.errors import SettingsError
+from fiper_ros.evaluation.methods import Combination, MethodSettings
+from fiper_ros.evaluation.protocol import METRICS
+from fiper_ros.evaluation.sweep import Group, SweepSettings
+from fiper_ros.evaluation.synthetic import make_task
+from fiper_ros.evaluation.transfer import Member, entry_of, loto_priors, members_of
+
+RULE = AutoSettings(rule=TRANSFER)
+DELTAS = (0.2, 0.3)
+
+
+@pytest.fixture(scope="module")
+def two_tasks() -> list[Dataset]:
+    out = []
+    for seed, task in enumerate(("sorting", "stacking")):
+        rollouts = make_task(task, seed=seed + 5, calibration=12, test=24, scale=0.25)
+        out.append(Dataset(task, rollouts.calibration, rollouts.test))
+    return out
+
+
+def _run(datasets: list[Dataset], method_settings: MethodSettings, prior: Prior | None = None) -> EvaluationResult:
+    settings = EngineSettings(methods=("elapsed", "pca_kmeans", "progress"), seeds=(0,), method_settings=method_settings,
+                              sweep=SweepSettings(windows=(1, 3), deltas=DELTAS, max_pool=(2,)),
+                              combinations=(Combination("both", ("pca_kmeans", "progress")),),
+                              protocols=("loto",) if len(datasets) > 1 else ("paper",), auto=RULE, auto_prior=prior,
+                              progress=False)
+    return run_evaluation(datasets, settings)
+
+
+def _flipped(dataset: Dataset) -> Dataset:
+    """The same task with every test label flipped."""
+    test = [replace(r, success=not r.success) for r in dataset.test]
+    return Dataset(dataset.task, dataset.calibration, test)
+
+
+def test_a_tasks_choice_never_reads_its_labels_and_its_metrics_are_the_sweeps(
+        two_tasks: list[Dataset], tiny_settings: MethodSettings) -> None:
+    result = _run(two_tasks, tiny_settings)
+    auto = result.auto
+    assert auto is not None
+    flipped = _run([_flipped(two_tasks[0]), two_tasks[1]], tiny_settings).auto
+    assert flipped is not None
+    # the first task's labels changed: its choices did not (its prior is the other task's)
+    assert flipped.choices[0] == auto.choices[0] and flipped.records[0] == auto.records[0]
+    assert [r["prior"]["tasks"] for r in auto.records[0][0]] == [["stacking"]] * len(DELTAS)
+    # the other task's prior read them: its ranking moved (the test can fail)
+    assert [r["prior"]["content_hash"] for r in flipped.records[1][0]] != \
+        [r["prior"]["content_hash"] for r in auto.records[1][0]]
+    # the chosen configuration's alarms are those the sweep computed for it (calibrated the same way)
+    members = members_of(result.settings.methods, result.settings.combinations)
+    keys = [None if (e := entry_of(g, members[g.method])) is None else e.key() for g in result.groups]
+    for t in range(2):
+        for k, record in enumerate(auto.records[t][0]):
+            if record["chosen"] is None:
+                assert auto.infinite[t, 0, k]
+                continue
+            g = keys.index(PriorEntry.from_dict(record["chosen"]).key())
+            np.testing.assert_array_equal(auto.metrics["all"][t, 0, k], result.metrics["all"][t, 0, g, k])
+            assert auto.held_out["all"][t, 0, k] == pytest.approx(result.sweep.held_out["all"][t, 0, g, k],
+                                                                 nan_ok=True)
+
+
+GROUPS = [Group("logpzo", "1", "cp_band"), Group("logpzo", "3", "cp_constant"), Group("rnd_oe", "max2", "cp_scaled"),
+          Group("rnd_oe", "2", "time_varying"), Group("fiper", "1/3", "cp_band", "or"),
+          Group("fiper", "cum/3", "cp_band", "and"), Group("elapsed", "cum", "cp_constant"),
+          Group("rnd_a", "1", "cp_band")]
+MEMBERS = {"logpzo": Member(("logpzo",)), "rnd_oe": Member(("rnd_oe",)), "fiper": Member(("rnd_oe", "ace")),
+           "elapsed": Member(("elapsed",)), "rnd_a": Member(("rnd_a",))}
+
+
+def test_entries_of_the_sweeps_configurations() -> None:
+    entries = [entry_of(g, MEMBERS[g.method]) for g in GROUPS]
+    assert [e.label() if e else None for e in entries] == [
+        "logpzo w1 cp_band", "logpzo w3 cp_constant", "rnd_oe max2 cp_scaled", None,
+        "rnd_oe+ace rnd_oe w1, ace w3 cp_band or (2 delta)", None, "elapsed cum cp_constant", None]
+    equalised = entry_of(Group("strong_quantile", "5", "cp_band", "kth:2"),
+                         Member(("logpzo", "rnd_oe", "elapsed"), "quantile", 0.8))
+    assert equalised is not None and equalised.windows == {"rnd_oe": 5, "logpzo": 5}
+    assert equalised.equalise == "quantile" and equalised.aggregation == "window"
+
+
+@settings(max_examples=30, deadline=None)
+@given(arrays(np.float64, (3, 1, len(GROUPS), 2, len(METRICS)), elements=st.floats(0, 1)),
+       arrays(np.float64, (1, len(GROUPS), 2, len(METRICS)), elements=st.floats(0, 1)),
+       st.integers(0, 2))
+def test_a_tasks_prior_is_the_same_whatever_its_own_rows(metrics: np.ndarray, other: np.ndarray, task: int) -> None:
+    datasets = _three()
+    infinite = np.zeros(metrics.shape[:-1], dtype=bool)
+    common = dict(members=MEMBERS, method_settings=MethodSettings(), seeds=(0,), deltas=(0.1, 0.2),
+                  select_aggregations=("window", "max"), top=10)
+    before = loto_priors(datasets, GROUPS, metrics, infinite, **common)
+    changed = metrics.copy()
+    changed[task] = other
+    after = loto_priors(datasets, GROUPS, changed, infinite, **common)
+    assert after[task] == before[task]
+    assert before[task].tasks == tuple(d.task for n, d in enumerate(datasets) if n != task)
+    twa = [e.twa for e in before[task].entries]
+    assert twa == sorted(twa, reverse=True) and len(before[task].entries) == 5  # the five that keep a promise
+
+
+_DATASETS: list[Dataset] = []
+
+
+def _three() -> list[Dataset]:
+    if not _DATASETS:
+        rollouts = make_task("sorting", seed=1, calibration=4, test=4, scale=0.25)
+        _DATASETS.extend(Dataset(name, rollouts.calibration, rollouts.test) for name in ("a", "b", "c"))
+    return _DATASETS
+
+
+def test_one_task_needs_a_prior_file_and_takes_it(tmp_path: Path, two_tasks: list[Dataset],
+                                                   tiny_settings: MethodSettings) -> None:
+    settings = EngineSettings(methods=("elapsed", "pca_kmeans"), method_settings=tiny_settings, auto=RULE)
+    with pytest.raises(DatasetError) as error:
+        check_evaluation(two_tasks[:1], settings)
+    assert str(error.value) == ("--auto-rule transfer takes each task's prior from the other tasks' labelled rollouts: "
+                                "with one task (sorting) give a prior file, --auto-prior FILE")
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
+                 "--tiny", "--methods", "elapsed,pca_kmeans,progress", "--windows", "1-3", "--default-window", "1",
+                 "--deltas", "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out),
+                 "--write-prior", str(tmp_path / "prior.yaml"), "--prior-top", "7"]) == 0
+    prior = Prior.load(tmp_path / "prior.yaml")
+    assert prior.tasks == ("sorting", "stacking") and len(prior.entries) == 7
+    assert "--write-prior" in prior.command and prior.command.startswith("fiper evaluate --synthetic")
+    result = _run(two_tasks[:1], tiny_settings, prior)
+    assert result.auto is not None and result.auto.records[0][0][0]["prior"]["content_hash"] == prior.content_hash
+    out = tmp_path / "one"
+    assert main(["evaluate", "--synthetic", "sorting", "--synthetic-test", "24", "--synthetic-scale", "0.25", "--tiny",
+                 "--methods", "elapsed,pca_kmeans,progress", "--windows", "1-3", "--default-window", "1", "--deltas",
+                 "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out), "--auto", "--auto-rule", "transfer",
+                 "--auto-prior", str(tmp_path / "prior.yaml")]) == 0
+    text = (out / "results.md").read_text()
+    assert "Rule transfer v1 (docs/method.md, 'The third rule')" in text
+    assert "The prior's tasks: sorting: sorting, stacking." in text
+    document = json.loads((out / "results.json").read_text())
+    assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "transfer"
+
+
+def test_a_prior_of_a_pooled_run_or_without_transfer_is_refused(tiny_settings: MethodSettings) -> None:
+    with pytest.raises(SettingsError, match="not with thresholds pooled"):
+        EngineSettings(method_settings=tiny_settings, auto=RULE, pooled=True, sweep=SweepSettings(kinds=("cp_band",)))
+    with pytest.raises(SettingsError, match="--auto-prior is the prior of --auto --auto-rule transfer"):
+        EngineSettings(method_settings=tiny_settings, auto=AutoSettings(), auto_prior=Prior((), ("a",)))
