@@ -27,7 +27,7 @@ from fiper_ros.interface.topics import ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TO
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array, parameter_values
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.settings import SupervisorSettings, supervisor_settings
-from fiper_ros.platform.process import run_node
+from fiper_ros.platform.process import run_node, run_reported
 from fiper_ros.runtime.halt_delivery import HaltDelivery
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
@@ -174,7 +174,7 @@ NODE_CLASS = SupervisorNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.supervisor_node --ros-args ...``."""
-    return run_node(SupervisorNode, args)
+    return run_reported("supervisor_node", run_node, SupervisorNode, args)
 
 
 if __name__ == "__main__":
