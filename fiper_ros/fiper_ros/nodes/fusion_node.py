@@ -38,6 +38,7 @@ from fiper_ros.nodes.settings import FROM_CALIBRATION, FusionSettings, fusion_se
 from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node, run_reported
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.rollout_gate import Route
+from fiper_ros.runtime.stats import DEADLINE_PERIODS
 from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
@@ -61,7 +62,7 @@ class FusionNode(FiperNode):
                                describe("a score stream older than this makes the state UNKNOWN, until the rollout's "
                                         "policy period is measured (always, if deadline_periods is 0)",
                                         low=0.01, high=600.0))
-        self.declare_parameter("deadline_periods", 2.5,
+        self.declare_parameter("deadline_periods", DEADLINE_PERIODS,
                                describe("staleness deadline in measured policy periods of the rollout (0: deadline_s)",
                                         low=0.0, high=1000.0))
         self.declare_parameter("deadline_floor_s", 0.1,
