@@ -235,7 +235,7 @@ class FiperPublisher:
             rollout_id: Default: the rollout :meth:`start` began.
             step: Default: the next step of that rollout (0, 1, ...).
             stamp_ns: Default: the node clock's now.
-            signals: Named finite scalars of the step (names of :data:`~fiper_ros.core.rollout.SIGNAL_NAME`; give
+            signals: Named finite scalars of the step (names of :data:`~fiper_ros.core.detectors.SIGNAL_NAME`; give
                 the same names at every step of a rollout); ``None`` or empty: no StepSignals message.
 
         Returns:

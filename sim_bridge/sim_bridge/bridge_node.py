@@ -34,7 +34,7 @@ from fiper_ros.interface.topics import (CAMERA_THIRD_TOPIC, CAMERA_WRIST_TOPIC, 
                                         JOINT_STATES_TOPIC, SIM_ACTION_TOPIC, SIM_HALT_SERVICE, SIM_PROPRIO_TOPIC,
                                         SIM_RESET_SERVICE)
 from fiper_ros.nodes.base import FiperNode, describe
-from fiper_ros.platform.process import run_node
+from fiper_ros.platform.process import run_node, run_reported
 from fiper_ros.runtime.validation import INTERNAL, InputRejected
 
 from .bridge_session import FAILURE, JOINT_NAMES, PROPRIO_NAMES, SUCCESS, BridgeSession, Ended, Rollout
@@ -346,7 +346,7 @@ NODE_CLASS = BridgeNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m sim_bridge.bridge_node --ros-args ...``."""
-    return run_node(BridgeNode, args)
+    return run_reported("bridge_node", run_node, BridgeNode, args)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from fiper_ros.core import ace
 from fiper_ros.core.ace import action_ranges, ace_score, cell_size, step_entropies
+from fiper_ros.core.errors import ChoiceError, CoreError
 
 
 def _two_cells(horizon: int) -> np.ndarray:
@@ -119,7 +120,7 @@ def test_ranges_and_cell_size() -> None:
     chunks = [np.array([[[0.0, 1.0]], [[2.0, -1.0]]]), np.array([[[-1.0, 0.5]]])]
     assert np.array_equal(action_ranges(chunks), [3.0, 2.0])
     assert np.allclose(cell_size(np.array([3.0, 2.0]), 0.1), [0.3, 0.2])
-    with pytest.raises(ValueError, match="alpha"):
+    with pytest.raises(CoreError, match="alpha"):
         cell_size(np.array([1.0]), 1.5)
     with pytest.raises(ValueError, match="at least one"):
         action_ranges([])
@@ -212,9 +213,9 @@ def test_the_reference_cell_is_the_float32_product() -> None:
     np.testing.assert_array_equal(cell_size(np.array([1.0, 2.0]), 0.03, "reference"),
                                   [0.029999999329447746, 0.05999999865889549])
     np.testing.assert_array_equal(cell_size(np.array([1.0, 2.0]), 0.03), [0.03, 0.06])
-    with pytest.raises(ValueError, match="binning"):
+    with pytest.raises(ChoiceError, match="binning"):
         cell_size(np.array([1.0]), 0.03, "float32")
-    with pytest.raises(ValueError, match="binning"):
+    with pytest.raises(ChoiceError, match="binning"):
         step_entropies(np.zeros((2, 1, 1)), np.array([0.1]), 0.0, "float32")
 
 

@@ -62,7 +62,7 @@ def test_votes_of_three_detectors_by_hand() -> None:
     assert fuse_declared([a, b, c], "kth:2").tolist() == [True, False, False, False, True]
     assert fuse_declared([a, b, c], "kth:3").tolist() == fuse_declared([a, b, c], "and").tolist()
     assert fuse_declared([True, False, True], "kth:2") is True  # scalars stay a Python bool
-    with pytest.raises(ValueError, match=r"^combine kth:4 needs at least 4 detectors, got 3$"):
+    with pytest.raises(ChoiceError, match=r"^combine kth:4 needs at least 4 detectors, got 3$"):
         fuse_declared([a, b, c], "kth:4")
 
 
@@ -72,7 +72,7 @@ def test_combine_parse_and_votes(text: str, mode: str, k: int, votes: int) -> No
     combine = Combine.parse(text)
     assert (combine.mode, combine.k, combine.votes(3), str(combine)) == (mode, k, votes, text)
     if mode == "kth":
-        with pytest.raises(ValueError, match=r"^combine kth:2 needs at least 2 detectors, got 1$"):
+        with pytest.raises(ChoiceError, match=r"^combine kth:2 needs at least 2 detectors, got 1$"):
             combine.votes(1)
     else:
         assert combine.votes(1) == 1  # one detector alone decides alone

@@ -24,6 +24,7 @@ from fiper_ros.core.calibration import (
 from fiper_ros.core.calibration.settings import OPTION_OWNERS
 from fiper_ros.core.calibration_file import declared_detectors
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE, check_pair_format
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import fuse, fuse_declared
 from fiper_ros.core.monitor import DetectorMonitor, MonitorError, predict_rollout
 from fiper_ros.core.rollout import Rollout, RolloutSet
@@ -47,7 +48,7 @@ def test_detector_sets_by_hand() -> None:
     assert check_pair_format(["ace", "rnd_oe"]) == DETECTORS == ("rnd_oe", "ace")
     assert check_pair_format([" rnd_oe ".strip()]) == OBSERVATION_ONLY == ("rnd_oe",)
     for bad in (["ace"], [], ["rnd_oe", "rnd_oe"], ["rnd_oe", "logpzo"]):
-        with pytest.raises(ValueError, match="unsupported detectors .*: declare rnd_oe,ace or rnd_oe"):
+        with pytest.raises(ChoiceError, match="unsupported detectors .*: declare rnd_oe,ace or rnd_oe"):
             check_pair_format(bad)
     assert CalibrationSettings(detectors=("elapsed", "ace", "rnd_oe")).detectors == ("rnd_oe", "ace", "elapsed")
     for bad in ((), ("rnd_oe", "rnd_oe")):

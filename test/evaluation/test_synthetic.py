@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
-from fiper_ros.evaluation.synthetic import TASKS, make_task
+import numpy as np
+import pytest
+
+from fiper_ros.evaluation.synthetic import TASKS, main, make_task
 
 
 def test_shapes_labels_and_mix() -> None:
@@ -19,3 +22,14 @@ def test_shapes_labels_and_mix() -> None:
     assert kinds == {(False, True), (False, False), (True, True), (True, False)}
     again = make_task("stacking", seed=1, calibration=5, test=20)
     np.testing.assert_array_equal(again.test[3].actions, rollouts.test[3].actions)
+
+
+def test_an_unknown_task_is_refused_as_a_flag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m fiper_ros.evaluation.synthetic --tasks`` with a task it has no shapes for: argparse's refusal (exit
+    2, the flag and the tasks it offers on one line), nothing written (was a ValueError's traceback)."""
+    with pytest.raises(SystemExit) as exited:
+        main(["--out", str(tmp_path / "out"), "--tasks", "sorting,folding"])
+    assert exited.value.code == 2
+    *_, last = capsys.readouterr().err.splitlines()
+    assert last.endswith(f"error: --tasks: unknown 'folding'; expected some of {', '.join(TASKS)}")
+    assert not (tmp_path / "out").exists()

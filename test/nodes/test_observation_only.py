@@ -61,6 +61,7 @@ def test_the_fusion_node_judges_rnd_oe_alone(ros_domain: int, tmp_path: Path) ->
             f"configure failed: calibration {directory} declares rnd_oe, not ace: nothing for ace_node to score; launch "
             "the suite of its detectors (fiper.launch.yaml)")
         assert ace.lifecycle_state() == "unconfigured" and fusion.fuser.detectors == OBSERVATION_ONLY
+        assert int(status("ace_node")["configure_failures"]) >= 1 and status("ace_node")["level"] == "2"
         assert spin_until(executor, lambda: "intruder" in [i.node_name for i in
                                                           driver.get_publishers_info_by_topic("/fiper/scores/ace")])
         assert spin_until(executor, lambda: driver.embeddings.get_subscription_count() >= 1

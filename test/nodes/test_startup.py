@@ -153,3 +153,14 @@ def test_an_executor_kind_not_offered_is_a_platform_error(monkeypatch: pytest.Mo
     with pytest.raises(PlatformError) as raised:
         process.new_executor()
     assert str(raised.value) == f"FIPER_EXECUTOR={kind!r}: expected 'events' or 'single'"
+
+
+def test_a_node_process_reports_a_user_error_in_one_line(ros_domain: int) -> None:
+    """A user error that escapes the node's start-up (here the executor kind the environment names, refused after the
+    node is built) is one line ``NODE: MESSAGE`` and exit status 2, as ``fiper`` reports one (was a traceback)."""
+    env = {**env_without_profile(ros_domain), process.EXECUTOR_ENV: "threads"}
+    result = subprocess.run([sys.executable, "-m", "fiper_ros.nodes.fusion_node", "--ros-args", "-r", "__ns:=/fiper"],
+                            capture_output=True, text=True, timeout=120, check=False, cwd=ROOT, env=env)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr, result.stderr
+    assert result.stderr.splitlines()[-1] == "fusion_node: FIPER_EXECUTOR='threads': expected 'events' or 'single'"

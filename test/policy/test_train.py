@@ -123,6 +123,22 @@ def test_the_policy_command_prints_a_user_error_in_one_line(tmp_path: Path, caps
     assert capsys.readouterr().err == f"fiper policy: no episode_*.npz demonstrations in {tmp_path}\n"
 
 
+def test_a_demonstration_of_other_images_is_refused_in_one_line(tmp_path: Path, demo_dir: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """Camera frames that are not uint8 ``[T, H, W, 3]`` in a demonstration file: one line naming the file and the
+    camera, exit 2 (was a ValueError's traceback)."""
+    demos = tmp_path / "gray"
+    demos.mkdir()
+    episode = demos / "episode_000000.npz"
+    with np.load(demo_dir / "episode_000000.npz") as data:
+        gray = data["wrist_rgb"][..., 0]
+        np.savez(episode, **{**data, "wrist_rgb": gray})
+    assert policy_command.main(["--threads", str(torch.get_num_threads()), "train", "--task", "sorting", "--demos",
+                                str(demos), "--out", str(tmp_path / "model"), "--run-dir", str(tmp_path / "run")]) == 2
+    assert capsys.readouterr().err == (f"fiper policy: {episode}: wrist_rgb: expected uint8 images [N, H, W, 3], got "
+                                       f"uint8 {gray.shape}\n")
+
+
 def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(tmp_path: Path) -> None:
     config = tiny_config()  # H = 8, D = 2, T_h = 1
     assert (config.horizon, config.action_dim, config.obs_horizon) == (8, 2, 1)
@@ -144,5 +160,5 @@ def test_open_loop_fit_compares_the_sample_mean_with_the_padded_expert_chunk(tmp
     np.testing.assert_allclose(report.error, [46.25, 56.25], atol=0.05)
     assert np.all(report.spread > 0) and np.all(report.spread < 0.05)  # spread over the 5 samples, in units of 0.005
     np.testing.assert_allclose(report.magnitude, [(10 + 30 + 50) / 3, (20 + 40 + 60) / 3], rtol=1e-6)
-    with pytest.raises(ValueError, match="stride"):
+    with pytest.raises(PolicyError, match="^stride must be >= 1, got 0$"):
         open_loop_fit(policy, [episode], stride=0)

@@ -118,8 +118,8 @@ def test_an_ace_score_is_refused_and_no_state_waits_for_one() -> None:
 
 
 @pytest.mark.parametrize(("detectors", "error", "reason"), [
-    ((), ValueError, "declare each detector once, at least one, got [(]none[)]"),
-    (("rnd_oe", "rnd_oe"), ValueError, "declare each detector once, at least one, got rnd_oe,rnd_oe"),
+    ((), ChoiceError, "declare each detector once, at least one, got [(]none[)]"),
+    (("rnd_oe", "rnd_oe"), ChoiceError, "declare each detector once, at least one, got rnd_oe,rnd_oe"),
     (("rnd_oe", "nope"), ChoiceError, "unknown detector 'nope'")])
 def test_an_unsupported_detector_set_is_refused(detectors: tuple[str, ...], error: type[Exception], reason: str) -> None:
     with pytest.raises(error, match=reason):

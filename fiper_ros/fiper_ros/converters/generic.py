@@ -42,7 +42,8 @@ import numpy as np
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.converters.options import EXEC_STEPS, Budget, ConvertOptions, Converted, Keys, select_channels
 from fiper_ros.core.data_split import NO_SPLIT
-from fiper_ros.core.rollout import ID_SCENARIO, SIGNAL_NAME, Rollout, RolloutError
+from fiper_ros.core.detectors import SIGNAL_NAME
+from fiper_ros.core.rollout import ID_SCENARIO, Rollout, RolloutError
 from fiper_ros.errors import FiperError
 
 SPLITS = ("calibration", "test")

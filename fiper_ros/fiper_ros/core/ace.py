@@ -41,6 +41,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from fiper_ros.core.errors import ChoiceError, CoreError
+
 # Mixed-radix cell codes must fit in int64; beyond this many bits we sort index tuples instead. Those
 # tuples stay float64 (exact integers): a bin index beyond the int64 range would cast to INT64_MIN and
 # put every far-apart sample into one cell (entropy 0, an uncertain batch read as certain).
@@ -57,15 +59,15 @@ _MAX_EDGES = 2.0**62
 
 
 def check_alpha(alpha: float) -> None:
-    """Refuse a cell size factor outside (0, 1) (App. A.1)."""
+    """Refuse a cell size factor outside (0, 1) (App. A.1): :class:`~fiper_ros.core.errors.CoreError`."""
     if not 0.0 < alpha < 1.0:
-        raise ValueError(f"cell size factor alpha must be in (0, 1), got {alpha}")
+        raise CoreError(f"cell size factor alpha must be in (0, 1), got {alpha}")
 
 
 def check_binning(binning: str) -> None:
-    """Refuse a binning rule that is not one of :data:`BINNINGS`."""
+    """Refuse a binning rule that is not one of :data:`BINNINGS`: :class:`~fiper_ros.core.errors.ChoiceError`."""
     if binning not in BINNINGS:
-        raise ValueError(f"unknown ACE binning {binning!r}; expected one of {BINNINGS}")
+        raise ChoiceError(f"unknown ACE binning {binning!r}; expected one of {BINNINGS}")
 
 
 def cell_size(ranges: np.ndarray, alpha: float, binning: str = "paper") -> np.ndarray:

@@ -17,7 +17,7 @@ import yaml
 
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import DETECTORS, check_once, check_pair_format, in_fusion_order
-from fiper_ros.core.errors import CoreError
+from fiper_ros.core.errors import ChoiceError, CoreError
 
 FORMAT_VERSION = 3
 """The format this code writes: any declared detectors, each task's models and thresholds, the combine."""
@@ -90,9 +90,9 @@ def detectors_of(content: dict[str, Any], path: Path) -> tuple[str, ...]:
             return check_pair_format(settings.get("detectors", DETECTORS))
         names = settings.get("detectors", DETECTORS)
         if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
-            raise ValueError(f"detectors must be a list of names, got {names!r}")
+            raise CalibrationError(f"{path}: malformed entry (detectors must be a list of names, got {names!r})")
         return in_fusion_order(check_once(names))
-    except (TypeError, ValueError) as error:
+    except (TypeError, ChoiceError) as error:
         raise CalibrationError(f"{path}: malformed entry ({one_line(error)})") from error
 
 

@@ -36,7 +36,9 @@ CALIBRATED = (RND_OE, ACE, LOGPZO, PCA_KMEANS, PROGRESS, CONSISTENCY, ELAPSED)
 SIGNAL_PREFIX = "signal_"
 #: A user's external per-step scores ``name`` are the stream ``external_<name>``.
 EXTERNAL_PREFIX = "external_"
-_SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+#: What a logged signal's (or external scores') name must be: it becomes part of ROS topic and stream names
+#: (``signal_chunk_mse``).
+SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
 @dataclass(frozen=True)
@@ -79,17 +81,19 @@ INFO: dict[str, DetectorInfo] = {d.name: d for d in (
 
 
 def signal_stream(signal: str) -> str:
-    """The stream of a logged per-step signal: ``signal_<signal>``; ``ValueError`` for a name that cannot be one."""
-    if not _SIGNAL_NAME.match(signal):
-        raise ValueError(f"signal name {signal!r} must match [a-z][a-z0-9_]* (it becomes a topic and a stream name)")
+    """The stream of a logged per-step signal: ``signal_<signal>``; :class:`~fiper_ros.core.errors.ChoiceError` for
+    a name that cannot be one."""
+    if not SIGNAL_NAME.fullmatch(signal):
+        raise ChoiceError(f"signal name {signal!r} must match [a-z][a-z0-9_]* (it becomes a topic and a stream name)")
     return SIGNAL_PREFIX + signal
 
 
 def external_stream(name: str) -> str:
-    """The stream of a user's external scores: ``external_<name>``; ``ValueError`` for a name that cannot be one."""
-    if not _SIGNAL_NAME.match(name):
-        raise ValueError(f"external score name {name!r} must match [a-z][a-z0-9_]* (it becomes the stream "
-                         f"{EXTERNAL_PREFIX}<name>)")
+    """The stream of a user's external scores: ``external_<name>``; :class:`~fiper_ros.core.errors.ChoiceError` for a
+    name that cannot be one."""
+    if not SIGNAL_NAME.fullmatch(name):
+        raise ChoiceError(f"external score name {name!r} must match [a-z][a-z0-9_]* (it becomes the stream "
+                          f"{EXTERNAL_PREFIX}<name>)")
     return EXTERNAL_PREFIX + name
 
 
@@ -99,7 +103,7 @@ def info(name: str) -> DetectorInfo:
     if name in INFO:
         return INFO[name]
     for prefix, reads in ((SIGNAL_PREFIX, "signal"), (EXTERNAL_PREFIX, "external")):
-        if name.startswith(prefix) and _SIGNAL_NAME.match(name[len(prefix):]):
+        if name.startswith(prefix) and SIGNAL_NAME.fullmatch(name[len(prefix):]):
             return DetectorInfo(name, f"{reads} {name[len(prefix):]}", reads, fitted=False)
     raise ChoiceError(f"unknown detector {name!r}; expected one of {', '.join(INFO)}, signal_<name> or "
                       "external_<name>")
@@ -116,10 +120,11 @@ LABELS = {name: detector.label for name, detector in INFO.items()}
 
 
 def check_once(names: Iterable[str]) -> tuple[str, ...]:
-    """``names`` as a declared set: each detector once, at least one; ``ValueError`` otherwise."""
+    """``names`` as a declared set: each detector once, at least one; :class:`~fiper_ros.core.errors.ChoiceError`
+    otherwise."""
     given = tuple(names)
     if not given or len(set(given)) != len(given):
-        raise ValueError(f"declare each detector once, at least one, got {','.join(given) or '(none)'}")
+        raise ChoiceError(f"declare each detector once, at least one, got {','.join(given) or '(none)'}")
     return given
 
 
@@ -131,13 +136,13 @@ def in_fusion_order(names: Iterable[str]) -> tuple[str, ...]:
 
 
 def check_pair_format(names: Iterable[str]) -> tuple[str, ...]:
-    """``names`` as a detector set of a format-2 calibration, in :data:`DETECTORS` order; ``ValueError`` naming the
-    sets otherwise."""
+    """``names`` as a detector set of a format-2 calibration, in :data:`DETECTORS` order;
+    :class:`~fiper_ros.core.errors.ChoiceError` naming the sets otherwise."""
     given = tuple(names)
     ordered = tuple(d for d in DETECTORS if d in given)
     if sorted(given) != sorted(ordered) or ordered not in PAIR_FORMAT_SETS:
         supported = " or ".join(",".join(s) for s in PAIR_FORMAT_SETS)
-        raise ValueError(f"unsupported detectors {','.join(given) or '(none)'}: declare {supported}")
+        raise ChoiceError(f"unsupported detectors {','.join(given) or '(none)'}: declare {supported}")
     return ordered
 
 

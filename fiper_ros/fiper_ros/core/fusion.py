@@ -57,11 +57,13 @@ class Combine:
         return self.mode.joint
 
     def votes(self, detectors: int) -> int:
-        """How many of ``detectors`` must exceed for an alarm (one detector alone: 1, whatever the mode)."""
+        """How many of ``detectors`` must exceed for an alarm (one detector alone: 1, whatever the mode);
+        :class:`~fiper_ros.core.errors.ChoiceError` for ``kth:K`` over fewer than K detectors (a combine the
+        declared detectors do not offer). ``detectors`` < 1 is the caller's error (``ValueError``)."""
         if detectors < 1:
             raise ValueError(f"at least one detector's decision is needed, got {detectors}")
         if self.mode is CombineMode.KTH and self.k > detectors:
-            raise ValueError(f"combine kth:{self.k} needs at least {self.k} detectors, got {detectors}")
+            raise ChoiceError(f"combine kth:{self.k} needs at least {self.k} detectors, got {detectors}")
         return {CombineMode.AND: detectors, CombineMode.OR: 1, CombineMode.MAX: 1, CombineMode.KTH: self.k}[self.mode]
 
     def __str__(self) -> str:

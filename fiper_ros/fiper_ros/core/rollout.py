@@ -10,7 +10,6 @@ the executed chunk). :class:`RolloutSet` keeps the calibration and test splits a
 from __future__ import annotations
 
 import json
-import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,13 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from fiper_ros.core.detectors import SIGNAL_NAME
 from fiper_ros.core.errors import CoreError
 
 ACTION_SPACES = ("ee_position", "joint_position", "joint_velocity")
 ID_SCENARIO = "id"
 NPZ_FORMAT_VERSION = 1
-#: What a signal's name must be: it becomes part of ROS topic and detector names (``signal_chunk_mse``).
-SIGNAL_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
 class RolloutError(CoreError):
@@ -32,7 +30,8 @@ class RolloutError(CoreError):
 
 
 def check_signal_name(name: object, where: str) -> str:
-    """``name`` if it is a signal name (:data:`SIGNAL_NAME`), else a :class:`RolloutError` starting with ``where``."""
+    """``name`` if it is a signal name (:data:`~fiper_ros.core.detectors.SIGNAL_NAME`), else a :class:`RolloutError`
+    starting with ``where``."""
     if not isinstance(name, str) or not SIGNAL_NAME.fullmatch(name):
         raise RolloutError(f"{where}: signal name {name!r} must match {SIGNAL_NAME.pattern} (lower-case letters, "
                            "digits and _, a letter first)")
@@ -63,7 +62,7 @@ class Rollout:
             rollouts ACE reads ``metadata["joint_positions"]`` (``[T, nq]``, the measured joint
             position at each policy step).
         signals: Named per-step scalar signals the policy logged, each float64 ``[T]`` and finite; a name
-            matches :data:`SIGNAL_NAME`. Empty: none logged.
+            matches :data:`~fiper_ros.core.detectors.SIGNAL_NAME`. Empty: none logged.
     """
 
     rollout_id: str
@@ -99,7 +98,8 @@ class Rollout:
         self.signals = {name: self._signal(name, values) for name, values in self.signals.items()}
 
     def _signal(self, name: object, values: object) -> np.ndarray:
-        """One signal checked: a name of :data:`SIGNAL_NAME`, ``T`` finite values (as float64)."""
+        """One signal checked: a name of :data:`~fiper_ros.core.detectors.SIGNAL_NAME`, ``T`` finite values (as
+        float64)."""
         rid = self.rollout_id
         check_signal_name(name, f"rollout {rid!r}")
         try:

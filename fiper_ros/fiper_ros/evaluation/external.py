@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.core.detectors import EXTERNAL_PREFIX, external_stream, info
+from fiper_ros.core.errors import ChoiceError
 from fiper_ros.evaluation.data import Dataset, DatasetError
 
 #: The file formats of external scores, by suffix.
@@ -112,7 +113,7 @@ def load_scores(name: str, path: str | Path) -> ExternalScores:
     where = f"--scores {name}={path}"
     try:
         external_stream(name)
-    except ValueError as error:
+    except ChoiceError as error:
         raise DatasetError(f"{where}: {error}") from error
     raw = _read(where, path)
     if not raw:

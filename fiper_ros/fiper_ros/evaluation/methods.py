@@ -278,7 +278,7 @@ def signal_methods(signals: tuple[str, ...]) -> tuple[Combination, ...]:
     be a stream is a :class:`SettingsError`."""
     try:
         streams = [signal_stream(name) for name in signals]
-    except ValueError as error:
+    except ChoiceError as error:
         raise SettingsError(str(error)) from None
     return tuple(Combination(stream, (stream,), f"signal {name}") for stream, name in zip(streams, signals))
 

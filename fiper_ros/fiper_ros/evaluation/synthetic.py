@@ -167,7 +167,8 @@ def make_task(task: str, seed: int = 0, calibration: int = 50, test: int = 240, 
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Write one ``<task>.npz`` per task: ``python -m fiper_ros.evaluation.synthetic --out DIR``."""
+    """Write one ``<task>.npz`` per task: ``python -m fiper_ros.evaluation.synthetic --out DIR``; an unknown task of
+    ``--tasks`` is refused as argparse refuses a flag (one line, exit 2)."""
     parser = argparse.ArgumentParser(description="Write SYNTHETIC benchmark rollouts (not policy data).")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--tasks", default=",".join(TASKS))
@@ -176,8 +177,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--test", type=int, default=240)
     parser.add_argument("--scale", type=float, default=1.0)
     args = parser.parse_args(argv)
+    tasks = args.tasks.split(",")
+    unknown = [task for task in tasks if task not in TASKS]
+    if unknown:
+        parser.error(f"--tasks: unknown {', '.join(map(repr, unknown))}; expected some of {', '.join(TASKS)}")
     args.out.mkdir(parents=True, exist_ok=True)
-    for task in args.tasks.split(","):
+    for task in tasks:
         path = args.out / f"{task}.npz"
         make_task(task, args.seed, args.calibration, args.test, args.scale).save_npz(path)
         sys.stdout.write(f"wrote {path} (synthetic)\n")

@@ -16,8 +16,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
 
+from fiper_ros.errors import FiperError
 from fiper_ros.launcher.config import SECURITY_ENABLE_ENV, LaunchConfig, LaunchError, NodeSpec
-from fiper_ros.nodes.errors import NodeError
 from fiper_ros.platform.dds import PARENT_PID_ENV, STACKS_SIGNAL
 
 
@@ -200,7 +200,7 @@ def build_nodes(spec: NodeSpec, context: Any = None) -> list[Any]:
     module = importlib.import_module(spec.module)
     try:
         classes = module.node_classes(list(spec.arguments)) if hasattr(module, "node_classes") else [module.NODE_CLASS]
-    except NodeError as error:
+    except FiperError as error:
         raise LaunchError(f"node {spec.name}: {error}") from None
     nodes = []
     with tempfile.TemporaryDirectory(prefix="fiper-launch-") as params_dir:  # read while the nodes are made

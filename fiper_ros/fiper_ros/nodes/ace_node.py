@@ -24,8 +24,9 @@ from fiper_ros.interface.conversions import stamp_ns
 from fiper_ros.interface.topics import ARM_JOINT_NAMES, JOINT_STATES_TOPIC
 from fiper_ros.nodes.base import describe
 from fiper_ros.nodes.detector_node import DetectorNode
+from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.settings import AceSettings, ace_settings
-from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node, run_reported
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.joint_history import JointHistory, StampGate
 from fiper_ros.runtime.validation import InputRejected
@@ -72,7 +73,7 @@ class AceNode(DetectorNode):
         if calibration.layout.action_space not in JOINT_SPACES:
             return None
         if not self.settings.urdf_path:
-            raise ValueError(f"calibration action space is {calibration.layout.action_space}: set parameter urdf_path")
+            raise NodeError(f"calibration action space is {calibration.layout.action_space}: set parameter urdf_path")
         return PinocchioFK(self.settings.urdf_path, self.settings.ee_frame)
 
     def activate(self) -> None:
@@ -156,7 +157,7 @@ NODE_CLASS = AceNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.ace_node --ros-args ...``."""
-    return run_node(AceNode, args, executor=EXECUTOR_EVENTS)
+    return run_reported("ace_node", run_node, AceNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ missing), so it keeps running and says why on ``/diagnostics`` instead of dying.
 from __future__ import annotations
 
 import time
+import traceback
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
@@ -26,11 +27,11 @@ from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 
+from fiper_ros.errors import FiperError, one_line
 from fiper_ros.interface import qos
 from fiper_ros.interface.cdr import CdrError, EncapsulationError, codec
 from fiper_ros.interface.conversions import header_view
 from fiper_ros.interface.topics import DIAGNOSTICS_TOPIC
-from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.settings import ShellSettings, shell_settings
 from fiper_ros.platform.process import process_age_s
@@ -110,8 +111,10 @@ class FiperNode(LifecycleNode):
         self.shell: ShellSettings = shell_settings(parameter_values(self))
         self.settings: Any = None
         """The node's settings (:meth:`settle`; ``None`` until built, or when a value was refused)."""
-        self.settings_refusal: NodeError | None = None
+        self.settings_refusal: FiperError | None = None
         """Why the node's builder refused its parameters (every configure fails with it)."""
+        self.configure_failures = 0
+        """Configure attempts that failed (on /diagnostics: ``configure_failures``)."""
         self.rejected: Counter[str] = Counter()
         self.qos_incompatible: Counter[str] = Counter()
         self.latency = LatencyStats()
@@ -143,20 +146,30 @@ class FiperNode(LifecycleNode):
             self.trigger_activate()
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Load what the node needs; failure (a refused parameter value too) keeps it alive, UNCONFIGURED,
-        reporting why."""
+        """Load what the node needs. A failure keeps the node alive, UNCONFIGURED, counted
+        (:attr:`configure_failures`) and said on /diagnostics as ``configure failed: REASON``: a user error (a
+        :class:`~fiper_ros.errors.FiperError`: a refused parameter value, a calibration that is missing, damaged or
+        does not fit the node's parameters) in its one line; any other exception (a defect) with its type, and its
+        traceback logged."""
         try:
             if self.settings_refusal is not None:
                 raise self.settings_refusal
             self.configure()
-        except Exception as error:  # noqa: BLE001 - any load error is reported, never fatal
-            message = f"configure failed: {error}"
-            if message != self.config_error:
-                self.get_logger().error(message)
-            self.config_error = message
-            return TransitionCallbackReturn.FAILURE
+        except FiperError as error:
+            return self._configure_failed(one_line(error))
+        except Exception as error:  # noqa: BLE001 - a defect while loading: reported with its traceback, never fatal
+            self.get_logger().error(f"configure raised:\n{traceback.format_exc()}")
+            return self._configure_failed(one_line(f"{type(error).__name__}: {error}"))
         self.config_error = ""
         return TransitionCallbackReturn.SUCCESS
+
+    def _configure_failed(self, reason: str) -> TransitionCallbackReturn:
+        self.configure_failures += 1
+        message = f"configure failed: {reason}"
+        if message != self.config_error:
+            self.get_logger().error(message)
+        self.config_error = message
+        return TransitionCallbackReturn.FAILURE
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Create subscriptions (inputs start flowing); say so, with the seconds since the process started."""
@@ -194,12 +207,12 @@ class FiperNode(LifecycleNode):
     # helpers for subclasses ---------------------------------------------------------------------------
     def settle(self, build: Callable[[Mapping[str, Any]], Any]) -> bool:
         """Read the declared parameters once into :attr:`settings` with the node's builder ``build``, after the
-        node declared them all; whether it built them. A value it refuses (a :class:`NodeError`) leaves
-        :attr:`settings` ``None``: the node then builds nothing that needs them, and every configure fails with the
-        refusal, reported on /diagnostics."""
+        node declared them all; whether it built them. A value it refuses (a :class:`~fiper_ros.nodes.errors.NodeError`,
+        or any other :class:`~fiper_ros.errors.FiperError` of what it calls) leaves :attr:`settings` ``None``: the node
+        then builds nothing that needs them, and every configure fails with the refusal, reported on /diagnostics."""
         try:
             self.settings = build(parameter_values(self))
-        except NodeError as error:
+        except FiperError as error:
             self.settings_refusal = error
             return False
         return True
@@ -339,6 +352,7 @@ class FiperNode(LifecycleNode):
         level, message = self.diagnostic_level()
         values = {
             "lifecycle_state": self.lifecycle_state(),
+            "configure_failures": str(self.configure_failures),
             "latency_p50_ms": f"{self.latency.percentile(50):.3f}",
             "latency_p99_ms": f"{self.latency.percentile(99):.3f}",
         }

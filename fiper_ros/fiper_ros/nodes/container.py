@@ -17,12 +17,10 @@ import sys
 from rclpy.utilities import remove_ros_args
 
 from fiper_ros.nodes.errors import NodeError
-from fiper_ros.platform.process import EXECUTOR_EVENTS, run_nodes
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_nodes, run_reported
 
 #: The nodes a container may hold: the suite's single-threaded nodes, each its executable's name.
 NODES = ("rnd_oe_node", "ace_node", "fusion_node")
-#: The exit status of a command line the container refuses (as argparse's).
-USAGE_ERROR = 2
 
 
 class ContainerUsageError(NodeError):
@@ -59,15 +57,14 @@ def node_classes(argv: list[str]) -> list[type]:
     return [importlib.import_module(module).NODE_CLASS for module in node_modules(argv)]
 
 
+def _run(argv: list[str]) -> int:
+    return run_nodes(node_classes(argv[1:]), argv, executor=EXECUTOR_EVENTS)
+
+
 def main(args: list[str] | None = None) -> int:
-    """Entry point: ``python -m fiper_ros.nodes.container NODE... --ros-args ...``."""
-    argv = sys.argv if args is None else args
-    try:
-        classes = node_classes(argv[1:])
-    except ContainerUsageError as error:
-        print(f"container: {error}", file=sys.stderr)
-        return USAGE_ERROR
-    return run_nodes(classes, argv, executor=EXECUTOR_EVENTS)
+    """Entry point: ``python -m fiper_ros.nodes.container NODE... --ros-args ...``; a command line it refuses (before
+    rclpy starts) or any other user error is one line ``container: ...``, exit status 2."""
+    return run_reported("container", _run, sys.argv if args is None else args)
 
 
 if __name__ == "__main__":

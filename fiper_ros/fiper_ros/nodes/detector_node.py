@@ -32,8 +32,9 @@ from fiper_ros.interface.conversions import floats_of
 from fiper_ros.interface.messages import outcome_name
 from fiper_ros.interface.topics import EVENTS_TOPIC, input_topic, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.settings import DetectorSettings, detector_settings
-from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node, run_reported
 from fiper_ros.runtime import validation
 from fiper_ros.runtime.rollout_gate import RolloutGate, Route
 from fiper_ros.runtime.validation import (DEFAULT_MAX_ABS_VALUE, DEFAULT_MAX_ELEMENTS, DEFAULT_MAX_PENDING_ELEMENTS,
@@ -118,13 +119,13 @@ class DetectorNode(FiperNode):
     def configure(self) -> None:
         directory = self.settings.calibration_dir
         if not directory:
-            raise ValueError("parameter calibration_dir is empty")
+            raise NodeError("parameter calibration_dir is empty")
         directory = resolve_data_path(directory)  # relative: the working directory, the share, $FIPER_MODELS
         calibration = load_calibration(directory)
         if self.settings.detector not in calibration.detectors:
-            raise ValueError(f"calibration {directory} declares {', '.join(calibration.detectors)}, not "
-                             f"{self.settings.detector}: nothing for {self.get_name()} to score; launch the suite of its detectors "
-                             "(fiper.launch.yaml)")
+            raise NodeError(f"calibration {directory} declares {', '.join(calibration.detectors)}, not "
+                            f"{self.settings.detector}: nothing for {self.get_name()} to score; launch the suite of its detectors "
+                            "(fiper.launch.yaml)")
         self.fk = self.forward_kinematics(calibration)
         self.calibration = calibration
         self.calibration_hash = calibration.content_hash
@@ -301,7 +302,7 @@ NODE_CLASS = DetectorNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``detector_node --ros-args -p detector:=progress -r __node:=progress_node ...``."""
-    return run_node(DetectorNode, args, executor=EXECUTOR_EVENTS)
+    return run_reported("detector_node", run_node, DetectorNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":

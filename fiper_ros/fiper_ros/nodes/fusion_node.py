@@ -33,10 +33,12 @@ from fiper_ros.interface.conversions import header_view, stamp_ns
 from fiper_ros.interface.messages import AlarmStateName, outcome_name
 from fiper_ros.interface.topics import ALARM_TOPIC, EVENTS_TOPIC, RESET_ALARM_SERVICE, relative, score_topic
 from fiper_ros.nodes.base import FiperNode, describe
+from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.settings import FROM_CALIBRATION, FusionSettings, fusion_settings
-from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node, run_reported
 from fiper_ros.runtime.alarm import AlarmFuser, AlarmState, DetectorScore, reset_refusal
 from fiper_ros.runtime.rollout_gate import Route
+from fiper_ros.runtime.stats import DEADLINE_PERIODS
 from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 from fiper_ros.runtime.validation import UNKNOWN_DETECTOR, UNKNOWN_ROLLOUT, InputRejected
 
@@ -60,7 +62,7 @@ class FusionNode(FiperNode):
                                describe("a score stream older than this makes the state UNKNOWN, until the rollout's "
                                         "policy period is measured (always, if deadline_periods is 0)",
                                         low=0.01, high=600.0))
-        self.declare_parameter("deadline_periods", 2.5,
+        self.declare_parameter("deadline_periods", DEADLINE_PERIODS,
                                describe("staleness deadline in measured policy periods of the rollout (0: deadline_s)",
                                         low=0.0, high=1000.0))
         self.declare_parameter("deadline_floor_s", 0.1,
@@ -117,8 +119,8 @@ class FusionNode(FiperNode):
             directory = str(resolve_data_path(directory))
             own = declared(directory)
             if combine not in (FROM_CALIBRATION, own.combine) and len(own.detectors) > 1:
-                raise ValueError(f"parameter combine is {combine!r}, but calibration {directory} was calibrated for "
-                                 f"{own.combine!r}: set combine {FROM_CALIBRATION!r}, or calibrate for it")
+                raise NodeError(f"parameter combine is {combine!r}, but calibration {directory} was calibrated for "
+                                f"{own.combine!r}: set combine {FROM_CALIBRATION!r}, or calibrate for it")
             detectors, combine = own.detectors, own.combine
         self._declare_streams(detectors)
         self.fuser = AlarmFuser(CombineMode.AND if combine == FROM_CALIBRATION else combine, settings.deadline_ns,
@@ -302,7 +304,7 @@ NODE_CLASS = FusionNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.fusion_node --ros-args ...``."""
-    return run_node(FusionNode, args, executor=EXECUTOR_EVENTS)
+    return run_reported("fusion_node", run_node, FusionNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":

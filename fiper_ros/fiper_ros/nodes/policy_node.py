@@ -32,7 +32,7 @@ from fiper_ros.interface.topics import (ACTIONS_TOPIC, CAMERA_THIRD_TOPIC, CAMER
                                         EVENTS_TOPIC, SIM_ACTION_TOPIC, SIM_PROPRIO_TOPIC)
 from fiper_ros.nodes.base import FiperNode, describe
 from fiper_ros.nodes.settings import PolicySettings, policy_settings
-from fiper_ros.platform.process import run_node
+from fiper_ros.platform.process import run_node, run_reported
 from fiper_ros.policy.encoder import CAMERAS, RAW_IMAGE_SIZE
 from fiper_ros.policy.policy import Policy
 from fiper_ros.policy.session import PolicySession, PolicyStep
@@ -260,7 +260,7 @@ NODE_CLASS = PolicyNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.policy_node --ros-args ...``."""
-    return run_node(PolicyNode, args, threads=2)
+    return run_reported("policy_node", run_node, PolicyNode, args, threads=2)
 
 
 if __name__ == "__main__":

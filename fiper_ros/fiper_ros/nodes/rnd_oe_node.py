@@ -6,7 +6,7 @@ from typing import Any
 
 from fiper_ros.core.detectors import RND_OE
 from fiper_ros.nodes.detector_node import DetectorNode
-from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node
+from fiper_ros.platform.process import EXECUTOR_EVENTS, run_node, run_reported
 
 
 class RndOeNode(DetectorNode):
@@ -24,7 +24,7 @@ NODE_CLASS = RndOeNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.rnd_oe_node --ros-args ...``."""
-    return run_node(RndOeNode, args, executor=EXECUTOR_EVENTS)
+    return run_reported("rnd_oe_node", run_node, RndOeNode, args, executor=EXECUTOR_EVENTS)
 
 
 if __name__ == "__main__":

@@ -27,8 +27,9 @@ from fiper_ros.interface.topics import ALARM_TOPIC, DIAGNOSTICS_TOPIC, EVENTS_TO
 from fiper_ros.nodes.base import PUBLISHER_CHECK_PERIOD_S, describe, diagnostic_array, parameter_values
 from fiper_ros.nodes.graph_watch import PublisherCheck
 from fiper_ros.nodes.settings import SupervisorSettings, supervisor_settings
-from fiper_ros.platform.process import run_node
+from fiper_ros.platform.process import run_node, run_reported
 from fiper_ros.runtime.halt_delivery import HaltDelivery
+from fiper_ros.runtime.stats import DEADLINE_PERIODS
 from fiper_ros.runtime.supervision import HALTED_MEMORY, HaltDecision, SupervisorLogic
 from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 
@@ -38,6 +39,9 @@ HALT_POLL_S = 0.02
 HALT_LOG_PERIOD_S = 5.0
 
 
+
+#: How often the supervisor checks for silence and lasting UNKNOWN (seconds, on the node clock).
+CHECK_PERIOD_S = 0.02
 
 class SupervisorNode(Node):
     """Halts the robot when the failure monitor says so or stops saying anything."""
@@ -50,7 +54,7 @@ class SupervisorNode(Node):
         self.declare_parameter("deadline_s", 2.0, describe("tolerated UNKNOWN; tolerated silence while no rollout "
                                                            "runs or its period is not measured yet",
                                                            low=0.05, high=600.0))
-        self.declare_parameter("silence_periods", 2.5,
+        self.declare_parameter("silence_periods", DEADLINE_PERIODS,
                                describe("tolerated silence during a rollout, in measured policy periods (0: deadline_s)",
                                         low=0.0, high=1000.0))
         self.declare_parameter("silence_floor_s", 0.1,
@@ -87,7 +91,7 @@ class SupervisorNode(Node):
                                      liveliness=lambda info: self.publisher_check.set_liveliness(
                                          self.alarm_topic, info.not_alive_count)))
         self.create_subscription(RolloutEvent, settings.events_topic, self._on_event, qos.EVENT)
-        self.create_timer(0.02, self._on_clock)
+        self.create_timer(CHECK_PERIOD_S, self._on_clock)
         self.create_timer(HALT_POLL_S, self._deliver, clock=self._steady)
         self._diagnostics = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, qos.DIAGNOSTICS)
         self.create_timer(settings.diagnostics_period_s, self._publish_diagnostics, clock=self._steady)
@@ -174,7 +178,7 @@ NODE_CLASS = SupervisorNode
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.supervisor_node --ros-args ...``."""
-    return run_node(SupervisorNode, args)
+    return run_reported("supervisor_node", run_node, SupervisorNode, args)
 
 
 if __name__ == "__main__":

@@ -38,11 +38,10 @@ from fiper_ros.interface import qos
 from fiper_ros.interface.topics import (ALARM_TOPIC, CAMERA_TOPICS, DIAGNOSTICS_TOPIC, EVENTS_TOPIC, relative,
                                         score_topic)
 from fiper_ros.nodes.base import describe, diagnostic_array, parameter_values
-from fiper_ros.nodes.errors import NodeError
 from fiper_ros.nodes.settings import ViewSettings, view_settings
-from fiper_ros.platform.process import run_node
+from fiper_ros.platform.process import run_node, run_reported
 from fiper_ros.view.layout import installed_layout
-from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, HOW_TO_OPEN, ViewError, ViewServer
+from fiper_ros.view.server import DEFAULT_BACKLOG, DEFAULT_HOST, DEFAULT_PORT, HOW_TO_OPEN, ViewServer
 
 #: The JSON topics the node serves besides the scores (relative: in its namespace), their message class and
 #: subscription QoS.
@@ -164,11 +163,7 @@ def serve(args: list[str] | None = None) -> int:
 
 def main(args: list[str] | None = None) -> int:
     """Entry point: ``python -m fiper_ros.nodes.view_node --ros-args -r __ns:=/fiper -p port:=8765``."""
-    try:
-        return serve(args)
-    except (ViewError, NodeError) as error:
-        print(f"view_node: {error}", file=sys.stderr)
-        return 2
+    return run_reported("view_node", serve, args)
 
 
 if __name__ == "__main__":

@@ -43,6 +43,7 @@ from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedEx
 from rclpy.experimental import EventsExecutor
 
 from fiper_ros.data_paths import package_share
+from fiper_ros.errors import FiperError, report
 from fiper_ros.platform.dds import STACKS_SIGNAL, die_with_parent
 from fiper_ros.platform.errors import PlatformError
 
@@ -212,6 +213,17 @@ def spin_profiled(executor: Any, label: str) -> None:
     finally:
         profile.disable()
         profile.dump_stats(Path(folder) / f"{label}.prof")
+
+
+def run_reported(label: str, run: Callable[..., int], *args: Any, **kwargs: Any) -> int:
+    """The exit status of ``run(*args, **kwargs)`` (a node process's :func:`run_node`), a user error it raises (a
+    :class:`~fiper_ros.errors.FiperError`: an environment the set-up refuses, a port taken, a node's command line)
+    reported as ``LABEL: MESSAGE`` on one line, status :data:`~fiper_ros.errors.EXIT_USAGE`, as ``fiper`` reports
+    one; any other exception keeps its traceback. The console scripts' ``main`` call their node through it."""
+    try:
+        return run(*args, **kwargs)
+    except FiperError as error:
+        return report(label, error)
 
 
 def run_node(factory: Callable[..., Any], args: list[str] | None = None, threads: int = 1,

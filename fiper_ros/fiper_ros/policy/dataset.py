@@ -78,7 +78,7 @@ class DemoDataset:
                     continue
                 length = len(data["actions"])
                 for cam in CAMERAS:
-                    images[cam].append(preprocess_images(data[cam], image_size))
+                    images[cam].append(preprocess_images(data[cam], image_size, f"{path}: {cam}"))
                 proprio.append(np.asarray(data["proprio"], dtype=np.float32))
                 actions.append(np.asarray(data["actions"], dtype=np.float32))
             frames, chunk = sample_indices(length, obs_horizon, horizon)

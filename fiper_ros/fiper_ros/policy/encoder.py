@@ -13,18 +13,21 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .errors import PolicyError
+
 CAMERAS = ("wrist_rgb", "third_rgb")
 RAW_IMAGE_SIZE = 96
 
 
-def preprocess_images(images: np.ndarray, size: int) -> torch.Tensor:
-    """uint8 ``[N, 96, 96, 3]`` camera frames -> uint8 ``[N, 3, size, size]`` (area downsampling).
+def preprocess_images(images: np.ndarray, size: int, what: str = "images") -> torch.Tensor:
+    """uint8 ``[N, 96, 96, 3]`` camera frames -> uint8 ``[N, 3, size, size]`` (area downsampling); frames of another
+    type or shape (a demonstration file's) are a :class:`~fiper_ros.policy.errors.PolicyError` naming ``what``.
 
     Training caches and inference both go through this function, so they see identical pixels.
     """
     array = np.asarray(images)
     if array.ndim != 4 or array.shape[-1] != 3 or array.dtype != np.uint8:
-        raise ValueError(f"expected uint8 images [N, H, W, 3], got {array.dtype} {array.shape}")
+        raise PolicyError(f"{what}: expected uint8 images [N, H, W, 3], got {array.dtype} {array.shape}")
     tensor = torch.from_numpy(np.ascontiguousarray(array)).permute(0, 3, 1, 2)
     if array.shape[1] == size and array.shape[2] == size:
         return tensor.contiguous()

@@ -15,6 +15,7 @@ import torch
 
 from .dataset import sample_indices
 from .encoder import CAMERAS
+from .errors import PolicyError
 from .policy import Policy
 
 
@@ -36,10 +37,10 @@ def open_loop_fit(policy: Policy, episodes: list[Path], batch: int = 16, stride:
     """Compare ``policy`` with the expert at every ``stride``-th state of each episode file.
 
     The noise of each state comes from ``torch.Generator().manual_seed(seed)``, so a report is a function
-    of its arguments.
+    of its arguments. A ``stride`` below 1 or episodes without a state are a :class:`PolicyError`.
     """
     if stride < 1:
-        raise ValueError(f"stride must be >= 1, got {stride}")
+        raise PolicyError(f"stride must be >= 1, got {stride}")
     errors, spreads, magnitudes = [], [], []
     config = policy.config
     for path in episodes:
@@ -54,6 +55,6 @@ def open_loop_fit(policy: Policy, episodes: list[Path], batch: int = 16, stride:
             spreads.append(chunks.std(axis=0).mean(axis=0))
         magnitudes.append(actions)
     if not errors:
-        raise ValueError("no demonstration states to compare")
+        raise PolicyError("no demonstration states to compare")
     return FitReport(len(errors), np.mean(errors, axis=0), np.mean(spreads, axis=0),
                      np.abs(np.concatenate(magnitudes)).mean(axis=0))

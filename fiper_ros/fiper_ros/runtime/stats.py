@@ -5,6 +5,14 @@ from collections import deque
 
 import numpy as np
 
+#: The promise that a dead or hung node is noticed within a few policy periods, in one place: a score stream (the
+#: fusion node's ``deadline_periods``) or the alarm stream (the supervisor's ``silence_periods``) silent for this many
+#: measured policy periods during a rollout is stale, said at the node's next check (``check_period_s``). So the
+#: fusion node repeats its last verdict at most ``floor(DEADLINE_PERIODS)`` times (one per measured period of silence,
+#: :meth:`fiper_ros.runtime.alarm.AlarmFuser.heartbeat`) before the UNKNOWN of a stream silent since that verdict,
+#: however late its checks run, while the measured period holds (docs/alarm-contract.md).
+DEADLINE_PERIODS = 2.5
+
 
 class LatencyStats:
     """Percentiles of the last ``size`` latencies (milliseconds)."""
