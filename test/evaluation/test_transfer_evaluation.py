@@ -146,27 +146,33 @@ BY_HAND = {
 
 @pytest.mark.parametrize("statistic", tuple(STATISTICS))
 def test_each_prior_statistic_ranks_by_hand(statistic: str) -> None:
-    assert prior_order(RANKED, PER_TASK, range(6), statistic) == BY_HAND[statistic]
+    mean = PER_TASK.mean(axis=0)
+    assert prior_order(RANKED, PER_TASK, mean, range(6), statistic) == BY_HAND[statistic]
     # a candidate subset is ranked among itself
     subset = [i for i in BY_HAND[statistic] if i != 1]
-    assert sorted(prior_order(RANKED, PER_TASK, subset, statistic)) == sorted(subset)
+    assert sorted(prior_order(RANKED, PER_TASK, mean, subset, statistic)) == sorted(subset)
+    # a task whose TWA is undefined (no failures) is left out, not a NaN that scrambles the order
+    undefined = np.vstack([PER_TASK, np.full(6, np.nan)])
+    assert prior_order(RANKED, undefined, mean, range(6), statistic) == BY_HAND[statistic]
 
 
 def test_rank_percentiles_by_hand_and_an_unknown_statistic_is_refused() -> None:
     np.testing.assert_allclose(rank_percentiles(np.array([0.5, 0.2, 0.5, 0.9])), [0.5, 0.0, 0.5, 1.0])
-    np.testing.assert_array_equal(rank_percentiles(np.array([0.3])), [1.0])
+    np.testing.assert_array_equal(rank_percentiles(np.array([0.3, np.nan])), [1.0, np.nan])
+    np.testing.assert_allclose(rank_percentiles(np.array([0.5, np.nan, 0.2])), [1.0, np.nan, 0.0])
     with pytest.raises(PriorError, match=r"prior statistic 'luck'; expected one of mean, worst, rank, family, smooth"):
-        prior_order(RANKED, PER_TASK, range(6), "luck")
+        prior_order(RANKED, PER_TASK, PER_TASK.mean(axis=0), range(6), "luck")
     with pytest.raises(SettingsError, match=r"--prior-statistic 'luck'; expected one of"):
         EngineSettings(prior_statistic="luck")
 
 
 def test_the_prior_header_records_its_statistic() -> None:
-    metrics = np.zeros((2, 1, len(RANKED), 1, len(METRICS)))
-    metrics[:, 0, :, 0, METRICS.index("twa")] = PER_TASK
+    metrics = np.zeros((3, 1, len(RANKED), 1, len(METRICS)))
+    metrics[:2, 0, :, 0, METRICS.index("twa")] = PER_TASK
+    metrics[2, 0, :, 0, METRICS.index("twa")] = np.nan  # a task without failures: its TWA is undefined
     members = {"logpzo": Member(("logpzo",)), "rnd_oe": Member(("rnd_oe",))}
     for statistic in STATISTICS:
-        prior = ranked_prior(RANKED, metrics, np.zeros(metrics.shape[:-1], dtype=bool), ("a", "b"), members,
+        prior = ranked_prior(RANKED, metrics, np.zeros(metrics.shape[:-1], dtype=bool), ("a", "b", "c"), members,
                              ("window",), 6, {}, statistic)
         assert prior.selection["statistic"] == statistic and prior.selection["ranks_by"] == STATISTICS[statistic]
         assert [e.label() for e in prior.entries] == [f"{RANKED[i].method} w{RANKED[i].window} cp_band"

@@ -54,14 +54,18 @@ def selection(statistic: str) -> dict[str, str]:
 
 
 def rank_percentiles(values: np.ndarray) -> np.ndarray:
-    """Each value's rank percentile among ``values`` (1-D, finite): 0 the smallest, 1 the largest, ties sharing
-    their mean rank; 1 for a single value."""
-    if values.size == 1:
-        return np.ones(1)
-    ordered = np.sort(values)
-    below = np.searchsorted(ordered, values, side="left")
-    equal = np.searchsorted(ordered, values, side="right") - below
-    return (below + (equal - 1) / 2) / (values.size - 1)
+    """Each finite value's rank percentile among the finite ``values`` (1-D): 0 the smallest, 1 the largest, ties
+    sharing their mean rank, 1 for a single one; NaN stays NaN."""
+    out = np.full(values.shape, np.nan)
+    finite = np.isfinite(values)
+    if finite.sum() == 1:
+        out[finite] = 1.0
+    elif finite.any():
+        ordered = np.sort(values[finite])
+        below = np.searchsorted(ordered, values[finite], side="left")
+        equal = np.searchsorted(ordered, values[finite], side="right") - below
+        out[finite] = (below + (equal - 1) / 2) / (ordered.size - 1)
+    return out
 
 
 def _neighbours(groups: Sequence[Group], candidates: Sequence[int]) -> dict[int, list[int]]:
@@ -82,35 +86,36 @@ def _neighbours(groups: Sequence[Group], candidates: Sequence[int]) -> dict[int,
     return out
 
 
-def prior_order(groups: Sequence[Group], per_task: np.ndarray, candidates: Sequence[int],
+def prior_order(groups: Sequence[Group], per_task: np.ndarray, mean: np.ndarray, candidates: Sequence[int],
                 statistic: str) -> list[int]:
     """``candidates`` (indices of ``groups``), best first by ``statistic`` (:data:`~fiper_ros.core.transfer.STATISTICS`)
-    on ``per_task`` (``[tasks, groups]``: each configuration's TWA per task, finite for every candidate); ties by
-    the mean TWA, then the sweep's order."""
+    on ``per_task`` (``[tasks, groups]``: each configuration's TWA per task; NaN where a task's TWA is undefined, e.g.
+    a task without failures, which the statistics leave out) and ``mean`` (``[groups]``: the mean TWA over the tasks
+    and seeds, :func:`~fiper_ros.evaluation.protocol.selection_twa`, finite for every candidate); ties by ``mean``,
+    then the sweep's order."""
     if statistic not in STATISTICS:
         raise PriorError(f"prior statistic {statistic!r}; expected one of {', '.join(STATISTICS)}")
     cands = np.asarray(candidates, dtype=np.int64)
     values = per_task[:, cands]  # [tasks, candidates]
-    mean = values.mean(axis=0)
+    means = mean[cands]
     if statistic == "mean":
-        score = mean
+        score = means
     elif statistic == "worst":
-        score = values.min(axis=0)
+        score = np.nanmin(values, axis=0)
     elif statistic == "rank":
-        score = np.mean([rank_percentiles(row) for row in values], axis=0)
+        score = nanmean(np.array([rank_percentiles(row) for row in values]), axis=0)
     elif statistic == "smooth":
         near = _neighbours(groups, cands.tolist())
         column = {int(i): n for n, i in enumerate(cands)}
-        score = np.array([values[:, [column[j] for j in near[int(i)]]].mean() for i in cands])
+        score = np.array([nanmean(values[:, [column[j] for j in near[int(i)]]], axis=(0, 1)) for i in cands])
     else:  # family
-        methods = [groups[i].method for i in cands]
         best: dict[str, list[float]] = {}
-        for method, value in zip(methods, mean):
-            best.setdefault(method, []).append(float(value))
+        for i, value in zip(cands, means):
+            best.setdefault(groups[i].method, []).append(float(value))
         strength = {m: float(np.mean(sorted(v, reverse=True)[:FAMILY_TOP])) for m, v in best.items()}
         families = sorted(strength, key=lambda m: (-strength[m], m))
-        score = np.array([-families.index(m) for m in methods], dtype=np.float64)
-    return [int(cands[n]) for n in sorted(range(cands.size), key=lambda n: (-score[n], -mean[n], cands[n]))]
+        score = np.array([-families.index(groups[i].method) for i in cands], dtype=np.float64)
+    return [int(cands[n]) for n in sorted(range(cands.size), key=lambda n: (-score[n], -means[n], cands[n]))]
 
 
 @dataclass(frozen=True)
@@ -177,7 +182,7 @@ def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndar
     declared = {i: entry for i, g in enumerate(groups) if selectable(g, select_aggregations) and not np.isnan(twa[i])
                 and (entry := entry_of(g, members[g.method])) is not None}
     entries: dict[tuple, PriorEntry] = {}
-    for i in prior_order(groups, per_task, list(declared), statistic) if declared else []:
+    for i in prior_order(groups, per_task, twa, list(declared), statistic) if declared else []:
         entry = declared[i]
         if entry.key() in entries:
             continue
