@@ -99,7 +99,8 @@ PRIOR_ENTRIES = (
 
 @pytest.fixture()
 def prior_file(tmp_path: Path) -> Path:
-    return Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {}, {}, "hand-made", "by hand", "0").save(
+    return Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {"statistic": "mean"}, {}, "hand-made", "by hand",
+                 "0").save(
         tmp_path / "prior.yaml")
 
 

@@ -25,7 +25,8 @@ SIGNAL_B = PriorEntry(("signal_b",), "window", {"signal_b": 3}, "cp_constant", m
                       per_task={"a": 0.7, "b": 0.9})
 JOINT = PriorEntry(("signal_a", "signal_b", "elapsed"), "max", {"signal_a": 5, "signal_b": 5}, "cp_scaled", "kth:2",
                    "quantile", 0.8, "combined", 0.7, per_task={"a": 0.7, "b": 0.7})
-PRIOR = Prior((ACE_FIRST, SIGNAL_B, JOINT), ("a", "b"), (0,), (0.05, 0.1), {"subset": "all"}, {"profile": "paper"},
+PRIOR = Prior((ACE_FIRST, SIGNAL_B, JOINT), ("a", "b"), (0,), (0.05, 0.1), {"subset": "all", "statistic": "worst"},
+              {"profile": "paper"},
               "hand-made", "fiper evaluate --write-prior p.yaml", "0.1.0")
 SIGNALS = ("signal_a", "signal_b", "elapsed", "rnd_oe")
 
@@ -96,6 +97,14 @@ def test_the_prior_file_round_trips_with_its_hash_and_a_modified_one_is_refused(
     path.write_text("entries: [")
     with pytest.raises(PriorError, match=r"not a readable prior"):
         Prior.load(path)
+    assert data["selection"]["statistic"] == "worst"
+    unknown = Prior(PRIOR.entries, PRIOR.tasks, selection={"subset": "all", "statistic": "luck"})
+    with pytest.raises(PriorError) as error:
+        Prior.load(unknown.save(path))
+    assert str(error.value) == (f"{path}: selection statistic 'luck' is not one this code knows (mean, worst, rank, "
+                                "family, smooth)")
+    with pytest.raises(PriorError, match=r"selection statistic None is not one"):
+        Prior.load(Prior(PRIOR.entries, PRIOR.tasks, selection={"subset": "all"}).save(path))
     path.write_text(yaml.safe_dump({**PRIOR.content(), "format_version": 2}))
     with pytest.raises(PriorError, match=r"not a prior this code reads \(kind 'fiper-transfer-prior', format_version 2; "
                                          r"expected 'fiper-transfer-prior', 1\)"):

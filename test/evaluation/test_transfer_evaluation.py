@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 
 from fiper_ros.cli import main
 from fiper_ros.core.auto import TRANSFER, AutoSettings
-from fiper_ros.core.transfer import Prior, PriorEntry
+from fiper_ros.core.transfer import STATISTICS, Prior, PriorEntry, PriorError
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation
 from fiper_ros.evaluation.errors import SettingsError
@@ -24,7 +24,8 @@ from fiper_ros.evaluation.methods import Combination, MethodSettings
 from fiper_ros.evaluation.protocol import METRICS
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 from fiper_ros.evaluation.synthetic import make_task
-from fiper_ros.evaluation.transfer import Member, entry_of, loto_priors, members_of
+from fiper_ros.evaluation.transfer import (Member, entry_of, loto_priors, members_of, prior_order, rank_percentiles,
+                                           ranked_prior)
 
 RULE = AutoSettings(rule=TRANSFER)
 DELTAS = (0.2, 0.3)
@@ -103,20 +104,79 @@ def test_entries_of_the_sweeps_configurations() -> None:
 @settings(max_examples=30, deadline=None)
 @given(arrays(np.float64, (3, 1, len(GROUPS), 2, len(METRICS)), elements=st.floats(0, 1)),
        arrays(np.float64, (1, len(GROUPS), 2, len(METRICS)), elements=st.floats(0, 1)),
-       st.integers(0, 2))
-def test_a_tasks_prior_is_the_same_whatever_its_own_rows(metrics: np.ndarray, other: np.ndarray, task: int) -> None:
+       st.integers(0, 2), st.sampled_from(tuple(STATISTICS)))
+def test_a_tasks_prior_is_the_same_whatever_its_own_rows(metrics: np.ndarray, other: np.ndarray, task: int,
+                                                         statistic: str) -> None:
     datasets = _three()
     infinite = np.zeros(metrics.shape[:-1], dtype=bool)
     common = dict(members=MEMBERS, method_settings=MethodSettings(), seeds=(0,), deltas=(0.1, 0.2),
-                  select_aggregations=("window", "max"), top=10)
+                  select_aggregations=("window", "max"), top=10, statistic=statistic)
     before = loto_priors(datasets, GROUPS, metrics, infinite, **common)
     changed = metrics.copy()
     changed[task] = other
     after = loto_priors(datasets, GROUPS, changed, infinite, **common)
     assert after[task] == before[task]
     assert before[task].tasks == tuple(d.task for n, d in enumerate(datasets) if n != task)
-    twa = [e.twa for e in before[task].entries]
-    assert twa == sorted(twa, reverse=True) and len(before[task].entries) == 5  # the five that keep a promise
+    assert {p.selection["statistic"] for p in before} == {statistic}
+    assert len(before[task].entries) == 5  # the five that keep a promise
+    if statistic == "mean":
+        twa = [e.twa for e in before[task].entries]
+        assert twa == sorted(twa, reverse=True)
+
+
+# Six configurations on two tasks (TWA per task), by hand. Mean TWA: 0.70, 0.71, 0.60, 0.75, 0.575, 0.675.
+RANKED = [Group("logpzo", "1", "cp_band"), Group("logpzo", "2", "cp_band"), Group("logpzo", "3", "cp_band"),
+          Group("rnd_oe", "1", "cp_band"), Group("rnd_oe", "2", "cp_band"), Group("logpzo", "4", "cp_band")]
+PER_TASK = np.array([[0.9, 0.7, 0.6, 1.0, 0.3, 0.8],
+                     [0.5, 0.72, 0.6, 0.5, 0.85, 0.55]])
+BY_HAND = {
+    "mean": [3, 1, 0, 5, 2, 4],
+    # minima 0.5, 0.7, 0.6, 0.5, 0.3, 0.55; 0 and 3 tie at 0.5, the better mean (3) first
+    "worst": [1, 2, 5, 3, 0, 4],
+    # percentiles on task a 0.8, 0.4, 0.2, 1, 0, 0.6; on task b 0.1, 0.8, 0.6, 0.1 (0 and 3 tie: the mean of ranks 0
+    # and 1 of 5), 1, 0.4; means 0.45, 0.6, 0.4, 0.55, 0.5, 0.5: 4 and 5 tie, the better mean (5) first
+    "rank": [1, 3, 5, 4, 0, 2],
+    # logpzo's windows 1-4 are grid steps 0-3: w1 averages w1-w3 (0.67), w2 and w3 all four (0.67125), w4 w2-w4
+    # (0.661667); rnd_oe's w1 and w2 both (0.6625): ties by the mean
+    "smooth": [1, 2, 0, 3, 4, 5],
+    # logpzo's four mean 0.67125, rnd_oe's two 0.6625: every logpzo configuration first, each method's by its mean
+    "family": [1, 0, 5, 2, 3, 4],
+}
+
+
+@pytest.mark.parametrize("statistic", tuple(STATISTICS))
+def test_each_prior_statistic_ranks_by_hand(statistic: str) -> None:
+    mean = PER_TASK.mean(axis=0)
+    assert prior_order(RANKED, PER_TASK, mean, range(6), statistic) == BY_HAND[statistic]
+    # a candidate subset is ranked among itself
+    subset = [i for i in BY_HAND[statistic] if i != 1]
+    assert sorted(prior_order(RANKED, PER_TASK, mean, subset, statistic)) == sorted(subset)
+    # a task whose TWA is undefined (no failures) is left out, not a NaN that scrambles the order
+    undefined = np.vstack([PER_TASK, np.full(6, np.nan)])
+    assert prior_order(RANKED, undefined, mean, range(6), statistic) == BY_HAND[statistic]
+
+
+def test_rank_percentiles_by_hand_and_an_unknown_statistic_is_refused() -> None:
+    np.testing.assert_allclose(rank_percentiles(np.array([0.5, 0.2, 0.5, 0.9])), [0.5, 0.0, 0.5, 1.0])
+    np.testing.assert_array_equal(rank_percentiles(np.array([0.3, np.nan])), [1.0, np.nan])
+    np.testing.assert_allclose(rank_percentiles(np.array([0.5, np.nan, 0.2])), [1.0, np.nan, 0.0])
+    with pytest.raises(PriorError, match=r"prior statistic 'luck'; expected one of mean, worst, rank, family, smooth"):
+        prior_order(RANKED, PER_TASK, PER_TASK.mean(axis=0), range(6), "luck")
+    with pytest.raises(SettingsError, match=r"--prior-statistic 'luck'; expected one of"):
+        EngineSettings(prior_statistic="luck")
+
+
+def test_the_prior_header_records_its_statistic() -> None:
+    metrics = np.zeros((3, 1, len(RANKED), 1, len(METRICS)))
+    metrics[:2, 0, :, 0, METRICS.index("twa")] = PER_TASK
+    metrics[2, 0, :, 0, METRICS.index("twa")] = np.nan  # a task without failures: its TWA is undefined
+    members = {"logpzo": Member(("logpzo",)), "rnd_oe": Member(("rnd_oe",))}
+    for statistic in STATISTICS:
+        prior = ranked_prior(RANKED, metrics, np.zeros(metrics.shape[:-1], dtype=bool), ("a", "b", "c"), members,
+                             ("window",), 6, {}, statistic)
+        assert prior.selection["statistic"] == statistic and prior.selection["ranks_by"] == STATISTICS[statistic]
+        assert [e.label() for e in prior.entries] == [f"{RANKED[i].method} w{RANKED[i].window} cp_band"
+                                                      for i in BY_HAND[statistic]]
 
 
 _DATASETS: list[Dataset] = []
@@ -140,8 +200,9 @@ def test_one_task_needs_a_prior_file_and_takes_it(tmp_path: Path, two_tasks: lis
     assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
                  "--tiny", "--methods", "elapsed,pca_kmeans,progress", "--windows", "1-3", "--default-window", "1",
                  "--deltas", "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out),
-                 "--write-prior", str(tmp_path / "prior.yaml"), "--prior-top", "7"]) == 0
+                 "--write-prior", str(tmp_path / "prior.yaml"), "--prior-top", "7", "--prior-statistic", "rank"]) == 0
     prior = Prior.load(tmp_path / "prior.yaml")
+    assert prior.selection["statistic"] == "rank"
     assert prior.tasks == ("sorting", "stacking") and len(prior.entries) == 7
     assert "--write-prior" in prior.command and prior.command.startswith("fiper evaluate --synthetic")
     result = _run(two_tasks[:1], tiny_settings, prior)

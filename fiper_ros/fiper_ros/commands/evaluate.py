@@ -28,7 +28,8 @@ every configuration's thresholds per step and first alarm per rollout (:mod:`fip
 ``--auto --auto-rule transfer`` chooses each task's configuration by a prior: of the other tasks' labelled metrics of
 the run (two tasks or more), or ``--auto-prior FILE`` (:mod:`fiper_ros.evaluation.transfer`). ``--write-prior FILE``
 writes the prior of every task of the run (its best ``--prior-top`` configurations), for ``fiper calibrate --auto
---auto-rule transfer --auto-prior FILE``.
+--auto-rule transfer --auto-prior FILE``; both rank by ``--prior-statistic``
+(:data:`fiper_ros.core.transfer.STATISTICS`).
 ``--ray [ADDRESS]`` computes the scores and the sweep as Ray tasks (:mod:`fiper_ros.evaluation.distributed`) on a
 local instance (``--ray-cpus N`` CPUs) or an existing cluster, to the same results (docs/scale.md).
 """
@@ -63,7 +64,7 @@ from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitE
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, EQUALISATIONS
 from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine
-from fiper_ros.core.transfer import PRIOR_TOP
+from fiper_ros.core.transfer import DEFAULT_STATISTIC, PRIOR_TOP, STATISTICS
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX
@@ -219,9 +220,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     output.add_argument("--write-prior", type=Path, default=None, metavar="FILE",
                         help="also write the prior of every task of the run for fiper calibrate --auto --auto-rule "
                              "transfer: its best --prior-top configurations a calibration can declare, ranked by their "
-                             "TWA on all test rollouts (docs/method.md, 'The third rule')")
+                             "--prior-statistic on all test rollouts (docs/method.md, 'The third rule')")
     output.add_argument("--prior-top", type=int, default=PRIOR_TOP, metavar="N",
                         help=f"entries a prior made of the run keeps (default {PRIOR_TOP})")
+    output.add_argument("--prior-statistic", choices=tuple(STATISTICS), default=DEFAULT_STATISTIC,
+                        help="what a prior made of the run ranks its configurations by: the transfer rule's "
+                             "leave-one-task-out priors and --write-prior's (default "
+                             f"{DEFAULT_STATISTIC}; docs/method.md, 'The third rule')")
     output.add_argument("--quiet", action="store_true", help="no progress lines")
     cluster = parser.add_argument_group("cluster")
     cluster.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
@@ -296,7 +301,7 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           progress=not args.quiet, combinations=combinations_from(args),
                           combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc,
                           auto=options.auto_from(args), auto_prior=options.prior_from(args, default=False),
-                          prior_top=args.prior_top)
+                          prior_top=args.prior_top, prior_statistic=args.prior_statistic)
 
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:

@@ -21,8 +21,8 @@ best guess for a new task's failures, which nothing of the new task can measure.
 tasks may not resemble the user's (another robot, another policy, failures of another kind); the prior says which
 tasks it was learned on, and the calibration stores the prior's content hash and the entry's rank.
 
-A prior file (YAML) has a format version, the tasks, seeds and deltas it was learned on, the selection statistic,
-the command that made it and a SHA-256 content hash over everything else; a modified file is refused.
+A prior file (YAML) has a format version, the tasks, seeds and deltas it was learned on, the selection statistic
+(one of :data:`STATISTICS`; a file naming another is refused), the command that made it and a SHA-256 content hash over everything else; a modified file is refused.
 """
 
 from __future__ import annotations
@@ -51,6 +51,24 @@ PRIOR_FORMAT = 1
 PRIOR_KIND = "fiper-transfer-prior"
 #: Entries a prior keeps by default (``fiper evaluate --prior-top``).
 PRIOR_TOP = 200
+#: The statistics a prior may rank its entries by (its ``selection.statistic``), each with what it ranks by; every
+#: one is computed from the prior's tasks' labelled metrics (``fiper evaluate --prior-statistic``,
+#: :mod:`fiper_ros.evaluation.transfer`), each configuration's TWA on a task being averaged over its finite deltas
+#: and the seeds.
+STATISTICS = {
+    "mean": "the mean over the tasks of each configuration's TWA (the paper and leave-one-task-out protocols' "
+            "selection statistic)",
+    "worst": "the worst task's TWA (max-min), ties by the mean",
+    "rank": "the mean over the tasks of each configuration's rank percentile among the candidate configurations on "
+            "that task (0 the worst, 1 the best; ties share their mean rank)",
+    "family": "the method first (families ordered by the mean of their best ten configurations' mean TWA), then the "
+              "mean TWA within the method",
+    "smooth": "the mean over the tasks of the TWA averaged over the configuration's neighbouring windows (the same "
+              "method, kind, combine and aggregation, each window within two steps of the sweep's window grid)",
+}
+#: The statistic ``fiper evaluate --write-prior`` and the leave-one-task-out priors rank by without
+#: ``--prior-statistic``.
+DEFAULT_STATISTIC = "mean"
 #: The aggregations an entry may declare (a calibration's, :data:`fiper_ros.core.window.MODES`, but the single step,
 #: which the sweep calls window 1).
 AGGREGATIONS = ("window", "max", "cumulative")
@@ -254,6 +272,10 @@ class Prior:
             raise PriorError(f"{path}: a prior lacks or mistypes a field ({error})") from None
         if not prior.entries:
             raise PriorError(f"{path}: a prior without entries")
+        statistic = prior.selection.get("statistic") if isinstance(prior.selection, Mapping) else None
+        if statistic not in STATISTICS:
+            raise PriorError(f"{path}: selection statistic {statistic!r} is not one this code knows "
+                             f"({', '.join(STATISTICS)})")
         return prior
 
 

@@ -16,7 +16,7 @@ from fiper_ros.core.auto import TRANSFER, AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
-from fiper_ros.core.transfer import PRIOR_TOP, Prior
+from fiper_ros.core.transfer import DEFAULT_STATISTIC, PRIOR_TOP, STATISTICS, Prior
 from fiper_ros.evaluation.auto import AutoOutcome, auto_evaluation
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
@@ -67,6 +67,8 @@ class EngineSettings:
         auto_prior: The ``transfer`` rule's prior for every task; ``None``: each task's made of the other tasks' labelled
             metrics of the run (two tasks or more).
         prior_top: Entries a prior made of the run's metrics keeps.
+        prior_statistic: What a prior made of the run's metrics ranks by (:data:`fiper_ros.core.transfer.STATISTICS`):
+            the leave-one-task-out priors of ``transfer`` and ``--write-prior``'s.
     """
 
     methods: tuple[str, ...] = tuple(METHODS)
@@ -87,6 +89,7 @@ class EngineSettings:
     auto: AutoSettings | None = None
     auto_prior: Prior | None = None
     prior_top: int = PRIOR_TOP
+    prior_statistic: str = DEFAULT_STATISTIC
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
@@ -103,6 +106,8 @@ class EngineSettings:
             raise SettingsError("--auto-prior is the prior of --auto --auto-rule transfer")
         if self.prior_top < 1:
             raise SettingsError(f"--prior-top must be >= 1, got {self.prior_top}")
+        if self.prior_statistic not in STATISTICS:
+            raise SettingsError(f"--prior-statistic {self.prior_statistic!r}; expected one of {', '.join(STATISTICS)}")
         if (self.combinations or self.pooled) and self.method_settings.split != "split":
             raise SettingsError("combinations and pooled thresholds take their shapes from the fit part of a split "
                              f"conformal calibration (--split split), not from --split {self.method_settings.split}")
@@ -439,7 +444,7 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
                                    outcome.infinite, members_of(settings.methods, settings.combinations),
                                    settings.method_settings, settings.seeds, settings.sweep.deltas, auto, subsets,
                                    held_out, settings.select_aggregations, settings.prior_top, settings.auto_prior,
-                                   settings.progress)
+                                   settings.progress, settings.prior_statistic)
     return auto_evaluation(datasets, scores, settings.streams(), settings.method_settings, settings.seeds,
                            settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
 
@@ -452,7 +457,8 @@ def run_prior(result: EvaluationResult, top: int, command: str) -> Prior:
         raise SettingsError("a prior holds per-task configurations: not of thresholds pooled over the tasks (--pool)")
     header = prior_header(result.datasets, settings.method_settings, settings.seeds, settings.sweep.deltas, command)
     return ranked_prior(result.groups, result.metrics["all"], result.sweep.infinite, result.tasks,
-                        members_of(settings.methods, settings.combinations), settings.select_aggregations, top, header)
+                        members_of(settings.methods, settings.combinations), settings.select_aggregations, top, header,
+                        settings.prior_statistic)
 
 
 def protocol_early(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],

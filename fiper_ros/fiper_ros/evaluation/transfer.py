@@ -2,11 +2,11 @@
 evaluate --auto --auto-rule transfer``.
 
 :func:`ranked_prior` ranks every configuration of the sweep that a calibration can declare and that keeps a promise
-(:func:`entry_of`) by the statistic the paper and leave-one-task-out protocols select with
-(:func:`~fiper_ros.evaluation.protocol.selection_twa`: TWA averaged over the finite deltas, then over the tasks and
-seeds, on all test rollouts; a configuration with no finite delta on some task and seed is left out), over all
-methods and combinations at once, and keeps the best ``top`` (each configuration once: the first of the methods
-that sweep it). ``fiper evaluate --write-prior`` writes the one of every task of the run.
+(:func:`entry_of`; a configuration with no finite delta on some task and seed is left out) by one of the statistics
+:data:`~fiper_ros.core.transfer.STATISTICS` (:func:`prior_order`; ``mean``, the default, is the one the paper and
+leave-one-task-out protocols select with, :func:`~fiper_ros.evaluation.protocol.selection_twa`), computed on all
+test rollouts over all methods and combinations at once, and keeps the best ``top`` (each configuration once: the
+first of the methods that sweep it). ``fiper evaluate --write-prior`` writes the one of every task of the run.
 
 :func:`transfer_evaluation`: for every task ``T`` the prior is the one of the other tasks' rows of the run's
 metrics (exactly the leave-one-task-out selection, over all methods at once), so no label of ``T`` enters it, or a
@@ -29,7 +29,7 @@ from fiper_ros.core.auto import RULES, TRANSFER, AutoSettings
 from fiper_ros.core.calibration.auto import finite_at_delta
 from fiper_ros.core.detectors import CALIBRATED, info
 from fiper_ros.core.thresholds import GUARANTEED_KINDS
-from fiper_ros.core.transfer import Prior, PriorEntry, PriorError, choose_from_prior
+from fiper_ros.core.transfer import DEFAULT_STATISTIC, STATISTICS, Prior, PriorEntry, PriorError, choose_from_prior
 from fiper_ros.evaluation.auto import AutoOutcome, calibrated_alarms, candidate_streams, evaluate_choices
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.data import Dataset
@@ -37,13 +37,85 @@ from fiper_ros.evaluation.methods import Combination, MethodSettings, method_of
 from fiper_ros.evaluation.protocol import METRICS, delta_mean, nanmean, selectable, selection_twa
 from fiper_ros.evaluation.sweep import CUMULATIVE, MAX_POOL, Group
 
-#: How a prior's entries are ranked, as its file says.
-SELECTION = {"subset": "all test rollouts",
-             "statistic": "each configuration's TWA averaged over its finite deltas, then over the tasks and seeds (the "
-                          "paper and leave-one-task-out protocols' selection statistic), over all methods at once; "
-                          "configurations with no finite delta on some task and seed left out",
-             "kept": "guaranteed thresholds (CP constant, band, scaled); detectors a calibration declares; one "
-                     "aggregation for all detectors; OR with its promise N delta"}
+#: How many of a method's best configurations the ``family`` statistic averages to rank the methods.
+FAMILY_TOP = 10
+#: How many steps of the sweep's window grid, each way, the ``smooth`` statistic's neighbours reach.
+SMOOTH_STEPS = 2
+
+
+def selection(statistic: str) -> dict[str, str]:
+    """How a prior's entries are ranked, as its file says (``statistic``: a name of
+    :data:`~fiper_ros.core.transfer.STATISTICS`)."""
+    return {"subset": "all test rollouts", "statistic": statistic, "ranks_by": STATISTICS[statistic],
+            "twa": "each configuration's TWA on a task averaged over its finite deltas and the seeds; configurations "
+                   "with no finite delta on some task and seed left out",
+            "kept": "guaranteed thresholds (CP constant, band, scaled); detectors a calibration declares; one "
+                    "aggregation for all detectors; OR with its promise N delta"}
+
+
+def rank_percentiles(values: np.ndarray) -> np.ndarray:
+    """Each finite value's rank percentile among the finite ``values`` (1-D): 0 the smallest, 1 the largest, ties
+    sharing their mean rank, 1 for a single one; NaN stays NaN."""
+    out = np.full(values.shape, np.nan)
+    finite = np.isfinite(values)
+    if finite.sum() == 1:
+        out[finite] = 1.0
+    elif finite.any():
+        ordered = np.sort(values[finite])
+        below = np.searchsorted(ordered, values[finite], side="left")
+        equal = np.searchsorted(ordered, values[finite], side="right") - below
+        out[finite] = (below + (equal - 1) / 2) / (ordered.size - 1)
+    return out
+
+
+def _neighbours(groups: Sequence[Group], candidates: Sequence[int]) -> dict[int, list[int]]:
+    """Per candidate, the candidates of the same method, kind, combine and aggregation whose every window is within
+    :data:`SMOOTH_STEPS` steps of its own on the window grid of those configurations (itself included)."""
+    buckets: dict[tuple, list[int]] = {}
+    for i in candidates:
+        g = groups[i]
+        shape = tuple(_window(label)[0] for label in g.window.split("/"))
+        buckets.setdefault((g.method, g.kind, g.combine, shape), []).append(i)
+    out: dict[int, list[int]] = {}
+    for members in buckets.values():
+        windows = np.array([[w or 0 for _, w in map(_window, groups[i].window.split("/"))] for i in members])
+        steps = np.column_stack([np.searchsorted(np.unique(column), column) for column in windows.T])
+        near = np.abs(steps[:, None, :] - steps[None, :, :]).max(axis=2) <= SMOOTH_STEPS
+        for row, i in enumerate(members):
+            out[i] = [members[j] for j in np.flatnonzero(near[row])]
+    return out
+
+
+def prior_order(groups: Sequence[Group], per_task: np.ndarray, mean: np.ndarray, candidates: Sequence[int],
+                statistic: str) -> list[int]:
+    """``candidates`` (indices of ``groups``), best first by ``statistic`` (:data:`~fiper_ros.core.transfer.STATISTICS`)
+    on ``per_task`` (``[tasks, groups]``: each configuration's TWA per task; NaN where a task's TWA is undefined, e.g.
+    a task without failures, which the statistics leave out) and ``mean`` (``[groups]``: the mean TWA over the tasks
+    and seeds, :func:`~fiper_ros.evaluation.protocol.selection_twa`, finite for every candidate); ties by ``mean``,
+    then the sweep's order."""
+    if statistic not in STATISTICS:
+        raise PriorError(f"prior statistic {statistic!r}; expected one of {', '.join(STATISTICS)}")
+    cands = np.asarray(candidates, dtype=np.int64)
+    values = per_task[:, cands]  # [tasks, candidates]
+    means = mean[cands]
+    if statistic == "mean":
+        score = means
+    elif statistic == "worst":
+        score = np.nanmin(values, axis=0)
+    elif statistic == "rank":
+        score = nanmean(np.array([rank_percentiles(row) for row in values]), axis=0)
+    elif statistic == "smooth":
+        near = _neighbours(groups, cands.tolist())
+        column = {int(i): n for n, i in enumerate(cands)}
+        score = np.array([nanmean(values[:, [column[j] for j in near[int(i)]]], axis=(0, 1)) for i in cands])
+    else:  # family
+        best: dict[str, list[float]] = {}
+        for i, value in zip(cands, means):
+            best.setdefault(groups[i].method, []).append(float(value))
+        strength = {m: float(np.mean(sorted(v, reverse=True)[:FAMILY_TOP])) for m, v in best.items()}
+        families = sorted(strength, key=lambda m: (-strength[m], m))
+        score = np.array([-families.index(groups[i].method) for i in cands], dtype=np.float64)
+    return [int(cands[n]) for n in sorted(range(cands.size), key=lambda n: (-score[n], -means[n], cands[n]))]
 
 
 @dataclass(frozen=True)
@@ -96,22 +168,23 @@ def entry_of(group: Group, member: Member) -> PriorEntry | None:
 
 def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray, tasks: Sequence[str],
                  members: Mapping[str, Member], select_aggregations: Sequence[str], top: int,
-                 header: Mapping[str, Any]) -> Prior:
+                 header: Mapping[str, Any], statistic: str = DEFAULT_STATISTIC) -> Prior:
     """The prior of ``tasks`` (module docstring) from their rows of ``metrics`` ``[tasks, seeds, groups, deltas, 5]``
-    (all test rollouts) and ``infinite`` ``[tasks, seeds, groups, deltas]``; ``header``: the :class:`Prior`'s other
-    fields (seeds, deltas, calibration, made_from, command, version)."""
+    (all test rollouts) and ``infinite`` ``[tasks, seeds, groups, deltas]``, ranked by ``statistic``
+    (:func:`prior_order`); ``header``: the :class:`Prior`'s other fields (seeds, deltas, calibration, made_from,
+    command, version)."""
     if top < 1:
         raise ValueError(f"a prior keeps at least one entry, got top {top}")
     twa = selection_twa(metrics, infinite)
     values = delta_mean(metrics)  # [tasks, seeds, groups, 5]
     per_task = nanmean(values[..., METRICS.index("twa")], axis=1)  # [tasks, groups]
     means = {m: nanmean(values[..., METRICS.index(m)], axis=(0, 1)) for m in ("tpr", "tnr")}
-    order = sorted((i for i, g in enumerate(groups) if selectable(g, select_aggregations) and not np.isnan(twa[i])),
-                   key=lambda i: (-twa[i], i))
+    declared = {i: entry for i, g in enumerate(groups) if selectable(g, select_aggregations) and not np.isnan(twa[i])
+                and (entry := entry_of(g, members[g.method])) is not None}
     entries: dict[tuple, PriorEntry] = {}
-    for i in order:
-        entry = entry_of(groups[i], members[groups[i].method])
-        if entry is None or entry.key() in entries:
+    for i in prior_order(groups, per_task, twa, list(declared), statistic) if declared else []:
+        entry = declared[i]
+        if entry.key() in entries:
             continue
         entries[entry.key()] = replace(entry, twa=float(twa[i]), tpr=float(means["tpr"][i]),
                                        tnr=float(means["tnr"][i]),
@@ -121,7 +194,7 @@ def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndar
     if not entries:
         raise PriorError(f"no configuration of the run on {', '.join(tasks)} can be a prior entry (a guaranteed "
                          "threshold, detectors a calibration declares, a finite delta on every task)")
-    return Prior(tuple(entries.values()), tuple(tasks), selection=SELECTION, **header)
+    return Prior(tuple(entries.values()), tuple(tasks), selection=selection(statistic), **header)
 
 
 def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, seeds: Sequence[int],
@@ -136,10 +209,11 @@ def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, s
 
 def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
                 members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
-                deltas: Sequence[float], select_aggregations: Sequence[str], top: int) -> list[Prior]:
+                deltas: Sequence[float], select_aggregations: Sequence[str], top: int,
+                statistic: str = DEFAULT_STATISTIC) -> list[Prior]:
     """Per task ``T``, the prior of the other tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups,
-    deltas, 5]``) and ``infinite`` (:func:`ranked_prior`): the leave-one-task-out selection over all methods at once;
-    no row of ``T`` enters it."""
+    deltas, 5]``) and ``infinite`` ranked by ``statistic`` (:func:`ranked_prior`): a leave-one-task-out selection over
+    all methods at once; no row of ``T`` enters it."""
     if len(datasets) < 2:
         raise ValueError(f"a prior of other tasks needs two tasks or more, got {len(datasets)}")
     names = [d.task for d in datasets]
@@ -149,7 +223,7 @@ def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: n
         header = prior_header([datasets[n] for n in others], method_settings, seeds, deltas,
                               f"leave-one-task-out prior of this run for {names[t]}")
         priors.append(ranked_prior(groups, metrics[others], infinite[others], [names[n] for n in others], members,
-                                   select_aggregations, top, header))
+                                   select_aggregations, top, header, statistic))
     return priors
 
 
@@ -158,15 +232,16 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
                         members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
                         deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
                         held_out: dict[str, list[np.ndarray]], select_aggregations: Sequence[str], top: int,
-                        prior: Prior | None = None, progress: bool = True) -> AutoOutcome:
+                        prior: Prior | None = None, progress: bool = True,
+                        statistic: str = DEFAULT_STATISTIC) -> AutoOutcome:
     """``--auto --auto-rule transfer`` on every task and seed (module docstring): per task the prior of the other
-    tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups, deltas, 5]``) and ``infinite``, or
-    ``prior`` for every task; metrics on ``subsets`` and false alarms on ``held_out`` as
+    tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups, deltas, 5]``) and ``infinite`` ranked by
+    ``statistic``, or ``prior`` for every task; metrics on ``subsets`` and false alarms on ``held_out`` as
     :func:`~fiper_ros.evaluation.auto.evaluate_choices` takes them."""
     pool = candidate_streams(streams)
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
-                    top)
+                    top, statistic)
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
                                                               np.ndarray]:
