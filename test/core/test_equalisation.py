@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fiper_ros.core.equalisation import (Equaliser, check_equalisation, fit_equaliser, quantile_equaliser,
-                                         tail_equaliser)
+from fiper_ros.core.equalisation import (TIE_RESOLUTION, Equaliser, check_equalisation, fit_equaliser,
+                                         quantile_equaliser, tail_equaliser)
 from fiper_ros.core.thresholds import ThresholdError
 
 
@@ -58,6 +58,10 @@ def test_every_equaliser_is_continuous_strictly_increasing_and_inverted(values: 
         maxima = np.abs(maxima) + 0.5  # a positive quantile
     if np.unique(maxima).shape[0] < 2:
         return
+    if kind == "tail" and np.ptp(maxima) <= TIE_RESOLUTION * max(1.0, float(np.max(np.abs(maxima)))):
+        with pytest.raises(ThresholdError, match="at least 2 distinct maxima"):
+            fit_equaliser(kind, maxima, 0.9)
+        return
     equaliser = fit_equaliser(kind, maxima, 0.9)
     span = float(np.ptp(maxima)) + 1.0
     z = np.linspace(maxima.min() - 3 * span, maxima.max() + 3 * span, 2001)
@@ -68,6 +72,19 @@ def test_every_equaliser_is_continuous_strictly_increasing_and_inverted(values: 
     assert np.max(np.diff(mapped) / np.diff(z)) <= steepest * (1 + 1e-9)  # no jump anywhere: continuous
     for k in mapped[::97]:
         assert equaliser(np.array([equaliser.inverse(float(k))]))[0] == pytest.approx(k, rel=1e-9, abs=1e-9)
+
+
+def test_maxima_a_subnormal_gap_apart_are_one_knot() -> None:
+    # hypothesis found these: the gap of 2e-311 made the slope between two knots overflow (a non-finite map),
+    # and [0, 2e-313] an infinite end slope (a refusal about slopes instead of the missing second value)
+    equaliser = tail_equaliser(np.array([1.0, 2.2250738585e-313, -1.0, -2.225073858507e-311]))
+    assert equaliser.knots.tolist() == [-1.0, 2.2250738585e-313, 1.0]
+    assert equaliser.levels.tolist() == pytest.approx([np.log(5 / 4), np.log(5 / 2), np.log(5)])
+    mapped = equaliser(np.linspace(-10.0, 10.0, 2001))
+    assert np.all(np.isfinite(mapped)) and np.all(np.diff(mapped) > 0)
+    with pytest.raises(ThresholdError, match=r"^tail equalisation needs at least 2 distinct maxima in the fit part, "
+                                             r"got 1 \(of 2\); maxima 1e-09 apart or less count as one$"):
+        tail_equaliser(np.array([0.0, 2.2250738585e-313]))
 
 
 def test_round_trip_through_plain_data() -> None:

@@ -37,6 +37,11 @@ EQUALISATIONS = ("none", "quantile", "tail")
 DEFAULT_LEVEL = 0.9
 
 
+#: Rollout maxima closer than this, relative to the largest magnitude (at least 1), are one value to
+#: :func:`tail_equaliser`.
+TIE_RESOLUTION = 1e-9
+
+
 @dataclass(frozen=True, eq=False)
 class Equaliser:
     """A strictly increasing piecewise-linear map: ``levels`` at ``knots`` (both strictly increasing), linear
@@ -117,14 +122,18 @@ def quantile_equaliser(maxima: np.ndarray, level: float = DEFAULT_LEVEL) -> Equa
 
 def tail_equaliser(maxima: np.ndarray) -> Equaliser:
     """``T(z) = -log S(z)``, the interpolated empirical survival function of ``maxima`` with exponential ends
-    (module docstring)."""
-    checked = _checked(maxima)
+    (module docstring). Maxima no more than :data:`TIE_RESOLUTION` apart (relative to the largest magnitude, at
+    least 1) are one value: a gap near the float resolution would make a slope overflow."""
+    checked = np.sort(_checked(maxima))
     n = checked.shape[0]
-    knots, counts = np.unique(checked, return_counts=True)
+    resolution = TIE_RESOLUTION * max(1.0, float(np.max(np.abs(checked))))
+    last = np.append(np.diff(checked) > resolution, True)  # the largest of each group of tied maxima
+    knots = checked[last]
     if knots.shape[0] < 2:
         raise ThresholdError(f"tail equalisation needs at least 2 distinct maxima in the fit part, got "
-                             f"{knots.shape[0]} (of {n})")
-    ranks = np.cumsum(counts)  # the largest i of each distinct maximum
+                             f"{knots.shape[0]} (of {n})" + ("" if np.ptp(checked) == 0 else
+                                                           f"; maxima {resolution:.3g} apart or less count as one"))
+    ranks = np.flatnonzero(last) + 1.0  # the largest i of each distinct maximum
     levels = np.log((n + 1.0) / (n + 1.0 - ranks))
     median = min(int(np.searchsorted(ranks, (n + 1) / 2.0)), knots.shape[0] - 2)
     slope = float((levels[-1] - levels[median]) / (knots[-1] - knots[median]))
