@@ -219,7 +219,16 @@ def test_one_task_needs_a_prior_file_and_takes_it(tmp_path: Path, two_tasks: lis
     assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "transfer"
 
 
-def test_a_prior_of_a_pooled_run_or_without_transfer_is_refused(tiny_settings: MethodSettings) -> None:
+def test_a_prior_of_a_pooled_run_or_without_transfer_is_refused(tiny_settings: MethodSettings, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
+                 "--tiny", "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--pool",
+                 "--no-plots", "--no-cache", "--quiet", "--out", str(out), "--write-prior",
+                 str(tmp_path / "prior.yaml")]) == 2
+    assert capsys.readouterr().err == ("fiper evaluate: --write-prior: a prior holds per-task configurations, not "
+                                       "thresholds pooled over the tasks (--pool)\n")
+    assert not out.exists() and not (tmp_path / "prior.yaml").exists()  # refused before any work
     with pytest.raises(SettingsError, match="not with thresholds pooled"):
         EngineSettings(method_settings=tiny_settings, auto=RULE, pooled=True, sweep=SweepSettings(kinds=("cp_band",)))
     with pytest.raises(SettingsError, match="--auto-prior is the prior of --auto --auto-rule transfer"):

@@ -69,7 +69,8 @@ from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX
 from fiper_ros.evaluation.early import DEFAULT_Q
-from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation, run_prior
+from fiper_ros.evaluation.engine import (EngineSettings, EvaluationResult, check_evaluation, check_prior,
+                                         run_evaluation, run_prior)
 from fiper_ros.evaluation.external import ExternalScores, parse_scores
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS
 from fiper_ros.evaluation.methods import (ELAPSED, METHODS, Combination, MethodSettings, default_combinations,
@@ -364,9 +365,7 @@ def run(args: argparse.Namespace) -> int:
     check_evaluation(datasets, settings)
     check_cluster(args)
     if args.write_prior is not None:
-        if args.pool:
-            raise UsageError("--write-prior: a prior holds per-task configurations, not thresholds pooled over the "
-                             "tasks (--pool)")
+        check_prior(settings)
         if not args.write_prior.parent.is_dir():
             raise UsageError(f"--write-prior {args.write_prior}: no directory {args.write_prior.parent}")
     cache = None if args.no_cache else ScoreCache(args.cache_dir)
@@ -391,7 +390,7 @@ def run(args: argparse.Namespace) -> int:
     print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))
     if args.write_prior is not None:
         argv = getattr(args, "fiper_argv", None)  # cli.ARGV
-        prior = run_prior(result, args.prior_top, shlex.join(argv) if argv else "fiper evaluate (command line not given)")
+        prior = run_prior(result, shlex.join(argv) if argv else "fiper evaluate (command line not given)")
         prior.save(args.write_prior)
         print(f"fiper evaluate: prior of {', '.join(prior.tasks)} ({len(prior.entries)} entries, hash "
               f"{prior.content_hash[:12]}) -> {args.write_prior}")

@@ -146,10 +146,16 @@ def check_pair_format(names: Iterable[str]) -> tuple[str, ...]:
     return ordered
 
 
+def declarable(name: str) -> bool:
+    """Whether a calibration can declare the stream ``name``: a calibrated detector or a logged signal (not an
+    evaluation baseline nor external scores)."""
+    return name in CALIBRATED or info(name).reads == "signal"
+
+
 def check_declared(name: str) -> str:
-    """``name`` if a calibration can declare it; :class:`~fiper_ros.core.errors.ChoiceError` naming the detectors
-    that can."""
-    if name in CALIBRATED or info(name).reads == "signal":
+    """``name`` if a calibration can declare it (:func:`declarable`); :class:`~fiper_ros.core.errors.ChoiceError`
+    naming the detectors that can."""
+    if declarable(name):
         return name
     raise ChoiceError(f"detector {name!r} cannot be calibrated (an evaluation baseline); declare some of "
                       f"{', '.join(CALIBRATED)} or signal_<name>")

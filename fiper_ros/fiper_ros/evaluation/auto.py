@@ -24,7 +24,7 @@ from fiper_ros.core.auto import AutoChoice, AutoSettings, TaskScores, choose
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.calibration.auto import auto_scores, auto_split_settings, chosen_settings
 from fiper_ros.core.calibration.fit import fit_thresholds, split_successes
-from fiper_ros.core.detectors import ACE, CALIBRATED, info
+from fiper_ros.core.detectors import ACE, declarable
 from fiper_ros.core.fusion import exceeds, fuse_votes
 from fiper_ros.core.profiles import get_profile
 from fiper_ros.core.scorers import FitContext
@@ -39,7 +39,7 @@ from fiper_ros.evaluation.scoring import robot_for, torch_threads
 
 def candidate_streams(streams: Sequence[str]) -> tuple[str, ...]:
     """The streams of a run that a calibration can declare (the ``--auto`` candidates), in order."""
-    return tuple(s for s in streams if s in CALIBRATED or info(s).reads == "signal")
+    return tuple(s for s in streams if declarable(s))
 
 
 @dataclass

@@ -27,7 +27,8 @@ import numpy as np
 import fiper_ros
 from fiper_ros.core.auto import RULES, TRANSFER, AutoSettings
 from fiper_ros.core.calibration.auto import finite_at_delta
-from fiper_ros.core.detectors import CALIBRATED, info
+from fiper_ros.core.detectors import declarable, info
+from fiper_ros.core.equalisation import DEFAULT_LEVEL
 from fiper_ros.core.thresholds import GUARANTEED_KINDS
 from fiper_ros.core.transfer import DEFAULT_STATISTIC, STATISTICS, Prior, PriorEntry, PriorError, choose_from_prior
 from fiper_ros.evaluation.auto import AutoOutcome, calibrated_alarms, candidate_streams, evaluate_choices
@@ -124,7 +125,7 @@ class Member:
 
     detectors: tuple[str, ...]
     equalise: str = "none"
-    level: float = 0.9
+    level: float = DEFAULT_LEVEL
 
 
 def members_of(methods: Sequence[str], combinations: Sequence[Combination]) -> dict[str, Member]:
@@ -132,10 +133,6 @@ def members_of(methods: Sequence[str], combinations: Sequence[Combination]) -> d
     out = {m: Member(method_of(m).streams) for m in methods}
     out.update({c.name: Member(c.detectors, c.equalise, c.level) for c in combinations})
     return out
-
-
-def _declarable(detector: str) -> bool:
-    return detector in CALIBRATED or info(detector).reads == "signal"
 
 
 def _window(label: str) -> tuple[str, int | None]:
@@ -150,7 +147,7 @@ def _window(label: str) -> tuple[str, int | None]:
 def entry_of(group: Group, member: Member) -> PriorEntry | None:
     """The prior entry of a swept configuration, or ``None`` if no calibration can declare it or it keeps no promise
     (a time-varying threshold, a baseline's or external detector, two detectors of different aggregations)."""
-    if group.kind not in GUARANTEED_KINDS or not all(_declarable(d) for d in member.detectors):
+    if group.kind not in GUARANTEED_KINDS or not all(declarable(d) for d in member.detectors):
         return None
     windowed = [d for d in member.detectors if info(d).aggregation is None]
     parts = [_window(label) for label in group.window.split("/")]

@@ -37,11 +37,9 @@ from fiper_ros.runtime.trusted_publishers import Expected, resolve_node
 HALT_POLL_S = 0.02
 #: The shortest interval between two error lines about one pending halt (every failure is counted on /diagnostics).
 HALT_LOG_PERIOD_S = 5.0
-
-
-
 #: How often the supervisor checks for silence and lasting UNKNOWN (seconds, on the node clock).
 CHECK_PERIOD_S = 0.02
+
 
 class SupervisorNode(Node):
     """Halts the robot when the failure monitor says so or stops saying anything."""
