@@ -66,6 +66,12 @@ def test_votes_of_three_detectors_by_hand() -> None:
         fuse_declared([a, b, c], "kth:4")
 
 
+def test_the_promised_multiple_of_delta_by_hand() -> None:
+    # Proposition 1 at delta per threshold: the union bound makes an OR of N promise N delta, nothing else does
+    assert [Combine.parse(c).promised_multiple(3) for c in ("and", "or", "max", "kth:2")] == [1, 3, 1, 1]
+    assert Combine.parse("or").promised_multiple(1) == 1
+
+
 @pytest.mark.parametrize(("text", "mode", "k", "votes"), [("and", "and", 0, 3), ("or", "or", 0, 1), ("max", "max", 0, 1),
                                                          ("kth:2", "kth", 2, 2)])
 def test_combine_parse_and_votes(text: str, mode: str, k: int, votes: int) -> None:

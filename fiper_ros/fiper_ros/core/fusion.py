@@ -66,6 +66,11 @@ class Combine:
             raise ChoiceError(f"combine kth:{self.k} needs at least {self.k} detectors, got {detectors}")
         return {CombineMode.AND: detectors, CombineMode.OR: 1, CombineMode.MAX: 1, CombineMode.KTH: self.k}[self.mode]
 
+    def promised_multiple(self, detectors: int) -> int:
+        """How many deltas Proposition 1 promises for ``detectors`` thresholds combined so, each set at delta: ``N``
+        for an OR of ``N`` (the union bound), 1 for AND, a joint combine (one conformal factor) or one detector."""
+        return detectors if self.mode is CombineMode.OR else 1
+
     def __str__(self) -> str:
         return f"kth:{self.k}" if self.mode is CombineMode.KTH else self.mode.value
 

@@ -146,7 +146,7 @@ class PriorEntry:
     def promised_multiple(self) -> int:
         """How many deltas its false alarms on new successes are promised to stay under: ``N`` for an OR of ``N``
         thresholds (the union bound), else 1."""
-        return len(self.detectors) if self.combine == CombineMode.OR.value else 1
+        return Combine.parse(self.combine or CombineMode.AND.value).promised_multiple(len(self.detectors))
 
     def window_text(self) -> str:
         """``w5``, ``max5``, ``cum`` or ``rnd_oe w8, ace w50``."""

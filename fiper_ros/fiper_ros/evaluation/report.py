@@ -28,6 +28,7 @@ import numpy as np
 from fiper_ros.core.auto import RULE_SUMMARIES, TRANSFER
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
+from fiper_ros.core.fusion import Combine
 from fiper_ros.core.thresholds import GUARANTEED_KINDS, minimum_conformal_set
 from fiper_ros.evaluation.auto import AutoOutcome
 from fiper_ros.evaluation.early import EarlyDetection
@@ -293,7 +294,8 @@ def chosen_window(result: EvaluationResult, chosen: MethodResult) -> str:
 def promised_multiple(chosen: MethodResult, streams: tuple[str, ...], task: int = 0) -> int:
     """How many deltas a configuration's false alarms are promised to stay under: ``N`` for an OR of ``N``
     thresholds at delta each (the union bound), else 1 (docs/method.md, "What each threshold guarantees")."""
-    return len(streams) if chosen.group_of(task).combine == CombineMode.OR else 1
+    combine = chosen.group_of(task).combine
+    return Combine.parse(combine).promised_multiple(len(streams)) if combine else 1
 
 
 def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], pooled: bool = False,

@@ -226,8 +226,7 @@ def promised_rate(settings: CalibrationSettings) -> float:
     split and threshold kind are covered at all, see :func:`guarantee`): ``delta`` with AND (an alarm needs every
     detector's threshold exceeded), with a joint combine (one conformal factor) and with one detector alone;
     ``N delta`` with an OR of N thresholds at ``delta`` each (the union bound)."""
-    detectors = len(settings.detectors)
-    return settings.delta * (detectors if settings.combine_rule.mode is CombineMode.OR and detectors > 1 else 1)
+    return settings.delta * settings.combine_rule.promised_multiple(len(settings.detectors))
 
 
 def guarantee(settings: CalibrationSettings) -> str:
