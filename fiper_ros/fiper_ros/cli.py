@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from typing import TextIO
 
 from fiper_ros import __version__
+from fiper_ros.commands import ARGV, LABEL
 from fiper_ros.errors import EXIT_USAGE, FiperError, FiperWarning, fail, warn
 from fiper_ros.platform.dds import interruptible
 
@@ -39,12 +40,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "security": ("fiper_ros.commands.security", "write or check the SROS2 access-control policy of the suite's nodes"),
     "view": ("fiper_ros.commands.view", "serve the running suite live to Foxglove (WebSocket, 127.0.0.1:8765)"),
 }
-
-#: A sub-command's parser may set this default (``set_defaults``) to the name its reports give, e.g. ``bag recover``.
-LABEL = "fiper_command"
-#: The parsed arguments carry the whole command line under this name, for a file that names the command that made
-#: it (``fiper evaluate --write-prior``).
-ARGV = "fiper_argv"
 
 #: Modules whose absence means the workspace was not set up or not sourced.
 _ENVIRONMENT_MODULES = {"rclpy", "fiper_msgs", "torch", "numpy", "mujoco", "pinocchio", "rosbags", "mcap", "yaml"}

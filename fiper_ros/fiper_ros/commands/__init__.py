@@ -9,5 +9,11 @@ from __future__ import annotations
 
 from fiper_ros.commands.errors import UsageError
 
-__all__ = ["UsageError", "bag", "calibrate", "collect", "convert", "demo", "doctor", "echo", "errors", "evaluate",
+#: A sub-command's parser may set this default (``set_defaults``) to the name its reports give, e.g. ``bag recover``.
+LABEL = "fiper_command"
+#: The parsed arguments carry the whole command line under this name (set by :func:`fiper_ros.cli.main`), for a file
+#: that names the command that made it (``fiper evaluate --write-prior``).
+ARGV = "fiper_argv"
+
+__all__ = ["ARGV", "LABEL", "UsageError", "bag", "calibrate", "collect", "convert", "demo", "doctor", "echo", "errors", "evaluate",
            "launch", "options", "record", "replay", "samples", "security", "snapshot", "view"]

@@ -8,6 +8,7 @@ from pathlib import Path
 from fiper_ros.bagio.errors import BagError
 from fiper_ros.bagio.recover import recover_bag, recover_in_place, unfinished
 from fiper_ros.bagio.storage import METADATA, bag_directories
+from fiper_ros.commands import LABEL
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     recover.add_argument("-o", "--out", type=Path,
                          help="write the recovered bag here, leaving the unfinished one as it is (one bag only)")
     recover.add_argument("--force", action="store_true", help="replace --out if it exists")
-    recover.set_defaults(fiper_command="bag recover")  # cli.LABEL: the name its reports give
+    recover.set_defaults(**{LABEL: "bag recover"})  # the name its reports give
 
 
 def run(args: argparse.Namespace) -> int:

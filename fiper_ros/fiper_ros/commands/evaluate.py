@@ -55,7 +55,7 @@ import numpy as np
 
 from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.cluster import LOCAL
-from fiper_ros.commands import options
+from fiper_ros.commands import ARGV, options
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
@@ -389,7 +389,7 @@ def run(args: argparse.Namespace) -> int:
         threshold_log.setLevel(previous)
     print(summary(result, args.out / markdown.name) + ("" if args.dump is None else f"; dump -> {args.dump / INDEX}"))
     if args.write_prior is not None:
-        argv = getattr(args, "fiper_argv", None)  # cli.ARGV
+        argv = getattr(args, ARGV, None)
         prior = run_prior(result, shlex.join(argv) if argv else "fiper evaluate (command line not given)")
         prior.save(args.write_prior)
         print(f"fiper evaluate: prior of {', '.join(prior.tasks)} ({len(prior.entries)} entries, hash "
