@@ -13,9 +13,10 @@ from fiper_ros.client.driver import alarm_line
 from fiper_ros.client.figure import plot_trace, trace_figure
 from fiper_ros.client.suite_process import suite_topics
 from fiper_ros.client.trace import EARLY_MESSAGES, RolloutEvents, RolloutTrace
-from fiper_ros.commands.demo import SUPERVISOR, VIEW, demo_config, managed_nodes, plain_nodes, problems_of
+from fiper_ros.commands.demo import (SUPERVISOR, VIEW, demo_config, managed_nodes, plain_nodes, problems_of,
+                                     recorded_every_step)
 from fiper_ros.core.detectors import ACE, DETECTORS, OBSERVATION_ONLY, RND_OE
-from fiper_ros.interface.topics import SCORE_ACE_TOPIC, SCORE_RND_OE_TOPIC, TOPICS
+from fiper_ros.interface.topics import ACTIONS_TOPIC, EMBEDDING_TOPIC, SCORE_ACE_TOPIC, SCORE_RND_OE_TOPIC, TOPICS
 
 DEMO_YAML = Path(__file__).resolve().parents[2] / "fiper_ros" / "launch" / "demo.launch.yaml"
 
@@ -221,3 +222,16 @@ def test_early_messages_are_bounded_oldest_first() -> None:
         events.defer(5, lambda trace, step=step: trace.scores[ACE].add(step, float(step), 1.0, True))
     trace = events.follow(RolloutTrace("in-distribution", "id", 1, rollout_id=5))
     assert sorted(trace.scores[ACE].windowed) == list(range(10, EARLY_MESSAGES + 10))
+
+
+def test_the_bag_is_complete_only_with_every_step_the_driver_saw_of_every_rollout() -> None:
+    """The demo finishes its bag once it holds an embedding and an action batch of each policy step its traces saw:
+    equal counts on both topics are not enough (a fresh-clone run's bag lacked the last step of a 16-step rollout,
+    both of its messages still in flight to the recorder when the demo closed the bag on equal counts)."""
+    traces = [scored(12, outcome="success"), scored(16)]
+    assert recorded_every_step({EMBEDDING_TOPIC: 28, ACTIONS_TOPIC: 28}, traces)
+    assert recorded_every_step({EMBEDDING_TOPIC: 29, ACTIONS_TOPIC: 28}, traces)
+    assert not recorded_every_step({EMBEDDING_TOPIC: 27, ACTIONS_TOPIC: 27}, traces)
+    assert not recorded_every_step({EMBEDDING_TOPIC: 28, ACTIONS_TOPIC: 27}, traces)
+    assert not recorded_every_step({ACTIONS_TOPIC: 28}, traces)
+    assert recorded_every_step({}, [])

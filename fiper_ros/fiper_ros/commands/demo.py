@@ -22,6 +22,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -54,6 +55,8 @@ VIEW = "/fiper/view_node"
 PLAIN = (SUPERVISOR, VIEW)
 #: The demo's own node, the operator's (in the root namespace; its SROS2 enclave, docs/security.md).
 NODE_NAME = "fiper_demo"
+#: Seconds spun once the bag seems to hold every step, for a last message still on its way to the driver's readers.
+IN_FLIGHT_S = 0.5
 #: Recorded besides the bag schema's topics.
 EXTRA_TOPICS = (CAMERA_WRIST_TOPIC, CAMERA_THIRD_TOPIC, SIM_PROPRIO_TOPIC, SIM_ACTION_TOPIC, CLOCK_TOPIC)
 #: Without a terminal, one progress line every this many policy steps (a terminal gets every step).
@@ -110,6 +113,13 @@ def run_rollout(driver: SimSuiteDriver, display: Display, plan: Plan, timeout_s:
     driver.settle(lambda: trace.scored_steps() >= trace.steps_started, SETTLE_S)
     display.say(f"  ended: {trace.outcome} after {trace.steps_started} policy steps; {trace.verdict()}")
     return trace
+
+
+def recorded_every_step(counts: Mapping[str, int], traces: Sequence[RolloutTrace]) -> bool:
+    """Whether a bag that got ``counts`` messages per topic holds an embedding and an action batch of each policy
+    step the driver saw in ``traces`` (their ``steps_started``)."""
+    steps = sum(trace.steps_started for trace in traces)
+    return counts.get(EMBEDDING_TOPIC, 0) >= steps and counts.get(ACTIONS_TOPIC, 0) >= steps
 
 
 def problems_of(trace: RolloutTrace) -> list[str]:
@@ -202,8 +212,16 @@ def run_demo(args: argparse.Namespace) -> int:
                     print(f"all nodes active after {time.monotonic() - started:.1f} s", flush=True)
                     for plan in plans:
                         traces.append(run_rollout(driver, display, plan, args.rollout_timeout))
-                    # a step published just before the END it crossed: both of its messages into the bag
-                    driver.settle(lambda: recorder.counts[EMBEDDING_TOPIC] == recorder.counts[ACTIONS_TOPIC], SETTLE_S)
+                    # the last step's messages into the bag: the recorder's readers are not the driver's, so either
+                    # may still have them in flight when the other has them
+                    def landed() -> bool:
+                        return recorded_every_step(recorder.counts, traces)
+                    driver.settle(landed, SETTLE_S)
+                    driver.spin(IN_FLIGHT_S)
+                    if not driver.settle(landed, SETTLE_S):
+                        problems.append(f"the bag got {recorder.counts[EMBEDDING_TOPIC]} embeddings and "
+                                        f"{recorder.counts[ACTIONS_TOPIC]} action batches of "
+                                        f"{sum(t.steps_started for t in traces)} policy steps")
                 except SuiteFailed as error:
                     problems.append(f"{error}; its last output:\n{error.output}" if error.output else str(error))
                 finally:
