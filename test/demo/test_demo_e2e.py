@@ -23,9 +23,9 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
     why = "\n".join(line for line in log.splitlines() if "halting" in line or "ended:" in line) + run.stdout[-2000:]
     assert in_dist["outcome"] == "success" and in_dist["alarm_step"] is None, why
     assert ood["outcome"] == "failure" and ood["alarm_step"] is not None
-    # what judged, said with the calibration's combine (the pair under max is not FIPER's AND)
-    assert summary["judged_by"] == "RND-OE and ACE (max)" and "judged by RND-OE and ACE (max)" in run.stdout
-    assert in_dist["judged_by"] == ood["judged_by"] == "RND-OE and ACE (max)"  # from the fusion node's alarms
+    # what judged, said with the calibration's combine (the pair under OR is not FIPER's AND)
+    assert summary["judged_by"] == "RND-OE and ACE (or)" and "judged by RND-OE and ACE (or)" in run.stdout
+    assert in_dist["judged_by"] == ood["judged_by"] == "RND-OE and ACE (or)"  # from the fusion node's alarms
     # The supervisor halted the robot on the alarm: the bridge says why the rollout ended. The monitor scores
     # step t beside the policy computing step t + 1 (as on a robot), so the halt lands in step t + 1 or t + 2
     # (26 steps after an alarm at step 25); how far the policy gets meanwhile is a race that load can
@@ -46,7 +46,7 @@ def test_demo_runs_the_suite_and_its_alarms_equal_the_offline_oracle(tmp_path: P
             "/fiper/alarm", "/fiper/rollout_events", "/camera/wrist/image_raw", "/sim/action"} <= topics
     calibration = load_calibration(ROOT / "models/sorting/calibration")
     assert calibration.threshold("rnd_oe").kind == calibration.threshold("ace").kind == "cp_band"  # the paper's default
-    assert calibration.settings.combine == "max"  # RND-OE or ACE above the thresholds of one conformal factor
+    assert calibration.settings.combine == "or"  # RND-OE or ACE above its own threshold (docs/results.md, models/)
     # Earlier than the pair's AND by at least 5 policy steps: with the AND of the same thresholds' kind this rollout
     # alarmed at step 27 (ACE's exceedance), one step before the halt ended it (docs/results.md, issue #44).
     assert ood["alarm_step"] <= 27 - 5, ood["alarm_step"]

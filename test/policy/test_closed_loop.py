@@ -74,7 +74,7 @@ def test_shipped_stacking_model_turns_its_hand_and_places_the_red_block() -> Non
     prediction = predict_rollout(episode.rollout, calibration, PinocchioFK(URDF_PATH, "panda_hand"))
     assert prediction.detectors["ace"].scores.shape == (episode.policy_steps,) and np.all(np.isfinite(prediction.detectors["ace"].scores))
     assert np.all(prediction.detectors["ace"].scores >= 0) and np.median(prediction.detectors["ace"].scores) > 1.0  # bits: the 32 spread
-    assert prediction.first_alarm_step is None  # a success, and the shipped AND stays quiet on it
+    assert prediction.first_alarm_step is None  # a success, and the shipped calibration stays quiet on it
 
 
 @pytest.mark.parametrize("task", ["sorting", "stacking", "pusht"])
