@@ -17,19 +17,21 @@ import sys
 from pathlib import Path
 from typing import Any
 
-GUARANTEED = {"cp_constant", "cp_band", "cp_scaled"}
+from fiper_ros.core.detectors import DETECTORS
+from fiper_ros.core.fusion import Combine
+from fiper_ros.core.thresholds import GUARANTEED_KINDS
 
 
 def best_at_promise(sweep: list[dict[str, Any]], deltas: list[float], combinations: dict[str, list[str]],
                     promise: float) -> dict[tuple[str, str], tuple[float, str, str]]:
     """(method, combine) -> (best mean TWA, window, kind) at ``promise``; ``combinations``: each combination
-    method's detectors (FIPER's OR joins two)."""
+    method's detectors (FIPER's joins its pair); the promise per delta is :meth:`Combine.promised_multiple`'s."""
     best: dict[tuple[str, str], tuple[float, str, str]] = {}
     for row in sweep:
-        if row["threshold"] not in GUARANTEED:
+        if row["threshold"] not in GUARANTEED_KINDS:
             continue
-        joined = len(combinations.get(row["method"], ("rnd_oe", "ace"))) if row["combine"] == "or" else 1
-        delta = round(promise / joined, 6)
+        detectors = len(combinations.get(row["method"], DETECTORS))
+        delta = round(promise / Combine.parse(row["combine"] or "and").promised_multiple(detectors), 6)
         matches = [i for i, d in enumerate(deltas) if abs(d - delta) < 1e-9]
         if not matches:
             continue
