@@ -1,4 +1,5 @@
-"""The leave-one-task-out protocol: each task's configuration chosen without its labels, reported on it."""
+"""The protocols that choose per task: leave-one-task-out (each task's configuration chosen without its labels,
+reported on it) and clean-task (each task's chosen on its own validation half alone, reported on its other half)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from fiper_ros.cli import main
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import EngineSettings, run_evaluation
 from fiper_ros.evaluation.methods import MethodSettings
-from fiper_ros.evaluation.protocol import METRICS, run_loto, run_protocol
+from fiper_ros.evaluation.protocol import METRICS, run_clean_task, run_loto, run_protocol, validation_split
 from fiper_ros.evaluation.report import write_reports
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 from fiper_ros.evaluation.synthetic import make_task
@@ -126,3 +127,71 @@ def test_an_auroc_with_an_empty_class_is_a_visible_null(tmp_path: Path) -> None:
     assert row.split(" | ")[3] == "null (no failures)"
     push_t = json.loads(js.read_text())["protocols"]["loto"]["selected"]["rnd_oe"]["early_detection"]["tasks"]["push_t"]
     assert push_t["auroc"]["mean"] is None and push_t["auroc"]["undefined"] == "null (no failures)"
+
+
+# Validation-half TWA of (w 1, w 2) on tasks a, b, c: a prefers w 1, b w 2, c w 1. Over all three (the clean
+# protocol's one choice for every task) w 1 wins: mean 0.567 against 0.467. Report halves: other numbers.
+VALIDATION = [[0.9, 0.1], [0.2, 0.8], [0.6, 0.5]]
+REPORT = [[0.7, 0.3], [0.4, 0.6], [0.55, 0.45]]
+
+
+def test_each_task_is_chosen_on_its_own_validation_half_by_hand() -> None:
+    result = run_clean_task(GROUPS, _metrics(VALIDATION), _metrics(REPORT), ["rnd_oe"])
+    chosen = result.selected["rnd_oe"]
+    assert [g.window for g in chosen.task_groups] == ["1", "2", "1"]
+    np.testing.assert_array_equal(chosen.values[:, 0, TWA], [0.7, 0.6, 0.55])  # each task's report half, its choice
+    assert result.selection_twa["rnd_oe"] == pytest.approx((0.9 + 0.8 + 0.6) / 3)
+    assert result.protocol == "clean-task" and not result.default
+    clean = run_protocol("clean", GROUPS, _metrics(VALIDATION), _metrics(REPORT), ["rnd_oe"], 1, "cp_band")
+    assert clean.selected["rnd_oe"].group.window == "1"  # one choice for all: b gets w 1 (0.4, not 0.6)
+
+
+def test_neither_the_report_half_nor_another_tasks_labels_change_a_choice() -> None:
+    before = run_clean_task(GROUPS, _metrics(VALIDATION), _metrics(REPORT), ["rnd_oe"]).selected["rnd_oe"]
+    flipped_report = [[1.0 - v for v in row] for row in REPORT]
+    after = run_clean_task(GROUPS, _metrics(VALIDATION), _metrics(flipped_report), ["rnd_oe"]).selected["rnd_oe"]
+    assert after.task_groups == before.task_groups
+    for task in range(3):  # flip every other task's validation half: this task's choice stays
+        flipped = [row if t == task else [1.0 - v for v in row] for t, row in enumerate(VALIDATION)]
+        moved = run_clean_task(GROUPS, _metrics(flipped), _metrics(REPORT), ["rnd_oe"]).selected["rnd_oe"]
+        assert moved.task_groups[task] == before.task_groups[task]
+
+
+def test_a_configuration_infinite_on_a_task_is_not_chosen_for_it() -> None:
+    infinite = np.zeros((3, 1, 2, 1), dtype=bool)
+    infinite[1, 0, 1] = True  # w 2 is +inf on b: b gets w 1 although its validation half prefers w 2
+    validation, report = _metrics(VALIDATION), _metrics(REPORT)
+    validation[1, 0, 1], report[1, 0, 1] = np.nan, np.nan  # the sweep leaves +inf cells without metrics
+    chosen = run_clean_task(GROUPS, validation, report, ["rnd_oe"], infinite=infinite).selected["rnd_oe"]
+    assert [g.window for g in chosen.task_groups] == ["1", "1", "1"]
+
+
+def test_flipping_the_report_halfs_labels_leaves_every_choice_and_the_report_names_the_protocol(tmp_path: Path) -> None:
+    datasets = _datasets()
+    settings = replace(_settings(), protocols=("clean-task",))
+    reports = [validation_split(d.failed, settings.split_seed)[1] for d in datasets]
+    # swap the outcome of every report-half rollout within its class's count: the halves stay (they are drawn per
+    # outcome class), each report rollout's label flips in a way that keeps the split: exchange arrays instead
+    flipped = []
+    for d, report in zip(datasets, reports):
+        test = list(d.test)
+        failures = [i for i in report if not test[i].success]
+        successes = [i for i in report if test[i].success]
+        for a, b in zip(failures, successes):  # a report failure and a report success trade their scores
+            test[a], test[b] = replace(test[b], success=test[a].success, scenario=test[a].scenario), \
+                replace(test[a], success=test[b].success, scenario=test[b].scenario)
+        flipped.append(replace(d, test=test))
+    before = run_evaluation(datasets, settings)
+    after = run_evaluation(flipped, settings)
+    for method in ("rnd_oe", "stac"):
+        assert after.protocols["clean-task"].selected[method].task_groups == \
+            before.protocols["clean-task"].selected[method].task_groups
+    markdown, js = write_reports(before, tmp_path, [])
+    text = markdown.read_text()
+    assert "## Table 1: failure prediction, clean protocol chosen per task" in text
+    assert "no other task's labels and none of its report half enter the choice" in text
+    assert "## Early detection (threshold-free), clean-task protocol" in text
+    chosen = json.loads(js.read_text())["protocols"]["clean-task"]["selected"]["rnd_oe"]
+    assert chosen["config"] == "per task"
+    assert {t: chosen["tasks"][t]["config"]["window"] for t in ("sorting", "push_t", "stacking")} == {
+        d.task: g.window for d, g in zip(datasets, before.protocols["clean-task"].selected["rnd_oe"].task_groups)}

@@ -29,8 +29,8 @@ from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
 from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSettings, method_of, pooled_methods,
                                           streams_of)
 from fiper_ros.evaluation.progress import Progress
-from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, ProtocolResult, alarm_metrics, run_loto,
-                                           run_protocol, validation_split)
+from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, ProtocolResult, alarm_metrics, run_clean_task,
+                                           run_loto, run_protocol, validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
 from fiper_ros.evaluation.transfer import members_of, prior_header, ranked_prior, transfer_evaluation
@@ -127,6 +127,12 @@ class EngineSettings:
     def calibration_settings(self, seed: int) -> CalibrationSettings:
         """The core calibration settings whose threshold rules and split the sweep uses (profile, split, seed)."""
         return self.method_settings.calibration_settings(seed)
+
+    @property
+    def halved(self) -> bool:
+        """Whether a protocol selects on a validation half of the test rollouts and reports on the other
+        (:data:`~fiper_ros.evaluation.protocol.SUBSETS`)."""
+        return any(SUBSETS[p][1] == "report" for p in self.protocols)
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -310,7 +316,7 @@ def sweep_all(
     dt_mode = profile.dt_mode
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
     held_out: dict[str, list[np.ndarray]] = {"all": [d.held_out_id_successes for d in datasets]}
-    if "clean" in settings.protocols:
+    if settings.halved:
         splits = [validation_split(d.failed, settings.split_seed) for d in datasets]
         subsets["validation"] = [s[0] for s in splits]
         subsets["report"] = [s[1] for s in splits]
@@ -408,6 +414,11 @@ def run_evaluation(
             protocols[protocol] = run_loto(outcome.groups, outcome.metrics[report], settings.columns,
                                            settings.select_aggregations, outcome.infinite, outcome.held_out[report])
             continue
+        if protocol == "clean-task":
+            protocols[protocol] = run_clean_task(outcome.groups, outcome.metrics[selection], outcome.metrics[report],
+                                                 settings.columns, settings.select_aggregations, outcome.infinite,
+                                                 outcome.held_out[report])
+            continue
         protocols[protocol] = run_protocol(protocol, outcome.groups, outcome.metrics[selection],
                                            outcome.metrics[report], settings.columns, settings.default_window,
                                            settings.default_kind, settings.select_aggregations, outcome.infinite,
@@ -432,10 +443,10 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
              settings: EngineSettings, auto: AutoSettings, outcome: SweepOutcome) -> AutoOutcome:
     """``--auto`` on every task and seed (:func:`~fiper_ros.evaluation.auto.auto_evaluation`; the ``transfer`` rule:
     :func:`~fiper_ros.evaluation.transfer.transfer_evaluation`, its priors from ``outcome``'s metrics on all test
-    rollouts), its metrics on all test rollouts and, with the clean protocol, on its report half."""
+    rollouts), its metrics on all test rollouts and, with a protocol of two halves, on its report half."""
     subsets: dict[str, list[np.ndarray | None]] = {"all": [None] * len(datasets)}
     held_out = {"all": [d.held_out_id_successes for d in datasets]}
-    if "clean" in settings.protocols:
+    if settings.halved:
         report = [validation_split(d.failed, settings.split_seed)[1] for d in datasets]
         subsets["report"] = list(report)
         held_out["report"] = [np.intersect1d(r, d.held_out_id_successes) for r, d in zip(report, datasets)]

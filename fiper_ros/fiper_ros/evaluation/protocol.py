@@ -17,6 +17,11 @@ Protocols:
   mean TWA), reported on that task's test rollouts: no number of a task rests on a choice that read its labels.
   It needs two tasks or more. The task's calibration successes do enter the choice, as in every protocol: a
   configuration whose threshold is +inf at every delta on the reported task is never chosen for it.
+- ``"clean-task"``: the clean protocol's halves, but each task's configuration is selected on that task's own
+  validation half alone (what a user who holds labelled failures of the task would choose for it), reported on
+  its report half. It is the reference a configuration chosen without the task's failures (``"loto"``,
+  ``--auto``) is measured against, and the per-task oracle's honest counterpart: the report half never served
+  the choice.
 
 A fixed default configuration (window and threshold type given, FIPER ``w/w`` with AND) is reported
 too. A method with a single configuration (the elapsed-time baseline) is reported with it in both. With
@@ -35,7 +40,7 @@ half) per delta, to set beside delta.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,10 +51,13 @@ from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.sweep import FIPER, Group
 
 METRICS = ("twa", "acc", "dt", "tpr", "tnr")
-PROTOCOLS = ("paper", "clean", "loto")
+PROTOCOLS = ("paper", "clean", "loto", "clean-task")
 #: Per protocol, the subset of every task's test rollouts a configuration is selected on and the one it is reported
 #: on (:class:`~fiper_ros.evaluation.engine.SweepOutcome`); ``"loto"`` selects on the other tasks' subset.
-SUBSETS = {"paper": ("all", "all"), "clean": ("validation", "report"), "loto": ("all", "all")}
+SUBSETS = {"paper": ("all", "all"), "clean": ("validation", "report"), "loto": ("all", "all"),
+           "clean-task": ("validation", "report")}
+#: The protocols that choose each task's configuration on its own (:attr:`MethodResult.task_groups`).
+PER_TASK = ("loto", "clean-task")
 
 
 def nanmean(values: np.ndarray, axis: int | tuple[int, ...]) -> np.ndarray:
@@ -111,8 +119,8 @@ class MethodResult:
     false_alarms: np.ndarray
     """``[tasks, seeds, deltas]``: false-alarm rate on the held-out ID successes (NaN: none, or +inf)."""
     task_groups: tuple[Group, ...] = ()
-    """Per task its own configuration, where a protocol chooses per task (``"loto"``; ``group`` is then the first
-    task's); empty: ``group`` on every task."""
+    """Per task its own configuration, where a protocol chooses per task (:data:`PER_TASK`; ``group`` is then the
+    first task's); empty: ``group`` on every task."""
 
     def group_of(self, task: int) -> Group:
         """The configuration reported on ``task``."""
@@ -246,26 +254,50 @@ def run_loto(groups: Sequence[Group], metrics: np.ndarray, methods: Sequence[str
              select_aggregations: Sequence[str] = ("window", "max"), infinite: np.ndarray | None = None,
              held_out: np.ndarray | None = None) -> ProtocolResult:
     """The leave-one-task-out protocol: for every task ``t``, :func:`run_protocol` selects on the other tasks' rows
-    of ``metrics`` (``[tasks, seeds, groups, deltas, 5]``) and reports on row ``t``; the per-task results are
-    joined into one :class:`ProtocolResult` whose :class:`MethodResult` carry each task's configuration
-    (:attr:`MethodResult.task_groups`). ``selection_twa`` is each method's mean over the tasks of the TWA its
-    choice had on the other tasks. No fixed default (it is the paper protocol's: nothing is selected).
+    of ``metrics`` (``[tasks, seeds, groups, deltas, 5]``) and reports on row ``t`` (:func:`per_task_protocol`).
+    ``selection_twa`` is each method's mean over the tasks of the TWA its choice had on the other tasks.
 
     ``infinite`` and ``held_out`` as for :func:`run_protocol`. A configuration with no finite delta on some task
     and seed of the others or of ``t`` itself (calibration successes only) is never chosen for ``t``."""
     tasks = metrics.shape[0]
     if tasks < 2:
         raise ValueError(f"the leave-one-task-out protocol needs two tasks or more, got {tasks}")
-    shape = metrics.shape[:-1]
+    return per_task_protocol("loto", groups, metrics, metrics, lambda task: [t for t in range(tasks) if t != task],
+                             methods, select_aggregations, infinite, held_out)
+
+
+def run_clean_task(groups: Sequence[Group], selection_metrics: np.ndarray, report_metrics: np.ndarray,
+                   methods: Sequence[str], select_aggregations: Sequence[str] = ("window", "max"),
+                   infinite: np.ndarray | None = None, held_out: np.ndarray | None = None) -> ProtocolResult:
+    """The clean protocol chosen per task: for every task ``t``, :func:`run_protocol` selects on row ``t`` of
+    ``selection_metrics`` (its validation half) and reports on row ``t`` of ``report_metrics`` (its report half)
+    (:func:`per_task_protocol`); no other task's labels and none of the report half's enter its choice.
+    ``selection_twa`` is each method's mean over the tasks of the TWA its choice had on the validation half.
+    ``infinite`` and ``held_out`` as for :func:`run_protocol`."""
+    return per_task_protocol("clean-task", groups, selection_metrics, report_metrics, lambda task: [task], methods,
+                             select_aggregations, infinite, held_out)
+
+
+def per_task_protocol(name: str, groups: Sequence[Group], selection_metrics: np.ndarray, report_metrics: np.ndarray,
+                      rows: Callable[[int], list[int]], methods: Sequence[str], select_aggregations: Sequence[str],
+                      infinite: np.ndarray | None, held_out: np.ndarray | None) -> ProtocolResult:
+    """A protocol that chooses each task's configuration on its own: for every task ``t``, :func:`run_protocol`
+    selects on the ``rows(t)`` rows of ``selection_metrics`` and reports on row ``t`` of ``report_metrics`` (both
+    ``[tasks, seeds, groups, deltas, 5]``); the per-task results are joined into one :class:`ProtocolResult` whose
+    :class:`MethodResult` carry each task's configuration (:attr:`MethodResult.task_groups`). No fixed default (it
+    is the paper protocol's: nothing is selected). A configuration with no finite delta (``infinite``) on some task
+    and seed of ``rows(t)`` or of ``t`` itself is never chosen for ``t``."""
+    tasks = report_metrics.shape[0]
+    shape = report_metrics.shape[:-1]
     infinite = np.zeros(shape, dtype=bool) if infinite is None else infinite
     held_out = np.full(shape, np.nan) if held_out is None else held_out
     folds: list[ProtocolResult] = []
     for task in range(tasks):
-        others = [t for t in range(tasks) if t != task]
-        selection = metrics[others].copy()
-        selection[:, :, infinite[others].all(axis=3).any(axis=(0, 1))] = np.nan  # never selected
+        chosen_on = rows(task)
+        selection = selection_metrics[chosen_on].copy()
+        selection[:, :, infinite[chosen_on].all(axis=3).any(axis=(0, 1))] = np.nan  # never selected
         # no fixed default: window 0 is no configuration
-        folds.append(run_protocol("loto", groups, selection, metrics[[task]], methods, 0, "", select_aggregations,
+        folds.append(run_protocol(name, groups, selection, report_metrics[[task]], methods, 0, "", select_aggregations,
                                   infinite[[task]], held_out[[task]]))
 
     def joined(parts: list[MethodResult]) -> MethodResult:
@@ -278,6 +310,5 @@ def run_loto(groups: Sequence[Group], metrics: np.ndarray, methods: Sequence[str
 
     scores = {m: float(nanmean(np.array([f.selection_twa.get(m, np.nan) for f in folds]), axis=0))
               for m in folds[0].selection_twa}
-    return ProtocolResult("loto", per_task([f.selected for f in folds]), {},
-                          per_task([f.combine_kind for f in folds]), scores,
-                          per_task([f.combinations for f in folds]))
+    return ProtocolResult(name, per_task([f.selected for f in folds]), {}, per_task([f.combine_kind for f in folds]),
+                          scores, per_task([f.combinations for f in folds]))

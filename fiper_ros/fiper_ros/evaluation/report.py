@@ -34,7 +34,7 @@ from fiper_ros.evaluation.auto import AutoOutcome
 from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.engine import EvaluationResult
 from fiper_ros.evaluation.methods import ELAPSED, METHODS
-from fiper_ros.evaluation.protocol import METRICS, SUBSETS, MethodResult, ProtocolResult, nanmean, nanstd
+from fiper_ros.evaluation.protocol import METRICS, PER_TASK, SUBSETS, MethodResult, ProtocolResult, nanmean, nanstd
 from fiper_ros.evaluation.sweep import CUMULATIVE, Group
 
 LABELS = {"twa": "TWA ↑", "acc": "Acc. ↑", "dt": "DT ↓", "tpr": "TPR ↑", "tnr": "TNR ↑"}
@@ -56,9 +56,22 @@ PROTOCOL_TITLES = {
     "clean": "clean protocol (selection on a validation half, report on the disjoint half)",
     "loto": "leave-one-task-out protocol (each task's configuration selected on the other tasks' test rollouts, "
             "reported on its own)",
+    "clean-task": "clean protocol chosen per task (each task's configuration selected on its own validation half, "
+                  "reported on its disjoint half)",
 }
 #: Whose ID successes the promise table counts, per protocol.
-HELD_OUT_TEXT = {"paper": "all test rollouts'", "clean": "the report half's", "loto": "all test rollouts'"}
+HELD_OUT_TEXT = {"paper": "all test rollouts'", "clean": "the report half's", "loto": "all test rollouts'",
+                 "clean-task": "the report half's"}
+#: How a protocol that chooses per task chose (the sentence under its Table 1).
+CHOSEN_TEXT = {
+    "loto": "Each task's configuration (per method: window and threshold type) maximises the mean TWA across the other "
+            "tasks; the task's own labels are never read (its calibration successes are: a configuration whose "
+            "threshold is +inf at every delta there is not chosen).",
+    "clean-task": "Each task's configuration (per method: window and threshold type) maximises the TWA on that task's "
+                  "validation half alone; no other task's labels and none of its report half enter the choice.",
+}
+#: The protocols of two halves whose best configuration per task ``--auto``'s section shows beside its own.
+HALVED_BEST = {"clean": "clean best, report half (TWA)", "clean-task": "clean-task best, report half (TWA)"}
 FLAG = "⚠"
 TWA = METRICS.index("twa")
 
@@ -483,10 +496,7 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
     lines.append("")
     for name, protocol in result.protocols.items():
         title, held = PROTOCOL_TITLES[name], HELD_OUT_TEXT[name]
-        chosen = ("Each task's configuration (per method: window and threshold type) maximises the mean TWA across "
-                  "the other tasks; the task's own labels are never read (its calibration successes are: a "
-                  "configuration whose threshold is +inf at every delta there is not chosen)." if name == "loto"
-                  else "Each method's window and threshold type maximise the mean TWA across tasks.")
+        chosen = CHOSEN_TEXT.get(name, "Each method's window and threshold type maximise the mean TWA across tasks.")
         lines += [f"## Table 1: failure prediction, {title}", "", chosen, "",
                   table1(result, protocol.selected), "",
                   f"## Table 2: FIPER operator and threshold type, {name} protocol (task average)", "",
@@ -508,7 +518,7 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   "over seeds, on the rollouts this protocol reports on; pooled: every task's rollouts in one AUROC. "
                   "Both are threshold-free, so they say nothing about the false-alarm promise (the table above).", "",
                   early_table(result, protocol), ""]
-        if name == "loto":
+        if name in PER_TASK:
             lines += ["The fixed default configuration selects nothing: it is the paper protocol's.", ""]
         if protocol.default:
             lines += [f"## Fixed default configuration, {name} protocol "
@@ -531,6 +541,14 @@ def _best_of(result: EvaluationResult, protocol: str, task: int) -> tuple[str, f
     return best
 
 
+def _best_cell(result: EvaluationResult, protocol: str, task: int) -> str:
+    """The cell of :func:`_best_of` (empty on the average row, ``task`` past the tasks)."""
+    if task >= len(result.tasks):
+        return ""
+    label, value = _best_of(result, protocol, task)
+    return f"{label} ({value:.2f})" if not math.isnan(value) else "–"
+
+
 def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     """``--auto``'s section: per task the configuration it chose from the calibration successes alone, its metrics
     on all test rollouts, its held-out false alarms at delta 0.05 and, beside it, the elapsed time and the best
@@ -541,7 +559,9 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ"]
     columns += ["TWA − Elapsed"] if floor is not None else []
     columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
-    columns += ["TWA, report half", "clean best, report half (TWA)"] if "report" in auto.metrics else []
+    columns += ["TWA, report half"] if "report" in auto.metrics else []
+    beside = [p for p in HALVED_BEST if p in result.protocols]
+    columns += [HALVED_BEST[p] for p in beside]
     rows = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     report = _auto_rows(auto, "report") if "report" in auto.metrics else None
     for t in range(len(result.tasks) + 1):
@@ -558,15 +578,11 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
             base = floor.values[t, :, TWA] if t < len(result.tasks) else nanmean(floor.values[..., TWA], axis=0)
             cells.append(_signed(float(nanmean(per_seed - base, axis=0)), float(nanstd(per_seed - base, axis=0)),
                                  seeds))
-        for protocol in ("loto", "clean"):
-            if protocol == "clean" and report is not None:
-                cells.append(_cell(float(report[0][t][TWA]), float(report[1][t][TWA]), seeds, False))
-            if protocol in result.protocols and (protocol == "loto" or report is not None):
-                if t < len(result.tasks):
-                    label, value = _best_of(result, protocol, t)
-                    cells.append(f"{label} ({value:.2f})" if not math.isnan(value) else "–")
-                else:
-                    cells.append("")
+        best = [_best_cell(result, protocol, t) for protocol in ("loto", *beside) if protocol in result.protocols]
+        cells += best[:1] if "loto" in result.protocols else []
+        if report is not None:
+            cells.append(_cell(float(report[0][t][TWA]), float(report[1][t][TWA]), seeds, False))
+        cells += best[1:] if "loto" in result.protocols else best
         rows.append("| " + " | ".join(cells) + " |")
     record = auto.records[0][0][0]
     if record["rule"] == TRANSFER:
