@@ -193,5 +193,8 @@ def test_flipping_the_report_halfs_labels_leaves_every_choice_and_the_report_nam
     assert "## Early detection (threshold-free), clean-task protocol" in text
     chosen = json.loads(js.read_text())["protocols"]["clean-task"]["selected"]["rnd_oe"]
     assert chosen["config"] == "per task"
+    # each task's promise is its own configuration's: the top level names none (not the first task's)
+    assert chosen["guarantee"] == "per task"
+    assert {chosen["tasks"][t]["guarantee"] for t in ("sorting", "push_t", "stacking")} <= {"≤ δ", "none (per-step quantile)"}
     assert {t: chosen["tasks"][t]["config"]["window"] for t in ("sorting", "push_t", "stacking")} == {
         d.task: g.window for d, g in zip(datasets, before.protocols["clean-task"].selected["rnd_oe"].task_groups)}

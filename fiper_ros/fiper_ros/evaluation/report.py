@@ -679,7 +679,8 @@ def _method_json(result: EvaluationResult, chosen: MethodResult, held_out: str, 
     streams = result.settings.catalogue()[chosen.method].streams
     return {
         "config": "per task" if chosen.per_task_choice else _config_json(chosen.group),
-        "guarantee": guarantee_text(chosen, split, streams, result.settings.pooled),
+        "guarantee": "per task" if chosen.per_task_choice else guarantee_text(chosen, split, streams,
+                                                                            result.settings.pooled),
         **({"early_detection": _early_json(early, result.tasks)} if early is not None else {}),
         "tasks": {task: {**({"config": _config_json(chosen.group_of(t)),
                              "guarantee": guarantee_text(chosen, split, streams, result.settings.pooled, t)}
