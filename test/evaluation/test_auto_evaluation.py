@@ -59,6 +59,13 @@ def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
     assert [r.split(" | ")[0] for r in rows[1:]] == ["| sorting", "| stacking", "| average"]
     document = json.loads((out / "results.json").read_text())
     assert set(document["auto"]["subsets"]) == {"all", "report"}
+    # the gain over the elapsed time is taken on the same rollouts: all test rollouts (LOTO's elapsed), not the
+    # clean protocol's report half
+    gain_column = rows[0].split(" | ").index("TWA − Elapsed")
+    elapsed = document["protocols"]["loto"]["selected"]["elapsed"]["tasks"]
+    for row, task in zip(rows[1:3], ("sorting", "stacking")):
+        expected = document["auto"]["subsets"]["all"][task]["twa"]["mean"] - elapsed[task]["twa"]["mean"]
+        assert row.split(" | ")[gain_column] == f"{expected:+.2f}"
     assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "proxy-twa"
     assert "Rule proxy-twa v1 (docs/method.md, 'Choosing the configuration from successes'): candidates scored on " \
            "the fit part's successes by fold models, with stall, drift and skip proxies made from them;" in section

@@ -541,6 +541,15 @@ def _best_of(result: EvaluationResult, protocol: str, task: int) -> tuple[str, f
     return best
 
 
+def _elapsed_floor(result: EvaluationResult, auto: AutoOutcome) -> tuple[MethodResult, str] | None:
+    """The elapsed time's result that ``--auto``'s gain is taken over, and the subset of test rollouts both are
+    measured on: a protocol reporting on all test rollouts (paper, loto) first, else a halved protocol's report half;
+    ``None`` without the elapsed time."""
+    ranked = sorted(result.protocols.items(), key=lambda item: SUBSETS[item[0]][1] != "all")
+    return next(((protocol.selected[ELAPSED], SUBSETS[name][1]) for name, protocol in ranked
+                 if ELAPSED in protocol.selected and SUBSETS[name][1] in auto.metrics), None)
+
+
 def _best_cell(result: EvaluationResult, protocol: str, task: int) -> str:
     """The cell of :func:`_best_of` (empty on the average row, ``task`` past the tasks)."""
     if task >= len(result.tasks):
@@ -554,10 +563,10 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     on all test rollouts, its held-out false alarms at delta 0.05 and, beside it, the elapsed time and the best
     configuration the label-reading protocols chose."""
     seeds = len(result.settings.seeds)
-    floor = next((p.selected[ELAPSED] for p in result.protocols.values() if ELAPSED in p.selected), None)
+    floor = _elapsed_floor(result, auto)
     mean, std = _auto_rows(auto, "all")
     columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ"]
-    columns += ["TWA − Elapsed"] if floor is not None else []
+    columns += [f"TWA − Elapsed{'' if floor[1] == 'all' else ', report half'}"] if floor is not None else []
     columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
     columns += ["TWA, report half"] if "report" in auto.metrics else []
     beside = [p for p in HALVED_BEST if p in result.protocols]
@@ -573,9 +582,10 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
                                  for m in (METRICS.index(k) for k in ("twa", "tpr", "tnr", "dt"))),
                  "–" if math.isnan(rate) else f"{rate:.2f}"]
         if floor is not None:
-            per_seed = (auto.values("all")[t, :, TWA] if t < len(result.tasks)
-                        else nanmean(auto.values("all")[..., TWA], axis=0))
-            base = floor.values[t, :, TWA] if t < len(result.tasks) else nanmean(floor.values[..., TWA], axis=0)
+            elapsed, subset = floor
+            values = auto.values(subset)
+            per_seed = values[t, :, TWA] if t < len(result.tasks) else nanmean(values[..., TWA], axis=0)
+            base = elapsed.values[t, :, TWA] if t < len(result.tasks) else nanmean(elapsed.values[..., TWA], axis=0)
             cells.append(_signed(float(nanmean(per_seed - base, axis=0)), float(nanstd(per_seed - base, axis=0)),
                                  seeds))
         best = [_best_cell(result, protocol, t) for protocol in ("loto", *beside) if protocol in result.protocols]
