@@ -3,7 +3,12 @@ suite (``fiper launch fiper.launch.yaml calibration_dir:=...``), both cold: it w
 (``FiperPublisher.wait_for_suite``) and then publishes at once; every step of every rollout gets its verdict, the
 first rollout's first steps included (published before the suite matched, they would be lost: the inputs are
 VOLATILE). The test's alarm listener is named in ``--wait-for`` (helpers/alarms.py): the alarm is KEEP_LAST(1) at the
-fusion node, and a listener the example does not wait for missed the first rollout's verdicts under load."""
+fusion node, and a listener the example does not wait for missed the first rollout's verdicts under load.
+
+That every step was judged is read from the fusion node's own account (its END line per rollout: every step fused,
+none missing), not from the listener hearing every step's verdict: the alarm writer keeps the latest state only
+(RELIABLE KEEP_LAST(1)), so a verdict a busy reader has not acknowledged yet can be replaced by the next one. What
+the listener did hear must never be UNKNOWN."""
 from __future__ import annotations
 
 import os
@@ -43,20 +48,22 @@ def test_the_example_started_with_the_suite_loses_no_step(tmp_path: Path, ros_do
         ids = [int(i) for i in re.findall(rf"rollout (\d+): {STEPS} steps", output)]
         assert len(ids) == ROLLOUTS, output
 
-        def judged() -> bool:
-            verdicts = listener.verdicts()
-            return all(len(verdicts.get(i, {})) == STEPS for i in ids)
+        def summarised() -> bool:
+            return all(any(f"fusion: rollout {i} " in line for line in launch.lines) for i in ids)
 
-        assert listener.spin_until(judged, 60), ({i: sorted(listener.verdicts().get(i, {})) for i in ids},
-                                                 [line for line in launch.lines if ": rollout " in line])
+        assert listener.spin_until(summarised, 60), [line for line in launch.lines if ": rollout " in line]
     finally:
         stop(policy)
         launch.interrupt()
         listener.close()
-    verdicts = listener.verdicts()
     assert "waiting for suite" in output
+    summaries = {i: next(line for line in launch.lines if f"fusion: rollout {i} " in line) for i in ids}
+    heard = listener.verdicts()
     for index, rollout_id in enumerate(ids):
-        states = [verdicts[rollout_id][t].state for t in range(STEPS)]
-        assert FailureAlarm.STATE_UNKNOWN not in states, (index, [verdicts[rollout_id][t].reason for t in range(STEPS)])
+        summary = summaries[rollout_id]
+        assert f": {STEPS} steps, 0 missing, " in summary, summary
         if index in failing_rollouts(ROLLOUTS, FAILURES):
-            assert FailureAlarm.STATE_ALARM in states, index
+            assert "alarm step none" not in summary, summary
+        assert heard.get(rollout_id), (index, "no verdict of the rollout heard")
+        unknown = [(t, m.reason) for t, m in sorted(heard[rollout_id].items()) if m.state == FailureAlarm.STATE_UNKNOWN]
+        assert not unknown, (index, unknown)
