@@ -34,7 +34,7 @@ from fiper_ros.evaluation.auto import AutoOutcome
 from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.engine import EvaluationResult
 from fiper_ros.evaluation.methods import ELAPSED, METHODS
-from fiper_ros.evaluation.protocol import METRICS, PER_TASK, SUBSETS, MethodResult, ProtocolResult, nanmean, nanstd
+from fiper_ros.evaluation.protocol import METRICS, PER_TASK, PROTOCOLS, SUBSETS, MethodResult, ProtocolResult, nanmean, nanstd
 from fiper_ros.evaluation.sweep import CUMULATIVE, Group
 
 LABELS = {"twa": "TWA ↑", "acc": "Acc. ↑", "dt": "DT ↓", "tpr": "TPR ↑", "tnr": "TNR ↑"}
@@ -59,9 +59,8 @@ PROTOCOL_TITLES = {
     "clean-task": "clean protocol chosen per task (each task's configuration selected on its own validation half, "
                   "reported on its disjoint half)",
 }
-#: Whose ID successes the promise table counts, per protocol.
-HELD_OUT_TEXT = {"paper": "all test rollouts'", "clean": "the report half's", "loto": "all test rollouts'",
-                 "clean-task": "the report half's"}
+#: Whose ID successes the promise table counts, per subset a protocol reports on (:data:`SUBSETS`).
+HELD_OUT_TEXT = {"all": "all test rollouts'", "report": "the report half's"}
 #: How a protocol that chooses per task chose (the sentence under its Table 1).
 CHOSEN_TEXT = {
     "loto": "Each task's configuration (per method: window and threshold type) maximises the mean TWA across the other "
@@ -70,8 +69,6 @@ CHOSEN_TEXT = {
     "clean-task": "Each task's configuration (per method: window and threshold type) maximises the TWA on that task's "
                   "validation half alone; no other task's labels and none of its report half enter the choice.",
 }
-#: The protocols of two halves whose best configuration per task ``--auto``'s section shows beside its own.
-HALVED_BEST = {"clean": "clean best, report half (TWA)", "clean-task": "clean-task best, report half (TWA)"}
 FLAG = "⚠"
 TWA = METRICS.index("twa")
 
@@ -495,7 +492,7 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   "every average and selection):", *summary]
     lines.append("")
     for name, protocol in result.protocols.items():
-        title, held = PROTOCOL_TITLES[name], HELD_OUT_TEXT[name]
+        title, held = PROTOCOL_TITLES[name], HELD_OUT_TEXT[SUBSETS[name][1]]
         chosen = CHOSEN_TEXT.get(name, "Each method's window and threshold type maximise the mean TWA across tasks.")
         lines += [f"## Table 1: failure prediction, {title}", "", chosen, "",
                   table1(result, protocol.selected), "",
@@ -569,8 +566,9 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     columns += [f"TWA − Elapsed{'' if floor[1] == 'all' else ', report half'}"] if floor is not None else []
     columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
     columns += ["TWA, report half"] if "report" in auto.metrics else []
-    beside = [p for p in HALVED_BEST if p in result.protocols]
-    columns += [HALVED_BEST[p] for p in beside]
+    # the protocols of two halves: each one's best configuration per task beside --auto's own on the report half
+    beside = [p for p in PROTOCOLS if p in result.protocols and SUBSETS[p][1] == "report"]
+    columns += [f"{p} best, report half (TWA)" for p in beside]
     rows = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     report = _auto_rows(auto, "report") if "report" in auto.metrics else None
     for t in range(len(result.tasks) + 1):
@@ -588,11 +586,10 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
             base = elapsed.values[t, :, TWA] if t < len(result.tasks) else nanmean(elapsed.values[..., TWA], axis=0)
             cells.append(_signed(float(nanmean(per_seed - base, axis=0)), float(nanstd(per_seed - base, axis=0)),
                                  seeds))
-        best = [_best_cell(result, protocol, t) for protocol in ("loto", *beside) if protocol in result.protocols]
-        cells += best[:1] if "loto" in result.protocols else []
+        cells += [_best_cell(result, "loto", t)] if "loto" in result.protocols else []
         if report is not None:
             cells.append(_cell(float(report[0][t][TWA]), float(report[1][t][TWA]), seeds, False))
-        cells += best[1:] if "loto" in result.protocols else best
+        cells += [_best_cell(result, protocol, t) for protocol in beside]
         rows.append("| " + " | ".join(cells) + " |")
     record = auto.records[0][0][0]
     if record["rule"] == TRANSFER:
