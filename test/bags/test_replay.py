@@ -233,17 +233,20 @@ def _with_signal(rollout: Rollout) -> Rollout:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("detectors", "combine", "equalise"), [
-    (("rnd_oe", "progress", "elapsed", "signal_chunk_mse"), "max", "none"),
-    (("rnd_oe", "ace", "consistency"), "kth:2", "none"),
-    (("rnd_oe", "progress", "elapsed", "signal_chunk_mse"), "max", "quantile"),
-], ids=["four-detectors-max", "three-detectors-kth2", "four-detectors-max-tails-equalised"])
+@pytest.mark.parametrize(("detectors", "combine", "equalise", "threshold"), [
+    (("rnd_oe", "progress", "elapsed", "signal_chunk_mse"), "max", "none", "cp_scaled"),
+    (("rnd_oe", "ace", "consistency"), "kth:2", "none", "cp_scaled"),
+    (("rnd_oe", "progress", "elapsed", "signal_chunk_mse"), "max", "quantile", "cp_scaled"),
+    (("rnd_oe", "progress", "signal_chunk_mse"), "max", "none", "cp_constant"),
+], ids=["four-detectors-max", "three-detectors-kth2", "four-detectors-max-tails-equalised",
+        "three-detectors-max-constant-shapes"])
 def test_an_n_detector_suite_replays_as_the_offline_oracle(detectors: tuple[str, ...], combine: str, equalise: str,
-                                                           ros_domain: int, tmp_path: Path) -> None:
+                                                           threshold: str, ros_domain: int, tmp_path: Path) -> None:
     """Live == offline for the combinations: a calibration of N detectors under one joint threshold (the detector
-    nodes of every declared detector, the fusion node voting as the calibration says; the tails equalised or not)
-    alarms on every step of a replayed bag exactly as the offline oracle does, and predicts the failure."""
-    settings = CalibrationSettings(detectors=detectors, combine=combine, threshold="cp_scaled", window=3, delta=0.2,
+    nodes of every declared detector, the fusion node voting as the calibration says; the tails equalised or not;
+    per-step or constant shapes) alarms on every step of a replayed bag exactly as the offline oracle does, and
+    predicts the failure."""
+    settings = CalibrationSettings(detectors=detectors, combine=combine, threshold=threshold, window=3, delta=0.2,
                                    rnd=TINY_RND, seed=0, equalise=equalise)
     calibration = tmp_path / "calibration"
     calibrate([_with_signal(make_rollout(400 + i)) for i in range(24)], settings).save(calibration)

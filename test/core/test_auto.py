@@ -27,18 +27,23 @@ def test_the_rule_by_hand() -> None:
     # Four identical successes (peak 1) per detector: every inner quantile is k = 1 and no held-out success exceeds
     # it (strict). The stall proxies (length 6) of signal_a first exceed k at step 2 (caught 1 - 2/6), those of
     # signal_b at step 4 (1 - 4/6). Each kind's credit is relative to the best candidate's: a scores
-    # 0.5 (1 - 0) + 0.5 (2/3) / (2/3) = 1, b 0.5 + 0.5 (1/3) / (2/3) = 0.75.
+    # 0.5 (1 - 0) + 0.5 (2/3) / (2/3) = 1, b 0.5 + 0.5 (1/3) / (2/3) = 0.75. Their joint combinations under CP
+    # constant shapes (every peak 1: offset 1) alarm with a (max: the earlier detector) or with b (kth:2: both
+    # must exceed) and score the same; a tie goes to fewer detectors.
     success = np.ones(4)
     data = TaskScores({"signal_a": [success] * 4, "signal_b": [success] * 4},
                       {"signal_a": [np.array([1.0, 1.0, 5.0, 5.0, 5.0, 5.0])] * 4,
                        "signal_b": [np.array([1.0, 1.0, 1.0, 1.0, 5.0, 5.0])] * 4}, ("stall",) * 4, (0, 1, 2, 3))
     choice = choose({"t": data}, ["signal_b", "signal_a"], ONE, ThresholdSettings(delta=0.1), seed=0)
+    both = ("signal_a", "signal_b")
     assert [s.candidate for s in choice.ranking] == [Candidate(("signal_a",), 1, "cp_constant"),
-                                                      Candidate(("signal_b",), 1, "cp_constant")]
-    assert [s.false_alarms for s in choice.ranking] == [0.0, 0.0]
-    assert choice.ranking[0].caught == {"stall": pytest.approx(2 / 3)}
-    assert choice.ranking[1].caught == {"stall": pytest.approx(1 / 3)}
-    assert [s.score for s in choice.ranking] == [pytest.approx(1.0), pytest.approx(0.75)]
+                                                      Candidate(both, 1, "cp_constant", "max"),
+                                                      Candidate(("signal_b",), 1, "cp_constant"),
+                                                      Candidate(both, 1, "cp_constant", "kth:2")]
+    assert [s.false_alarms for s in choice.ranking] == [0.0] * 4
+    assert [s.caught for s in choice.ranking] == [{"stall": pytest.approx(2 / 3)}] * 2 + \
+        [{"stall": pytest.approx(1 / 3)}] * 2
+    assert [s.score for s in choice.ranking] == [pytest.approx(1.0)] * 2 + [pytest.approx(0.75)] * 2
 
 
 def test_a_proxy_whose_own_success_alarms_earns_nothing() -> None:
@@ -73,14 +78,14 @@ def test_candidate_sets_and_the_budget() -> None:
         ("rnd_oe",), ("elapsed",), ("signal_x",), ("rnd_oe", "elapsed", "signal_x"), ("rnd_oe", "signal_x")]
     settings = AutoSettings(windows=(1, 5), kinds=("cp_band", "cp_constant"), combines=("max", "kth:2", "kth:3"))
     pool = candidates(["rnd_oe", "elapsed"], settings)
-    # rnd_oe: 2 windows x 2 kinds; elapsed alone: its one (cumulative, CP constant); the pair: 2 windows x cp_band x
-    # max and kth:2 (kth:3 needs three detectors)
-    assert len(pool) == 4 + 1 + 4
+    # rnd_oe: 2 windows x 2 kinds; elapsed alone: its one (cumulative, CP constant); the pair: 2 windows x 2 kinds
+    # (both have a shape) x max and kth:2 (kth:3 needs three detectors)
+    assert len(pool) == 4 + 1 + 8
     assert Candidate(("elapsed",), 1, "cp_constant") in pool
-    assert all(c.kind == "cp_band" for c in pool if len(c.detectors) == 2)
-    with pytest.raises(AutoError, match=r"^9 candidate configurations exceed the auto budget of 8 \(--auto-budget\)"):
+    assert {c.kind for c in pool if len(c.detectors) == 2} == {"cp_band", "cp_constant"}
+    with pytest.raises(AutoError, match=r"^13 candidate configurations exceed the auto budget of 12 \(--auto-budget\)"):
         candidates(["rnd_oe", "elapsed"], AutoSettings(windows=(1, 5), kinds=("cp_band", "cp_constant"),
-                                                        combines=("max", "kth:2", "kth:3"), budget=8))
+                                                        combines=("max", "kth:2", "kth:3"), budget=12))
     with pytest.raises(AutoError, match="joint"):
         AutoSettings(combines=("and",))
     with pytest.raises(AutoError, match="kinds"):
@@ -254,7 +259,7 @@ def test_the_margin_is_in_units_of_the_successes_spread(scale: float, offset: fl
     rng = np.random.default_rng(7)
     a = [rng.normal(size=12) for _ in range(12)]
     choice = _margin_choice({"signal_a": a, "signal_b": [offset + scale * s for s in a]})
-    first, second = choice.ranking
+    first, second = (s for s in choice.ranking if len(s.candidate.detectors) == 1)
     assert first.caught["margin"] == pytest.approx(second.caught["margin"], rel=1e-9, abs=1e-9)
     assert first.false_alarms == second.false_alarms
     assert np.isfinite(first.caught["margin"]) and first.score == -first.caught["margin"]
@@ -268,7 +273,8 @@ def test_the_margin_prefers_the_threshold_closest_to_the_successes_band() -> Non
     b = [s + 8.0 * (np.arange(16) == i) for i, s in enumerate(a)]
     choice = _margin_choice({"signal_a": a, "signal_b": b})
     assert choice.chosen.detectors == ("signal_a",)
-    assert choice.ranking[0].caught["margin"] < choice.ranking[1].caught["margin"]
+    singles = [s for s in choice.ranking if len(s.candidate.detectors) == 1]
+    assert singles[0] == choice.ranking[0] and singles[0].caught["margin"] < singles[1].caught["margin"]
     assert "smallest margin" in choice.why() and choice.record()["rule"] == "margin"
     assert choice.record()["top"][0]["figures"] == {"margin": pytest.approx(choice.ranking[0].caught["margin"],
                                                                             abs=1e-6)}

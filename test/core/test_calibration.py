@@ -26,6 +26,7 @@ from fiper_ros.core.calibration import (
     promised_rate,
     upgrade_calibration,
 )
+from fiper_ros.core.calibration.fit import conformal_count
 from fiper_ros.core.calibration_file import CALIBRATION_FILE, declared, declared_detectors
 from fiper_ros.core.combination import GroupCurves, fit_joint
 from fiper_ros.core.detectors import ACE, DETECTORS, RND_OE
@@ -436,8 +437,8 @@ def test_settings_refuse_what_cannot_be_calibrated() -> None:
     with pytest.raises(CalibrationError, match=r"detector 'stac' cannot be calibrated"):
         CalibrationSettings(detectors=("rnd_oe", "stac"))
     with pytest.raises(CalibrationError, match=r"a joint combine normalises each detector by its shape: threshold "
-                                               r"cp_band or cp_scaled, not cp_constant"):
-        CalibrationSettings(combine="max", threshold="cp_constant")
+                                               r"one of cp_band, cp_scaled, cp_constant, not time_varying"):
+        CalibrationSettings(combine="max", threshold="time_varying")
     with pytest.raises(CalibrationError, match=r"combine kth:3 needs at least 3 detectors, got 2"):
         CalibrationSettings(combine="kth:3")
     with pytest.raises(CalibrationError, match=r"^equalise tail applies to a joint combine \(max, kth:K\), not and$"):
@@ -445,8 +446,24 @@ def test_settings_refuse_what_cannot_be_calibrated() -> None:
     with pytest.raises(CalibrationError, match=r"^unknown equalisation 'median'; expected one of none, quantile, "
                                                r"tail$"):
         CalibrationSettings(combine="max", equalise="median")
+    with pytest.raises(CalibrationError, match=r"^equalise quantile divides by a positive quantile of the fit part's "
+                                               r"maxima, which the cp_constant shape centres on 0: equalise tail "
+                                               r"instead$"):
+        CalibrationSettings(combine="max", threshold="cp_constant", equalise="quantile")
+    CalibrationSettings(combine="max", threshold="cp_constant", equalise="tail")
     with pytest.raises(CalibrationError, match=r"^the equalisation level must be in \(0, 1\), got 0\.0$"):
         CalibrationSettings(combine="max", equalise="quantile", equalise_level=0.0)
     with pytest.raises(CalibrationError, match=r"windows of undeclared detectors: progress"):
         CalibrationSettings(windows={"progress": 3})
     assert CalibrationSettings(detectors=("elapsed", "rnd_oe")).detectors == ("rnd_oe", "elapsed")
+
+
+def test_a_normalised_fit_without_a_fit_part_counts_only_its_conformal_half() -> None:
+    """Without a fit part (split ``same``), a joint combine or pooled thresholds split the curves into shape and
+    conformal halves whatever the shape kind: CP constant's count is the half's, as the band's (the count that
+    says whether a delta is reachable and how many successes would do)."""
+    kwargs: dict[str, Any] = {"detectors": (RND_OE, ACE), "split": "same"}
+    assert conformal_count(40, "same", CalibrationSettings(**kwargs, combine="max", threshold="cp_constant")) == 20
+    assert conformal_count(40, "same", CalibrationSettings(**kwargs, pooled=True, threshold="cp_constant")) == 20
+    assert conformal_count(40, "same", CalibrationSettings(**kwargs, combine="max", threshold="cp_band")) == 20
+    assert conformal_count(40, "same", CalibrationSettings(**kwargs, combine="and", threshold="cp_constant")) == 40

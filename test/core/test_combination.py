@@ -53,6 +53,36 @@ def test_scaled_shape_by_hand() -> None:
     assert shape.normalised(np.array([3.0, 2.0])).tolist() == [1.5, 0.5]
 
 
+def test_constant_shape_by_hand() -> None:
+    """CP constant's shape: the mean and standard deviation of the rollout maxima, the same at every step."""
+    settings = ThresholdSettings(kind="cp_constant", delta=0.5, min_support=1)
+    shape = fit_shape([np.array([1.0, 3.0, 2.0]), np.array([2.0, 2.0]), np.array([0.0, 5.0])], 4, "cp_constant",
+                      settings)
+    # maxima 3, 2, 5: mean 10/3, variance ((1/3)^2 + (4/3)^2 + (5/3)^2) / 3 = 14/9
+    np.testing.assert_allclose(shape.offset, [10 / 3] * 4, rtol=1e-15)
+    np.testing.assert_allclose(shape.scale, [math.sqrt(14 / 9)] * 4, rtol=1e-15)
+    np.testing.assert_allclose(shape.normalised(np.array([10 / 3, 10 / 3 + math.sqrt(14 / 9)])), [0.0, 1.0],
+                               atol=1e-15)
+    flat = fit_shape([np.array([1.0, 2.0])] * 3, 2, "cp_constant", settings)  # equal maxima: a tiny positive floor
+    assert flat.offset.tolist() == [2.0, 2.0] and 0.0 < flat.scale[0] == flat.floor < 1e-9
+
+
+def test_two_constant_shapes_by_hand() -> None:
+    """Under CP constant shapes the combination's thresholds are constants: ``m_d + k s_d``."""
+    settings = ThresholdSettings(kind="cp_constant", delta=0.25, min_support=1)
+    # Shape maxima: a 1 and 3 (m 2, s 1); b 10 and 30 (m 20, s 10).
+    shape = {"a": [np.array([0.0, 1.0]), np.array([3.0, 2.0])], "b": [np.array([10.0, 5.0]), np.array([0.0, 30.0])]}
+    conformal = {"a": [np.array([2.0, 4.0]), np.array([1.0, 1.0]), np.array([2.5, 0.0])],
+                 "b": [np.array([20.0, 10.0]), np.array([45.0, 0.0]), np.array([0.0, 25.0])]}
+    # z_a: (0, 2), (-1, -1), (0.5, -2); z_b: (0, -1), (2.5, -2), (-2, 0.5); max per step: (0, 2), (2.5, -1),
+    # (0.5, 0.5): R = 2, 2.5, 0.5; M = 3, delta 0.25: the 3rd smallest, k = 2.5
+    joint = fit_joint({"g": GroupCurves(shape, conformal)}, ("a", "b"), dict.fromkeys("ab", "cp_constant"), 1,
+                      settings)
+    assert joint.scores.tolist() == [2.0, 2.5, 0.5] and joint.k == 2.5
+    assert joint.thresholds["g"]["a"].values.tolist() == [4.5, 4.5]  # 2 + 2.5 * 1
+    assert joint.thresholds["g"]["b"].values.tolist() == [45.0, 45.0]  # 20 + 2.5 * 10
+
+
 def test_an_equalised_max_by_hand() -> None:
     """Quantile equalisation (level 0.5) of two CP scaled detectors, computed by hand.
 
@@ -122,6 +152,21 @@ def test_one_detector_is_its_own_threshold_value_for_value(kind: str) -> None:
     assert joint.k == alone.params["k"]
 
 
+def test_one_detector_under_a_constant_shape_is_its_cp_constant_threshold() -> None:
+    """``m + k s`` with ``k = (gamma - m) / s`` is CP constant's ``gamma`` (the conformal quantile of the conformal
+    rollouts' maxima) up to rounding, whatever the shape curves."""
+    rng = np.random.default_rng(3)
+    settings = ThresholdSettings(kind="cp_constant", delta=0.1)
+    conformal = [rng.random(int(rng.integers(5, 25))).cumsum() for _ in range(30)]
+    alone = fit_threshold(conformal, settings)
+    for scale in (1.0, 40.0):
+        shape = [scale * rng.random(int(rng.integers(5, 20))).cumsum() for _ in range(15)]
+        joint = fit_joint({"g": GroupCurves({"d": shape}, {"d": conformal})}, ("d",), {"d": "cp_constant"}, 1,
+                          settings)
+        values = joint.thresholds["g"]["d"].values
+        np.testing.assert_allclose(values, np.full(values.shape[0], alone.values[0]), rtol=1e-12)
+
+
 def test_groups_share_one_k_and_keep_their_own_shapes() -> None:
     rng = np.random.default_rng(4)
     settings = ThresholdSettings(kind="cp_band", delta=0.05)
@@ -170,9 +215,9 @@ def test_refusals_name_what_is_wrong() -> None:
         fit_joint({"g": GroupCurves({"a": [np.ones(3)]}, {"a": [np.ones(3)]})}, ("a",), {"a": "cp_band"}, 1, settings,
                   "quantile")
     group = GroupCurves({"a": [np.ones(3)]}, {"a": [np.ones(3)]})
-    with pytest.raises(ThresholdError, match=r"^a joint combination normalises with cp_band or cp_scaled, not "
-                                             r"'cp_constant'$"):
-        fit_joint({"g": group}, ("a",), {"a": "cp_constant"}, 1, settings)
+    with pytest.raises(ThresholdError, match=r"^a joint combination normalises with one of cp_band, cp_scaled, "
+                                             r"cp_constant, not 'time_varying'$"):
+        fit_joint({"g": group}, ("a",), {"a": "time_varying"}, 1, settings)
     with pytest.raises(ThresholdError, match=r"^votes must be in 1\.\.1"):
         fit_joint({"g": group}, ("a",), {"a": "cp_band"}, 2, settings)
     with pytest.raises(ThresholdError, match=r"^group 'g', detector 'a': no shape or no conformal curves$"):
@@ -218,18 +263,18 @@ def _over(values: np.ndarray, length: int) -> np.ndarray:
     return out
 
 
-def _trials(rule: str, trials: int = 200, delta: float = 0.1, equalise: str = "none", heavy: float = 1.0
-            ) -> tuple[float, float]:
+def _trials(rule: str, trials: int = 200, delta: float = 0.1, equalise: str = "none", heavy: float = 1.0,
+            kind: str = "cp_band") -> tuple[float, float]:
     """Mean false-alarm rate on new successes over seeded trials (each: 40 shape rollouts, 39 conformal, 60 new)
     and its standard error."""
     rng = np.random.default_rng(2024)
-    settings = ThresholdSettings(kind="cp_band", delta=delta)
+    settings = ThresholdSettings(kind=kind, delta=delta)
     rates = []
     for _ in range(trials):
         shape, conformal, new = (_successes(rng, count, heavy) for count in (40, 39, 60))
         if rule in ("max", "kth:2"):
             votes = 1 if rule == "max" else 2
-            joint = fit_joint({"g": GroupCurves(shape, conformal)}, DETECTORS, dict.fromkeys(DETECTORS, "cp_band"),
+            joint = fit_joint({"g": GroupCurves(shape, conformal)}, DETECTORS, dict.fromkeys(DETECTORS, kind),
                               votes, settings, equalise)
             thresholds = {d: joint.thresholds["g"][d].values for d in DETECTORS}
         else:  # "or": each detector's own CP band at delta, any one alarms
@@ -240,10 +285,12 @@ def _trials(rule: str, trials: int = 200, delta: float = 0.1, equalise: str = "n
     return float(rates_array.mean()), float(rates_array.std(ddof=1) / math.sqrt(trials))
 
 
+@pytest.mark.parametrize("kind", ["cp_band", "cp_constant"])
 @pytest.mark.parametrize("rule", ["max", "kth:2"])
-def test_one_conformal_threshold_keeps_delta(rule: str) -> None:
-    """Proposition 1 at delta for the combination of three correlated detectors (12 000 new successes)."""
-    rate, sigma = _trials(rule)
+def test_one_conformal_threshold_keeps_delta(rule: str, kind: str) -> None:
+    """Proposition 1 at delta for the combination of three correlated detectors (12 000 new successes), under
+    per-step (band) and constant shapes."""
+    rate, sigma = _trials(rule, kind=kind)
     assert rate <= 0.1 + 2 * sigma
     assert rate >= 0.1 - 1 / 40 - 2 * sigma  # the conformal rank is also tight: not an empty promise
 
@@ -272,8 +319,9 @@ def test_equalising_takes_the_heavy_tail_out_of_the_others_way(equalise: str) ->
     assert max(factors["a"], factors["b"]) < 0.75 * plain.k and factors["c"] > 1.5 * plain.k
 
 
-def test_or_of_per_detector_thresholds_at_delta_breaks_it() -> None:
-    """The same detectors OR-ed with a CP band each at delta alarm on far more than delta of new successes (the
+@pytest.mark.parametrize("kind", ["cp_band", "cp_constant"])
+def test_or_of_per_detector_thresholds_at_delta_breaks_it(kind: str) -> None:
+    """The same detectors OR-ed with a threshold each at delta alarm on far more than delta of new successes (the
     union bound promises 3 delta), which the test above would catch."""
-    rate, sigma = _trials("or")
+    rate, sigma = _trials("or", kind=kind)
     assert rate > 0.1 + 2 * sigma

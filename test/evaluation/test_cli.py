@@ -178,10 +178,15 @@ def test_equalised_combinations_are_swept_beside_the_plain_ones(tmp_path: Path, 
                  "--equalise-level", "0.8", "--no-cache", "--no-plots", "--quiet", "--out", str(out)]) == 0
     capsys.readouterr()
     combines: dict[str, set[str]] = {}
+    kinds: dict[str, set[str]] = {}
     for row in json.loads((out / "results.json").read_text())["sweep"]:
         combines.setdefault(row["method"], set()).add(row["combine"])
+        kinds.setdefault(row["method"], set()).add(row["threshold"])
     assert combines["both"] == {"max", "kth:2", "and", "or"} and combines["one"] == {""}
     assert combines["both_quantile"] == combines["both_tail"] == {"max", "kth:2"}
+    # quantile equalisation divides by a positive quantile of the maxima, which the constant shape centres on 0
+    assert kinds["both_tail"] == {"cp_band", "cp_scaled", "cp_constant"}
+    assert kinds["both_quantile"] == {"cp_band", "cp_scaled"}
     assert "one_tail" not in combines
     with pytest.raises(SystemExit):  # argparse: the plain combination is always swept, "none" is no extra kind
         main(["evaluate", "--data", f"sorting={data}", "--equalise", "none", "--out", str(tmp_path / "x")])

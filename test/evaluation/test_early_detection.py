@@ -120,8 +120,9 @@ def test_statistics_of_combinations_and_fiper() -> None:
     assert clock.labels == ("5", "cum") and clock.kinds == ("cp_band", "cp_scaled") and clock.votes == 1
     fiper = statistic_of(Group("fiper", "5/cum", "cp_scaled", "and"), combos)
     assert fiper.labels == ("5", "cum") and fiper.kinds == ("cp_scaled", "cp_scaled") and fiper.votes == 2
-    # per-detector thresholds without a shape put RND-OE and ACE on no common scale: no statistic
-    assert statistic_of(Group("fiper", "5/5", "cp_constant", "and"), combos) is None
+    # CP constant's shape (the fit part's maxima) puts them on one scale; time-varying thresholds have no shape
+    assert statistic_of(Group("fiper", "5/5", "cp_constant", "and"), combos).kinds == ("cp_constant", "cp_constant")
+    assert statistic_of(Group("fiper", "5/5", "time_varying", "and"), combos) is None
     assert statistic_of(Group("rnd_oe", "5", "cp_constant"), combos).kinds == (None,)
 
 
@@ -131,7 +132,7 @@ def test_a_combined_statistic_normalises_by_the_fit_parts_band() -> None:
     streams = {"rnd_oe": _stream([[1.0, 2.5, 4.0]]), "ace": _stream([[1.0, 2.5, 4.0]])}
     statistics = TaskStatistics(streams, ThresholdSettings(), 1.0)
     groups = [Group("pair", "1", "cp_band", "and"), Group("pair", "1", "cp_band", "max"),
-              Group("fiper", "1/1", "cp_constant", "or")]
+              Group("fiper", "1/1", "time_varying", "or")]
     whole, _ = statistics.peaks(groups, {"pair": ("rnd_oe", "ace")})
     assert whole[0, 0] == whole[1, 0] == 2.0  # (2.5 - 1.5) / 0.5 = (4 - 2) / 1 = 2
     assert np.isnan(whole[2]).all()

@@ -92,8 +92,9 @@ def test_the_sweep_decides_as_the_core(pooled: bool) -> None:
                 expected = _expected(streams, combination, group.window, group.kind, combine, delta, pooled)[task]
                 assert [None if a < 0 else int(a) for a in result.alarms[g, d]] == expected, (task, group, delta)
                 compared += 1
-    # trio: 4 labels x 2 kinds x 4 combines; alone: 4 x 2; clock: its one configuration (cumulative, CP scaled)
-    assert compared == 2 * (4 * 2 * 4 + 4 * 2 + 1) * len(SWEEP.deltas)
+    # trio: 4 labels x 3 kinds (band, scaled, constant) x 4 combines; alone: 4 x 3; clock: its one configuration
+    # (cumulative, CP scaled)
+    assert compared == 2 * (4 * 3 * 4 + 4 * 3 + 1) * len(SWEEP.deltas)
 
 
 @pytest.mark.parametrize("pooled", [False, True])
@@ -115,7 +116,8 @@ def test_the_sweep_equalises_as_the_core(pooled: bool) -> None:
                                      delta, pooled)[task]
                 assert [None if a < 0 else int(a) for a in result.alarms[g, d]] == expected, (task, group, delta)
                 compared += 1
-    assert compared == 2 * 2 * (4 * 2 * 2) * len(SWEEP.deltas)
+    # quantile: 4 labels x 2 kinds (not the constant shape, which centres the maxima on 0) x 2 combines; tail: 3 kinds
+    assert compared == 2 * (4 * 2 * 2 + 4 * 3 * 2) * len(SWEEP.deltas)
 
 
 def test_groups_name_the_configuration() -> None:
@@ -136,4 +138,4 @@ def test_pooled_conformal_counts_and_infinite_thresholds() -> None:
     alone = joint_sweep(streams, COMBINATIONS[:1], settings, dict.fromkeys(streams, BASE), False, combines=("max",))
     pooled = joint_sweep(streams, COMBINATIONS[:1], settings, dict.fromkeys(streams, BASE), True, combines=("max",))
     assert alone["a"].infinite[:, 0].all() and not alone["a"].infinite[:, 1].any()
-    assert not pooled["a"].infinite.any() and pooled["a"].conformal.tolist() == [22, 22]
+    assert not pooled["a"].infinite.any() and pooled["a"].conformal.tolist() == [22] * 3  # one group per kind

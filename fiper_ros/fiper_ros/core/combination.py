@@ -8,18 +8,24 @@ curve by its per-step shape and sets ONE conformal factor over the combined stat
 1. Per detector ``d`` a shape from the shape curves ``I1`` (the fit part's curves, never the conformal ones):
    ``"cp_band"``: ``z_d(t) = (eta_d(t) - mu_d(t)) / s_d(t)`` with the CP band's mean and floored standard
    deviation; ``"cp_scaled"``: ``z_d(t) = eta_d(t) / q_d(t)`` with CP scaled's floored per-step
-   ``1 - delta`` quantile (:mod:`fiper_ros.core.thresholds`: the same statistics, support rule and floor).
+   ``1 - delta`` quantile (:mod:`fiper_ros.core.thresholds`: the same statistics, support rule and floor);
+   ``"cp_constant"``: ``z_d(t) = (eta_d(t) - m_d) / s_d``, one offset and scale for every step: the mean and the
+   (floored) standard deviation of the shape curves' rollout maxima ``max_t eta_d(t)``, the statistic CP
+   constant thresholds (eq. 6). No per-step division: early steps, where the successes barely vary, are not
+   magnified into the combination.
 2. The combined statistic ``c(t)`` = the ``votes``-th largest of ``z_1(t) .. z_N(t)``: ``votes = 1`` is the
    maximum (alarms as early as the earliest detector), ``votes = K`` needs K detectors to agree.
 3. The conformal score of a rollout is ``R = max_t c(t)``; ``k`` is the conformal quantile of the conformal
    rollouts' scores at ``delta`` (App. A.3's ``ceil((M+1)(1-delta))``-th smallest).
-4. Detector ``d``'s threshold is ``gamma_d(t) = mu_d(t) + k s_d(t)`` (band) or ``k q_d(t)`` (scaled), and a
-   step alarms when at least ``votes`` detectors exceed theirs: ``c(t) > k`` exactly when that holds.
+4. Detector ``d``'s threshold is ``gamma_d(t) = mu_d(t) + k s_d(t)`` (band), ``k q_d(t)`` (scaled) or the
+   constant ``m_d + k s_d``, and a step alarms when at least ``votes`` detectors exceed theirs: ``c(t) > k``
+   exactly when that holds.
 
 Guarantee (Proposition 1 at ``delta``, not ``N x delta``): the shapes depend on the shape curves only, so the
 scores ``R`` of the conformal rollouts and of a new successful rollout are exchangeable; a new success alarms at
 some step exactly when its ``R`` exceeds ``k``, which has probability at most ``delta``. With one detector the
-combination is that detector's CP band (or CP scaled) threshold, value for value.
+combination is that detector's CP band (CP scaled, CP constant) threshold, value for value (CP constant: up to
+rounding, ``m + ((gamma - m) / s) s``).
 
 Equalised (``equalise``, :mod:`fiper_ros.core.equalisation`): before step 2 each detector's ``z_d`` is mapped by its
 equaliser ``T_d``, fitted on its fit-part maxima ``max_t z_d(t)`` of the shape curves, each normalised by the shape of
@@ -59,8 +65,18 @@ from fiper_ros.core.thresholds import (
 #: one fold each).
 EQUALISER_FOLDS = 5
 
-#: Normalisations a joint combination accepts: the shapes of the two guaranteed kinds that have one.
-SHAPE_KINDS = ("cp_band", "cp_scaled")
+#: Normalisations a joint combination accepts: one per guaranteed threshold kind (module docstring, step 1).
+SHAPE_KINDS = ("cp_band", "cp_scaled", "cp_constant")
+#: The shapes that do not depend on delta (fitted once for every delta of a sweep).
+DELTA_FREE_SHAPES = ("cp_band", "cp_constant")
+#: The shapes that centre the fit part's rollout maxima on 0 (the constant shape subtracts their mean).
+CENTRED_SHAPES = ("cp_constant",)
+
+
+def equalisable(equalise: str, kind: str) -> bool:
+    """Whether ``equalise`` applies to detectors normalised by ``kind``: quantile equalisation divides by a positive
+    quantile of the fit part's maxima, which a centred shape does not give (tail equalisation applies to any)."""
+    return not (equalise == "quantile" and kind in CENTRED_SHAPES)
 
 
 @dataclass(frozen=True)
@@ -69,9 +85,9 @@ class Shape:
 
     kind: str
     offset: np.ndarray
-    """``mu(t)`` (band) or 0 (scaled)."""
+    """``mu(t)`` (band), 0 (scaled) or ``m`` at every step (constant)."""
     scale: np.ndarray
-    """``s(t)`` (band) or ``q(t)`` (scaled), floored, > 0."""
+    """``s(t)`` (band), ``q(t)`` (scaled) or ``s`` at every step (constant), floored, > 0."""
     floor: float
 
     def normalised(self, curve: np.ndarray) -> np.ndarray:
@@ -86,9 +102,15 @@ class Shape:
 
 def fit_shape(shape_curves: Sequence[np.ndarray], length: int, kind: str, settings: ThresholdSettings) -> Shape:
     """The shape of ``kind`` from ``shape_curves`` over ``length`` steps, with the support rule and floor of
-    :func:`fiper_ros.core.thresholds.band_statistics` (band) and ``scaled_statistics`` (scaled)."""
+    :func:`fiper_ros.core.thresholds.band_statistics` (band) and ``scaled_statistics`` (scaled); constant: the
+    maxima's mean and standard deviation (a tiny positive floor where all maxima are equal, as the band's)."""
     if kind not in SHAPE_KINDS:
-        raise ThresholdError(f"a joint combination normalises with {' or '.join(SHAPE_KINDS)}, not {kind!r}")
+        raise ThresholdError(f"a joint combination normalises with one of {', '.join(SHAPE_KINDS)}, not {kind!r}")
+    if kind == "cp_constant":
+        peaks = np.array([float(np.max(curve)) for curve in _validated(shape_curves)])
+        mean = float(np.mean(peaks))
+        spread, floor = _floored(np.array([np.std(peaks)]), 1, settings, np.array([mean]))
+        return Shape(kind, np.full(length, mean), np.full(length, spread[0]), floor)
     padded = _padded(_validated(shape_curves), length)
     supported = _supported_length(padded, settings.min_support)
     if kind == "cp_band":

@@ -11,8 +11,8 @@ are laid on, without the thresholds:
   ``K``, AND every detector's. The shape (:func:`fiper_ros.core.combination.fit_shape`, the configuration's kind
   or the one a detector fixes) is fitted on the fit part's curves (all calibration curves where the split has no
   fit part) at the calibration's delta (only CP scaled's shape depends on it), and extended past its length by
-  the threshold's extension rule. FIPER with CP constant or time-varying thresholds has no shape that puts its
-  two scores on one scale: no statistic, a null AUROC.
+  the threshold's extension rule. FIPER with time-varying thresholds has no shape that puts its two scores on
+  one scale: no statistic, a null AUROC.
 
 The AUROC takes every rollout's maximum over all its steps; the q-AUC its maximum over its first
 ``ceil(q T_max)`` steps (:func:`fiper_ros.core.metrics.early_cut`, ``T_max`` the longest test rollout of its

@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fiper_ros.core.combination import SHAPE_KINDS, Shape, fit_shape, fold_maxima
+from fiper_ros.core.combination import DELTA_FREE_SHAPES, SHAPE_KINDS, Shape, equalisable, fit_shape, fold_maxima
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.equalisation import Equaliser, fit_equaliser
@@ -59,9 +59,12 @@ def _combines(combination: Combination, wanted: Sequence[str]) -> list[Combine]:
 
 
 def _kinds(combination: Combination, wanted: Sequence[str]) -> list[str]:
-    """The normalisation kinds a combination is swept with: ``wanted``, or the one its detectors all fix."""
+    """The normalisation kinds a combination is swept with: ``wanted`` that its equalisation applies to, or the one
+    its detectors all fix."""
     fixed = {info(d).shape for d in combination.detectors}
-    return [fixed.pop()] if len(fixed) == 1 and None not in fixed else list(wanted)
+    if len(fixed) == 1 and None not in fixed:
+        return [fixed.pop()]
+    return [kind for kind in wanted if equalisable(combination.equalise, kind)]
 
 
 @dataclass(frozen=True)
@@ -127,7 +130,7 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
     tasks = list(streams)
     for kind in kinds:
         if kind not in SHAPE_KINDS:
-            raise ValueError(f"a combination normalises with {' or '.join(SHAPE_KINDS)}, not {kind!r}")
+            raise ValueError(f"a combination normalises with one of {', '.join(SHAPE_KINDS)}, not {kind!r}")
     needed = sorted({d for c in combinations for d in c.detectors})
     swept = [d for d in needed if info(d).aggregation is None]
     # A detector with a fixed aggregation has one set of curves whatever the label.
@@ -157,14 +160,14 @@ def _equalisers(combination: Combination, kinds: Mapping[str, str], chosen: Mapp
                 bases: Mapping[str, ThresholdSettings], delta: float, pooled: bool,
                 maxima: dict[tuple, np.ndarray]) -> dict[tuple[str, str], Equaliser]:
     """Per (task, detector) the equaliser of an equalised combination, over the task's fit-part fold maxima or, pooled,
-    every task's (``maxima`` caches them: a band's do not depend on delta)."""
+    every task's (``maxima`` caches them: a band's or a constant's do not depend on delta)."""
     tasks = list(chosen)
     out = {}
     for pool in [tasks] if pooled else [[t] for t in tasks]:
         for d in combination.detectors:
             parts = []
             for t in pool:
-                key = (t, d, kinds[d], None if kinds[d] == "cp_band" else delta)
+                key = (t, d, kinds[d], None if kinds[d] in DELTA_FREE_SHAPES else delta)
                 if key not in maxima:
                     fit = chosen[t][d].fit
                     maxima[key] = fold_maxima(fit, max(c.shape[0] for c in fit), kinds[d],
@@ -184,14 +187,14 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
     tasks = list(chosen)
     detectors = combination.detectors
     kinds = {d: info(d).shape or kind for d in detectors}
-    band = {(t, d): fit_shape(chosen[t][d].fit, _length(chosen[t]), "cp_band", bases[t])
-            for t in tasks for d in detectors if kinds[d] == "cp_band"}  # its shape does not depend on delta
+    fixed = {(t, d): fit_shape(chosen[t][d].fit, _length(chosen[t]), kinds[d], bases[t])
+             for t in tasks for d in detectors if kinds[d] in DELTA_FREE_SHAPES}
     alarms: dict[tuple[str, str], list[np.ndarray]] = {(t, str(c)): [] for t in tasks for c in combines}
     kept: dict[tuple[str, str], list[np.ndarray]] = {(t, str(c)): [] for t in tasks for c in combines}
     infinite: dict[tuple[str, str], list[bool]] = {(t, str(c)): [] for t in tasks for c in combines}
     behind: dict[tuple[str, str], int] = {}
     for delta in deltas:
-        shapes = {t: {d: band.get((t, d)) or fit_shape(chosen[t][d].fit, _length(chosen[t]), kinds[d],
+        shapes = {t: {d: fixed.get((t, d)) or fit_shape(chosen[t][d].fit, _length(chosen[t]), kinds[d],
                                                       replace(bases[t], delta=delta))
                       for d in detectors} for t in tasks}
         equalisers = {} if combination.equalise == "none" else \

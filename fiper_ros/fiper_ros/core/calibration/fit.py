@@ -264,7 +264,8 @@ def conformal_count(successes: int, mode: str, settings: CalibrationSettings) ->
     """How many scores a threshold's conformal quantile gets from ``successes`` successes of one task."""
     conformal = successes if mode != "split" else min(max(round(settings.conformal_fraction * successes), 1),
                                                          successes - 1)
-    if settings.threshold in ("cp_band", "cp_scaled", "gaussian") and mode != "split":
+    normalised = settings.combine_rule.joint or settings.pooled  # a seeded I1 / I2 split without a fit part
+    if (settings.threshold in ("cp_band", "cp_scaled", "gaussian") or normalised) and mode != "split":
         conformal -= min(max(round(settings.band_split * conformal), 1), conformal - 1)  # the band's own I2
     return conformal
 

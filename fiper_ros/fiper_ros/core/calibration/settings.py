@@ -9,7 +9,7 @@ from typing import Any
 
 from fiper_ros.core.ace import check_alpha
 from fiper_ros.core.calibration_file import CalibrationError
-from fiper_ros.core.combination import SHAPE_KINDS
+from fiper_ros.core.combination import SHAPE_KINDS, equalisable
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.consistency import ConsistencySettings
 from fiper_ros.core.detectors import (ACE, CONSISTENCY, DETECTORS, LOGPZO, PCA_KMEANS, PROGRESS, RND_OE, check_declared,
@@ -153,11 +153,14 @@ class CalibrationSettings:
         combine.votes(len(self.detectors))  # kth:K needs K detectors
         if (combine.joint or self.pooled) and self.threshold not in SHAPE_KINDS:
             why = "a joint combine" if combine.joint else "pooled thresholds"
-            raise CalibrationError(f"{why} normalises each detector by its shape: threshold {' or '.join(SHAPE_KINDS)}, "
+            raise CalibrationError(f"{why} normalises each detector by its shape: threshold one of {', '.join(SHAPE_KINDS)}, "
                                    f"not {self.threshold}")
         if self.equalise != "none" and not combine.joint:
             raise CalibrationError(f"equalise {self.equalise} applies to a joint combine (max, kth:K), not "
                                    f"{self.combine}")
+        if not equalisable(self.equalise, self.threshold):
+            raise CalibrationError(f"equalise {self.equalise} divides by a positive quantile of the fit part's maxima, "
+                                   f"which the {self.threshold} shape centres on 0: equalise tail instead")
         unknown = sorted(set(self.windows) - set(self.detectors))
         if unknown:
             raise CalibrationError(f"windows of undeclared detectors: {', '.join(unknown)} (detectors "
