@@ -10,7 +10,7 @@ curve by its per-step shape and sets ONE conformal factor over the combined stat
    deviation; ``"cp_scaled"``: ``z_d(t) = eta_d(t) / q_d(t)`` with CP scaled's floored per-step
    ``1 - delta`` quantile (:mod:`fiper_ros.core.thresholds`: the same statistics, support rule and floor);
    ``"cp_constant"``: ``z_d(t) = (eta_d(t) - m_d) / s_d``, one offset and scale for every step: the mean and the
-   (floored) standard deviation of the shape curves' rollout maxima ``max_t eta_d(t)``, the statistic CP
+   (floored) standard deviation of the shape curves' rollout maxima ``max_t eta_d(t)``, the statistic of CP
    constant thresholds (eq. 6). No per-step division: early steps, where the successes barely vary, are not
    magnified into the combination.
 2. The combined statistic ``c(t)`` = the ``votes``-th largest of ``z_1(t) .. z_N(t)``: ``votes = 1`` is the
