@@ -204,7 +204,7 @@ def fit_thresholds(conformal: Mapping[str, Curves], shape: Mapping[str, Curves |
     part), and the joint factor's summary (empty without a joint combine)."""
     detectors, combine = settings.detectors, settings.combine_rule
     out: dict[str, dict[str, Threshold]] = {name: {} for name in conformal}
-    if not (combine.joint or settings.pooled):
+    if not settings.normalised:
         ts = settings.threshold_settings()
         for name, curves in conformal.items():
             for d in detectors:
@@ -264,8 +264,7 @@ def conformal_count(successes: int, mode: str, settings: CalibrationSettings) ->
     """How many scores a threshold's conformal quantile gets from ``successes`` successes of one task."""
     conformal = successes if mode != "split" else min(max(round(settings.conformal_fraction * successes), 1),
                                                          successes - 1)
-    normalised = settings.combine_rule.joint or settings.pooled  # a seeded I1 / I2 split without a fit part
-    if (settings.threshold in ("cp_band", "cp_scaled", "gaussian") or normalised) and mode != "split":
+    if (settings.threshold in ("cp_band", "cp_scaled", "gaussian") or settings.normalised) and mode != "split":
         conformal -= min(max(round(settings.band_split * conformal), 1), conformal - 1)  # the band's own I2
     return conformal
 

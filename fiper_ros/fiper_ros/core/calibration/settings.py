@@ -151,7 +151,7 @@ class CalibrationSettings:
             raise CalibrationError(f"unknown aggregation {self.aggregation!r}; expected one of {MODES}")
         combine = Combine.parse(self.combine)
         combine.votes(len(self.detectors))  # kth:K needs K detectors
-        if (combine.joint or self.pooled) and self.threshold not in SHAPE_KINDS:
+        if self.normalised and self.threshold not in SHAPE_KINDS:
             why = "a joint combine" if combine.joint else "pooled thresholds"
             raise CalibrationError(f"{why} normalises each detector by its shape: threshold one of {', '.join(SHAPE_KINDS)}, "
                                    f"not {self.threshold}")
@@ -189,6 +189,12 @@ class CalibrationSettings:
     def combine_rule(self) -> Combine:
         """:attr:`combine` parsed."""
         return Combine.parse(self.combine)
+
+    @property
+    def normalised(self) -> bool:
+        """Whether every detector is normalised by its shape (a joint combine or thresholds pooled over tasks), its
+        curves split into shape and conformal halves where the split has no fit part."""
+        return self.combine_rule.joint or self.pooled
 
     @property
     def votes(self) -> int:
