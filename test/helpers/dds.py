@@ -9,7 +9,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from fiper_ros.platform.dds import allocate_domain, local_env, wait_interruptible
+from fiper_ros.platform.dds import STACKS_SIGNAL, allocate_domain, local_env, wait_interruptible
 from fiper_ros.platform.shm import clean_stale
 
 __all__ = ["allocate_domain", "clean_stale", "ros_env", "run_python", "spawn_python", "stop"]
@@ -36,8 +36,14 @@ def spawn_python(args: Sequence[str], domain: int, **kwargs: object) -> subproce
     )
 
 
+#: How long a process that did not stop after SIGINT gets to print its threads' stacks before SIGKILL.
+STACKS_WAIT_S = 2.0
+
+
 def stop(proc: subprocess.Popen[str], timeout: float = 10.0) -> str:
-    """Interrupt ``proc`` (SIGINT, then SIGKILL after ``timeout``) and return its output."""
+    """Interrupt ``proc`` (SIGINT, then SIGKILL after ``timeout``) and return its output; one that does not stop is
+    first asked for its threads' stacks (:data:`STACKS_SIGNAL`, which the node processes answer), so the output
+    shows where it hung."""
     if proc.poll() is None:
         wait_interruptible(proc.pid)  # a SIGINT before the helper takes it would be lost
         proc.send_signal(signal.SIGINT)
@@ -45,7 +51,12 @@ def stop(proc: subprocess.Popen[str], timeout: float = 10.0) -> str:
             out, _ = proc.communicate(timeout=timeout)
             return out or ""
         except subprocess.TimeoutExpired:
-            proc.kill()
+            proc.send_signal(STACKS_SIGNAL)
+            try:
+                out, _ = proc.communicate(timeout=STACKS_WAIT_S)
+                return out or ""
+            except subprocess.TimeoutExpired:
+                proc.kill()
     out, _ = proc.communicate()
     return out or ""
 
