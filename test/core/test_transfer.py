@@ -3,6 +3,8 @@ the rule by hand (an entry the data cannot feed or whose threshold is +inf at de
 decides), the prior file (its hash, a modified file refused in one line) and that a failure is never opened."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from pathlib import Path
 from typing import Any
 
@@ -80,6 +82,12 @@ def test_finite_at_delta_by_hand() -> None:
     assert finite_at_delta(SIGNAL_B, [50, 36], CalibrationSettings(detectors=("signal_a",), delta=0.06))
     # the authors' plain quantile is finite however few
     assert finite_at_delta(SIGNAL_B, [6], CalibrationSettings(detectors=("signal_a",), delta=0.01, profile="reference"))
+    # pooled over the tasks, one quantile of every task's conformal scores: 25 + 18 = 43 >= 33 at delta 0.03;
+    # 9 + 9 + 9 = 27 conformal of 18 successes each reach delta 0.05's 19, not 0.03's 33
+    pooled = CalibrationSettings(detectors=("signal_a",), delta=0.03, pooled=True)
+    assert finite_at_delta(SIGNAL_B, [50, 36], pooled)
+    assert finite_at_delta(SIGNAL_B, [18, 18, 18], replace(pooled, delta=0.05))
+    assert not finite_at_delta(SIGNAL_B, [18, 18, 18], pooled)
 
 
 def test_the_prior_file_round_trips_with_its_hash_and_a_modified_one_is_refused(tmp_path: Path) -> None:

@@ -16,6 +16,7 @@ from hypothesis.extra.numpy import arrays
 
 from fiper_ros.cli import main
 from fiper_ros.core.auto import TRANSFER, AutoSettings
+from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.transfer import STATISTICS, Prior, PriorEntry, PriorError
 from fiper_ros.evaluation.data import Dataset, DatasetError
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation
@@ -40,12 +41,14 @@ def two_tasks() -> list[Dataset]:
     return out
 
 
-def _run(datasets: list[Dataset], method_settings: MethodSettings, prior: Prior | None = None) -> EvaluationResult:
+def _run(datasets: list[Dataset], method_settings: MethodSettings, prior: Prior | None = None,
+         pooled: bool = False) -> EvaluationResult:
+    kinds = SHAPE_KINDS if pooled else SweepSettings().kinds
     settings = EngineSettings(methods=("elapsed", "pca_kmeans", "progress"), seeds=(0,), method_settings=method_settings,
-                              sweep=SweepSettings(windows=(1, 3), deltas=DELTAS, max_pool=(2,)),
+                              sweep=SweepSettings(windows=(1, 3), deltas=DELTAS, max_pool=(2,), kinds=kinds),
                               combinations=(Combination("both", ("pca_kmeans", "progress")),),
                               protocols=("loto",) if len(datasets) > 1 else ("paper",), auto=RULE, auto_prior=prior,
-                              progress=False)
+                              pooled=pooled, progress=False)
     return run_evaluation(datasets, settings)
 
 
@@ -55,12 +58,15 @@ def _flipped(dataset: Dataset) -> Dataset:
     return Dataset(dataset.task, dataset.calibration, test)
 
 
+@pytest.mark.parametrize("pooled", [False, True], ids=["per-task", "pooled"])
 def test_a_tasks_choice_never_reads_its_labels_and_its_metrics_are_the_sweeps(
-        two_tasks: list[Dataset], tiny_settings: MethodSettings) -> None:
-    result = _run(two_tasks, tiny_settings)
+        two_tasks: list[Dataset], tiny_settings: MethodSettings, pooled: bool) -> None:
+    """Per-task thresholds, and thresholds pooled over the tasks: the chosen entry calibrated on both tasks'
+    successes, as the pooled sweep calibrates every configuration."""
+    result = _run(two_tasks, tiny_settings, pooled=pooled)
     auto = result.auto
     assert auto is not None
-    flipped = _run([_flipped(two_tasks[0]), two_tasks[1]], tiny_settings).auto
+    flipped = _run([_flipped(two_tasks[0]), two_tasks[1]], tiny_settings, pooled=pooled).auto
     assert flipped is not None
     # the first task's labels changed: its choices did not (its prior is the other task's)
     assert flipped.choices[0] == auto.choices[0] and flipped.records[0] == auto.records[0]
@@ -219,7 +225,17 @@ def test_one_task_needs_a_prior_file_and_takes_it(tmp_path: Path, two_tasks: lis
     assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "transfer"
 
 
-def test_a_prior_of_a_pooled_run_or_without_transfer_is_refused(tiny_settings: MethodSettings, tmp_path: Path,
+def test_the_report_says_a_pooled_choice_promises_over_all_tasks(tmp_path: Path) -> None:
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
+                 "--tiny", "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--pool",
+                 "--deltas", "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out), "--auto", "--auto-rule",
+                 "transfer"]) == 0
+    text = (out / "results.md").read_text()
+    assert "Thresholds pooled over the tasks (--pool): each choice is calibrated on every task's successes" in text
+
+
+def test_a_prior_of_a_pooled_run_or_one_without_transfer_is_refused(tiny_settings: MethodSettings, tmp_path: Path,
                                                                  capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "eval"
     assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
@@ -229,7 +245,5 @@ def test_a_prior_of_a_pooled_run_or_without_transfer_is_refused(tiny_settings: M
     assert capsys.readouterr().err == ("fiper evaluate: --write-prior: a prior holds per-task configurations, not "
                                        "thresholds pooled over the tasks (--pool)\n")
     assert not out.exists() and not (tmp_path / "prior.yaml").exists()  # refused before any work
-    with pytest.raises(SettingsError, match="not with thresholds pooled"):
-        EngineSettings(method_settings=tiny_settings, auto=RULE, pooled=True, sweep=SweepSettings(kinds=("cp_band",)))
     with pytest.raises(SettingsError, match="--auto-prior is the prior of --auto --auto-rule transfer"):
         EngineSettings(method_settings=tiny_settings, auto=AutoSettings(), auto_prior=Prior((), ("a",)))

@@ -14,7 +14,7 @@ label of the task, and no rollout of another task, enters the choice.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -87,18 +87,25 @@ def _windowed(scores: Sequence[np.ndarray], detector: str, settings: Any) -> lis
             for s in scores]
 
 
-def calibrated_alarms(dataset: Dataset, shape: dict[str, list[np.ndarray]], streams: dict[str, StreamScores],
-                      settings: CalibrationSettings) -> tuple[np.ndarray, bool]:
+#: Per task calibrated together (the judged task alone; every task, with thresholds pooled over the tasks): the
+#: per-step scores of its fit part (the shapes) per detector, and its score streams.
+Fitted = Mapping[str, tuple[Mapping[str, Sequence[np.ndarray]], Mapping[str, StreamScores]]]
+
+
+def calibrated_alarms(dataset: Dataset, fitted: Fitted, settings: CalibrationSettings) -> tuple[np.ndarray, bool]:
     """The first alarm on every test rollout of ``dataset`` of the configuration ``settings``, calibrated as
-    :func:`fiper_ros.core.calibration.calibrate` does it: its shapes from the per-step scores ``shape`` (the fit
-    part's, per detector), its conformal quantile from the conformal part's curves of ``streams``; whether its
-    threshold is +inf (then no alarm)."""
-    own_shape = {d: _windowed(shape[d], d, settings) for d in settings.detectors}
-    conformal = {d: _windowed(streams[d].conformal, d, settings) for d in settings.detectors}
-    thresholds, _ = fit_thresholds({dataset.task: conformal}, {dataset.task: own_shape}, settings)
+    :func:`fiper_ros.core.calibration.calibrate` does it on the tasks of ``fitted`` (which holds ``dataset``'s): its
+    shapes from their fit part's per-step scores, its conformal quantile from their conformal part's curves; whether
+    its threshold is +inf (then no alarm)."""
+    shapes = {name: {d: _windowed(shape[d], d, settings) for d in settings.detectors}
+              for name, (shape, _) in fitted.items()}
+    conformal = {name: {d: _windowed(streams[d].conformal, d, settings) for d in settings.detectors}
+                 for name, (_, streams) in fitted.items()}
+    thresholds, _ = fit_thresholds(conformal, shapes, settings)
     own = thresholds[dataset.task]
     if not all(np.isfinite(t.values).all() for t in own.values()):
         return np.full(len(dataset.test), -1, dtype=np.int64), True
+    streams = fitted[dataset.task][1]
     test = {d: _windowed(streams[d].test, d, settings) for d in settings.detectors}
     return _first_alarms(test, own, settings.votes), False
 
@@ -109,7 +116,8 @@ def task_choice(dataset: Dataset, data: TaskScores, streams: dict[str, StreamSco
     """The choice at ``delta`` and its first alarm on every test rollout; whether its threshold is +inf."""
     base = replace(method_settings.calibration_settings(seed), delta=delta)
     choice = choose({dataset.task: data}, pool, auto, base.threshold_settings(), seed)
-    alarms, infinite = calibrated_alarms(dataset, data.successes, streams, chosen_settings(base, choice))
+    alarms, infinite = calibrated_alarms(dataset, {dataset.task: (data.successes, streams)},
+                                         chosen_settings(base, choice))
     return choice, alarms, infinite
 
 

@@ -99,9 +99,6 @@ class EngineSettings:
         if self.auto is not None and self.method_settings.split != "split":
             raise SettingsError("--auto chooses on the fit part of a split conformal calibration (--split split), not "
                              f"--split {self.method_settings.split}")
-        if self.auto is not None and self.auto.rule == TRANSFER and self.pooled:
-            raise SettingsError("--auto-rule transfer chooses a per-task configuration: not with thresholds pooled over "
-                                "the tasks (--pool)")
         if self.auto_prior is not None and (self.auto is None or self.auto.rule != TRANSFER):
             raise SettingsError("--auto-prior is the prior of --auto --auto-rule transfer")
         if self.prior_top < 1:
@@ -455,7 +452,7 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
                                    outcome.infinite, members_of(settings.methods, settings.combinations),
                                    settings.method_settings, settings.seeds, settings.sweep.deltas, auto, subsets,
                                    held_out, settings.select_aggregations, settings.prior_top, settings.auto_prior,
-                                   settings.progress, settings.prior_statistic)
+                                   settings.progress, settings.prior_statistic, settings.pooled)
     return auto_evaluation(datasets, scores, settings.streams(), settings.method_settings, settings.seeds,
                            settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
 

@@ -599,8 +599,10 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
                 "calibrate --auto --auto-rule transfer)", "",
                 f"Rule {record['rule']} v{record['version']} (docs/method.md, 'The third rule'): "
                 f"{RULE_SUMMARIES[record['rule']]}; of the task only its calibration successes are read (which "
-                f"detectors they feed, how many are conformal), no label of it. The prior's tasks: {priors}. The "
-                "choice is made at every δ (the prior's rank in brackets); metrics are averaged over the "]
+                f"detectors they feed, how many are conformal), no label of it. The prior's tasks: {priors}. "
+                + ("Thresholds pooled over the tasks (--pool): each choice is calibrated on every task's successes, "
+                   "its promise is over all tasks' successes, not task by task. " if result.settings.pooled else "")
+                + "The choice is made at every δ (the prior's rank in brackets); metrics are averaged over the "]
     else:
         head = ["## --auto: each task's configuration chosen from its own calibration successes (fiper calibrate "
                 "--auto)", "",

@@ -230,21 +230,25 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
                         deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
                         held_out: dict[str, list[np.ndarray]], select_aggregations: Sequence[str], top: int,
                         prior: Prior | None = None, progress: bool = True,
-                        statistic: str = DEFAULT_STATISTIC) -> AutoOutcome:
+                        statistic: str = DEFAULT_STATISTIC, pooled: bool = False) -> AutoOutcome:
     """``--auto --auto-rule transfer`` on every task and seed (module docstring): per task the prior of the other
     tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups, deltas, 5]``) and ``infinite`` ranked by
     ``statistic``, or ``prior`` for every task; metrics on ``subsets`` and false alarms on ``held_out`` as
-    :func:`~fiper_ros.evaluation.auto.evaluate_choices` takes them."""
+    :func:`~fiper_ros.evaluation.auto.evaluate_choices` takes them. ``pooled``: the chosen entry's thresholds are
+    pooled over every task (one conformal quantile of every task's normalised conformal curves, as the sweep's
+    pooled ones; ``metrics`` are then the pooled sweep's), so the conformal successes of every task count toward a
+    finite threshold; its promise is over all tasks' successes."""
     pool = candidate_streams(streams)
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
                     top, statistic)
+    calibrated = datasets if pooled else None
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
                                                               np.ndarray]:
-        base = method_settings.calibration_settings(seed)
-        successes = [len(dataset.calibration_successes)]
-        own = scores[(dataset.task, seed)]
+        base = replace(method_settings.calibration_settings(seed), pooled=pooled)
+        together = calibrated or [dataset]
+        successes = [len(d.calibration_successes) for d in together]
         alarms = np.full((len(deltas), len(dataset.test)), -1, dtype=np.int64)
         bad = np.zeros(len(deltas), dtype=bool)
         labels, records = [], []
@@ -260,8 +264,9 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
                                 "rank": None, "chosen": None, "why": str(error)})
                 continue
             settings = replace(at, **choice.chosen.settings())
-            shape = {d: own[d].fit for d in settings.detectors}
-            alarms[k], bad[k] = calibrated_alarms(dataset, shape, own, settings)
+            fitted = {d.task: ({x: scores[(d.task, seed)][x].fit for x in settings.detectors}, scores[(d.task, seed)])
+                      for d in together}
+            alarms[k], bad[k] = calibrated_alarms(dataset, fitted, settings)
             labels.append(choice.chosen.label())
             records.append(choice.record(top=5))
         return labels, records, alarms, bad

@@ -103,12 +103,15 @@ def _successes_by_task(rollouts: Sequence[Rollout], settings: CalibrationSetting
 def finite_at_delta(entry: PriorEntry, conformal_successes: Sequence[int], settings: CalibrationSettings) -> bool:
     """Whether ``entry``'s threshold is finite at ``settings.delta`` on every task whose number of successes is in
     ``conformal_successes`` (the conformal part of each task's split gets :func:`conformal_count` of them; the
-    conformal quantile is finite with at least :func:`minimum_conformal_set` scores; a plain quantile always is)."""
+    conformal quantile is finite with at least :func:`minimum_conformal_set` scores; a plain quantile always is).
+    Thresholds pooled over the tasks (``settings.pooled``) take one quantile of every task's conformal scores: the
+    sum must reach it."""
     chosen = replace(settings, **entry.settings())
     if not chosen.profile_obj.conformal:
         return True
     need = minimum_conformal_set(chosen.delta)
-    return all(conformal_count(n, chosen.split, chosen) >= need for n in conformal_successes)
+    counts = [conformal_count(n, chosen.split, chosen) for n in conformal_successes]
+    return sum(counts) >= need if chosen.pooled else all(count >= need for count in counts)
 
 
 def transfer_choice(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings, prior: Prior,
