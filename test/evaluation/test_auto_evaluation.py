@@ -14,12 +14,14 @@ from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings, auto_calibrate
 from fiper_ros.core.metrics import evaluate
 from fiper_ros.core.monitor import predict_rollout
+from fiper_ros.core.thresholds import GUARANTEED_KINDS
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import EngineSettings, run_evaluation
 from fiper_ros.evaluation.errors import SettingsError
-from fiper_ros.evaluation.methods import MethodSettings
+from fiper_ros.evaluation.methods import Combination, MethodSettings
 from fiper_ros.evaluation.protocol import METRICS
 from fiper_ros.evaluation.sweep import SweepSettings
+from fiper_ros.evaluation.transfer import entry_of, entry_of_choice, members_of
 
 AUTO = AutoSettings(windows=(1, 3), folds=3)
 DELTA = 0.3
@@ -28,9 +30,11 @@ DELTA = 0.3
 def test_the_evaluated_choice_is_calibrate_autos_and_so_are_its_alarms(tiny_dataset: Dataset,
                                                                       tiny_settings: MethodSettings) -> None:
     settings = EngineSettings(methods=("elapsed", "pca_kmeans", "progress"), seeds=(1,), method_settings=tiny_settings,
-                              sweep=SweepSettings(windows=(1, 3), deltas=(DELTA,), kinds=("cp_band",)),
-                              auto=AUTO, progress=False)
-    outcome = run_evaluation([tiny_dataset], settings).auto
+                              sweep=SweepSettings(windows=(1, 3), deltas=(DELTA,), kinds=GUARANTEED_KINDS),
+                              combinations=(Combination("both", ("pca_kmeans", "progress")),), auto=AUTO,
+                              progress=False)
+    result = run_evaluation([tiny_dataset], settings)
+    outcome = result.auto
     assert outcome is not None
     ms = tiny_settings
     core = CalibrationSettings(rnd=ms.rnd, logpzo=ms.logpzo, pca_kmeans=ms.pca_kmeans, progress=ms.progress,
@@ -43,6 +47,16 @@ def test_the_evaluated_choice_is_calibrate_autos_and_so_are_its_alarms(tiny_data
     expected = evaluate(steps, [bool(f) for f in tiny_dataset.failed], [int(n) for n in tiny_dataset.lengths])
     np.testing.assert_array_equal(outcome.metrics["all"][0, 0, 0], [expected[m] for m in METRICS])
     assert not outcome.infinite.any()
+    # its AUROC / q-AUC: the sweep's figures of that configuration
+    members = members_of(settings.methods, settings.combinations)
+    keys = [None if (e := entry_of(g, members[g.method])) is None else e.key() for g in result.groups]
+    g = keys.index(entry_of_choice(outcome.records[0][0][0]).key())
+    assert outcome.early is not None
+    assert outcome.early.q_auc[0, 0] == pytest.approx(result.sweep.early["q_auc"][0, 0, g])
+    assert outcome.early.auroc[0, 0] == pytest.approx(result.sweep.early["auroc"][0, 0, g])
+    # a choice the sweep did not measure (only time-varying thresholds swept) has none
+    alone = run_evaluation([tiny_dataset], replace(settings, sweep=replace(settings.sweep, kinds=("time_varying",)))).auto
+    assert alone is not None and alone.choices == outcome.choices and alone.early is None
 
 
 def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
@@ -67,6 +81,12 @@ def test_evaluate_auto_reports_its_section(tmp_path: Path) -> None:
         expected = document["auto"]["subsets"]["all"][task]["twa"]["mean"] - elapsed[task]["twa"]["mean"]
         assert row.split(" | ")[gain_column] == f"{expected:+.2f}"
     assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "proxy-twa"
+    # the choices' q-AUC has a column; here the choice (PCA-kmeans + elapsed time, max) is no configuration of the
+    # sweep (--no-default-combos), so none, said in the cells, the text and results.json
+    area_column = rows[0].split(" | ").index("q-AUC (average row: pooled)")
+    assert document["auto"]["early_detection"] == {"undefined": "some choice is not a configuration of the sweep"}
+    assert all(row.split(" | ")[area_column] == "–" for row in rows[1:])
+    assert "q-AUC: that choice's on all test rollouts (threshold-free; none: some choice is not a configuration" in section
     assert "Rule proxy-twa v1 (docs/method.md, 'Choosing the configuration from successes'): candidates scored on " \
            "the fit part's successes by fold models, with stall, drift and skip proxies made from them;" in section
 

@@ -86,6 +86,15 @@ def test_a_tasks_choice_never_reads_its_labels_and_its_metrics_are_the_sweeps(
             np.testing.assert_array_equal(auto.metrics["all"][t, 0, k], result.metrics["all"][t, 0, g, k])
             assert auto.held_out["all"][t, 0, k] == pytest.approx(result.sweep.held_out["all"][t, 0, g, k],
                                                                  nan_ok=True)
+    # its q-AUC is the sweep's figure of the configuration chosen at the delta it is shown at (the sweep computes
+    # every configuration's at once); pooled over the tasks, each under its own choice
+    assert auto.early is not None
+    for t in range(2):
+        record = auto.records[t][0][auto.shown(t)]
+        g = keys.index(PriorEntry.from_dict(record["chosen"]).key())
+        assert auto.early.q_auc[t, 0] == pytest.approx(result.sweep.early["q_auc"][t, 0, g], nan_ok=True)
+        assert auto.early.auroc[t, 0] == pytest.approx(result.sweep.early["auroc"][t, 0, g], nan_ok=True)
+    assert np.isfinite(auto.early.pooled_q_auc).all()
 
 
 GROUPS = [Group("logpzo", "1", "cp_band"), Group("logpzo", "3", "cp_constant"), Group("rnd_oe", "max2", "cp_scaled"),

@@ -31,6 +31,7 @@ from fiper_ros.core.scorers import FitContext
 from fiper_ros.core.window import aggregate
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.data import Dataset
+from fiper_ros.evaluation.early import EarlyDetection
 from fiper_ros.evaluation.methods import MethodSettings
 from fiper_ros.evaluation.progress import Progress
 from fiper_ros.evaluation.protocol import METRICS, alarm_metrics, nanmean
@@ -49,7 +50,8 @@ class AutoOutcome:
     ``metrics[subset]`` ``[tasks, seeds, deltas, 5]`` (NaN where the chosen threshold is +inf), ``held_out[subset]``
     ``[tasks, seeds, deltas]`` the false-alarm rate on the subset's ID successes, ``choices[task][seed][delta]`` the
     chosen configuration's label and ``records[task][seed][delta]`` its record (its best five candidates); a task's
-    choice is shown at the delta :meth:`shown` names."""
+    choice is shown at the delta :meth:`shown` names. ``early``: the threshold-free figures of the choices shown, on
+    all test rollouts (``None``: some choice is not a configuration of the sweep, which measures them)."""
 
     deltas: tuple[float, ...]
     choices: list[list[list[str]]]
@@ -58,6 +60,7 @@ class AutoOutcome:
     held_out: dict[str, np.ndarray]
     records: list[list[list[dict[str, Any]]]]
     seconds: float
+    early: EarlyDetection | None = None
 
     def shown(self, task: int) -> int:
         """The delta (an index) a task's choice is shown at: the one closest to 0.05 whose threshold is finite on

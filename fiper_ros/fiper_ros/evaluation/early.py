@@ -170,14 +170,15 @@ class EarlyDetection:
     """``[tasks, 2]``: failures and successes among each task's reported rollouts (an empty class: a NaN AUROC)."""
 
 
-def early_detection(statistics: Mapping[int, Sequence[TaskStatistics]], groups: Sequence[Group],
+def early_detection(statistics: Mapping[int, Sequence[TaskStatistics]], groups: Mapping[int, Sequence[Group]],
                     failed: Sequence[np.ndarray], subsets: Sequence[np.ndarray | None],
                     combinations: Mapping[str, tuple[str, ...]]) -> EarlyDetection:
-    """The figures of one reported configuration: ``groups[t]`` on task ``t`` (the same one everywhere unless a
-    protocol chooses per task), on its test rollouts ``subsets[t]`` (``None``: all) with outcomes ``failed[t]``
-    (every test rollout's); ``statistics[seed][t]`` computes the maxima."""
-    tasks = len(groups)
+    """The figures of one reported configuration: ``groups[seed][t]`` on task ``t`` for ``seed`` (the same one
+    everywhere unless a protocol chooses per task, or ``--auto`` per task and seed), on its test rollouts
+    ``subsets[t]`` (``None``: all) with outcomes ``failed[t]`` (every test rollout's); ``statistics[seed][t]``
+    computes the maxima."""
     seeds = sorted(statistics)
+    tasks = len(groups[seeds[0]])
     per_task = np.full((2, tasks, len(seeds)), np.nan)
     pooled = np.full((2, len(seeds)), np.nan)
     classes = np.zeros((tasks, 2), dtype=int)
@@ -185,7 +186,7 @@ def early_detection(statistics: Mapping[int, Sequence[TaskStatistics]], groups: 
         maxima: list[tuple[np.ndarray, np.ndarray]] = []
         labels: list[np.ndarray] = []
         for t in range(tasks):
-            whole, early = statistics[seed][t].peaks([groups[t]], combinations, subsets[t])
+            whole, early = statistics[seed][t].peaks([groups[seed][t]], combinations, subsets[t])
             outcome = failed[t] if subsets[t] is None else failed[t][subsets[t]]
             per_task[:, t, s] = [area[0] for area in areas(whole, early, outcome)]
             maxima.append((whole[0], early[0]))
@@ -194,5 +195,5 @@ def early_detection(statistics: Mapping[int, Sequence[TaskStatistics]], groups: 
         both = areas(np.concatenate([m[0] for m in maxima])[None], np.concatenate([m[1] for m in maxima])[None],
                      np.concatenate(labels))
         pooled[:, s] = [area[0] for area in both]
-    defined = all(statistic_of(g, combinations) is not None for g in groups)
+    defined = all(statistic_of(g, combinations) is not None for row in groups.values() for g in row)
     return EarlyDetection(per_task[0], per_task[1], pooled[0], pooled[1], defined, classes)

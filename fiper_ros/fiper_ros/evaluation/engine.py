@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,8 @@ from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, Protocol
                                            run_loto, run_protocol, validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
-from fiper_ros.evaluation.transfer import members_of, prior_header, ranked_prior, transfer_evaluation
+from fiper_ros.evaluation.transfer import (chosen_groups, members_of, prior_header, ranked_prior,
+                                           transfer_evaluation)
 
 LOG = logging.getLogger(__name__)
 
@@ -421,9 +422,12 @@ def run_evaluation(
                                            settings.default_kind, settings.select_aggregations, outcome.infinite,
                                            outcome.held_out[report])
     selected = time.perf_counter()
-    early = protocol_early(datasets, scores, settings, protocols)
+    statistics = {seed: task_statistics(datasets, scores, settings, seed) for seed in settings.seeds}
+    early = protocol_early(datasets, statistics, settings, protocols)
     early_done = time.perf_counter()
     auto = None if settings.auto is None else run_auto(datasets, scores, settings, settings.auto, outcome)
+    if auto is not None:
+        auto = replace(auto, early=auto_early(datasets, statistics, settings, auto, outcome.groups))
     timings = {"scores": scored - start, "score_computation": computing, "sweep": swept - scored,
                "early_detection": outcome.early_seconds + early_done - selected,
                **({} if auto is None else {"auto": auto.seconds}),
@@ -477,18 +481,32 @@ def run_prior(result: EvaluationResult, command: str) -> Prior:
                         settings.prior_top, header, settings.prior_statistic)
 
 
-def protocol_early(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str, StreamScores]],
+def protocol_early(datasets: Sequence[Dataset], statistics: Mapping[int, Sequence[TaskStatistics]],
                    settings: EngineSettings, protocols: dict[str, ProtocolResult]) -> dict[str, dict[str, EarlyDetection]]:
     """Per protocol, every selected configuration's AUROC and q-AUC on the test rollouts the protocol reports on
-    (the clean protocol's report half), each task's under its own configuration where it was chosen per task."""
-    statistics = {seed: task_statistics(datasets, scores, settings, seed) for seed in settings.seeds}
+    (the clean protocol's report half), each task's under its own configuration where it was chosen per task;
+    ``statistics[seed][t]`` computes the maxima."""
     combinations = settings.combined_detectors()
     out: dict[str, dict[str, EarlyDetection]] = {}
     for name, protocol in protocols.items():
         report = SUBSETS[name][1]
         subsets = ([validation_split(d.failed, settings.split_seed)[1] for d in datasets] if report == "report"
                    else [None] * len(datasets))
-        out[name] = {method: early_detection(statistics, [chosen.group_of(t) for t in range(len(datasets))],
+        out[name] = {method: early_detection(statistics,
+                                             dict.fromkeys(settings.seeds,
+                                                           [chosen.group_of(t) for t in range(len(datasets))]),
                                              [d.failed for d in datasets], subsets, combinations)
                      for method, chosen in protocol.selected.items()}
     return out
+
+
+def auto_early(datasets: Sequence[Dataset], statistics: Mapping[int, Sequence[TaskStatistics]],
+               settings: EngineSettings, auto: AutoOutcome, groups: Sequence[Group]) -> EarlyDetection | None:
+    """``--auto``'s AUROC and q-AUC on all test rollouts: per seed each task's choice at the delta it is shown at
+    (:func:`~fiper_ros.evaluation.transfer.chosen_groups`), measured as the sweep's configuration it is; ``None`` when
+    some choice is not one of them."""
+    chosen = chosen_groups(auto, groups, members_of(settings.methods, settings.combinations), settings.seeds)
+    if chosen is None:
+        return None
+    return early_detection(statistics, chosen, [d.failed for d in datasets], [None] * len(datasets),
+                           settings.combined_detectors())

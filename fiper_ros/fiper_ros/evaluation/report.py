@@ -562,7 +562,8 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     seeds = len(result.settings.seeds)
     floor = _elapsed_floor(result, auto)
     mean, std = _auto_rows(auto, "all")
-    columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ"]
+    columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ",
+               "q-AUC (average row: pooled)"]
     columns += [f"TWA − Elapsed{'' if floor[1] == 'all' else ', report half'}"] if floor is not None else []
     columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
     columns += ["TWA, report half"] if "report" in auto.metrics else []
@@ -578,7 +579,7 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
         rate = nanmean(auto.held_out["all"][t, :, shown], axis=0) if t < len(result.tasks) else math.nan
         cells = [name, chosen, *(_cell(float(mean[t, m]), float(std[t, m]), seeds, False)
                                  for m in (METRICS.index(k) for k in ("twa", "tpr", "tnr", "dt"))),
-                 "–" if math.isnan(rate) else f"{rate:.2f}"]
+                 "–" if math.isnan(rate) else f"{rate:.2f}", _auto_area(auto, t, seeds)]
         if floor is not None:
             elapsed, subset = floor
             values = auto.values(subset)
@@ -612,9 +613,22 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     return "\n".join([
         *head[:-1], head[-1] +
         "finite δ on all test rollouts; the choice is shown at the finite δ closest to 0.05, FA: the held-out ID "
-        "successes alarmed there. The LOTO and clean "
+        "successes alarmed there, q-AUC: that choice's on all test rollouts (threshold-free; "
+        + ("the average row pools every task's rollouts, each under its own choice). "
+           if auto.early is not None else "none: some choice is not a configuration of the sweep, which measures "
+           "them). ")
+        + "The LOTO and clean "
         "columns are the best method those protocols chose with failures (of other tasks, or of the task's "
         "validation half).", "", *rows])
+
+
+def _auto_area(auto: AutoOutcome, task: int, seeds: int) -> str:
+    """The q-AUC cell of ``--auto``'s row ``task`` (past the tasks: pooled over them)."""
+    if auto.early is None:
+        return "–"
+    pooled = task >= auto.early.q_auc.shape[0]
+    values = auto.early.pooled_q_auc if pooled else auto.early.q_auc[task]
+    return _area_cell(values, seeds, _area_gap(auto.early, None if pooled else task))
 
 
 def _auto_choice(auto: AutoOutcome, task: int, shown: int) -> str:
@@ -641,6 +655,8 @@ def _auto_json(result: EvaluationResult, auto: AutoOutcome) -> dict[str, Any]:
                    **({"held_out_false_alarms": nanmean(auto.held_out[subset][t], axis=0)}
                       if t < len(result.tasks) else {})}
             for t, name in enumerate([*result.tasks, "average"])}
+    out["early_detection"] = (_early_json(auto.early, result.tasks) if auto.early is not None else
+                              {"undefined": "some choice is not a configuration of the sweep"})
     out["tasks"] = {task: {"choices": auto.choices[t], "shown_delta": auto.deltas[auto.shown(t)],
                            "record": auto.records[t][0][auto.shown(t)],
                            "infinite_deltas": [d for d, bad in zip(auto.deltas, auto.infinite[t].any(axis=0)) if bad]}

@@ -163,6 +163,46 @@ def entry_of(group: Group, member: Member) -> PriorEntry | None:
                       group.method)
 
 
+def entry_of_choice(record: Mapping[str, Any]) -> PriorEntry | None:
+    """The configuration an ``--auto`` record (any rule's) chose, as a prior entry (its key is what a calibration
+    declares); ``None`` where no configuration could be chosen."""
+    chosen = record.get("chosen")
+    if chosen is None:
+        return None
+    if record["rule"] == TRANSFER:
+        return PriorEntry.from_dict(chosen)
+    detectors = tuple(chosen["detectors"])
+    windowed = [d for d in detectors if info(d).aggregation is None]
+    try:
+        return PriorEntry(detectors, "window" if windowed else "cumulative", dict.fromkeys(windowed, chosen["window"]),
+                          chosen["kind"], chosen["combine"] if len(detectors) > 1 else "")
+    except PriorError:  # a configuration no prior could hold (and so no sweep entry is)
+        return None
+
+
+def chosen_groups(auto: AutoOutcome, groups: Sequence[Group], members: Mapping[str, Member], seeds: Sequence[int]
+                  ) -> dict[int, list[Group]] | None:
+    """Per seed, each task's configuration of the sweep that ``--auto`` chose for it at the delta its choice is shown
+    at (:meth:`AutoOutcome.shown`; the first of the sweep's configurations with the same key); ``None`` when some
+    choice is not a configuration of the sweep, or there was none."""
+    index: dict[tuple, int] = {}
+    for i, group in enumerate(groups):
+        entry = entry_of(group, members[group.method])
+        if entry is not None:
+            index.setdefault(entry.key(), i)
+    out: dict[int, list[Group]] = {}
+    for s, seed in enumerate(seeds):
+        row = []
+        for t in range(len(auto.records)):
+            entry = entry_of_choice(auto.records[t][s][auto.shown(t)])
+            found = None if entry is None else index.get(entry.key())
+            if found is None:
+                return None
+            row.append(groups[found])
+        out[seed] = row
+    return out
+
+
 def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray, tasks: Sequence[str],
                  members: Mapping[str, Member], select_aggregations: Sequence[str], top: int,
                  header: Mapping[str, Any], statistic: str = DEFAULT_STATISTIC) -> Prior:
