@@ -123,6 +123,17 @@ def test_calibrate_auto_rule_transfer_takes_the_first_entry_it_can_feed(tmp_path
         in lines[head + 2]
     assert lines[head + 3].split()[:2] == ["2", "0.800"] and lines[head + 3].endswith("signal_b w3 cp_constant: chosen")
     assert f"chosen: {record['why']}" in lines
+    assert not any(line.startswith("note:") for line in lines)  # the prior and the calibration both per task
+
+
+def test_calibrate_auto_rule_transfer_notes_a_prior_ranked_with_pooled_thresholds(
+        tmp_path: Path, signal_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    prior = Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {"statistic": "mean"}, {"pooled": True},
+                  "hand-made", "by hand", "0").save(tmp_path / "prior.yaml")
+    assert main(["calibrate", str(signal_bag), "-o", str(tmp_path / "calibration"), "--auto", "--auto-rule",
+                 "transfer", "--auto-prior", str(prior), "--delta", "0.3", "--seed", "2"]) == 0
+    assert ("note: the prior ranked its entries with thresholds pooled over the tasks, this calibration's are per task: "
+            "its order may not carry over") in capsys.readouterr().out.splitlines()
 
 
 def test_calibrate_auto_rule_transfer_refuses_a_modified_prior_in_one_line(tmp_path: Path, signal_bag: Path,

@@ -217,7 +217,7 @@ def test_one_task_needs_a_prior_file_and_takes_it(tmp_path: Path, two_tasks: lis
                  "--deltas", "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out),
                  "--write-prior", str(tmp_path / "prior.yaml"), "--prior-top", "7", "--prior-statistic", "rank"]) == 0
     prior = Prior.load(tmp_path / "prior.yaml")
-    assert prior.selection["statistic"] == "rank"
+    assert prior.selection["statistic"] == "rank" and "pooled" not in prior.calibration
     assert prior.tasks == ("sorting", "stacking") and len(prior.entries) == 7
     assert "--write-prior" in prior.command and prior.command.startswith("fiper evaluate --synthetic")
     result = _run(two_tasks[:1], tiny_settings, prior)
@@ -244,15 +244,14 @@ def test_the_report_says_a_pooled_choice_promises_over_all_tasks(tmp_path: Path)
     assert "Thresholds pooled over the tasks (--pool): each choice is calibrated on every task's successes" in text
 
 
-def test_a_prior_of_a_pooled_run_or_one_without_transfer_is_refused(tiny_settings: MethodSettings, tmp_path: Path,
-                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_prior_of_a_pooled_run_says_so_and_one_without_transfer_is_refused(tiny_settings: MethodSettings,
+                                                                            tmp_path: Path) -> None:
     out = tmp_path / "eval"
     assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
                  "--tiny", "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--pool",
-                 "--no-plots", "--no-cache", "--quiet", "--out", str(out), "--write-prior",
-                 str(tmp_path / "prior.yaml")]) == 2
-    assert capsys.readouterr().err == ("fiper evaluate: --write-prior: a prior holds per-task configurations, not "
-                                       "thresholds pooled over the tasks (--pool)\n")
-    assert not out.exists() and not (tmp_path / "prior.yaml").exists()  # refused before any work
+                 "--deltas", "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out), "--write-prior",
+                 str(tmp_path / "prior.yaml")]) == 0
+    prior = Prior.load(tmp_path / "prior.yaml")
+    assert prior.calibration["pooled"] is True and all(e.kind in SHAPE_KINDS for e in prior.entries)
     with pytest.raises(SettingsError, match="--auto-prior is the prior of --auto --auto-rule transfer"):
         EngineSettings(method_settings=tiny_settings, auto=AutoSettings(), auto_prior=Prior((), ("a",)))

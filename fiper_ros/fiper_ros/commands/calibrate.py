@@ -141,7 +141,7 @@ def calibrate_bags(bags: Sequence[Path], out: Path, settings: CalibrationSetting
             calibration, choice = auto_calibrate(rollouts, settings, auto, candidates, fk, progress,
                                                  None if quiet else _note, prior)
             if not quiet:
-                print("\n".join(auto_lines(choice)), flush=True)
+                print("\n".join(auto_lines(choice, pooled=settings.pooled)), flush=True)
     except KinematicsError as error:
         raise BagError(f"{error}: give the robot model with --urdf, --ee-frame and --control-dt") from error
     with atomic_output(out, overwrite) as staging:
@@ -154,11 +154,12 @@ def _note(text: str) -> None:
     print(f"  auto: {text}", file=sys.stderr, flush=True)
 
 
-def auto_lines(choice: AutoChoice | TransferChoice, top: int = 8) -> list[str]:
+def auto_lines(choice: AutoChoice | TransferChoice, top: int = 8, pooled: bool = False) -> list[str]:
     """What ``--auto`` chose and why, with its best candidates (lines to print): the proxy TWA and each proxy kind's
-    catch (``proxy-twa``), or the margin (``margin``); the prior's entries down to the chosen one (``transfer``)."""
+    catch (``proxy-twa``), or the margin (``margin``); the prior's entries down to the chosen one (``transfer``;
+    ``pooled``: whether the calibration pools its thresholds over the tasks)."""
     if isinstance(choice, TransferChoice):
-        return transfer_lines(choice, top)
+        return transfer_lines(choice, top, pooled)
     margin = choice.settings.rule == MARGIN
     kinds = [] if margin else list(choice.ranking[0].caught)
     head = "margin" if margin else "proxy TWA"
@@ -174,9 +175,10 @@ def auto_lines(choice: AutoChoice | TransferChoice, top: int = 8) -> list[str]:
     return lines
 
 
-def transfer_lines(choice: TransferChoice, top: int = 8) -> list[str]:
+def transfer_lines(choice: TransferChoice, top: int = 8, pooled: bool = False) -> list[str]:
     """The transfer rule's choice: the prior, its entries ranked above the chosen one (why each did not fit, the
-    first ``top``) and the chosen one."""
+    first ``top``) and the chosen one; a note where the prior was ranked with thresholds pooled over its tasks and the
+    calibration's are per task, or the other way round (``pooled``)."""
     prior = choice.prior
     rule = choice.settings.rule
     lines = [f"auto ({rule} v{RULES[rule]}, delta {choice.delta:g}): prior {prior.content_hash[:12]} of "
@@ -187,7 +189,15 @@ def transfer_lines(choice: TransferChoice, top: int = 8) -> list[str]:
         lines.append(f"  {rank:>4}  {entry.twa:>6.3f}  {entry.label()}: skipped ({why})")
     lines.append(f"  {choice.rank:>4}  {choice.chosen.twa:>6.3f}  {choice.chosen.label()}: chosen")
     lines.append(f"chosen: {choice.why()}")
+    ranked = bool(prior.calibration.get("pooled", False))
+    if ranked != pooled:
+        lines.append(f"note: the prior ranked its entries with thresholds {_pooling(ranked)}, this calibration's are "
+                     f"{_pooling(pooled)}: its order may not carry over")
     return lines
+
+
+def _pooling(pooled: bool) -> str:
+    return "pooled over the tasks" if pooled else "per task"
 
 
 def settings_from(args: argparse.Namespace) -> CalibrationSettings:

@@ -69,8 +69,7 @@ from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX
 from fiper_ros.evaluation.early import DEFAULT_Q
-from fiper_ros.evaluation.engine import (EngineSettings, EvaluationResult, check_evaluation, check_prior,
-                                         run_evaluation, run_prior)
+from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, check_evaluation, run_evaluation, run_prior
 from fiper_ros.evaluation.external import ExternalScores, parse_scores
 from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS
 from fiper_ros.evaluation.methods import (ELAPSED, METHODS, Combination, MethodSettings, default_combinations,
@@ -366,7 +365,6 @@ def run(args: argparse.Namespace) -> int:
     check_evaluation(datasets, settings)
     check_cluster(args)
     if args.write_prior is not None:
-        check_prior(settings)
         if not args.write_prior.parent.is_dir():
             raise UsageError(f"--write-prior {args.write_prior}: no directory {args.write_prior.parent}")
     cache = None if args.no_cache else ScoreCache(args.cache_dir)

@@ -461,21 +461,13 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
                            settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
 
 
-def check_prior(settings: EngineSettings) -> None:
-    """:class:`SettingsError` if no prior can be made of a run with ``settings`` (:func:`run_prior`): its thresholds
-    pooled over the tasks, where a prior holds per-task configurations."""
-    if settings.pooled:
-        raise SettingsError("--write-prior: a prior holds per-task configurations, not thresholds pooled over the tasks "
-                            "(--pool)")
-
-
 def run_prior(result: EvaluationResult, command: str) -> Prior:
     """The prior of every task of the run (:func:`~fiper_ros.evaluation.transfer.ranked_prior`: its best
     ``prior_top`` configurations on all test rollouts, by ``prior_statistic``); ``command``: the command that made
     it."""
     settings = result.settings
-    check_prior(settings)
-    header = prior_header(result.datasets, settings.method_settings, settings.seeds, settings.sweep.deltas, command)
+    header = prior_header(result.datasets, settings.method_settings, settings.seeds, settings.sweep.deltas, command,
+                          settings.pooled)
     return ranked_prior(result.groups, result.metrics["all"], result.sweep.infinite, result.tasks,
                         members_of(settings.methods, settings.combinations), settings.select_aggregations,
                         settings.prior_top, header, settings.prior_statistic)

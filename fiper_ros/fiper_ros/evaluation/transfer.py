@@ -235,11 +235,13 @@ def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndar
 
 
 def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, seeds: Sequence[int],
-                 deltas: Sequence[float], command: str) -> dict[str, Any]:
-    """The header of a prior made from the labelled test rollouts of ``datasets``."""
+                 deltas: Sequence[float], command: str, pooled: bool = False) -> dict[str, Any]:
+    """The header of a prior made from the labelled test rollouts of ``datasets`` (``pooled``: measured with thresholds
+    pooled over them, said in its ``calibration``)."""
     made = ", ".join(f"{d.task} ({len(d.test)} test rollouts, {int(np.sum(d.failed))} failures)" for d in datasets)
     return {"seeds": tuple(seeds), "deltas": tuple(deltas),
-            "calibration": {"profile": method_settings.profile, **method_settings.split_settings()},
+            "calibration": {"profile": method_settings.profile, **method_settings.split_settings(),
+                            **({"pooled": True} if pooled else {})},
             "made_from": f"the labelled test rollouts of {made} in one fiper evaluate run", "command": command,
             "version": fiper_ros.__version__}
 
@@ -247,7 +249,7 @@ def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, s
 def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
                 members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
                 deltas: Sequence[float], select_aggregations: Sequence[str], top: int,
-                statistic: str = DEFAULT_STATISTIC) -> list[Prior]:
+                statistic: str = DEFAULT_STATISTIC, pooled: bool = False) -> list[Prior]:
     """Per task ``T``, the prior of the other tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups,
     deltas, 5]``) and ``infinite`` ranked by ``statistic`` (:func:`ranked_prior`): a leave-one-task-out selection over
     all methods at once; no row of ``T`` enters it."""
@@ -258,7 +260,7 @@ def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: n
     for t in range(len(datasets)):
         others = [n for n in range(len(datasets)) if n != t]
         header = prior_header([datasets[n] for n in others], method_settings, seeds, deltas,
-                              f"leave-one-task-out prior of this run for {names[t]}")
+                              f"leave-one-task-out prior of this run for {names[t]}", pooled)
         priors.append(ranked_prior(groups, metrics[others], infinite[others], [names[n] for n in others], members,
                                    select_aggregations, top, header, statistic))
     return priors
@@ -281,7 +283,7 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
     pool = candidate_streams(streams)
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
-                    top, statistic)
+                    top, statistic, pooled)
     calibrated = datasets if pooled else None
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
