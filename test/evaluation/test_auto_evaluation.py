@@ -108,3 +108,13 @@ def test_evaluate_auto_rule_margin_says_what_it_reads(tmp_path: Path) -> None:
 def test_evaluate_auto_needs_a_split_conformal_calibration(tiny_settings: MethodSettings) -> None:
     with pytest.raises(SettingsError, match=r"--auto chooses on the fit part"):
         EngineSettings(method_settings=replace(tiny_settings, split="same"), auto=AUTO)
+
+
+def test_evaluate_auto_rules_that_calibrate_per_task_refuse_pooled_thresholds(tiny_settings: MethodSettings) -> None:
+    """Its section would report per-task calibrations in a run whose thresholds are pooled (it did, silently)."""
+    for rule in ("proxy-twa", "margin"):
+        with pytest.raises(SettingsError) as error:
+            EngineSettings(method_settings=tiny_settings, auto=replace(AUTO, rule=rule), pooled=True,
+                           sweep=SweepSettings(kinds=("cp_band",)))
+        assert str(error.value) == (f"--auto-rule {rule} is evaluated with each task's choice calibrated on that task "
+                                    "alone, not pooled over the tasks (--pool): use --auto-rule transfer with --pool")

@@ -100,6 +100,9 @@ class EngineSettings:
         if self.auto is not None and self.method_settings.split != "split":
             raise SettingsError("--auto chooses on the fit part of a split conformal calibration (--split split), not "
                              f"--split {self.method_settings.split}")
+        if self.auto is not None and self.auto.rule != TRANSFER and self.pooled:
+            raise SettingsError(f"--auto-rule {self.auto.rule} is evaluated with each task's choice calibrated on that "
+                                "task alone, not pooled over the tasks (--pool): use --auto-rule transfer with --pool")
         if self.auto_prior is not None and (self.auto is None or self.auto.rule != TRANSFER):
             raise SettingsError("--auto-prior is the prior of --auto --auto-rule transfer")
         if self.prior_top < 1:
