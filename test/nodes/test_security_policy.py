@@ -91,7 +91,8 @@ def test_every_node_of_every_shipped_suite_does_exactly_what_its_grants_say() ->
     observed = observe_all(deployments)  # each distinct node built and brought to ACTIVE, on real DDS
     print(f"\n{len(deployments)} deployments, {len(observed)} distinct nodes built and read from the graph in "
           f"{time.monotonic() - started:.1f} s")
-    assert mismatches(observed) == []
+    found = mismatches(observed)
+    assert not found, "\n".join(found)  # every line: a flake that left 25 of them showed only the first
     used = union(observed)
     policy = shipped()
     assert {fqn: policy[fqn] for fqn in used if fqn in policy} == used, f"regenerate: {GENERATOR}"
