@@ -284,12 +284,11 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
                     top, statistic, pooled)
-    calibrated = datasets if pooled else None
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
                                                               np.ndarray]:
         base = replace(method_settings.calibration_settings(seed), pooled=pooled)
-        together = calibrated or [dataset]
+        together = datasets if pooled else [dataset]  # the tasks its thresholds are calibrated on
         successes = [len(d.calibration_successes) for d in together]
         alarms = np.full((len(deltas), len(dataset.test)), -1, dtype=np.int64)
         bad = np.zeros(len(deltas), dtype=bool)
