@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -18,7 +19,7 @@ import math
 import pytest
 
 from fiper_msgs.msg import FailureAlarm, Score
-from fiper_ros.commands.echo import Printer
+from fiper_ros.commands.echo import Printer, matched_line
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.data_paths import package_share
 from fiper_ros.interface import qos
@@ -33,9 +34,21 @@ OK, ALARMED, UNKNOWN = FailureAlarm.STATE_OK, FailureAlarm.STATE_ALARM, FailureA
 NAN = math.nan
 
 
-def _fiper(args: list[str], domain: int) -> subprocess.Popen[str]:
+def _fiper(args: list[str], domain: int, stderr: int = subprocess.STDOUT) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "fiper_ros.cli", *args], env=ros_env(domain),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=stderr, text=True, start_new_session=True)
+
+
+def _read_until(proc: subprocess.Popen[str], text: str, timeout: float) -> str:
+    """What ``proc`` wrote to its stderr pipe until a write contained ``text`` (or ``timeout`` s passed, or it
+    closed the pipe); read from the pipe's descriptor, before anything read it through its text wrapper."""
+    assert proc.stderr is not None
+    fd, read, deadline = proc.stderr.fileno(), b"", time.monotonic() + timeout
+    while text.encode() not in read and (left := deadline - time.monotonic()) > 0:
+        if not select.select([fd], [], [], left)[0] or not (chunk := os.read(fd, 4096)):
+            break
+        read += chunk
+    return read.decode(errors="replace")
 
 
 def test_echo_prints_a_latched_alarm_published_before_it_started(ros_domain: int) -> None:
@@ -123,10 +136,15 @@ def test_echo_changes_on_the_alarm_stream_of_a_live_suite(suite: Suite, ros_doma
     """``fiper echo /fiper/alarm --changes --brief`` beside a suite running a failing rollout and its heartbeats
     after the END: one line per change of the stream the test's driver recorded (every message), the first ALARM
     once, none of the latched steps and heartbeats that repeat it."""
-    echo = _fiper(["echo", "/fiper/alarm", "--changes", "--brief", "--wait", "30"], ros_domain)
+    echo = _fiper(["echo", "/fiper/alarm", "--changes", "--brief", "--wait", "30"], ros_domain,
+                  stderr=subprocess.PIPE)
     drv = suite.driver
     try:
+        # both ends matched: the alarm publisher counts the echo's reader, the reader has matched the publisher
+        # (a sample the publisher sends before the reader matched it is lost beyond the latched latest)
         assert suite.spin_until(lambda: suite.fusion._alarm_pub.get_subscription_count() >= 2, 30)
+        said = _read_until(echo, matched_line("/fiper/alarm", "fiper_msgs/msg/FailureAlarm", 1), 30)
+        assert matched_line("/fiper/alarm", "fiper_msgs/msg/FailureAlarm", 1) in said, said
         suite.run(make_rollout(320, fail=True), rollout_id=21)  # ends with END
         ended = len(drv.alarms)
         assert suite.spin_until(lambda: sum(m.heartbeat for m in drv.alarms[ended:]) >= 3, 10)

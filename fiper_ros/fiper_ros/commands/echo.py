@@ -4,6 +4,9 @@ There is no ``ros2 topic echo`` with the pip wheels. The type is taken from the 
 ``--type pkg/msg/Name``); the QoS follows the publishers' durability and reliability, so the latched
 ``/fiper/alarm`` is received by a late echo too. Long arrays are summarised unless ``--full``.
 
+Once its subscription has matched a publisher it says so on stderr (:func:`matched_line`): what a
+publisher sends before that match is not received, beyond what a latched publisher keeps.
+
 ``--brief`` prints a FailureAlarm or a Score on one line (:class:`Printer`); ``--changes`` only the messages that
 change the state: for an alarm its rollout or state (OK / ALARM / UNKNOWN; the heartbeats that repeat it and the
 latched steps after the first ALARM are left out), for a score its rollout or exceedance, for any other message
@@ -68,6 +71,11 @@ def subscribe(node: Any, topic: str, type_name: str, on_message: Callable[[Any],
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
                          reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE)
     return node.create_subscription(message_class(type_name), topic, on_message, profile)
+
+
+def matched_line(topic: str, type_name: str, publishers: int) -> str:
+    """The line ``fiper echo`` writes to stderr when its subscription first matches a publisher."""
+    return f"fiper echo: receiving {topic} ({type_name}) from {publishers} publisher(s)"
 
 
 def alarm_brief(msg: Any) -> str:
@@ -167,8 +175,12 @@ def run(args: argparse.Namespace) -> int:
                 seen += 1
                 print(text, flush=True)
 
-        subscribe(node, args.topic, type_name, on_message)
+        subscription = subscribe(node, args.topic, type_name, on_message)
+        matched = False
         while rclpy.ok() and (args.count == 0 or seen < args.count):
+            if not matched and (publishers := subscription.get_publisher_count()) > 0:
+                matched = True
+                print(matched_line(args.topic, type_name, publishers), file=sys.stderr, flush=True)
             rclpy.spin_once(node, timeout_sec=0.1)
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):
