@@ -136,6 +136,17 @@ def test_calibrate_auto_rule_transfer_notes_a_prior_ranked_with_pooled_threshold
             "its order may not carry over") in capsys.readouterr().out.splitlines()
 
 
+def test_calibrate_auto_promise_delta_notes_a_prior_ranked_at_each_entrys_promise(
+        tmp_path: Path, signal_bag: Path, prior_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["calibrate", str(signal_bag), "-o", str(tmp_path / "calibration"), "--auto", "--auto-rule",
+                 "transfer", "--auto-prior", str(prior_file), "--auto-promise", "delta", "--delta", "0.3", "--seed",
+                 "2"]) == 0
+    assert ("note: the prior ranked its entries at promise 'entry', this choice keeps 'delta' (every choice promises "
+            "delta: an OR of N thresholds is calibrated at delta / N each (the union bound)): its order may not carry "
+            "over") in capsys.readouterr().out.splitlines()
+    assert load_calibration(tmp_path / "calibration").auto["settings"]["promise"] == "delta"
+
+
 def test_calibrate_auto_rule_transfer_refuses_a_modified_prior_in_one_line(tmp_path: Path, signal_bag: Path,
                                                                          prior_file: Path,
                                                                          capsys: pytest.CaptureFixture[str]) -> None:

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fiper_ros.cli import main
-from fiper_ros.core.auto import TRANSFER, AutoSettings
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, TRANSFER, AutoSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.transfer import STATISTICS, Prior, PriorEntry, PriorError
 from fiper_ros.evaluation.data import Dataset, DatasetError
@@ -25,8 +25,8 @@ from fiper_ros.evaluation.methods import Combination, MethodSettings
 from fiper_ros.evaluation.protocol import METRICS
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 from fiper_ros.evaluation.synthetic import make_task
-from fiper_ros.evaluation.transfer import (Member, entry_of, loto_priors, members_of, prior_order, rank_percentiles,
-                                           ranked_prior)
+from fiper_ros.evaluation.transfer import (Member, at_equal_promise, entry_of, loto_priors, members_of, prior_order,
+                                           rank_percentiles, ranked_prior)
 
 RULE = AutoSettings(rule=TRANSFER)
 DELTAS = (0.2, 0.3)
@@ -255,3 +255,73 @@ def test_a_prior_of_a_pooled_run_says_so_and_one_without_transfer_is_refused(tin
     assert prior.calibration["pooled"] is True and all(e.kind in SHAPE_KINDS for e in prior.entries)
     with pytest.raises(SettingsError, match="--auto-prior is the prior of --auto --auto-rule transfer"):
         EngineSettings(method_settings=tiny_settings, auto=AutoSettings(), auto_prior=Prior((), ("a",)))
+
+
+def test_at_equal_promise_an_or_is_ranked_by_its_figures_at_the_promises_of_the_others() -> None:
+    groups = [Group("logpzo", "1", "cp_band"), Group("fiper", "1/1", "cp_band", "or")]
+    metrics = np.zeros((1, 1, 2, 2, len(METRICS)))
+    twa = METRICS.index("twa")
+    metrics[0, 0, 0, :, twa] = [0.7, 0.7]
+    metrics[0, 0, 1, :, twa] = [0.6, 0.9]  # the OR of two: promise 0.1 at delta 0.05, 0.2 at delta 0.1
+    infinite = np.zeros(metrics.shape[:-1], dtype=bool)
+    header = {"deltas": (0.05, 0.1)}
+    kept, never = at_equal_promise(groups, MEMBERS, metrics, infinite, header["deltas"])
+    assert np.isnan(kept[0, 0, 1, 1]).all() and never[0, 0, 1].tolist() == [False, True]
+    np.testing.assert_array_equal(kept[0, 0, 0], metrics[0, 0, 0])  # one threshold: every delta kept
+    assert not infinite.any() and metrics[0, 0, 1, 1, twa] == 0.9  # the inputs are not changed
+    own = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header)
+    assert [e.combine for e in own.entries] == ["or", ""] and own.entries[0].twa == pytest.approx(0.75)
+    equal = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header, promise=DELTA_PROMISE)
+    assert [e.combine for e in equal.entries] == ["", "or"] and equal.entries[1].twa == pytest.approx(0.6)
+    assert equal.selection["promise"] == DELTA_PROMISE and own.selection["promise"] == ENTRY_PROMISE
+    # an OR of three at deltas (0.05, 0.1): no delta whose triple is one of them, so no entry
+    triple = {"three": Member(("rnd_oe", "logpzo", "pca_kmeans"))}
+    alone = [Group("three", "1", "cp_band", "or")]
+    with pytest.raises(PriorError, match="no configuration of the run on a can be a prior entry"):
+        ranked_prior(alone, metrics[:, :, 1:], infinite[:, :, 1:], ("a",), triple, ("window",), 2, header,
+                     promise=DELTA_PROMISE)
+
+
+def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_tasks: list[Dataset],
+                                                                       tiny_settings: MethodSettings) -> None:
+    deltas = (0.15, 0.3)
+    kinds = SweepSettings().kinds
+
+    def run(auto: AutoSettings, prior: Prior | None) -> EvaluationResult:
+        settings = EngineSettings(methods=("elapsed", "pca_kmeans", "progress"), seeds=(0,),
+                                  method_settings=tiny_settings,
+                                  sweep=SweepSettings(windows=(1, 3), deltas=deltas, max_pool=(2,), kinds=kinds),
+                                  combinations=(Combination("both", ("pca_kmeans", "progress")),), protocols=("loto",),
+                                  auto=auto, auto_prior=prior, progress=False)
+        return run_evaluation(two_tasks, settings)
+
+    result = run(RULE, None)
+    members = members_of(result.settings.methods, result.settings.combinations)
+    g = next(i for i, group in enumerate(result.groups)
+             if group.method == "both" and group.combine == "or" and group.kind == "cp_band" and group.window == "1")
+    entry = entry_of(result.groups[g], members["both"])
+    assert entry is not None and entry.promised_multiple == 2
+    prior = Prior((entry,), ("elsewhere",), (0,), deltas, {"subset": "all", "statistic": "mean"})
+    # the test can fail: the OR's alarms at 0.15 are not those at 0.3
+    assert any(not np.array_equal(result.metrics["all"][t, 0, g, 0], result.metrics["all"][t, 0, g, 1])
+               for t in range(2))
+    split = run(AutoSettings(rule=TRANSFER, promise=DELTA_PROMISE), prior).auto
+    own = run(RULE, prior).auto
+    assert split is not None and own is not None
+    for t in range(2):
+        # its own promise: the OR at each delta is the sweep's at that delta
+        np.testing.assert_array_equal(own.metrics["all"][t, 0], result.metrics["all"][t, 0, g])
+        # promise delta at 0.3: its thresholds at 0.15 each, the sweep's OR at 0.15
+        np.testing.assert_array_equal(split.metrics["all"][t, 0, 1], result.metrics["all"][t, 0, g, 0])
+        assert split.held_out["all"][t, 0, 1] == pytest.approx(result.sweep.held_out["all"][t, 0, g, 0], nan_ok=True)
+        assert split.records[t][0][1]["threshold_delta"] == pytest.approx(0.15)
+        assert split.choices[t][0][1].endswith("at delta/2 each")
+        # at 0.15 its thresholds would take 0.075: 6 conformal successes are too few, no entry fits
+        assert split.records[t][0][0]["chosen"] is None and split.infinite[t, 0, 0]
+
+
+def test_the_delta_promise_is_refused_with_another_rule(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", "--synthetic", "sorting,stacking", "--tiny", "--methods", "elapsed", "--no-plots",
+                 "--quiet", "--out", str(tmp_path), "--auto", "--auto-promise", "delta"]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        "--auto-promise delta applies to the transfer rule: the proxy-twa rule's candidates promise delta already")

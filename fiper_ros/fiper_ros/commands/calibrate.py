@@ -25,7 +25,8 @@ curves and failure proxies made from them; ``--auto-windows``, ``--auto-folds``,
 the calibration (``auto``); the other configuration options are then not used. ``--auto-rule transfer`` takes the
 best entry of a prior learned on other tasks' labelled rollouts (:mod:`fiper_ros.core.transfer`; ``--auto-prior
 FILE``, default the one shipped in the installed package's share) that the successes can feed and whose threshold
-is finite at ``--delta``, and stores the prior's content hash and the entry's rank.
+is finite at ``--delta``, and stores the prior's content hash and the entry's rank; with ``--auto-promise delta`` an
+OR entry of N thresholds is calibrated at ``delta / N`` each, so the choice promises ``--delta`` whatever it is.
 
 ``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
 file ``rnd_oe.pt``, which the nodes no longer read) or 2 to the current format: the same thresholds, weights
@@ -45,7 +46,7 @@ from fiper_ros.bagio.reader import find_bags
 from fiper_ros.bagio.rollout_bags import read_rollouts
 from fiper_ros.commands import options
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.core.auto import MARGIN, RULES, AutoChoice, AutoSettings
+from fiper_ros.core.auto import MARGIN, PROMISES, RULES, AutoChoice, AutoSettings
 from fiper_ros.core.calibration import (SPLITS, Calibration, CalibrationSettings, calibrate,
                                         upgrade_calibration)
 from fiper_ros.core.calibration.auto import auto_calibrate
@@ -59,7 +60,7 @@ from fiper_ros.core.profiles import PROFILE_NAMES
 from fiper_ros.core.rnd_oe import RNDConfig, TrainProgress
 from fiper_ros.core.rollout import Rollout, successful
 from fiper_ros.core.thresholds import KINDS, Threshold
-from fiper_ros.core.transfer import Prior, TransferChoice
+from fiper_ros.core.transfer import Prior, TransferChoice, prior_promise
 from fiper_ros.core.window import MODES
 from fiper_ros.interface.topics import ACTIONS_TOPIC
 
@@ -187,12 +188,15 @@ def transfer_lines(choice: TransferChoice, top: int = 8, pooled: bool = False) -
              f"  {'rank':>4}  {'TWA':>6}  entry"]
     for rank, entry, why in choice.skipped[:top]:
         lines.append(f"  {rank:>4}  {entry.twa:>6.3f}  {entry.label()}: skipped ({why})")
-    lines.append(f"  {choice.rank:>4}  {choice.chosen.twa:>6.3f}  {choice.chosen.label()}: chosen")
+    lines.append(f"  {choice.rank:>4}  {choice.chosen.twa:>6.3f}  {choice.label()}: chosen")
     lines.append(f"chosen: {choice.why()}")
     ranked = bool(prior.calibration.get("pooled", False))
     if ranked != pooled:
         lines.append(f"note: the prior ranked its entries with thresholds {_pooling(ranked)}, this calibration's are "
                      f"{_pooling(pooled)}: its order may not carry over")
+    if prior_promise(prior) != choice.settings.promise:
+        lines.append(f"note: the prior ranked its entries at promise {prior_promise(prior)!r}, this choice keeps "
+                     f"{choice.settings.promise!r} ({PROMISES[choice.settings.promise]}): its order may not carry over")
     return lines
 
 

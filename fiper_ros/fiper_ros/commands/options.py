@@ -76,9 +76,9 @@ def parse_channels(text: str, flag: str = "--channels") -> tuple[int, int] | str
 
 def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, folds: bool = False) -> None:
     """The options of the automatic choice (:class:`~fiper_ros.core.auto.AutoSettings`): ``--auto-rule``,
-    ``--auto-windows``, ``--auto-budget``, ``--step-limit`` and (``folds``: ``fiper calibrate``, whose fit part it
+    ``--auto-prior``, ``--auto-promise``, ``--auto-windows``, ``--auto-budget``, ``--step-limit`` and (``folds``: ``fiper calibrate``, whose fit part it
     splits) ``--auto-folds``."""
-    from fiper_ros.core.auto import RULES, AutoSettings  # noqa: PLC0415 - numpy only for the commands that choose
+    from fiper_ros.core.auto import PROMISES, RULES, AutoSettings  # noqa: PLC0415 - numpy only for the commands that choose
 
     defaults = AutoSettings()
     parser.add_argument("--auto-rule", choices=tuple(RULES), default=defaults.rule,
@@ -89,6 +89,10 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
                         help="with --auto-rule transfer: the prior (fiper evaluate --write-prior); default: "
                              + ("each task's of the other tasks of the run" if not folds else
                                 f"{DEFAULT_PRIOR} of the installed fiper_ros share"))
+    parser.add_argument("--auto-promise", choices=tuple(PROMISES), default=defaults.promise,
+                        help="with --auto-rule transfer: entry (default) keeps each entry's own promise (an OR of N "
+                             "thresholds at delta each: N delta); delta keeps delta whatever the entry (an OR of N at "
+                             "delta/N each" + (", the priors of the run ranked at that promise)" if not folds else ")"))
     parser.add_argument("--auto-windows", type=int_list, default=defaults.windows, metavar="W,...",
                         help="with --auto: the windows tried, a comma list and/or ranges, e.g. 1,3,5-10 (default "
                              f"{','.join(map(str, defaults.windows))})")
@@ -134,7 +138,7 @@ def auto_from(args: argparse.Namespace) -> AutoSettings | None:
 
     folds = {"folds": args.auto_folds} if hasattr(args, "auto_folds") else {}
     return AutoSettings(rule=args.auto_rule, windows=args.auto_windows, budget=args.auto_budget,
-                        step_limit=args.step_limit, **folds)
+                        step_limit=args.step_limit, promise=args.auto_promise, **folds)
 
 
 def add_robot_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, control_dt: bool = True) -> None:

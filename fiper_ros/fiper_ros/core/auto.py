@@ -80,6 +80,17 @@ RULE_SUMMARIES = {
     TRANSFER: "the highest-ranked configuration of a prior learned on other tasks' labelled rollouts that the "
               "task's successes can feed and whose threshold is finite at delta with its conformal successes",
 }
+#: What promise a ``transfer`` choice keeps at the calibration's delta (``--auto-promise``): ``entry``, each entry its
+#: own (an OR of ``N`` thresholds at delta each promises ``N delta``, the union bound); ``delta``, delta whatever the
+#: entry (an OR of ``N`` thresholds is calibrated at ``delta / N`` each, and a prior made for it ranks every entry at
+#: equal promise). The other rules' candidates promise delta already (joint combines only).
+ENTRY_PROMISE = "entry"
+DELTA_PROMISE = "delta"
+PROMISES = {
+    ENTRY_PROMISE: "each entry keeps its own promise: an OR of N thresholds at delta each promises N delta",
+    DELTA_PROMISE: "every choice promises delta: an OR of N thresholds is calibrated at delta / N each (the union "
+                   "bound)",
+}
 #: The failure proxies the rule can build from a success.
 PROXIES = ("stall", "drift", "skip")
 #: Share of a success's steps before a proxy's onset: drawn uniformly in this range.
@@ -113,6 +124,8 @@ class AutoSettings:
         drift_scale: A drift proxy's final offset, in units of the successes' total spread.
         stall_factor: Without a step limit, a stall proxy runs to this many times the longest success.
         step_limit: The task's step limit (a stall proxy runs to it), if given.
+        promise: The ``transfer`` rule's promise at delta (:data:`PROMISES`); the other rules take ``entry`` only
+            (their candidates promise delta).
     """
 
     rule: str = PROXY_TWA
@@ -126,6 +139,7 @@ class AutoSettings:
     drift_scale: float = 1.0
     stall_factor: float = 1.5
     step_limit: int | None = None
+    promise: str = ENTRY_PROMISE
 
     def __post_init__(self) -> None:
         for name in ("windows", "kinds", "combines", "proxies"):
@@ -151,6 +165,11 @@ class AutoSettings:
                             f"{self.stall_factor}")
         if self.step_limit is not None and self.step_limit < 2:
             raise AutoError(f"step limit must be >= 2, got {self.step_limit}")
+        if self.promise not in PROMISES:
+            raise AutoError(f"auto promise must be one of {', '.join(PROMISES)}, got {self.promise!r}")
+        if self.promise != ENTRY_PROMISE and self.rule != TRANSFER:
+            raise AutoError(f"--auto-promise {self.promise} applies to the transfer rule: the {self.rule} rule's "
+                            "candidates promise delta already")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (lists for tuples)."""

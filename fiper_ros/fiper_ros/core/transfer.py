@@ -14,6 +14,12 @@ successes can feed and how many conformal successes it has: the highest-ranked e
 can feed and whose threshold is finite at the calibration's delta with its conformal successes wins. No rollout
 of the task is scored for the choice, and no label of it exists to be read.
 
+**The promise** (:data:`~fiper_ros.core.auto.PROMISES`, ``--auto-promise``): by default an entry keeps its own
+(``N delta`` for an OR of ``N``); with ``delta`` every choice promises the calibration's delta: an OR entry's ``N``
+thresholds are calibrated at ``delta / N`` each (:func:`threshold_delta`), so its threshold needs ``N`` times the
+conformal successes, and a prior made for it (its ``selection.promise``) ranks each OR entry by its figures at the
+promises of the other entries (:mod:`fiper_ros.evaluation.transfer`).
+
 **Why it should transfer**: what separates configurations that keep the same promise is how early failures cross
 their threshold, which only labelled failures show; detectors, windows and threshold kinds that caught the
 failures of several other tasks of the same policy family early and rarely alarmed on their successes are the
@@ -37,7 +43,7 @@ from typing import Any
 
 import yaml
 
-from fiper_ros.core.auto import RULES, TRANSFER, AutoError, AutoSettings
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, PROMISES, RULES, TRANSFER, AutoError, AutoSettings
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import check_declared, in_fusion_order
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, check_equalisation
@@ -276,7 +282,24 @@ class Prior:
         if statistic not in STATISTICS:
             raise PriorError(f"{path}: selection statistic {statistic!r} is not one this code knows "
                              f"({', '.join(STATISTICS)})")
+        if prior_promise(prior) not in PROMISES:
+            raise PriorError(f"{path}: selection promise {prior_promise(prior)!r} is not one this code knows "
+                             f"({', '.join(PROMISES)})")
         return prior
+
+
+def threshold_delta(entry: PriorEntry, delta: float, promise: str) -> float:
+    """The delta each of ``entry``'s thresholds is calibrated at for a choice that keeps ``promise`` at ``delta``
+    (:data:`~fiper_ros.core.auto.PROMISES`): ``delta`` for ``entry``, ``delta / N`` for an OR of ``N`` thresholds
+    with ``delta`` (the union bound keeps its false alarms under ``N (delta / N) = delta``)."""
+    if promise not in PROMISES:
+        raise PriorError(f"promise {promise!r}; expected one of {', '.join(PROMISES)}")
+    return delta / entry.promised_multiple if promise == DELTA_PROMISE else delta
+
+
+def prior_promise(prior: Prior) -> str:
+    """The promise a prior's entries were ranked at (its ``selection.promise``; ``entry`` in a prior without one)."""
+    return str(prior.selection.get("promise", ENTRY_PROMISE))
 
 
 def _hash(content: Mapping[str, Any]) -> str:
@@ -295,11 +318,25 @@ class TransferChoice:
     delta: float
     detectors: tuple[str, ...]
 
+    @property
+    def threshold_delta(self) -> float:
+        """The delta each of the chosen entry's thresholds is calibrated at (:func:`threshold_delta`)."""
+        return threshold_delta(self.chosen, self.delta, self.settings.promise)
+
+    def label(self) -> str:
+        """The chosen entry's label, with the delta its thresholds take where the promise splits it."""
+        if self.threshold_delta == self.delta:
+            return self.chosen.label()
+        return f"{self.chosen.label()} at delta/{self.chosen.promised_multiple} each"
+
     def why(self) -> str:
         """One sentence: why this entry."""
         tasks = ", ".join(self.prior.tasks)
         text = (f"{self.chosen.label()} is entry {self.rank} of {len(self.prior.entries)} of the prior learned on "
                 f"{tasks} (mean TWA {self.chosen.twa:.3f} there)")
+        if self.threshold_delta != self.delta:
+            text += (f"; its {self.chosen.promised_multiple} thresholds at delta {self.threshold_delta:g} each keep "
+                     f"the promise delta {self.delta:g}")
         if self.skipped:
             reasons: dict[str, int] = {}
             for _, _, reason in self.skipped:
@@ -309,7 +346,8 @@ class TransferChoice:
 
     def record(self, top: int = 10) -> dict[str, Any]:
         """What a calibration stores of the choice: the rule, the prior (hash, tasks), the rank and the entry."""
-        return {"rule": TRANSFER, "version": RULES[TRANSFER], "delta": self.delta, "settings": self.settings.to_dict(),
+        return {"rule": TRANSFER, "version": RULES[TRANSFER], "delta": self.delta,
+                "threshold_delta": self.threshold_delta, "settings": self.settings.to_dict(),
                 "detectors": list(self.detectors),
                 "prior": {"content_hash": self.prior.content_hash, "tasks": list(self.prior.tasks),
                           "entries": len(self.prior.entries), "made_from": self.prior.made_from},

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.cluster import connected
-from fiper_ros.core.auto import TRANSFER, AutoSettings
+from fiper_ros.core.auto import ENTRY_PROMISE, TRANSFER, AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
@@ -91,6 +91,13 @@ class EngineSettings:
     auto_prior: Prior | None = None
     prior_top: int = PRIOR_TOP
     prior_statistic: str = DEFAULT_STATISTIC
+
+    @property
+    def prior_promise(self) -> str:
+        """The promise a prior made of the run's metrics ranks its entries at (``--write-prior``'s and the
+        leave-one-task-out priors of ``transfer``): ``--auto``'s (:data:`fiper_ros.core.auto.PROMISES`), else each
+        entry's own."""
+        return self.auto.promise if self.auto is not None else ENTRY_PROMISE
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
@@ -466,14 +473,14 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
 
 def run_prior(result: EvaluationResult, command: str) -> Prior:
     """The prior of every task of the run (:func:`~fiper_ros.evaluation.transfer.ranked_prior`: its best
-    ``prior_top`` configurations on all test rollouts, by ``prior_statistic``); ``command``: the command that made
-    it."""
+    ``prior_top`` configurations on all test rollouts, by ``prior_statistic`` at ``prior_promise``); ``command``: the
+    command that made it."""
     settings = result.settings
     header = prior_header(result.datasets, settings.method_settings, settings.seeds, settings.sweep.deltas, command,
                           settings.pooled)
     return ranked_prior(result.groups, result.metrics["all"], result.sweep.infinite, result.tasks,
                         members_of(settings.methods, settings.combinations), settings.select_aggregations,
-                        settings.prior_top, header, settings.prior_statistic)
+                        settings.prior_top, header, settings.prior_statistic, settings.prior_promise)
 
 
 def protocol_early(datasets: Sequence[Dataset], statistics: Mapping[int, Sequence[TaskStatistics]],

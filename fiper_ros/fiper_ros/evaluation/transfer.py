@@ -13,7 +13,9 @@ metrics (exactly the leave-one-task-out selection, over all methods at once), so
 prior file given for every task. At every delta the rule (:func:`fiper_ros.core.transfer.choose_from_prior`) picks
 its entry from what ``T``'s data feed and how many conformal successes ``T`` has, and the entry is calibrated on
 ``T``'s calibration successes as the sweep calibrates it (its shapes from the fit part's curves of the run's score
-streams, its conformal quantile from the conformal part's) and judged on ``T``'s test rollouts.
+streams, its conformal quantile from the conformal part's) and judged on ``T``'s test rollouts. With the promise
+``delta`` (:data:`~fiper_ros.core.auto.PROMISES`) an OR entry of ``N`` thresholds is calibrated at ``delta / N``
+each and the priors rank every entry at equal promise (:func:`at_equal_promise`).
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ from typing import Any
 import numpy as np
 
 import fiper_ros
-from fiper_ros.core.auto import RULES, TRANSFER, AutoSettings
-from fiper_ros.core.calibration.auto import finite_at_delta
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, RULES, TRANSFER, AutoSettings
+from fiper_ros.core.calibration.auto import finite_at_delta, transfer_settings
 from fiper_ros.core.detectors import declarable, info
 from fiper_ros.core.equalisation import DEFAULT_LEVEL
 from fiper_ros.core.thresholds import GUARANTEED_KINDS
@@ -44,14 +46,37 @@ FAMILY_TOP = 10
 SMOOTH_STEPS = 2
 
 
-def selection(statistic: str) -> dict[str, str]:
+def selection(statistic: str, promise: str = ENTRY_PROMISE) -> dict[str, str]:
     """How a prior's entries are ranked, as its file says (``statistic``: a name of
-    :data:`~fiper_ros.core.transfer.STATISTICS`)."""
-    return {"subset": "all test rollouts", "statistic": statistic, "ranks_by": STATISTICS[statistic],
-            "twa": "each configuration's TWA on a task averaged over its finite deltas and the seeds; configurations "
-                   "with no finite delta on some task and seed left out",
+    :data:`~fiper_ros.core.transfer.STATISTICS`; ``promise``: of :data:`~fiper_ros.core.auto.PROMISES`, the promise
+    its figures are at, :func:`at_equal_promise`)."""
+    twa = ("each configuration's TWA on a task averaged over its finite deltas and the seeds; configurations with no "
+           "finite delta on some task and seed left out")
+    if promise == DELTA_PROMISE:
+        twa += ("; an OR of N thresholds only over the deltas d whose N d is a delta of the run, its figures at "
+                "promise N d (every entry's at the promises of the run's deltas)")
+    return {"subset": "all test rollouts", "statistic": statistic, "ranks_by": STATISTICS[statistic], "twa": twa,
+            "promise": promise,
             "kept": "guaranteed thresholds (CP constant, band, scaled); detectors a calibration declares; one "
                     "aggregation for all detectors; OR with its promise N delta"}
+
+
+def at_equal_promise(groups: Sequence[Group], members: Mapping[str, Member], metrics: np.ndarray,
+                     infinite: np.ndarray, deltas: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """``metrics`` ``[tasks, seeds, groups, deltas, 5]`` and ``infinite`` ``[tasks, seeds, groups, deltas]`` with
+    every OR of ``N`` thresholds kept only at the deltas ``d`` whose ``N d`` is one of ``deltas`` (its figures there
+    are those of promise ``N d``, a promise the other configurations are measured at); its other deltas NaN and
+    +inf, as a threshold that never alarms is left out of the averages. Copies; the inputs are not changed."""
+    metrics, infinite = metrics.copy(), infinite.copy()
+    grid = np.asarray(deltas, dtype=np.float64)
+    for i, group in enumerate(groups):
+        entry = entry_of(group, members[group.method])
+        multiple = entry.promised_multiple if entry is not None else 1
+        if multiple > 1:
+            kept = np.isclose(multiple * grid[:, None], grid[None, :], rtol=1e-9, atol=1e-12).any(axis=1)
+            metrics[:, :, i, ~kept] = np.nan
+            infinite[:, :, i, ~kept] = True
+    return metrics, infinite
 
 
 def rank_percentiles(values: np.ndarray) -> np.ndarray:
@@ -205,13 +230,16 @@ def chosen_groups(auto: AutoOutcome, groups: Sequence[Group], members: Mapping[s
 
 def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray, tasks: Sequence[str],
                  members: Mapping[str, Member], select_aggregations: Sequence[str], top: int,
-                 header: Mapping[str, Any], statistic: str = DEFAULT_STATISTIC) -> Prior:
+                 header: Mapping[str, Any], statistic: str = DEFAULT_STATISTIC, promise: str = ENTRY_PROMISE) -> Prior:
     """The prior of ``tasks`` (module docstring) from their rows of ``metrics`` ``[tasks, seeds, groups, deltas, 5]``
     (all test rollouts) and ``infinite`` ``[tasks, seeds, groups, deltas]``, ranked by ``statistic``
-    (:func:`prior_order`); ``header``: the :class:`Prior`'s other fields (seeds, deltas, calibration, made_from,
-    command, version)."""
+    (:func:`prior_order`) at ``promise`` (:data:`~fiper_ros.core.auto.PROMISES`; ``delta``: every entry's figures at
+    the promises of the header's deltas, :func:`at_equal_promise`); ``header``: the :class:`Prior`'s other fields
+    (seeds, deltas, calibration, made_from, command, version)."""
     if top < 1:
         raise ValueError(f"a prior keeps at least one entry, got top {top}")
+    if promise == DELTA_PROMISE:
+        metrics, infinite = at_equal_promise(groups, members, metrics, infinite, header["deltas"])
     twa = selection_twa(metrics, infinite)
     values = delta_mean(metrics)  # [tasks, seeds, groups, 5]
     per_task = nanmean(values[..., METRICS.index("twa")], axis=1)  # [tasks, groups]
@@ -231,7 +259,7 @@ def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndar
     if not entries:
         raise PriorError(f"no configuration of the run on {', '.join(tasks)} can be a prior entry (a guaranteed "
                          "threshold, detectors a calibration declares, a finite delta on every task)")
-    return Prior(tuple(entries.values()), tuple(tasks), selection=selection(statistic), **header)
+    return Prior(tuple(entries.values()), tuple(tasks), selection=selection(statistic, promise), **header)
 
 
 def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, seeds: Sequence[int],
@@ -249,10 +277,11 @@ def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, s
 def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
                 members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
                 deltas: Sequence[float], select_aggregations: Sequence[str], top: int,
-                statistic: str = DEFAULT_STATISTIC, pooled: bool = False) -> list[Prior]:
+                statistic: str = DEFAULT_STATISTIC, pooled: bool = False, promise: str = ENTRY_PROMISE
+                ) -> list[Prior]:
     """Per task ``T``, the prior of the other tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups,
-    deltas, 5]``) and ``infinite`` ranked by ``statistic`` (:func:`ranked_prior`): a leave-one-task-out selection over
-    all methods at once; no row of ``T`` enters it."""
+    deltas, 5]``) and ``infinite`` ranked by ``statistic`` at ``promise`` (:func:`ranked_prior`): a
+    leave-one-task-out selection over all methods at once; no row of ``T`` enters it."""
     if len(datasets) < 2:
         raise ValueError(f"a prior of other tasks needs two tasks or more, got {len(datasets)}")
     names = [d.task for d in datasets]
@@ -262,7 +291,7 @@ def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: n
         header = prior_header([datasets[n] for n in others], method_settings, seeds, deltas,
                               f"leave-one-task-out prior of this run for {names[t]}", pooled)
         priors.append(ranked_prior(groups, metrics[others], infinite[others], [names[n] for n in others], members,
-                                   select_aggregations, top, header, statistic))
+                                   select_aggregations, top, header, statistic, promise))
     return priors
 
 
@@ -283,7 +312,7 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
     pool = candidate_streams(streams)
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
-                    top, statistic, pooled)
+                    top, statistic, pooled, auto.promise)
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
                                                               np.ndarray]:
@@ -296,7 +325,8 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
         for k, delta in enumerate(deltas):
             at = replace(base, delta=delta)
             try:
-                choice = choose_from_prior(priors[t], pool, lambda e: finite_at_delta(e, successes, at), auto, delta)
+                choice = choose_from_prior(priors[t], pool, lambda e: finite_at_delta(e, successes, at, auto.promise),
+                                           auto, delta)
             except PriorError as error:
                 bad[k] = True
                 labels.append("none")
@@ -304,11 +334,11 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
                                 "prior": {"content_hash": priors[t].content_hash, "tasks": list(priors[t].tasks)},
                                 "rank": None, "chosen": None, "why": str(error)})
                 continue
-            settings = replace(at, **choice.chosen.settings())
+            settings = transfer_settings(at, choice)
             fitted = {d.task: ({x: scores[(d.task, seed)][x].fit for x in settings.detectors}, scores[(d.task, seed)])
                       for d in together}
             alarms[k], bad[k] = calibrated_alarms(dataset, fitted, settings)
-            labels.append(choice.chosen.label())
+            labels.append(choice.label())
             records.append(choice.record(top=5))
         return labels, records, alarms, bad
 

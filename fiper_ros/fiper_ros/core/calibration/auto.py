@@ -17,8 +17,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from fiper_ros.core.auto import (PROXY_TWA, TRANSFER, AutoChoice, AutoError, AutoSettings, EmbeddingSpread,
-                                 TaskScores, choose, make_proxy, stall_length)
+from fiper_ros.core.auto import (ENTRY_PROMISE, PROXY_TWA, TRANSFER, AutoChoice, AutoError, AutoSettings,
+                                 EmbeddingSpread, TaskScores, choose, make_proxy, stall_length)
 from fiper_ros.core.calibration.fit import calibrate, conformal_count, split_successes
 from fiper_ros.core.calibration.model import Calibration
 from fiper_ros.core.calibration.settings import CalibrationSettings
@@ -29,7 +29,7 @@ from fiper_ros.core.rnd_oe import ProgressCallback
 from fiper_ros.core.rollout import Rollout
 from fiper_ros.core.scorers import FitContext, fit_scorer
 from fiper_ros.core.thresholds import minimum_conformal_set
-from fiper_ros.core.transfer import Prior, PriorEntry, TransferChoice, choose_from_prior
+from fiper_ros.core.transfer import Prior, PriorEntry, TransferChoice, choose_from_prior, threshold_delta
 
 #: Called with a short note as the fold models are fitted (progress of a long run).
 Note = Callable[[str], None]
@@ -100,13 +100,15 @@ def _successes_by_task(rollouts: Sequence[Rollout], settings: CalibrationSetting
     return tasks
 
 
-def finite_at_delta(entry: PriorEntry, conformal_successes: Sequence[int], settings: CalibrationSettings) -> bool:
-    """Whether ``entry``'s threshold is finite at ``settings.delta`` on every task whose number of successes is in
+def finite_at_delta(entry: PriorEntry, conformal_successes: Sequence[int], settings: CalibrationSettings,
+                    promise: str = ENTRY_PROMISE) -> bool:
+    """Whether ``entry``'s threshold is finite at ``settings.delta`` under ``promise`` (its thresholds at
+    :func:`~fiper_ros.core.transfer.threshold_delta`) on every task whose number of successes is in
     ``conformal_successes`` (the conformal part of each task's split gets :func:`conformal_count` of them; the
     conformal quantile is finite with at least :func:`minimum_conformal_set` scores; a plain quantile always is).
     Thresholds pooled over the tasks (``settings.pooled``) take one quantile of every task's conformal scores: the
     sum must reach it."""
-    chosen = replace(settings, **entry.settings())
+    chosen = replace(settings, **entry.settings(), delta=threshold_delta(entry, settings.delta, promise))
     if not chosen.profile_obj.conformal:
         return True
     need = minimum_conformal_set(chosen.delta)
@@ -127,8 +129,8 @@ def transfer_choice(rollouts: Sequence[Rollout], settings: CalibrationSettings, 
     good_ones = [r for good in tasks.values() for r in good]
     pool = tuple(detectors) if detectors is not None else available_detectors(good_ones)
     counts = [len(good) for good in tasks.values()]
-    return choose_from_prior(prior, pool, lambda entry: finite_at_delta(entry, counts, split_settings), auto,
-                             settings.delta)
+    return choose_from_prior(prior, pool, lambda entry: finite_at_delta(entry, counts, split_settings, auto.promise),
+                             auto, settings.delta)
 
 
 def choose_configuration(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
@@ -155,9 +157,18 @@ def choose_configuration(rollouts: Sequence[Rollout], settings: CalibrationSetti
     return choose(scores, pool, auto, settings.threshold_settings(), settings.seed)
 
 
+def transfer_settings(settings: CalibrationSettings, choice: TransferChoice) -> CalibrationSettings:
+    """``settings`` with the transfer rule's chosen entry, its thresholds at the delta the choice's promise gives
+    them (:attr:`~fiper_ros.core.transfer.TransferChoice.threshold_delta`)."""
+    return replace(settings, **choice.chosen.settings(), delta=choice.threshold_delta)
+
+
 def chosen_settings(settings: CalibrationSettings, choice: AutoChoice | TransferChoice) -> CalibrationSettings:
-    """``settings`` with the chosen configuration, its shapes cross-fitted in the rule's folds."""
-    return replace(settings, **choice.chosen.settings(), shape_folds=choice.settings.folds)
+    """``settings`` with the chosen configuration (a transfer choice's thresholds at its
+    :func:`transfer_settings` delta), its shapes cross-fitted in the rule's folds."""
+    chosen = transfer_settings(settings, choice) if isinstance(choice, TransferChoice) else \
+        replace(settings, **choice.chosen.settings())
+    return replace(chosen, shape_folds=choice.settings.folds)
 
 
 def auto_calibrate(rollouts: Sequence[Rollout], settings: CalibrationSettings, auto: AutoSettings,
