@@ -8,7 +8,8 @@
 #     calibrate at delta 0.05)
 #   - Sorting's second calibration, the paper's operator and threshold (AND, CP constant): the windows from a prior
 #     of those configurations alone, learned on the other two tasks
-#   - the default prior of `fiper calibrate --auto --auto-rule transfer` (every method, all three tasks)
+#   - the default prior of `fiper calibrate --auto --auto-rule transfer` (every method, all three tasks), and the one
+#     it reads with --auto-promise delta (ranked at equal promise, by the rank statistic)
 # Deterministic (seeds 0-1 for the priors, the calibrations' seed 0); about 20 min on 2 cores, the scores cached.
 #   bash tools/ship_calibrations.sh            (from the repository, after `source ./env.sh`)
 set -euo pipefail
@@ -32,6 +33,9 @@ fiper evaluate "${data[@]}" "${sweep[@]}" --methods fiper --combines and --thres
   --write-prior models/priors/fiper-and-cp-constant-without-sorting.yaml
 fiper evaluate --data sorting=$study/sorting --data stacking=$study/stacking --data push_t=$study/pusht "${sweep[@]}" \
   --out runs/ship/three-tasks --write-prior models/priors/sim-three-tasks.yaml
+fiper evaluate --data sorting=$study/sorting --data stacking=$study/stacking --data push_t=$study/pusht "${sweep[@]}" \
+  --auto --auto-rule transfer --auto-promise delta --prior-statistic rank \
+  --out runs/ship/three-tasks-delta --write-prior models/priors/sim-three-tasks-delta.yaml
 auto=(--auto --auto-rule transfer --force)
 fiper calibrate $study/sorting/calibration "${auto[@]}" --auto-prior models/priors/fiper-pair-without-sorting.yaml \
   -o models/sorting/calibration

@@ -13,7 +13,7 @@ from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.cli import main
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.commands.options import DEFAULT_PRIOR, prior_from
+from fiper_ros.commands.options import DEFAULT_DELTA_PRIOR, DEFAULT_PRIOR, prior_from
 from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings, load_calibration
 from fiper_ros.core.calibration.auto import auto_calibrate
@@ -97,6 +97,10 @@ PRIOR_ENTRIES = (
 )
 
 
+PRIOR_AT_DELTA = Prior(PRIOR_ENTRIES[1:], ("sorting", "stacking"), (0,), (0.3,), {"statistic": "rank", "promise": "delta"},
+                       {}, "hand-made", "by hand", "0")
+
+
 @pytest.fixture()
 def prior_file(tmp_path: Path) -> Path:
     return Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {"statistic": "mean"}, {}, "hand-made", "by hand",
@@ -172,9 +176,12 @@ def test_the_default_prior_comes_from_the_package_share_never_the_working_direct
     (here / DEFAULT_PRIOR).write_text("not a prior")
     monkeypatch.chdir(here)
     monkeypatch.setattr("fiper_ros.data_paths.package_share", lambda: share)
-    args = argparse.Namespace(auto=True, auto_rule="transfer", auto_prior=None)
+    args = argparse.Namespace(auto=True, auto_rule="transfer", auto_prior=None, auto_promise="entry")
     prior = prior_from(args, default=True)
     assert prior is not None and prior == Prior.load(prior_file)
+    # with --auto-promise delta the prior ranked at that promise
+    (share / DEFAULT_DELTA_PRIOR).write_text(PRIOR_AT_DELTA.save(tmp_path / "delta.yaml").read_text())
+    assert prior_from(argparse.Namespace(**{**vars(args), "auto_promise": "delta"}), default=True) == PRIOR_AT_DELTA
     assert prior_from(args, default=False) is None  # fiper evaluate: each task's prior of the run's other tasks
     monkeypatch.setattr("fiper_ros.data_paths.package_share", lambda: None)
     with pytest.raises(UsageError, match="give --auto-prior FILE"):
@@ -192,3 +199,16 @@ def test_calibrate_auto_rule_transfer_reads_the_shipped_prior_by_default(tmp_pat
     assert record["prior"]["content_hash"] == shipped.content_hash
     assert record["chosen"] == shipped.entries[record["rank"] - 1].to_dict()
     assert all(skipped["why"] == "need a detector the successes cannot feed" for skipped in record["skipped"])
+
+
+def test_calibrate_auto_promise_delta_reads_the_shipped_prior_ranked_at_that_promise(
+        tmp_path: Path, signal_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    shipped = Prior.load(Path(__file__).resolve().parents[2] / DEFAULT_DELTA_PRIOR)  # installed in the share
+    assert shipped.tasks == ("sorting", "stacking", "push_t") and len(shipped.entries) == 200
+    assert shipped.selection["promise"] == "delta" and shipped.selection["statistic"] == "rank"
+    out = tmp_path / "calibration"
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--auto-promise",
+                 "delta", "--delta", "0.3", "--seed", "2"]) == 0
+    record = load_calibration(out).auto
+    assert record["prior"]["content_hash"] == shipped.content_hash and record["settings"]["promise"] == "delta"
+    assert not any(line.startswith("note:") for line in capsys.readouterr().out.splitlines())

@@ -30,6 +30,8 @@ if TYPE_CHECKING:
 
 #: The prior ``--auto-rule transfer`` reads without ``--auto-prior``: this path of the installed package's share.
 DEFAULT_PRIOR = Path("models") / "priors" / "sim-three-tasks.yaml"
+#: ... and with ``--auto-promise delta``: the same tasks' prior ranked at equal promise (``selection.promise: delta``).
+DEFAULT_DELTA_PRIOR = Path("models") / "priors" / "sim-three-tasks-delta.yaml"
 
 #: The most integers one list option (:func:`int_list`) expands to: a range is bounded before it is built.
 MAX_INTS = 10_000
@@ -88,7 +90,8 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
     parser.add_argument("--auto-prior", type=Path, default=None, metavar="FILE",
                         help="with --auto-rule transfer: the prior (fiper evaluate --write-prior); default: "
                              + ("each task's of the other tasks of the run" if not folds else
-                                f"{DEFAULT_PRIOR} of the installed fiper_ros share"))
+                                f"{DEFAULT_PRIOR} of the installed fiper_ros share ({DEFAULT_DELTA_PRIOR.name} with "
+                                "--auto-promise delta)"))
     parser.add_argument("--auto-promise", choices=tuple(PROMISES), default=defaults.promise,
                         help="with --auto-rule transfer: entry (default) keeps each entry's own promise (an OR of N "
                              "thresholds at delta each: N delta); delta keeps delta whatever the entry (an OR of N at "
@@ -107,10 +110,10 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
 
 def prior_from(args: argparse.Namespace, default: bool) -> Prior | None:
     """The prior of ``--auto-prior`` (:class:`~fiper_ros.core.transfer.PriorError` in one line for a bad file);
-    without it ``None``, or with ``default`` the shipped one (:data:`DEFAULT_PRIOR`, looked up in the installed
-    package's share only, never the working directory). ``--auto-prior`` without ``--auto-rule transfer`` is a
-    :class:`UsageError`."""
-    from fiper_ros.core.auto import TRANSFER  # noqa: PLC0415
+    without it ``None``, or with ``default`` the shipped one (:data:`DEFAULT_PRIOR`; with ``--auto-promise delta``
+    :data:`DEFAULT_DELTA_PRIOR`, ranked at that promise), looked up in the installed package's share only, never the
+    working directory. ``--auto-prior`` without ``--auto-rule transfer`` is a :class:`UsageError`."""
+    from fiper_ros.core.auto import DELTA_PROMISE, TRANSFER  # noqa: PLC0415
     from fiper_ros.core.transfer import Prior  # noqa: PLC0415
     from fiper_ros.data_paths import package_share  # noqa: PLC0415
 
@@ -122,11 +125,12 @@ def prior_from(args: argparse.Namespace, default: bool) -> Prior | None:
         return Prior.load(args.auto_prior)
     if not default:
         return None
+    path = DEFAULT_DELTA_PRIOR if args.auto_promise == DELTA_PROMISE else DEFAULT_PRIOR
     share = package_share()
     if share is None:
-        raise UsageError(f"the default prior ({DEFAULT_PRIOR}) is in the installed fiper_ros share, which is not on "
+        raise UsageError(f"the default prior ({path}) is in the installed fiper_ros share, which is not on "
                          "AMENT_PREFIX_PATH (. ./env.sh): give --auto-prior FILE")
-    return Prior.load(share / DEFAULT_PRIOR)
+    return Prior.load(share / path)
 
 
 def auto_from(args: argparse.Namespace) -> AutoSettings | None:
