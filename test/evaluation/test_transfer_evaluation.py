@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fiper_ros.cli import main
-from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, TRANSFER, AutoSettings
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, PROMISES, TRANSFER, AutoSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.transfer import STATISTICS, Prior, PriorEntry, PriorError
 from fiper_ros.evaluation.data import Dataset, DatasetError
@@ -234,14 +234,18 @@ def test_one_task_needs_a_prior_file_and_takes_it(tmp_path: Path, two_tasks: lis
     assert document["auto"]["tasks"]["sorting"]["record"]["rule"] == "transfer"
 
 
-def test_the_report_says_a_pooled_choice_promises_over_all_tasks(tmp_path: Path) -> None:
+@pytest.mark.parametrize("promise", [ENTRY_PROMISE, DELTA_PROMISE])
+def test_the_report_says_a_pooled_choice_promises_over_all_tasks_and_which_promise(tmp_path: Path,
+                                                                                    promise: str) -> None:
     out = tmp_path / "eval"
     assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
                  "--tiny", "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--pool",
                  "--deltas", "0.3", "--no-plots", "--no-cache", "--quiet", "--out", str(out), "--auto", "--auto-rule",
-                 "transfer"]) == 0
+                 "transfer", "--auto-promise", promise]) == 0
     text = (out / "results.md").read_text()
     assert "Thresholds pooled over the tasks (--pool): each choice is calibrated on every task's successes" in text
+    read = "against δ. " if promise == DELTA_PROMISE else "against δ, or N δ where the choice is such an OR. "
+    assert f"The promise (--auto-promise {promise}): {PROMISES[promise]}, so its FA column is to be read {read}" in text
 
 
 def test_a_prior_of_a_pooled_run_says_so_and_one_without_transfer_is_refused(tiny_settings: MethodSettings,

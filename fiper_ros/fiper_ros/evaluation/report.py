@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.core.auto import RULE_SUMMARIES, TRANSFER
+from fiper_ros.core.auto import DELTA_PROMISE, PROMISES, RULE_SUMMARIES, TRANSFER
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.fusion import Combine
@@ -593,6 +593,7 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
         cells += [_best_cell(result, protocol, t) for protocol in beside]
         rows.append("| " + " | ".join(cells) + " |")
     record = auto.records[0][0][0]
+    promise = result.settings.prior_promise
     if record["rule"] == TRANSFER:
         priors = "; ".join(f"{task}: {', '.join(auto.records[t][0][0]['prior']['tasks'])}"
                            for t, task in enumerate(result.tasks))
@@ -601,6 +602,8 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
                 f"Rule {record['rule']} v{record['version']} (docs/method.md, 'The third rule'): "
                 f"{RULE_SUMMARIES[record['rule']]}; of the task only its calibration successes are read (which "
                 f"detectors they feed, how many are conformal), no label of it. The prior's tasks: {priors}. "
+                + f"The promise (--auto-promise {promise}): {PROMISES[promise]}, so its FA column is to be read "
+                + ("against δ. " if promise == DELTA_PROMISE else "against δ, or N δ where the choice is such an OR. ")
                 + ("Thresholds pooled over the tasks (--pool): each choice is calibrated on every task's successes, "
                    "its promise is over all tasks' successes, not task by task. " if result.settings.pooled else "")
                 + "The choice is made at every δ (the prior's rank in brackets); metrics are averaged over the "]
