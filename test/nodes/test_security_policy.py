@@ -22,7 +22,7 @@ from fiper_ros.client import live_collect, record, snapshot
 from fiper_ros.client.replay import NODE_NAME as REPLAY, Player, played_topics
 from fiper_ros.client.ros_session import RosSession, enclave_args
 from fiper_ros.client.suite_process import SuiteProcess, installed_launch
-from fiper_ros.commands import demo, echo, grants, replay
+from fiper_ros.commands import demo, echo, grants, replay, security
 from fiper_ros.commands.errors import UsageError
 from fiper_ros.commands.grants import (Deployment, Grants, effective_parameters, node_grants, shipped_deployments,
                                        shipped_models, shipped_policy, tool_grants)
@@ -343,3 +343,29 @@ def test_a_composed_launch_has_no_enclave_and_fiper_security_says_so(
     assert "fiper security: node entry 'container' without a name: under ROS_SECURITY_ENABLE=true" \
         in capsys.readouterr().err
     assert not (tmp_path / "policy.xml").exists()
+
+
+def test_a_group_with_a_node_the_graph_never_listed_is_built_again_once(monkeypatch: pytest.MonkeyPatch,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """The graph of a busy machine once never listed one ACTIVE node in 30 s (every grant of it 'only in its
+    grants'): its group is observed again in a new domain, once; a node unlisted both times stays a mismatch. The
+    observation itself is replaced here (the DDS side is the test above)."""
+    deployments = list(shipped_deployments())[:1]  # the demo suite
+    assert deployments and len(security.distinct_nodes(deployments)) > 1
+    specs = [spec for spec, _ in security.distinct_nodes(deployments)]
+    listed = {spec.fqn: node_grants(spec) for spec in specs}
+    domains: list[int] = []
+    unlisted_always = {"on": False}
+
+    def flaky(group: list[NodeSpec], domain: int, timeout_s: float) -> dict[str, Grants]:
+        domains.append(domain)
+        missing = len(domains) == 1 or unlisted_always["on"]
+        return {**listed, specs[0].fqn: Grants()} if missing else listed
+
+    monkeypatch.setattr(security, "observe", flaky)
+    assert mismatches(observe_all(deployments)) == [] and len(domains) == 2 and domains[0] != domains[1]
+    assert f"fiper security: {specs[0].fqn} not in the ROS graph 30 s after ACTIVE" in capsys.readouterr().err
+    domains.clear()
+    unlisted_always["on"] = True
+    found = mismatches(observe_all(deployments))
+    assert len(domains) == 2 and found and all(line.startswith(f"{specs[0].fqn} ") for line in found)

@@ -39,6 +39,10 @@ SETTLE_S = 0.5
 #: How long the graph may take to show every endpoint of a node: DDS discovers even a process's own endpoints on
 #: its own threads, which lag under load.
 DISCOVERY_TIMEOUT_S = 30.0
+#: How often a group is built again, in a new ROS domain, when the graph never listed one of its nodes within
+#: :data:`DISCOVERY_TIMEOUT_S` though it was ACTIVE (the process's discovery of its own endpoints lagging: seen
+#: twice in fresh-clone test runs, each time one node missing whole); a node still unlisted then is a mismatch.
+UNLISTED_RETRIES = 1
 
 
 def policy_xml(policy: Policy, generated_by: str) -> str:
@@ -206,14 +210,22 @@ def batches(nodes: Iterable[tuple[NodeSpec, list[str]]]) -> list[list[tuple[Node
 def observe_all(deployments: Iterable[Deployment], timeout_s: float = ACTIVE_TIMEOUT_S
                 ) -> list[tuple[NodeSpec, list[str], Grants]]:
     """Build every distinct node of ``deployments``, a group at a time in a ROS domain of its own (each held to
-    the end, so that no group meets what an earlier one left of a node of the same name): each node, the
-    deployments it runs in, and what it does (read from the graph)."""
+    the end, so that no group meets what an earlier one left of a node of the same name; a group with a node the
+    graph never listed is built again in a new one, :data:`UNLISTED_RETRIES`): each node, the deployments it runs
+    in, and what it does (read from the graph)."""
     from fiper_ros.platform.dds import allocate_domain  # noqa: PLC0415
 
     observed = []
     with ExitStack() as domains:
         for group in batches(distinct_nodes(deployments)):
-            seen = observe([spec for spec, _ in group], domains.enter_context(allocate_domain()), timeout_s)
+            specs = [spec for spec, _ in group]
+            for attempt in range(UNLISTED_RETRIES + 1):
+                seen = observe(specs, domains.enter_context(allocate_domain()), timeout_s)
+                unlisted = [fqn for fqn, grants in seen.items() if grants == Grants()]  # a listed node has /rosout
+                if not unlisted or attempt == UNLISTED_RETRIES:
+                    break
+                print(f"fiper security: {', '.join(unlisted)} not in the ROS graph {DISCOVERY_TIMEOUT_S:g} s after "
+                      "ACTIVE: its group built again in a new domain", file=sys.stderr)
             observed += [(spec, origins, seen[spec.fqn]) for spec, origins in group]
     return observed
 
