@@ -97,8 +97,8 @@ PRIOR_ENTRIES = (
 )
 
 
-PRIOR_AT_DELTA = Prior(PRIOR_ENTRIES[1:], ("sorting", "stacking"), (0,), (0.3,), {"statistic": "rank", "promise": "delta"},
-                       {}, "hand-made", "by hand", "0")
+PRIOR_AT_DELTA = Prior(PRIOR_ENTRIES[1:], ("sorting", "stacking"), (0,), (0.3,),
+                       {"statistic": "rank", "promise": "delta"}, {}, "hand-made", "by hand", "0")
 
 
 @pytest.fixture()

@@ -78,9 +78,10 @@ def parse_channels(text: str, flag: str = "--channels") -> tuple[int, int] | str
 
 def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, folds: bool = False) -> None:
     """The options of the automatic choice (:class:`~fiper_ros.core.auto.AutoSettings`): ``--auto-rule``,
-    ``--auto-prior``, ``--auto-promise``, ``--auto-windows``, ``--auto-budget``, ``--step-limit`` and (``folds``: ``fiper calibrate``, whose fit part it
-    splits) ``--auto-folds``."""
-    from fiper_ros.core.auto import PROMISES, RULES, AutoSettings  # noqa: PLC0415 - numpy only for the commands that choose
+    ``--auto-prior``, ``--auto-promise``, ``--auto-windows``, ``--auto-budget``, ``--step-limit`` and (``folds``:
+    ``fiper calibrate``, whose fit part it splits) ``--auto-folds``."""
+    from fiper_ros.core.auto import (  # noqa: PLC0415 - numpy only for the commands that choose
+        PROMISES, RULES, AutoSettings)
 
     defaults = AutoSettings()
     parser.add_argument("--auto-rule", choices=tuple(RULES), default=defaults.rule,

@@ -40,8 +40,8 @@ SETTLE_S = 0.5
 #: its own threads, which lag under load.
 DISCOVERY_TIMEOUT_S = 30.0
 #: How often a group is built again, in a new ROS domain, when the graph never listed one of its nodes within
-#: :data:`DISCOVERY_TIMEOUT_S` though it was ACTIVE (the process's discovery of its own endpoints lagging: seen
-#: twice in fresh-clone test runs, each time one node missing whole); a node still unlisted then is a mismatch.
+#: :data:`DISCOVERY_TIMEOUT_S` though it was ACTIVE (seen in a fresh-clone test run: one node missing whole, likely
+#: the process's discovery of its own endpoints lagging); a node still unlisted then is a mismatch.
 UNLISTED_RETRIES = 1
 
 
