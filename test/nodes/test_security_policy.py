@@ -345,27 +345,36 @@ def test_a_composed_launch_has_no_enclave_and_fiper_security_says_so(
     assert not (tmp_path / "policy.xml").exists()
 
 
-def test_a_group_with_a_node_the_graph_never_listed_is_built_again_once(monkeypatch: pytest.MonkeyPatch,
-                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("lagging", ["unlisted", "rosout only"])
+def test_a_group_with_a_node_the_graph_did_not_wholly_list_is_built_again_once(
+        lagging: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """The graph of a busy machine once never listed one ACTIVE node in 30 s (every grant of it 'only in its
-    grants'): its group is observed again in a new domain, once; a node unlisted both times stays a mismatch. The
+    grants'), and once listed three nodes with ``/rosout`` only: the group is observed again in a new domain, once;
+    what is missing both times stays a mismatch, and a node doing more than its grants is not observed again. The
     observation itself is replaced here (the DDS side is the test above)."""
     deployments = list(shipped_deployments())[:1]  # the demo suite
     assert deployments and len(security.distinct_nodes(deployments)) > 1
     specs = [spec for spec, _ in security.distinct_nodes(deployments)]
     listed = {spec.fqn: node_grants(spec) for spec in specs}
+    partial = Grants() if lagging == "unlisted" else Grants.of(publish=["/rosout"])
+    assert "/rosout" in listed[specs[0].fqn].publish
     domains: list[int] = []
-    unlisted_always = {"on": False}
+    lagging_always = {"on": False}
 
     def flaky(group: list[NodeSpec], domain: int, timeout_s: float) -> dict[str, Grants]:
         domains.append(domain)
-        missing = len(domains) == 1 or unlisted_always["on"]
-        return {**listed, specs[0].fqn: Grants()} if missing else listed
+        missing = len(domains) == 1 or lagging_always["on"]
+        return {**listed, specs[0].fqn: partial} if missing else listed
 
     monkeypatch.setattr(security, "observe", flaky)
     assert mismatches(observe_all(deployments)) == [] and len(domains) == 2 and domains[0] != domains[1]
-    assert f"fiper security: {specs[0].fqn} not in the ROS graph 30 s after ACTIVE" in capsys.readouterr().err
+    assert f"fiper security: {specs[0].fqn} not wholly in the ROS graph 30 s after ACTIVE" in capsys.readouterr().err
     domains.clear()
-    unlisted_always["on"] = True
+    lagging_always["on"] = True
     found = mismatches(observe_all(deployments))
     assert len(domains) == 2 and found and all(line.startswith(f"{specs[0].fqn} ") for line in found)
+    domains.clear()
+    more = {**listed, specs[0].fqn: listed[specs[0].fqn] | Grants.of(publish=["/extra"])}
+    monkeypatch.setattr(security, "observe", lambda group, domain, timeout_s: domains.append(domain) or more)
+    found = mismatches(observe_all(deployments))
+    assert len(domains) == 1 and len(found) == 1 and "/extra" in found[0]
