@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The shipped calibrations (models/<task>/calibration*) and transfer priors (models/priors), remade from the study's
 # data (data/study, `make study`) by rules that read no failure of the task they calibrate (docs/results.md, "The
-# shipped calibrations, chosen without their task's failures"; models/README.md):
+# shipped calibrations, chosen without their task's failures"; models/README.md), each keeping the delta it is
+# calibrated at (the default --auto-promise delta: an OR of N thresholds at delta / N each, the priors ranked at
+# equal promise by the rank statistic):
 #   - each task's prior of FIPER's pair (RND-OE and ACE, the suite the launch files run) from the labelled test
 #     rollouts of the two OTHER tasks: fiper evaluate --methods fiper --write-prior
 #   - each task's calibration: fiper calibrate --auto --auto-rule transfer with that prior (the first entry it can
@@ -9,7 +11,7 @@
 #   - Sorting's second calibration, the paper's operator and threshold (AND, CP constant): the windows from a prior
 #     of those configurations alone, learned on the other two tasks
 #   - the default prior of `fiper calibrate --auto --auto-rule transfer` (every method, all three tasks), and the one
-#     it reads with --auto-promise delta (ranked at equal promise, by the rank statistic)
+#     it reads with --auto-promise entry (each entry at its own promise, by the mean statistic)
 # Deterministic (seeds 0-1 for the priors, the calibrations' seed 0); about 20 min on 2 cores, the scores cached.
 #   bash tools/ship_calibrations.sh            (from the repository, after `source ./env.sh`)
 set -euo pipefail
@@ -34,8 +36,7 @@ fiper evaluate "${data[@]}" "${sweep[@]}" --methods fiper --combines and --thres
 fiper evaluate --data sorting=$study/sorting --data stacking=$study/stacking --data push_t=$study/pusht "${sweep[@]}" \
   --out runs/ship/three-tasks --write-prior models/priors/sim-three-tasks.yaml
 fiper evaluate --data sorting=$study/sorting --data stacking=$study/stacking --data push_t=$study/pusht "${sweep[@]}" \
-  --auto --auto-rule transfer --auto-promise delta --prior-statistic rank \
-  --out runs/ship/three-tasks-delta --write-prior models/priors/sim-three-tasks-delta.yaml
+  --auto-promise entry --out runs/ship/three-tasks-entry --write-prior models/priors/sim-three-tasks-entry.yaml
 auto=(--auto --auto-rule transfer --force)
 fiper calibrate $study/sorting/calibration "${auto[@]}" --auto-prior models/priors/fiper-pair-without-sorting.yaml \
   -o models/sorting/calibration

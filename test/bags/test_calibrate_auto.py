@@ -13,7 +13,7 @@ from fiper_ros.bagio.rollout_bags import read_rollouts, write_rollouts
 from fiper_ros.bagio.schema import BagInfo
 from fiper_ros.cli import main
 from fiper_ros.commands.errors import UsageError
-from fiper_ros.commands.options import DEFAULT_DELTA_PRIOR, DEFAULT_PRIOR, prior_from
+from fiper_ros.commands.options import DEFAULT_PRIOR, ENTRY_PRIOR, prior_from
 from fiper_ros.core.auto import AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings, load_calibration
 from fiper_ros.core.calibration.auto import auto_calibrate
@@ -103,9 +103,8 @@ PRIOR_AT_DELTA = Prior(PRIOR_ENTRIES[1:], ("sorting", "stacking"), (0,), (0.3,),
 
 @pytest.fixture()
 def prior_file(tmp_path: Path) -> Path:
-    return Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {"statistic": "mean"}, {}, "hand-made", "by hand",
-                 "0").save(
-        tmp_path / "prior.yaml")
+    return Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {"statistic": "rank", "promise": "delta"}, {},
+                 "hand-made", "by hand", "0").save(tmp_path / "prior.yaml")
 
 
 def test_calibrate_auto_rule_transfer_takes_the_first_entry_it_can_feed(tmp_path: Path, signal_bag: Path,
@@ -141,10 +140,12 @@ def test_calibrate_auto_rule_transfer_notes_a_prior_ranked_with_pooled_threshold
 
 
 def test_calibrate_auto_promise_delta_notes_a_prior_ranked_at_each_entrys_promise(
-        tmp_path: Path, signal_bag: Path, prior_file: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, signal_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # a prior written before promises were recorded: ranked at each entry's own
+    prior = Prior(PRIOR_ENTRIES, ("sorting", "stacking"), (0,), (0.3,), {"statistic": "mean"}, {}, "hand-made",
+                  "by hand", "0").save(tmp_path / "prior.yaml")
     assert main(["calibrate", str(signal_bag), "-o", str(tmp_path / "calibration"), "--auto", "--auto-rule",
-                 "transfer", "--auto-prior", str(prior_file), "--auto-promise", "delta", "--delta", "0.3", "--seed",
-                 "2"]) == 0
+                 "transfer", "--auto-prior", str(prior), "--delta", "0.3", "--seed", "2"]) == 0  # delta: the default
     assert ("note: the prior ranked its entries at promise 'entry', this choice keeps 'delta' (every choice promises "
             "delta: an OR of N thresholds is calibrated at delta / N each (the union bound)): its order may not carry "
             "over") in capsys.readouterr().out.splitlines()
@@ -170,17 +171,18 @@ def test_the_default_prior_comes_from_the_package_share_never_the_working_direct
         tmp_path: Path, prior_file: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     share = tmp_path / "share"
     (share / DEFAULT_PRIOR).parent.mkdir(parents=True)
-    (share / DEFAULT_PRIOR).write_text(prior_file.read_text())
     here = tmp_path / "cwd"
     (here / DEFAULT_PRIOR).parent.mkdir(parents=True)
     (here / DEFAULT_PRIOR).write_text("not a prior")
+    (here / ENTRY_PRIOR).write_text("not a prior")
     monkeypatch.chdir(here)
     monkeypatch.setattr("fiper_ros.data_paths.package_share", lambda: share)
     args = argparse.Namespace(auto=True, auto_rule="transfer", auto_prior=None, auto_promise="entry")
+    (share / ENTRY_PRIOR).write_text(prior_file.read_text())
     prior = prior_from(args, default=True)
     assert prior is not None and prior == Prior.load(prior_file)
-    # with --auto-promise delta the prior ranked at that promise
-    (share / DEFAULT_DELTA_PRIOR).write_text(PRIOR_AT_DELTA.save(tmp_path / "delta.yaml").read_text())
+    # with --auto-promise delta (the default) the prior ranked at that promise
+    (share / DEFAULT_PRIOR).write_text(PRIOR_AT_DELTA.save(tmp_path / "delta.yaml").read_text())
     assert prior_from(argparse.Namespace(**{**vars(args), "auto_promise": "delta"}), default=True) == PRIOR_AT_DELTA
     assert prior_from(args, default=False) is None  # fiper evaluate: each task's prior of the run's other tasks
     monkeypatch.setattr("fiper_ros.data_paths.package_share", lambda: None)
@@ -188,27 +190,28 @@ def test_the_default_prior_comes_from_the_package_share_never_the_working_direct
         prior_from(args, default=True)
 
 
-def test_calibrate_auto_rule_transfer_reads_the_shipped_prior_by_default(tmp_path: Path, signal_bag: Path,
-                                                                        capsys: pytest.CaptureFixture[str]) -> None:
-    shipped = Prior.load(Path(__file__).resolve().parents[2] / DEFAULT_PRIOR)  # the checkout's, installed in the share
+def test_calibrate_auto_promise_entry_reads_the_shipped_prior_ranked_at_that_promise(
+        tmp_path: Path, signal_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    shipped = Prior.load(Path(__file__).resolve().parents[2] / ENTRY_PRIOR)  # the checkout's, installed in the share
     assert shipped.tasks == ("sorting", "stacking", "push_t") and len(shipped.entries) == 200
+    assert shipped.selection["promise"] == "entry" and shipped.selection["statistic"] == "mean"
     out = tmp_path / "calibration"
-    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--delta", "0.3",
-                 "--seed", "2"]) == 0
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--auto-promise",
+                 "entry", "--delta", "0.3", "--seed", "2"]) == 0
     record = load_calibration(out).auto
-    assert record["prior"]["content_hash"] == shipped.content_hash
+    assert record["prior"]["content_hash"] == shipped.content_hash and record["settings"]["promise"] == "entry"
     assert record["chosen"] == shipped.entries[record["rank"] - 1].to_dict()
     assert all(skipped["why"] == "need a detector the successes cannot feed" for skipped in record["skipped"])
 
 
-def test_calibrate_auto_promise_delta_reads_the_shipped_prior_ranked_at_that_promise(
+def test_calibrate_auto_rule_transfer_reads_the_shipped_prior_ranked_at_delta_by_default(
         tmp_path: Path, signal_bag: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    shipped = Prior.load(Path(__file__).resolve().parents[2] / DEFAULT_DELTA_PRIOR)  # installed in the share
+    shipped = Prior.load(Path(__file__).resolve().parents[2] / DEFAULT_PRIOR)  # installed in the share
     assert shipped.tasks == ("sorting", "stacking", "push_t") and len(shipped.entries) == 200
     assert shipped.selection["promise"] == "delta" and shipped.selection["statistic"] == "rank"
     out = tmp_path / "calibration"
-    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--auto-promise",
-                 "delta", "--delta", "0.3", "--seed", "2"]) == 0
+    assert main(["calibrate", str(signal_bag), "-o", str(out), "--auto", "--auto-rule", "transfer", "--delta", "0.3",
+                 "--seed", "2"]) == 0
     record = load_calibration(out).auto
     assert record["prior"]["content_hash"] == shipped.content_hash and record["settings"]["promise"] == "delta"
     assert not any(line.startswith("note:") for line in capsys.readouterr().out.splitlines())

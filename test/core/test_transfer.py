@@ -182,7 +182,7 @@ def test_auto_calibrate_with_a_prior_calibrates_the_entry_and_stores_the_rank() 
         auto_calibrate(_successes(12), settings, RULE)
 
 
-DELTA_RULE = AutoSettings(rule=TRANSFER, folds=3, promise=DELTA_PROMISE)
+ENTRY_RULE = AutoSettings(rule=TRANSFER, folds=3, promise=ENTRY_PROMISE)
 OR_SIGNALS = PriorEntry(("signal_a", "signal_b"), "window", {"signal_a": 3, "signal_b": 3}, "cp_constant", "or",
                         method="both", twa=0.9, per_task={"a": 0.9, "b": 0.9})
 
@@ -199,31 +199,33 @@ def test_the_delta_promise_splits_an_or_and_only_an_or() -> None:
     base = CalibrationSettings(detectors=("signal_a",), delta=0.08)
     assert finite_at_delta(OR_SIGNALS, [50], base, DELTA_PROMISE)
     # 36 successes, 18 conformal: enough for 0.08 (12), not for 0.04 (24): the split OR is +inf, the entry's is not
-    assert finite_at_delta(OR_SIGNALS, [36], base) and not finite_at_delta(OR_SIGNALS, [36], base, DELTA_PROMISE)
+    assert finite_at_delta(OR_SIGNALS, [36], base, ENTRY_PROMISE)
+    assert not finite_at_delta(OR_SIGNALS, [36], base, DELTA_PROMISE)
+    assert not finite_at_delta(OR_SIGNALS, [36], base)  # the default promise is delta
     assert finite_at_delta(SIGNAL_B, [36], base, DELTA_PROMISE)
 
 
 def test_the_delta_promise_is_the_transfer_rules_and_is_calibrated_and_stored() -> None:
-    with pytest.raises(AutoError, match=r"--auto-promise delta applies to the transfer rule: the proxy-twa rule's "):
-        AutoSettings(promise=DELTA_PROMISE)
+    with pytest.raises(AutoError, match=r"--auto-promise entry applies to the transfer rule: the proxy-twa rule's "):
+        AutoSettings(promise=ENTRY_PROMISE)
     with pytest.raises(AutoError, match=r"auto promise must be one of entry, delta, got 'loose'"):
         AutoSettings(rule=TRANSFER, promise="loose")
     prior = Prior((OR_SIGNALS, SIGNAL_B), ("a", "b"), (0,), (0.05, 0.1), {"subset": "all", "statistic": "mean"})
     settings = CalibrationSettings(detectors=("signal_a",), delta=0.4, seed=1)
-    calibration, choice = auto_calibrate(_successes(12), settings, DELTA_RULE, prior=prior)
+    calibration, choice = auto_calibrate(_successes(12), settings, RULE, prior=prior)
     # 12 successes, 6 conformal: the OR's thresholds at 0.2 each need 4, finite: chosen, calibrated at delta / 2
     assert choice.rank == 1 and calibration.settings.delta == pytest.approx(0.2)
     assert calibration.settings.combine == "or" and calibration.auto["threshold_delta"] == pytest.approx(0.2)
     assert calibration.auto["delta"] == 0.4 and calibration.auto["settings"]["promise"] == DELTA_PROMISE
     assert choice.label() == "signal_a+signal_b w3 cp_constant or (2 delta) at delta/2 each"
     assert "its 2 thresholds at delta 0.2 each keep the promise delta 0.4" in choice.why()
-    entry_kept, _ = auto_calibrate(_successes(12), settings, RULE, prior=prior)
+    entry_kept, _ = auto_calibrate(_successes(12), settings, ENTRY_RULE, prior=prior)
     assert entry_kept.settings.delta == 0.4 and entry_kept.auto["threshold_delta"] == 0.4
     # at delta 0.24 the split OR's thresholds at 0.12 need 8 conformal successes (ceil(9 x 0.88) = 8), the 6 are
     # too few: the OR is skipped, the single signal (0.24 needs 4) chosen; the entry's own promise keeps the OR
-    choice = transfer_choice(_successes(12), replace(settings, delta=0.24), DELTA_RULE, prior)
+    choice = transfer_choice(_successes(12), replace(settings, delta=0.24), RULE, prior)
     assert choice.chosen == SIGNAL_B and [why for _, _, why in choice.skipped] == [INFINITE]
-    assert transfer_choice(_successes(12), replace(settings, delta=0.24), RULE, prior).chosen == OR_SIGNALS
+    assert transfer_choice(_successes(12), replace(settings, delta=0.24), ENTRY_RULE, prior).chosen == OR_SIGNALS
 
 
 def test_a_prior_says_its_promise_and_an_unknown_one_is_refused(tmp_path: Path) -> None:

@@ -1,7 +1,7 @@
 """`fiper demo` with the second shipped Sorting calibration, ``models/sorting/calibration_cp_constant`` (CP
-constant: one threshold per detector for the whole rollout), through the whole live suite; the live alarms equal
-the offline oracle's on the data the run recorded. The default calibration (the CP band) is
-``test_demo_e2e``'s."""
+constant: one threshold per detector for the whole rollout, the paper's AND), through the whole live suite; the live
+alarms equal the offline oracle's on the data the run recorded. The default calibration (the pair's ``max`` under
+one conformal threshold) is ``test_demo_e2e``'s."""
 from __future__ import annotations
 
 from pathlib import Path

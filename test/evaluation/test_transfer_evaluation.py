@@ -125,7 +125,7 @@ def test_a_tasks_prior_is_the_same_whatever_its_own_rows(metrics: np.ndarray, ot
     datasets = _three()
     infinite = np.zeros(metrics.shape[:-1], dtype=bool)
     common = dict(members=MEMBERS, method_settings=MethodSettings(), seeds=(0,), deltas=(0.1, 0.2),
-                  select_aggregations=("window", "max"), top=10, statistic=statistic)
+                  select_aggregations=("window", "max"), top=10, statistic=statistic, promise=ENTRY_PROMISE)
     before = loto_priors(datasets, GROUPS, metrics, infinite, **common)
     changed = metrics.copy()
     changed[task] = other
@@ -188,7 +188,7 @@ def test_the_prior_header_records_its_statistic() -> None:
     members = {"logpzo": Member(("logpzo",)), "rnd_oe": Member(("rnd_oe",))}
     for statistic in STATISTICS:
         prior = ranked_prior(RANKED, metrics, np.zeros(metrics.shape[:-1], dtype=bool), ("a", "b", "c"), members,
-                             ("window",), 6, {}, statistic)
+                             ("window",), 6, {}, statistic, ENTRY_PROMISE)
         assert prior.selection["statistic"] == statistic and prior.selection["ranks_by"] == STATISTICS[statistic]
         assert [e.label() for e in prior.entries] == [f"{RANKED[i].method} w{RANKED[i].window} cp_band"
                                                       for i in BY_HAND[statistic]]
@@ -273,17 +273,17 @@ def test_at_equal_promise_an_or_is_ranked_by_its_figures_at_the_promises_of_the_
     assert np.isnan(kept[0, 0, 1, 1]).all() and never[0, 0, 1].tolist() == [False, True]
     np.testing.assert_array_equal(kept[0, 0, 0], metrics[0, 0, 0])  # one threshold: every delta kept
     assert not infinite.any() and metrics[0, 0, 1, 1, twa] == 0.9  # the inputs are not changed
-    own = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header)
+    own = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header, "mean", ENTRY_PROMISE)
     assert [e.combine for e in own.entries] == ["or", ""] and own.entries[0].twa == pytest.approx(0.75)
-    equal = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header, promise=DELTA_PROMISE)
+    equal = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header, "mean", DELTA_PROMISE)
     assert [e.combine for e in equal.entries] == ["", "or"] and equal.entries[1].twa == pytest.approx(0.6)
     assert equal.selection["promise"] == DELTA_PROMISE and own.selection["promise"] == ENTRY_PROMISE
     # an OR of three at deltas (0.05, 0.1): no delta whose triple is one of them, so no entry
     triple = {"three": Member(("rnd_oe", "logpzo", "pca_kmeans"))}
     alone = [Group("three", "1", "cp_band", "or")]
     with pytest.raises(PriorError, match="no configuration of the run on a can be a prior entry"):
-        ranked_prior(alone, metrics[:, :, 1:], infinite[:, :, 1:], ("a",), triple, ("window",), 2, header,
-                     promise=DELTA_PROMISE)
+        ranked_prior(alone, metrics[:, :, 1:], infinite[:, :, 1:], ("a",), triple, ("window",), 2, header, "mean",
+                     DELTA_PROMISE)
 
 
 def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_tasks: list[Dataset],
@@ -296,10 +296,11 @@ def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_task
                                   method_settings=tiny_settings,
                                   sweep=SweepSettings(windows=(1, 3), deltas=deltas, max_pool=(2,), kinds=kinds),
                                   combinations=(Combination("both", ("pca_kmeans", "progress")),), protocols=("loto",),
-                                  auto=auto, auto_prior=prior, progress=False)
+                                  auto=auto, auto_prior=prior, progress=False, promise=auto.promise)
         return run_evaluation(two_tasks, settings)
 
-    result = run(RULE, None)
+    own_promise = AutoSettings(rule=TRANSFER, promise=ENTRY_PROMISE)
+    result = run(own_promise, None)
     members = members_of(result.settings.methods, result.settings.combinations)
     g = next(i for i, group in enumerate(result.groups)
              if group.method == "both" and group.combine == "or" and group.kind == "cp_band" and group.window == "1")
@@ -309,8 +310,8 @@ def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_task
     # the test can fail: the OR's alarms at 0.15 are not those at 0.3
     assert any(not np.array_equal(result.metrics["all"][t, 0, g, 0], result.metrics["all"][t, 0, g, 1])
                for t in range(2))
-    split = run(AutoSettings(rule=TRANSFER, promise=DELTA_PROMISE), prior).auto
-    own = run(RULE, prior).auto
+    split = run(RULE, prior).auto  # the default promise: delta
+    own = run(own_promise, prior).auto
     assert split is not None and own is not None
     for t in range(2):
         # its own promise: the OR at each delta is the sweep's at that delta
@@ -324,8 +325,9 @@ def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_task
         assert split.records[t][0][0]["chosen"] is None and split.infinite[t, 0, 0]
 
 
-def test_the_delta_promise_is_refused_with_another_rule(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_entry_promise_is_refused_with_another_rule(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["evaluate", "--synthetic", "sorting,stacking", "--tiny", "--methods", "elapsed", "--no-plots",
-                 "--quiet", "--out", str(tmp_path), "--auto", "--auto-promise", "delta"]) == 2
+                 "--quiet", "--out", str(tmp_path), "--auto", "--auto-promise", "entry"]) == 2
     assert capsys.readouterr().err.strip().endswith(
-        "--auto-promise delta applies to the transfer rule: the proxy-twa rule's candidates promise delta already")
+        "--auto-promise entry applies to the transfer rule: the proxy-twa rule's candidates promise delta (joint "
+        "combines only)")

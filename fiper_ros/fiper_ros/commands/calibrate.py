@@ -25,8 +25,9 @@ curves and failure proxies made from them; ``--auto-windows``, ``--auto-folds``,
 the calibration (``auto``); the other configuration options are then not used. ``--auto-rule transfer`` takes the
 best entry of a prior learned on other tasks' labelled rollouts (:mod:`fiper_ros.core.transfer`; ``--auto-prior
 FILE``, default the one shipped in the installed package's share) that the successes can feed and whose threshold
-is finite at ``--delta``, and stores the prior's content hash and the entry's rank; with ``--auto-promise delta`` an
-OR entry of N thresholds is calibrated at ``delta / N`` each, so the choice promises ``--delta`` whatever it is.
+is finite at ``--delta``, and stores the prior's content hash and the entry's rank; an OR entry of N thresholds is
+calibrated at ``delta / N`` each, so the choice promises ``--delta`` whatever it is (``--auto-promise entry``: at
+``delta`` each, promising ``N delta``).
 
 ``fiper calibrate --upgrade OLD -o NEW`` converts a calibration of format 1 (RND-OE's weights in the torch
 file ``rnd_oe.pt``, which the nodes no longer read) or 2 to the current format: the same thresholds, weights

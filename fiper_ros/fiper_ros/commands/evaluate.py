@@ -64,7 +64,7 @@ from fiper_ros.core.data_split import DEFAULT_FRACTION, DEFAULT_SEED, DataSplitE
 from fiper_ros.core.equalisation import DEFAULT_LEVEL, EQUALISATIONS
 from fiper_ros.core.errors import ChoiceError
 from fiper_ros.core.fusion import Combine
-from fiper_ros.core.transfer import DEFAULT_STATISTIC, PRIOR_TOP, STATISTICS
+from fiper_ros.core.transfer import DEFAULT_STATISTICS, PRIOR_TOP, STATISTICS
 from fiper_ros.evaluation.cache import DEFAULT_DIRECTORY, ScoreCache
 from fiper_ros.evaluation.data import Dataset, DatasetError, load_datasets
 from fiper_ros.evaluation.dump import INDEX
@@ -224,10 +224,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--prior-statistic on all test rollouts (docs/method.md, 'The third rule')")
     output.add_argument("--prior-top", type=int, default=PRIOR_TOP, metavar="N",
                         help=f"entries a prior made of the run keeps (default {PRIOR_TOP})")
-    output.add_argument("--prior-statistic", choices=tuple(STATISTICS), default=DEFAULT_STATISTIC,
+    output.add_argument("--prior-statistic", choices=tuple(STATISTICS), default=None,
                         help="what a prior made of the run ranks its configurations by: the transfer rule's "
-                             "leave-one-task-out priors and --write-prior's (default "
-                             f"{DEFAULT_STATISTIC}; docs/method.md, 'The third rule')")
+                             "leave-one-task-out priors and --write-prior's, at the promise of --auto-promise "
+                             "(default " + ", ".join(f"{s} at {p}" for p, s in DEFAULT_STATISTICS.items())
+                             + "; docs/method.md, 'The third rule')")
     output.add_argument("--quiet", action="store_true", help="no progress lines")
     cluster = parser.add_argument_group("cluster")
     cluster.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
@@ -302,7 +303,7 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                           progress=not args.quiet, combinations=combinations_from(args),
                           combines=args.combo_combines, pooled=args.pool, q_auc=args.q_auc,
                           auto=options.auto_from(args), auto_prior=options.prior_from(args, default=False),
-                          prior_top=args.prior_top, prior_statistic=args.prior_statistic)
+                          prior_top=args.prior_top, prior_statistic=args.prior_statistic, promise=args.auto_promise)
 
 
 def combinations_from(args: argparse.Namespace) -> tuple[Combination, ...]:

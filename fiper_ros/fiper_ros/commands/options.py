@@ -28,10 +28,11 @@ if TYPE_CHECKING:
     from fiper_ros.core.kinematics import PinocchioFK, RobotModel
     from fiper_ros.core.transfer import Prior
 
-#: The prior ``--auto-rule transfer`` reads without ``--auto-prior``: this path of the installed package's share.
+#: The prior ``--auto-rule transfer`` reads without ``--auto-prior``: this path of the installed package's share,
+#: ranked at equal promise (``selection.promise: delta``, the default ``--auto-promise``).
 DEFAULT_PRIOR = Path("models") / "priors" / "sim-three-tasks.yaml"
-#: ... and with ``--auto-promise delta``: the same tasks' prior ranked at equal promise (``selection.promise: delta``).
-DEFAULT_DELTA_PRIOR = Path("models") / "priors" / "sim-three-tasks-delta.yaml"
+#: ... and with ``--auto-promise entry``: the same tasks' prior ranked at each entry's own promise.
+ENTRY_PRIOR = Path("models") / "priors" / "sim-three-tasks-entry.yaml"
 
 #: The most integers one list option (:func:`int_list`) expands to: a range is bounded before it is built.
 MAX_INTS = 10_000
@@ -81,7 +82,7 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
     ``--auto-prior``, ``--auto-promise``, ``--auto-windows``, ``--auto-budget``, ``--step-limit`` and (``folds``:
     ``fiper calibrate``, whose fit part it splits) ``--auto-folds``."""
     from fiper_ros.core.auto import (  # noqa: PLC0415 - numpy only for the commands that choose
-        PROMISES, RULES, AutoSettings)
+        DELTA_PROMISE, PROMISES, RULES, AutoSettings)
 
     defaults = AutoSettings()
     parser.add_argument("--auto-rule", choices=tuple(RULES), default=defaults.rule,
@@ -91,12 +92,14 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
     parser.add_argument("--auto-prior", type=Path, default=None, metavar="FILE",
                         help="with --auto-rule transfer: the prior (fiper evaluate --write-prior); default: "
                              + ("each task's of the other tasks of the run" if not folds else
-                                f"{DEFAULT_PRIOR} of the installed fiper_ros share ({DEFAULT_DELTA_PRIOR.name} with "
-                                "--auto-promise delta)"))
+                                f"{DEFAULT_PRIOR} of the installed fiper_ros share ({ENTRY_PRIOR.name} with "
+                                "--auto-promise entry)"))
     parser.add_argument("--auto-promise", choices=tuple(PROMISES), default=defaults.promise,
-                        help="with --auto-rule transfer: entry (default) keeps each entry's own promise (an OR of N "
-                             "thresholds at delta each: N delta); delta keeps delta whatever the entry (an OR of N at "
-                             "delta/N each" + (", the priors of the run ranked at that promise)" if not folds else ")"))
+                        help=f"with --auto-rule transfer: {DELTA_PROMISE} (default) keeps delta whatever the entry (an "
+                             "OR of N thresholds at delta/N each); entry keeps each entry's own promise (an OR of N "
+                             "at delta each: N delta)" + ("; also the promise the priors of the run (--write-prior's, "
+                                                          "the transfer rule's) rank their entries at" if not folds
+                                                          else ""))
     parser.add_argument("--auto-windows", type=int_list, default=defaults.windows, metavar="W,...",
                         help="with --auto: the windows tried, a comma list and/or ranges, e.g. 1,3,5-10 (default "
                              f"{','.join(map(str, defaults.windows))})")
@@ -111,10 +114,10 @@ def add_auto_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup
 
 def prior_from(args: argparse.Namespace, default: bool) -> Prior | None:
     """The prior of ``--auto-prior`` (:class:`~fiper_ros.core.transfer.PriorError` in one line for a bad file);
-    without it ``None``, or with ``default`` the shipped one (:data:`DEFAULT_PRIOR`; with ``--auto-promise delta``
-    :data:`DEFAULT_DELTA_PRIOR`, ranked at that promise), looked up in the installed package's share only, never the
+    without it ``None``, or with ``default`` the shipped one (:data:`DEFAULT_PRIOR`; with ``--auto-promise entry``
+    :data:`ENTRY_PRIOR`, ranked at that promise), looked up in the installed package's share only, never the
     working directory. ``--auto-prior`` without ``--auto-rule transfer`` is a :class:`UsageError`."""
-    from fiper_ros.core.auto import DELTA_PROMISE, TRANSFER  # noqa: PLC0415
+    from fiper_ros.core.auto import ENTRY_PROMISE, TRANSFER  # noqa: PLC0415
     from fiper_ros.core.transfer import Prior  # noqa: PLC0415
     from fiper_ros.data_paths import package_share  # noqa: PLC0415
 
@@ -126,7 +129,7 @@ def prior_from(args: argparse.Namespace, default: bool) -> Prior | None:
         return Prior.load(args.auto_prior)
     if not default:
         return None
-    path = DEFAULT_DELTA_PRIOR if args.auto_promise == DELTA_PROMISE else DEFAULT_PRIOR
+    path = ENTRY_PRIOR if args.auto_promise == ENTRY_PROMISE else DEFAULT_PRIOR
     share = package_share()
     if share is None:
         raise UsageError(f"the default prior ({path}) is in the installed fiper_ros share, which is not on "

@@ -80,12 +80,15 @@ RULE_SUMMARIES = {
     TRANSFER: "the highest-ranked configuration of a prior learned on other tasks' labelled rollouts that the "
               "task's successes can feed and whose threshold is finite at delta with its conformal successes",
 }
-#: What promise a ``transfer`` choice keeps at the calibration's delta (``--auto-promise``): ``entry``, each entry its
-#: own (an OR of ``N`` thresholds at delta each promises ``N delta``, the union bound); ``delta``, delta whatever the
-#: entry (an OR of ``N`` thresholds is calibrated at ``delta / N`` each, and a prior made for it ranks every entry at
-#: equal promise). The other rules' candidates promise delta already (joint combines only).
+#: What promise a ``transfer`` choice keeps at the calibration's delta (``--auto-promise``): ``delta`` (the default),
+#: delta whatever the entry (an OR of ``N`` thresholds is calibrated at ``delta / N`` each, and a prior made for it
+#: ranks every entry at equal promise); ``entry``, each entry its own (an OR of ``N`` thresholds at delta each promises
+#: ``N delta``, the union bound). The other rules' candidates promise delta by construction (joint combines only), so
+#: they take ``delta`` only.
 ENTRY_PROMISE = "entry"
 DELTA_PROMISE = "delta"
+#: The promise ``--auto`` keeps without ``--auto-promise``: the delta the user asked for.
+DEFAULT_PROMISE = DELTA_PROMISE
 PROMISES = {
     ENTRY_PROMISE: "each entry keeps its own promise: an OR of N thresholds at delta each promises N delta",
     DELTA_PROMISE: "every choice promises delta: an OR of N thresholds is calibrated at delta / N each (the union "
@@ -124,8 +127,8 @@ class AutoSettings:
         drift_scale: A drift proxy's final offset, in units of the successes' total spread.
         stall_factor: Without a step limit, a stall proxy runs to this many times the longest success.
         step_limit: The task's step limit (a stall proxy runs to it), if given.
-        promise: The ``transfer`` rule's promise at delta (:data:`PROMISES`); the other rules take ``entry`` only
-            (their candidates promise delta).
+        promise: The promise at delta (:data:`PROMISES`, default :data:`DEFAULT_PROMISE`); ``entry`` is the
+            ``transfer`` rule's only (the other rules' candidates promise delta).
     """
 
     rule: str = PROXY_TWA
@@ -139,7 +142,7 @@ class AutoSettings:
     drift_scale: float = 1.0
     stall_factor: float = 1.5
     step_limit: int | None = None
-    promise: str = ENTRY_PROMISE
+    promise: str = DEFAULT_PROMISE
 
     def __post_init__(self) -> None:
         for name in ("windows", "kinds", "combines", "proxies"):
@@ -167,9 +170,9 @@ class AutoSettings:
             raise AutoError(f"step limit must be >= 2, got {self.step_limit}")
         if self.promise not in PROMISES:
             raise AutoError(f"auto promise must be one of {', '.join(PROMISES)}, got {self.promise!r}")
-        if self.promise != ENTRY_PROMISE and self.rule != TRANSFER:
+        if self.promise != DELTA_PROMISE and self.rule != TRANSFER:
             raise AutoError(f"--auto-promise {self.promise} applies to the transfer rule: the {self.rule} rule's "
-                            "candidates promise delta already")
+                            "candidates promise delta (joint combines only)")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (lists for tuples)."""

@@ -14,11 +14,11 @@ successes can feed and how many conformal successes it has: the highest-ranked e
 can feed and whose threshold is finite at the calibration's delta with its conformal successes wins. No rollout
 of the task is scored for the choice, and no label of it exists to be read.
 
-**The promise** (:data:`~fiper_ros.core.auto.PROMISES`, ``--auto-promise``): by default an entry keeps its own
-(``N delta`` for an OR of ``N``); with ``delta`` every choice promises the calibration's delta: an OR entry's ``N``
-thresholds are calibrated at ``delta / N`` each (:func:`threshold_delta`), so its threshold needs ``N`` times the
-conformal successes, and a prior made for it (its ``selection.promise``) ranks each OR entry by its figures at the
-promises of the other entries (:mod:`fiper_ros.evaluation.transfer`).
+**The promise** (:data:`~fiper_ros.core.auto.PROMISES`, ``--auto-promise``): by default (``delta``) every choice
+promises the calibration's delta: an OR entry's ``N`` thresholds are calibrated at ``delta / N`` each
+(:func:`threshold_delta`), so its threshold needs ``N`` times the conformal successes, and a prior made for it (its
+``selection.promise``) ranks each OR entry by its figures at the promises of the other entries
+(:mod:`fiper_ros.evaluation.transfer`); with ``entry`` an entry keeps its own (``N delta`` for an OR of ``N``).
 
 **Why it should transfer**: what separates configurations that keep the same promise is how early failures cross
 their threshold, which only labelled failures show; detectors, windows and threshold kinds that caught the
@@ -73,8 +73,10 @@ STATISTICS = {
               "method, kind, combine and aggregation, each window within two steps of the sweep's window grid)",
 }
 #: The statistic ``fiper evaluate --write-prior`` and the leave-one-task-out priors rank by without
-#: ``--prior-statistic``.
-DEFAULT_STATISTIC = "mean"
+#: ``--prior-statistic``, per promise they rank at (:data:`~fiper_ros.core.auto.PROMISES`): each the one that beat
+#: ``mean`` on the sim tasks and the real-policy development set at that promise by the criterion of docs/method.md,
+#: "Which statistic" (``mean`` kept at each entry's own promise).
+DEFAULT_STATISTICS = {DELTA_PROMISE: "rank", ENTRY_PROMISE: "mean"}
 #: The aggregations an entry may declare (a calibration's, :data:`fiper_ros.core.window.MODES`, but the single step,
 #: which the sweep calls window 1).
 AGGREGATIONS = ("window", "max", "cumulative")

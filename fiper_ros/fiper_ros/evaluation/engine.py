@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.cluster import connected
-from fiper_ros.core.auto import ENTRY_PROMISE, TRANSFER, AutoSettings
+from fiper_ros.core.auto import DEFAULT_PROMISE, PROMISES, TRANSFER, AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
-from fiper_ros.core.transfer import DEFAULT_STATISTIC, PRIOR_TOP, STATISTICS, Prior
+from fiper_ros.core.transfer import DEFAULT_STATISTICS, PRIOR_TOP, STATISTICS, Prior
 from fiper_ros.evaluation.auto import AutoOutcome, auto_evaluation
 from fiper_ros.evaluation.cache import ScoreCache, StreamScores
 from fiper_ros.evaluation.data import Dataset, DatasetError
@@ -69,7 +69,10 @@ class EngineSettings:
             metrics of the run (two tasks or more).
         prior_top: Entries a prior made of the run's metrics keeps.
         prior_statistic: What a prior made of the run's metrics ranks by (:data:`fiper_ros.core.transfer.STATISTICS`):
-            the leave-one-task-out priors of ``transfer`` and ``--write-prior``'s.
+            the leave-one-task-out priors of ``transfer`` and ``--write-prior``'s; ``None``: the default at
+            ``promise`` (:data:`fiper_ros.core.transfer.DEFAULT_STATISTICS`, :attr:`statistic`).
+        promise: The promise those priors rank their entries at and ``--auto`` keeps (``--auto-promise``,
+            :data:`fiper_ros.core.auto.PROMISES`; ``auto``'s own when given).
     """
 
     methods: tuple[str, ...] = tuple(METHODS)
@@ -90,14 +93,13 @@ class EngineSettings:
     auto: AutoSettings | None = None
     auto_prior: Prior | None = None
     prior_top: int = PRIOR_TOP
-    prior_statistic: str = DEFAULT_STATISTIC
+    prior_statistic: str | None = None
+    promise: str = DEFAULT_PROMISE
 
     @property
-    def prior_promise(self) -> str:
-        """The promise a prior made of the run's metrics ranks its entries at (``--write-prior``'s and the
-        leave-one-task-out priors of ``transfer``): ``--auto``'s (:data:`fiper_ros.core.auto.PROMISES`), else each
-        entry's own."""
-        return self.auto.promise if self.auto is not None else ENTRY_PROMISE
+    def statistic(self) -> str:
+        """What a prior made of the run's metrics ranks by: ``prior_statistic``, else the default at ``promise``."""
+        return self.prior_statistic or DEFAULT_STATISTICS[self.promise]
 
     def __post_init__(self) -> None:
         streams_of(list(self.methods))
@@ -114,8 +116,12 @@ class EngineSettings:
             raise SettingsError("--auto-prior is the prior of --auto --auto-rule transfer")
         if self.prior_top < 1:
             raise SettingsError(f"--prior-top must be >= 1, got {self.prior_top}")
-        if self.prior_statistic not in STATISTICS:
+        if self.prior_statistic is not None and self.prior_statistic not in STATISTICS:
             raise SettingsError(f"--prior-statistic {self.prior_statistic!r}; expected one of {', '.join(STATISTICS)}")
+        if self.promise not in PROMISES:
+            raise SettingsError(f"--auto-promise {self.promise!r}; expected one of {', '.join(PROMISES)}")
+        if self.auto is not None and self.auto.promise != self.promise:
+            raise SettingsError(f"--auto keeps promise {self.auto.promise!r}, the run's priors rank at {self.promise!r}")
         if (self.combinations or self.pooled) and self.method_settings.split != "split":
             raise SettingsError("combinations and pooled thresholds take their shapes from the fit part of a split "
                              f"conformal calibration (--split split), not from --split {self.method_settings.split}")
@@ -465,22 +471,22 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
         return transfer_evaluation(datasets, scores, settings.streams(), outcome.groups, outcome.metrics["all"],
                                    outcome.infinite, members_of(settings.methods, settings.combinations),
                                    settings.method_settings, settings.seeds, settings.sweep.deltas, auto, subsets,
-                                   held_out, settings.select_aggregations, settings.prior_top, settings.auto_prior,
-                                   settings.progress, settings.prior_statistic, settings.pooled)
+                                   held_out, settings.select_aggregations, settings.prior_top,
+                                   settings.statistic, settings.auto_prior, settings.progress, settings.pooled)
     return auto_evaluation(datasets, scores, settings.streams(), settings.method_settings, settings.seeds,
                            settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
 
 
 def run_prior(result: EvaluationResult, command: str) -> Prior:
     """The prior of every task of the run (:func:`~fiper_ros.evaluation.transfer.ranked_prior`: its best
-    ``prior_top`` configurations on all test rollouts, by ``prior_statistic`` at ``prior_promise``); ``command``: the
-    command that made it."""
+    ``prior_top`` configurations on all test rollouts, by its :attr:`~EngineSettings.statistic` at its ``promise``);
+    ``command``: the command that made it."""
     settings = result.settings
     header = prior_header(result.datasets, settings.method_settings, settings.seeds, settings.sweep.deltas, command,
                           settings.pooled)
     return ranked_prior(result.groups, result.metrics["all"], result.sweep.infinite, result.tasks,
                         members_of(settings.methods, settings.combinations), settings.select_aggregations,
-                        settings.prior_top, header, settings.prior_statistic, settings.prior_promise)
+                        settings.prior_top, header, settings.statistic, settings.promise)
 
 
 def protocol_early(datasets: Sequence[Dataset], statistics: Mapping[int, Sequence[TaskStatistics]],

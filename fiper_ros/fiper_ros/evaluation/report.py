@@ -593,7 +593,7 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
         cells += [_best_cell(result, protocol, t) for protocol in beside]
         rows.append("| " + " | ".join(cells) + " |")
     record = auto.records[0][0][0]
-    promise = result.settings.prior_promise
+    promise = result.settings.promise
     if record["rule"] == TRANSFER:
         priors = "; ".join(f"{task}: {', '.join(auto.records[t][0][0]['prior']['tasks'])}"
                            for t, task in enumerate(result.tasks))

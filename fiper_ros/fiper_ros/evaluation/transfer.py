@@ -27,12 +27,12 @@ from typing import Any
 import numpy as np
 
 import fiper_ros
-from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, RULES, TRANSFER, AutoSettings
+from fiper_ros.core.auto import DELTA_PROMISE, RULES, TRANSFER, AutoSettings
 from fiper_ros.core.calibration.auto import finite_at_delta, transfer_settings
 from fiper_ros.core.detectors import declarable, info
 from fiper_ros.core.equalisation import DEFAULT_LEVEL
 from fiper_ros.core.thresholds import GUARANTEED_KINDS
-from fiper_ros.core.transfer import DEFAULT_STATISTIC, STATISTICS, Prior, PriorEntry, PriorError, choose_from_prior
+from fiper_ros.core.transfer import STATISTICS, Prior, PriorEntry, PriorError, choose_from_prior
 from fiper_ros.evaluation.auto import AutoOutcome, calibrated_alarms, candidate_streams, evaluate_choices
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.data import Dataset
@@ -46,7 +46,7 @@ FAMILY_TOP = 10
 SMOOTH_STEPS = 2
 
 
-def selection(statistic: str, promise: str = ENTRY_PROMISE) -> dict[str, str]:
+def selection(statistic: str, promise: str) -> dict[str, str]:
     """How a prior's entries are ranked, as its file says (``statistic``: a name of
     :data:`~fiper_ros.core.transfer.STATISTICS`; ``promise``: of :data:`~fiper_ros.core.auto.PROMISES`, the promise
     its figures are at, :func:`at_equal_promise`)."""
@@ -230,7 +230,7 @@ def chosen_groups(auto: AutoOutcome, groups: Sequence[Group], members: Mapping[s
 
 def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray, tasks: Sequence[str],
                  members: Mapping[str, Member], select_aggregations: Sequence[str], top: int,
-                 header: Mapping[str, Any], statistic: str = DEFAULT_STATISTIC, promise: str = ENTRY_PROMISE) -> Prior:
+                 header: Mapping[str, Any], statistic: str, promise: str) -> Prior:
     """The prior of ``tasks`` (module docstring) from their rows of ``metrics`` ``[tasks, seeds, groups, deltas, 5]``
     (all test rollouts) and ``infinite`` ``[tasks, seeds, groups, deltas]``, ranked by ``statistic``
     (:func:`prior_order`) at ``promise`` (:data:`~fiper_ros.core.auto.PROMISES`; ``delta``: every entry's figures at
@@ -277,8 +277,7 @@ def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, s
 def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
                 members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
                 deltas: Sequence[float], select_aggregations: Sequence[str], top: int,
-                statistic: str = DEFAULT_STATISTIC, pooled: bool = False, promise: str = ENTRY_PROMISE
-                ) -> list[Prior]:
+                statistic: str, promise: str, pooled: bool = False) -> list[Prior]:
     """Per task ``T``, the prior of the other tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups,
     deltas, 5]``) and ``infinite`` ranked by ``statistic`` at ``promise`` (:func:`ranked_prior`): a
     leave-one-task-out selection over all methods at once; no row of ``T`` enters it."""
@@ -300,8 +299,8 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
                         members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
                         deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
                         held_out: dict[str, list[np.ndarray]], select_aggregations: Sequence[str], top: int,
-                        prior: Prior | None = None, progress: bool = True,
-                        statistic: str = DEFAULT_STATISTIC, pooled: bool = False) -> AutoOutcome:
+                        statistic: str, prior: Prior | None = None, progress: bool = True,
+                        pooled: bool = False) -> AutoOutcome:
     """``--auto --auto-rule transfer`` on every task and seed (module docstring): per task the prior of the other
     tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups, deltas, 5]``) and ``infinite`` ranked by
     ``statistic``, or ``prior`` for every task; metrics on ``subsets`` and false alarms on ``held_out`` as
@@ -312,7 +311,7 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
     pool = candidate_streams(streams)
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
-                    top, statistic, pooled, auto.promise)
+                    top, statistic, auto.promise, pooled)
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
                                                               np.ndarray]:

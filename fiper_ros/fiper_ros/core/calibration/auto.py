@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from fiper_ros.core.auto import (ENTRY_PROMISE, PROXY_TWA, TRANSFER, AutoChoice, AutoError, AutoSettings,
+from fiper_ros.core.auto import (DEFAULT_PROMISE, PROXY_TWA, TRANSFER, AutoChoice, AutoError, AutoSettings,
                                  EmbeddingSpread, TaskScores, choose, make_proxy, stall_length)
 from fiper_ros.core.calibration.fit import calibrate, conformal_count, split_successes
 from fiper_ros.core.calibration.model import Calibration
@@ -101,7 +101,7 @@ def _successes_by_task(rollouts: Sequence[Rollout], settings: CalibrationSetting
 
 
 def finite_at_delta(entry: PriorEntry, conformal_successes: Sequence[int], settings: CalibrationSettings,
-                    promise: str = ENTRY_PROMISE) -> bool:
+                    promise: str = DEFAULT_PROMISE) -> bool:
     """Whether ``entry``'s threshold is finite at ``settings.delta`` under ``promise`` (its thresholds at
     :func:`~fiper_ros.core.transfer.threshold_delta`) on every task whose number of successes is in
     ``conformal_successes`` (the conformal part of each task's split gets :func:`conformal_count` of them; the
