@@ -181,6 +181,16 @@ def test_rank_percentiles_by_hand_and_an_unknown_statistic_is_refused() -> None:
         EngineSettings(prior_statistic="luck")
 
 
+def test_the_priors_of_a_run_rank_at_its_promise_by_that_promises_statistic() -> None:
+    assert (EngineSettings().promise, EngineSettings().statistic) == (DELTA_PROMISE, "rank")
+    assert EngineSettings(promise=ENTRY_PROMISE).statistic == "mean"
+    assert EngineSettings(promise=ENTRY_PROMISE, prior_statistic="worst").statistic == "worst"
+    with pytest.raises(SettingsError, match=r"--auto-promise 'loose'; expected one of entry, delta"):
+        EngineSettings(promise="loose")
+    with pytest.raises(SettingsError, match=r"--auto keeps promise 'entry', the run's priors rank at 'delta'"):
+        EngineSettings(auto=AutoSettings(rule=TRANSFER, promise=ENTRY_PROMISE))
+
+
 def test_the_prior_header_records_its_statistic() -> None:
     metrics = np.zeros((3, 1, len(RANKED), 1, len(METRICS)))
     metrics[:2, 0, :, 0, METRICS.index("twa")] = PER_TASK

@@ -74,8 +74,8 @@ STATISTICS = {
 }
 #: The statistic ``fiper evaluate --write-prior`` and the leave-one-task-out priors rank by without
 #: ``--prior-statistic``, per promise they rank at (:data:`~fiper_ros.core.auto.PROMISES`): each the one that beat
-#: ``mean`` on the sim tasks and the real-policy development set at that promise by the criterion of docs/method.md,
-#: "Which statistic" (``mean`` kept at each entry's own promise).
+#: ``mean`` on the sim tasks and the real-policy development set at that promise by the criterion of docs/results.md,
+#: "Which statistic the prior ranks by" (``mean`` kept at each entry's own promise).
 DEFAULT_STATISTICS = {DELTA_PROMISE: "rank", ENTRY_PROMISE: "mean"}
 #: The aggregations an entry may declare (a calibration's, :data:`fiper_ros.core.window.MODES`, but the single step,
 #: which the sweep calls window 1).
