@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from fiper_ros.core.metrics import auroc, early_cut, rollout_peaks
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
-from fiper_ros.evaluation.early import TaskStatistics, areas, statistic_of
+from fiper_ros.evaluation.early import TaskStatistics, areas, early_detection, statistic_of
 from fiper_ros.evaluation.sweep import Group
 
 
@@ -136,3 +136,23 @@ def test_a_combined_statistic_normalises_by_the_fit_parts_band() -> None:
     whole, _ = statistics.peaks(groups, {"pair": ("rnd_oe", "ace")})
     assert whole[0, 0] == whole[1, 0] == 2.0  # (2.5 - 1.5) / 0.5 = (4 - 2) / 1 = 2
     assert np.isnan(whole[2]).all()
+
+
+def test_pooled_areas_put_each_tasks_raw_statistic_on_its_cp_constant_scale() -> None:
+    # Two tasks, the second's scores 100 times the first's. Per task the failure peaks above the success (AUROC 1).
+    # Pooled raw: failures {4, 300} vs successes {2.5, 250}: 4 < 250 -> 3/4. On each task's CP constant scale (fit
+    # maxima {1, 3}: mean 2, std 1; {100, 300}: 200, 100): failures {2, 1} vs successes {0.5, 0.5} -> 1.
+    def task(scale: float, failure: float) -> TaskStatistics:
+        stream = StreamScores(fit=[np.array([scale]), np.array([3.0 * scale])], conformal=[np.array([scale])],
+                              test=[np.array([failure]), np.array([2.5 * scale])])
+        return TaskStatistics({"rnd_oe": stream}, ThresholdSettings(), 1.0)
+
+    tasks = [task(1.0, 4.0), task(100.0, 300.0)]
+    group = Group("rnd_oe", "1", "cp_band")
+    failed = [np.array([True, False])] * 2
+    found = early_detection({0: tasks}, {0: [group, group]}, failed, [None, None], {})
+    np.testing.assert_array_equal(found.auroc, [[1.0], [1.0]])
+    assert found.pooled_auroc[0] == found.pooled_q_auc[0] == 1.0
+    assert tasks[1].pooling(group, {}) == (200.0, 100.0)
+    # a normalised statistic (a combination's) is pooled as it is
+    assert tasks[1].pooling(Group("pair", "1", "cp_band", "max"), {"pair": ("rnd_oe",)}) == (0.0, 1.0)

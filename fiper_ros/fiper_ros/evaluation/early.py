@@ -17,7 +17,12 @@ are laid on, without the thresholds:
 The AUROC takes every rollout's maximum over all its steps; the q-AUC its maximum over its first
 ``ceil(q T_max)`` steps (:func:`fiper_ros.core.metrics.early_cut`, ``T_max`` the longest test rollout of its
 task). Pooled over tasks, the rollouts of every task enter one AUROC (each task's under its own
-configuration where a protocol chooses per task). Neither says anything about the false-alarm promise.
+configuration where a protocol chooses per task), each task's statistic on a scale the tasks share: a statistic
+already normalised by a shape (a combination's, FIPER's, a method's with thresholds pooled over tasks) as it is; a
+single stream's raw windowed score, fitted per task on scales of its own (a step count, a distance, another
+detector where a protocol chooses per task), mapped by its task's CP constant shape, ``(m - mean) / std`` of the
+fit part's maxima (:meth:`TaskStatistics.pooling`): one increasing map per task, so each task's own AUROC and
+q-AUC are unchanged. Neither says anything about the false-alarm promise.
 """
 
 from __future__ import annotations
@@ -101,23 +106,35 @@ class TaskStatistics:
         self.shape_length = max(c.shape[0] for c in (*(any_stream.fit or ()), *any_stream.conformal))
         self._curves: dict[tuple[str, str, str | None], np.ndarray] = {}
 
+    def _shape(self, stream: str, label: str, kind: str) -> Shape:
+        """``kind``'s shape of ``stream`` under ``label``, fitted on the fit part's curves (all calibration curves
+        where the split has no fit part)."""
+        scores = self.streams[stream]
+        source = scores.fit if scores.fit is not None else scores.conformal
+        shape_curves = _aggregated(source, label, (self.base.delta,))
+        return fit_shape([row[:c.shape[0]] for row, c in zip(shape_curves, source)], self.shape_length, kind, self.base)
+
     def _curve(self, stream: str, label: str, kind: str | None) -> np.ndarray:
         """The test rollouts' windowed score ``[N, T]`` of ``stream`` under ``label``, normalised by ``kind``'s shape."""
         key = (stream, label, kind)
         if key not in self._curves:
             if len(self._curves) >= _KEPT_CURVES:
                 self._curves.clear()
-            scores = self.streams[stream]
-            deltas = (self.base.delta,)
-            eta = _aggregated(scores.test, label, deltas)
+            eta = _aggregated(self.streams[stream].test, label, (self.base.delta,))
             if kind is not None:
-                source = scores.fit if scores.fit is not None else scores.conformal
-                shape_curves = _aggregated(source, label, deltas)
-                shape = fit_shape([row[:c.shape[0]] for row, c in zip(shape_curves, source)], self.shape_length, kind,
-                                  self.base)
+                shape = self._shape(stream, label, kind)
                 eta = (eta - self._over(shape, shape.offset, eta.shape[1])) / self._over(shape, shape.scale, eta.shape[1])
             self._curves[key] = eta
         return self._curves[key]
+
+    def pooling(self, group: Group, combinations: Mapping[str, tuple[str, ...]]) -> tuple[float, float]:
+        """``(offset, scale)`` that put ``group``'s statistic on the scale pooled AUROCs share (module docstring):
+        a raw single-stream statistic's CP constant shape on this task, ``(0, 1)`` for a normalised one."""
+        statistic = statistic_of(group, combinations)
+        if statistic is None or len(statistic.detectors) != 1 or statistic.kinds[0] is not None:
+            return 0.0, 1.0
+        shape = self._shape(statistic.detectors[0], statistic.labels[0], "cp_constant")
+        return float(shape.offset[0]), float(shape.scale[0])
 
     def _over(self, shape: Shape, values: np.ndarray, length: int) -> np.ndarray:
         """A shape's per-step ``values`` over ``length`` steps, extended by the threshold's extension rule."""
@@ -189,7 +206,8 @@ def early_detection(statistics: Mapping[int, Sequence[TaskStatistics]], groups: 
             whole, early = statistics[seed][t].peaks([groups[seed][t]], combinations, subsets[t])
             outcome = failed[t] if subsets[t] is None else failed[t][subsets[t]]
             per_task[:, t, s] = [area[0] for area in areas(whole, early, outcome)]
-            maxima.append((whole[0], early[0]))
+            offset, scale = statistics[seed][t].pooling(groups[seed][t], combinations)
+            maxima.append(((whole[0] - offset) / scale, (early[0] - offset) / scale))
             labels.append(outcome)
             classes[t] = int(outcome.sum()), int((~outcome).sum())
         both = areas(np.concatenate([m[0] for m in maxima])[None], np.concatenate([m[1] for m in maxima])[None],
