@@ -512,7 +512,9 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   "AUROC: of each rollout's maximum of the configuration's windowed score (a combination's and "
                   "FIPER's: of the combined normalised statistic); q-AUC: of its maximum over the first "
                   f"ceil({s.q_auc:g} T_max) steps (T_max: the task's longest test rollout). Ties count 1/2; mean ± std "
-                  "over seeds, on the rollouts this protocol reports on; pooled: every task's rollouts in one AUROC. "
+                  "over seeds, on the rollouts this protocol reports on; pooled: every task's rollouts in one AUROC, a "
+                  "single detector's raw maxima first put on its task's CP constant scale ((m - mean) / std of the fit "
+                  "part's maxima; per task an increasing map). "
                   "Both are threshold-free, so they say nothing about the false-alarm promise (the table above).", "",
                   early_table(result, protocol), ""]
         if name in PER_TASK:
