@@ -4,6 +4,7 @@ detector's thresholds, and the promise (Proposition 1 at delta) over many seeded
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -264,9 +265,9 @@ def _over(values: np.ndarray, length: int) -> np.ndarray:
 
 
 def _trials(rule: str, trials: int = 200, delta: float = 0.1, equalise: str = "none", heavy: float = 1.0,
-            kind: str = "cp_band") -> tuple[float, float]:
+            kind: str = "cp_band", each: float | None = None) -> tuple[float, float]:
     """Mean false-alarm rate on new successes over seeded trials (each: 40 shape rollouts, 39 conformal, 60 new)
-    and its standard error."""
+    and its standard error (``each``: the delta of every detector's own threshold under ``or``, default delta)."""
     rng = np.random.default_rng(2024)
     settings = ThresholdSettings(kind=kind, delta=delta)
     rates = []
@@ -277,9 +278,10 @@ def _trials(rule: str, trials: int = 200, delta: float = 0.1, equalise: str = "n
             joint = fit_joint({"g": GroupCurves(shape, conformal)}, DETECTORS, dict.fromkeys(DETECTORS, kind),
                               votes, settings, equalise)
             thresholds = {d: joint.thresholds["g"][d].values for d in DETECTORS}
-        else:  # "or": each detector's own CP band at delta, any one alarms
+        else:  # "or": each detector's own threshold at ``each``, any one alarms
             votes = 1
-            thresholds = {d: fit_threshold(conformal[d], settings, shape[d]).values for d in DETECTORS}
+            own = replace(settings, delta=delta if each is None else each)
+            thresholds = {d: fit_threshold(conformal[d], own, shape[d]).values for d in DETECTORS}
         rates.append(_alarmed(thresholds, new, votes).mean())
     rates_array = np.array(rates)
     return float(rates_array.mean()), float(rates_array.std(ddof=1) / math.sqrt(trials))
@@ -325,3 +327,13 @@ def test_or_of_per_detector_thresholds_at_delta_breaks_it(kind: str) -> None:
     union bound promises 3 delta), which the test above would catch."""
     rate, sigma = _trials("or", kind=kind)
     assert rate > 0.1 + 2 * sigma
+
+
+@pytest.mark.parametrize("kind", ["cp_band", "cp_constant"])
+def test_an_or_at_delta_over_n_each_keeps_delta(kind: str) -> None:
+    """The union bound the OR of ``fiper evaluate --or-promise delta`` and ``--auto-promise delta`` rests on: each of
+    the three thresholds at delta / 3 keeps delta on the same draws that break it at delta each (and is not empty:
+    it still alarms on some new successes)."""
+    rate, sigma = _trials("or", kind=kind, each=0.1 / 3)
+    assert rate <= 0.1 + 2 * sigma
+    assert rate > 0.0

@@ -3,6 +3,8 @@ votes of core.fusion would, per task and pooled over tasks, for every combine an
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -76,11 +78,15 @@ def _expected(streams: dict[str, dict[str, StreamScores]], combination: Combinat
     return out
 
 
-@pytest.mark.parametrize("pooled", [False, True])
-def test_the_sweep_decides_as_the_core(pooled: bool) -> None:
+@pytest.mark.parametrize(("pooled", "or_promise"), [(False, "entry"), (True, "entry"), (False, "delta"),
+                                                    (True, "delta")])
+def test_the_sweep_decides_as_the_core(pooled: bool, or_promise: str) -> None:
+    """``or_promise`` ``"delta"``: the OR of the three detectors is decided as the core decides one calibrated at
+    delta / 3 (every other combine as at ``"entry"``)."""
     rng = np.random.default_rng(5)
     streams = {"small": _streams(rng, 1.0), "large": _streams(rng, 40.0)}
-    swept = joint_sweep(streams, COMBINATIONS, SWEEP, dict.fromkeys(streams, BASE), pooled,
+    sweep = replace(SWEEP, or_promise=or_promise)
+    swept = joint_sweep(streams, COMBINATIONS, sweep, dict.fromkeys(streams, BASE), pooled,
                         combines=("max", "kth:2", "and", "or"))
     compared = 0
     for task, result in swept.items():
@@ -89,12 +95,17 @@ def test_the_sweep_decides_as_the_core(pooled: bool) -> None:
             combination = next(c for c in COMBINATIONS if c.name == group.method)
             combine = Combine.parse(group.combine or "max")
             for d, delta in enumerate(SWEEP.deltas):
-                expected = _expected(streams, combination, group.window, group.kind, combine, delta, pooled)[task]
+                level = delta / 3 if or_promise == "delta" and group.combine == "or" else delta
+                expected = _expected(streams, combination, group.window, group.kind, combine, level, pooled)[task]
                 assert [None if a < 0 else int(a) for a in result.alarms[g, d]] == expected, (task, group, delta)
                 compared += 1
     # trio: 4 labels x 3 kinds (band, scaled, constant) x 4 combines; alone: 4 x 3; clock: its one configuration
     # (cumulative, CP scaled)
     assert compared == 2 * (4 * 3 * 4 + 4 * 3 + 1) * len(SWEEP.deltas)
+    ors = [(result.alarms[g], result.infinite[g]) for result in swept.values()
+           for g, group in enumerate(result.groups) if group.combine == "or"]
+    assert any((alarms >= 0).any() for alarms, _ in ors)  # an OR at delta / 3 compared where it alarms
+    assert any(infinite.any() for _, infinite in ors) == (or_promise == "delta")  # 11 conformal: +inf at 0.1 / 3
 
 
 @pytest.mark.parametrize("pooled", [False, True])

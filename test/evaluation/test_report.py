@@ -4,6 +4,7 @@ averaged or selected, and every table shows it) and the promise (false alarms on
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import EngineSettings, EvaluationResult, run_evaluation
 from fiper_ros.evaluation.methods import ELAPSED, MethodSettings
 from fiper_ros.evaluation.protocol import METRICS
-from fiper_ros.evaluation.report import json_document, markdown, promise_rows
+from fiper_ros.evaluation.report import guarantee_text, json_document, markdown, promise_rows
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 from fiper_ros.evaluation.synthetic import make_task
 
@@ -114,3 +115,25 @@ def test_an_or_of_n_thresholds_is_held_to_n_delta(result: EvaluationResult) -> N
     assert [row["promised"] for row in rows] == [2 * row["delta"] for row in rows]
     assert all(row["above"] == (row["rate"] > 2 * row["delta"] + 2 * row["standard_error"]) for row in rows
                if not math.isnan(row["rate"]))
+
+
+def test_an_or_at_promise_delta_is_held_to_delta(result: EvaluationResult) -> None:
+    """``--or-promise delta``: the same run's OR sets each threshold at delta / 2, so its flag is against delta + 2
+    sigma, its guarantee says so, and the report and results.json say which promise the OR rows are at."""
+    settings = result.settings
+    halved = run_evaluation(result.datasets, replace(settings, sweep=replace(settings.sweep, or_promise="delta")))
+    catalogue = settings.catalogue()
+    checked = 0
+    for protocol in halved.protocols.values():
+        for method, chosen in protocol.selected.items():
+            if catalogue[method].streams == ("rnd_oe", "ace") and chosen.group_of(2).combine == "or":
+                rows = promise_rows(halved, chosen, 2, "all", ("rnd_oe", "ace"))
+                assert [row["promised"] for row in rows] == [row["delta"] for row in rows]
+                checked += 1
+    assert checked
+    band = replace(chosen, group=Group("fiper", "2/2", "cp_band", "or"), task_groups=())
+    assert guarantee_text(band, "split", ("rnd_oe", "ace"), or_promise="delta") == "≤ δ (OR at δ/2 each)"
+    assert guarantee_text(band, "split", ("rnd_oe", "ace")) == "≤ 2δ (OR)"
+    assert "An OR of N thresholds sets each at δ/N (--or-promise delta)" in markdown(halved, [])
+    assert json_document(halved)["settings"]["or_promise"] == "delta"
+    assert json_document(result)["settings"]["or_promise"] == "entry"

@@ -23,6 +23,9 @@ from fiper_ros.evaluation.sweep import SweepSettings
     (lambda: EngineSettings(protocols=("best",)), "protocols must be among"),
     (lambda: SweepSettings(windows=(0, 1)), "windows must be integers >= 1, got (0, 1)"),
     (lambda: SweepSettings(pairs="fine-ish"), "pairs must be one of"),
+    (lambda: SweepSettings(or_promise="twice"), "or_promise must be one of entry, delta, got 'twice'"),
+    (lambda: EngineSettings(sweep=SweepSettings(or_promise="delta"), promise="entry"),
+     "--or-promise delta sweeps every OR at delta / N"),
     (lambda: MethodSettings(split="halves"), "unknown split 'halves'"),
     (lambda: MethodSettings(profile="novel"), "unknown profile 'novel'"),
     (lambda: method_of("nope"), "unknown method 'nope'"),
@@ -46,6 +49,7 @@ def test_a_bad_setting_is_a_settings_error_at_its_source(make: Callable[[], obje
     (["--signals", "Bad-Name"], "signal name 'Bad-Name' must match [a-z][a-z0-9_]*"),
     (["--combo", "pair=rnd_oe+sonar"], "unknown detector 'sonar'"),
     (["--q-auc", "0"], "--q-auc must be in (0, 1], got 0"),
+    (["--or-promise", "delta", "--auto-promise", "entry"], "--or-promise delta sweeps every OR at delta / N"),
 ])
 def test_a_bad_evaluate_flag_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], argv: list[str],
                                          message: str) -> None:

@@ -88,3 +88,30 @@ def test_sweep_equals_single_configuration_path(tiny_dataset: Dataset, profile: 
     assert 0 < raised < total  # the comparison covers both alarms and silent rollouts
     if profile == "paper":  # 6 conformal rollouts (split) are too few for delta = 0.1: +inf thresholds compared too
         assert 0 < infinite < len(cases) * len(SWEEP.deltas)
+
+
+def test_an_or_at_promise_delta_is_calibrated_at_half_delta(tiny_dataset: Dataset) -> None:
+    """``or_promise`` ``"delta"``: FIPER's OR in the column of delta decides as a calibration of that OR at delta / 2
+    (what ``fiper calibrate --auto-promise delta`` fits); every other configuration as at ``"entry"``."""
+    settings = MethodSettings.tiny("paper")
+    streams, _ = compute_streams(tiny_dataset, ["rnd_oe", "ace"], settings, SEED)
+    base = settings.calibration_settings(SEED).threshold_settings()
+    sweep = replace(SWEEP, deltas=(0.2, 0.3, 0.4), windows=(1, 3), max_pool=(2,), pairs="diagonal")
+    entry = sweep_task(streams, ["rnd_oe", "ace", "fiper"], sweep, base)
+    halved = sweep_task(streams, ["rnd_oe", "ace", "fiper"], replace(sweep, or_promise="delta"), base)
+    assert halved.groups == entry.groups
+    ors = [g for g, group in enumerate(entry.groups) if group.combine == "or"]
+    others = [g for g in range(len(entry.groups)) if g not in ors]
+    np.testing.assert_array_equal(halved.alarms[others], entry.alarms[others])
+    np.testing.assert_array_equal(halved.infinite[others], entry.infinite[others])
+    compared = differ = 0
+    for g in ors:
+        group = entry.groups[g]
+        for d, delta in enumerate(sweep.deltas):
+            swept = [None if a < 0 else int(a) for a in halved.alarms[g, d]]
+            assert swept == _single_path(tiny_dataset, settings, group, delta / 2), (group, delta)
+            compared += 1
+            differ += bool((halved.alarms[g, d] != entry.alarms[g, d]).any())
+        assert not (entry.infinite[g] & ~halved.infinite[g]).any()  # +inf at delta stays +inf at delta / 2
+    assert compared == 4 * 4 * 3 and differ > 0  # 4 labels x 4 kinds x 3 deltas; halving moved some alarms
+    assert (halved.infinite[ors] & ~entry.infinite[ors]).any()  # 6 conformal rollouts: +inf at 0.1, not at 0.2

@@ -294,6 +294,16 @@ def test_at_equal_promise_an_or_is_ranked_by_its_figures_at_the_promises_of_the_
     with pytest.raises(PriorError, match="no configuration of the run on a can be a prior entry"):
         ranked_prior(alone, metrics[:, :, 1:], infinite[:, :, 1:], ("a",), triple, ("window",), 2, header, "mean",
                      DELTA_PROMISE)
+    # a sweep whose OR thresholds are at delta / N (--or-promise delta): its figures are already at promise delta
+    swept = ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header, "mean", DELTA_PROMISE,
+                         DELTA_PROMISE)
+    assert [e.combine for e in swept.entries] == ["or", ""] and swept.entries[0].twa == pytest.approx(0.75)
+    assert "delta / N each" in swept.selection["twa"]
+    assert ranked_prior(alone, metrics[:, :, 1:], infinite[:, :, 1:], ("a",), triple, ("window",), 2, header, "mean",
+                        DELTA_PROMISE, DELTA_PROMISE).entries[0].combine == "or"
+    with pytest.raises(ValueError, match="a prior at promise 'entry' needs each OR's figures at delta each"):
+        ranked_prior(groups, metrics, infinite, ("a",), MEMBERS, ("window",), 2, header, "mean", ENTRY_PROMISE,
+                     DELTA_PROMISE)
 
 
 def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_tasks: list[Dataset],
@@ -301,10 +311,11 @@ def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_task
     deltas = (0.15, 0.3)
     kinds = SweepSettings().kinds
 
-    def run(auto: AutoSettings, prior: Prior | None) -> EvaluationResult:
+    def run(auto: AutoSettings, prior: Prior | None, or_promise: str = ENTRY_PROMISE) -> EvaluationResult:
         settings = EngineSettings(methods=("elapsed", "pca_kmeans", "progress"), seeds=(0,),
                                   method_settings=tiny_settings,
-                                  sweep=SweepSettings(windows=(1, 3), deltas=deltas, max_pool=(2,), kinds=kinds),
+                                  sweep=SweepSettings(windows=(1, 3), deltas=deltas, max_pool=(2,), kinds=kinds,
+                                                      or_promise=or_promise),
                                   combinations=(Combination("both", ("pca_kmeans", "progress")),), protocols=("loto",),
                                   auto=auto, auto_prior=prior, progress=False, promise=auto.promise)
         return run_evaluation(two_tasks, settings)
@@ -320,7 +331,8 @@ def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_task
     # the test can fail: the OR's alarms at 0.15 are not those at 0.3
     assert any(not np.array_equal(result.metrics["all"][t, 0, g, 0], result.metrics["all"][t, 0, g, 1])
                for t in range(2))
-    split = run(RULE, prior).auto  # the default promise: delta
+    halved = run(RULE, prior, DELTA_PROMISE)  # the sweep's OR at delta / 2 in the column of delta
+    split = halved.auto  # the default promise: delta
     own = run(own_promise, prior).auto
     assert split is not None and own is not None
     for t in range(2):
@@ -328,6 +340,7 @@ def test_a_choice_at_the_delta_promise_is_the_sweeps_or_at_delta_over_n(two_task
         np.testing.assert_array_equal(own.metrics["all"][t, 0], result.metrics["all"][t, 0, g])
         # promise delta at 0.3: its thresholds at 0.15 each, the sweep's OR at 0.15
         np.testing.assert_array_equal(split.metrics["all"][t, 0, 1], result.metrics["all"][t, 0, g, 0])
+        np.testing.assert_array_equal(halved.metrics["all"][t, 0, g, 1], result.metrics["all"][t, 0, g, 0])
         assert split.held_out["all"][t, 0, 1] == pytest.approx(result.sweep.held_out["all"][t, 0, g, 0], nan_ok=True)
         assert split.records[t][0][1]["threshold_delta"] == pytest.approx(0.15)
         assert split.choices[t][0][1].endswith("at delta/2 each")

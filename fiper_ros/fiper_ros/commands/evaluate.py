@@ -30,6 +30,8 @@ the run (two tasks or more), or ``--auto-prior FILE`` (:mod:`fiper_ros.evaluatio
 writes the prior of every task of the run (its best ``--prior-top`` configurations), for ``fiper calibrate --auto
 --auto-rule transfer --auto-prior FILE``; both rank by ``--prior-statistic``
 (:data:`fiper_ros.core.transfer.STATISTICS`).
+``--or-promise delta`` sets each threshold of an OR of ``N`` at ``delta / N``, so every table compares every
+configuration at the promise delta (default ``entry``: the paper's, each at delta, promising ``N delta``).
 ``--ray [ADDRESS]`` computes the scores and the sweep as Ray tasks (:mod:`fiper_ros.evaluation.distributed`) on a
 local instance (``--ray-cpus N`` CPUs) or an existing cluster, to the same results (docs/scale.md).
 """
@@ -57,6 +59,7 @@ from fiper_ros.bagio.atomic import atomic_files, check_directory
 from fiper_ros.cluster import LOCAL
 from fiper_ros.commands import ARGV, options
 from fiper_ros.commands.errors import UsageError
+from fiper_ros.core.auto import ENTRY_PROMISE, PROMISES
 from fiper_ros.core.calibration import SPLITS
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.combine_mode import COMBINES
@@ -154,6 +157,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             f"{', '.join(SHAPE_KINDS)})")
     sweep.add_argument("--combines", type=name_list(COMBINES), default=COMBINES)
     sweep.add_argument("--pairs", choices=PAIR_GRIDS, default="coarse", help="FIPER (w_O, w_A) grid")
+    sweep.add_argument("--or-promise", choices=tuple(PROMISES), default=ENTRY_PROMISE,
+                       help="an OR of N thresholds: entry (each at delta, the paper's: promise N delta) or delta (each "
+                            "at delta / N: every table at equal promise; needs --auto-promise delta, the default)")
     sweep.add_argument("--signals", type=lambda text: tuple(p.strip() for p in text.split(",") if p.strip()),
                        default=(), metavar="NAMES",
                        help="logged per-step signals of the rollouts to evaluate as detectors (signal_<name>), alone "
@@ -294,7 +300,8 @@ def settings_from(args: argparse.Namespace, external: tuple[ExternalScores, ...]
                               shape_folds=args.shape_folds, external=external)
     kinds = args.thresholds or (SHAPE_KINDS if args.pool else SweepSettings().kinds)
     sweep = SweepSettings(windows=args.windows, cumulative=not args.no_cumulative, deltas=args.deltas,
-                          kinds=kinds, combines=args.combines, pairs=args.pairs, max_pool=args.max_pool)
+                          kinds=kinds, combines=args.combines, pairs=args.pairs, max_pool=args.max_pool,
+                          or_promise=args.or_promise)
     return EngineSettings(methods=args.methods, seeds=args.seeds, sweep=sweep, method_settings=method_settings,
                           protocols=args.protocol, split_seed=args.split_seed, default_window=args.default_window,
                           default_kind=args.default_threshold,

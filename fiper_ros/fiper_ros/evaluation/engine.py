@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fiper_ros.cluster import connected
-from fiper_ros.core.auto import DEFAULT_PROMISE, PROMISES, TRANSFER, AutoSettings
+from fiper_ros.core.auto import DEFAULT_PROMISE, DELTA_PROMISE, PROMISES, TRANSFER, AutoSettings
 from fiper_ros.core.calibration import CalibrationSettings
 from fiper_ros.core.combination import SHAPE_KINDS
 from fiper_ros.core.profiles import get_profile
@@ -120,6 +120,9 @@ class EngineSettings:
             raise SettingsError(f"--prior-statistic {self.prior_statistic!r}; expected one of {', '.join(STATISTICS)}")
         if self.promise not in PROMISES:
             raise SettingsError(f"--auto-promise {self.promise!r}; expected one of {', '.join(PROMISES)}")
+        if self.sweep.or_promise == DELTA_PROMISE and self.promise != DELTA_PROMISE:
+            raise SettingsError(f"--or-promise {DELTA_PROMISE} sweeps every OR at delta / N: its priors and --auto keep "
+                                f"that promise (--auto-promise {DELTA_PROMISE}), not {self.promise!r}")
         if self.auto is not None and self.auto.promise != self.promise:
             raise SettingsError(f"--auto keeps promise {self.auto.promise!r}, the run's priors rank at {self.promise!r}")
         if (self.combinations or self.pooled) and self.method_settings.split != "split":
@@ -415,7 +418,7 @@ def run_evaluation(
         writer = None if dump is None else Dump(
             dump, {"profile": settings.method_settings.profile,
                    "calibration_split": settings.method_settings.split_settings(),
-                   "deltas": list(settings.sweep.deltas)},
+                   "deltas": list(settings.sweep.deltas), "or_promise": settings.sweep.or_promise},
             {name: method.streams for name, method in settings.catalogue().items()})
         outcome = sweep_all(datasets, scores, settings, writer, on_ray=address is not None)
         if writer is not None:
@@ -472,7 +475,8 @@ def run_auto(datasets: Sequence[Dataset], scores: dict[tuple[str, int], dict[str
                                    outcome.infinite, members_of(settings.methods, settings.combinations),
                                    settings.method_settings, settings.seeds, settings.sweep.deltas, auto, subsets,
                                    held_out, settings.select_aggregations, settings.prior_top,
-                                   settings.statistic, settings.auto_prior, settings.progress, settings.pooled)
+                                   settings.statistic, settings.auto_prior, settings.progress, settings.pooled,
+                                   settings.sweep.or_promise)
     return auto_evaluation(datasets, scores, settings.streams(), settings.method_settings, settings.seeds,
                            settings.sweep.deltas, auto, subsets, held_out, settings.threads, settings.progress)
 
@@ -486,7 +490,7 @@ def run_prior(result: EvaluationResult, command: str) -> Prior:
                           settings.pooled)
     return ranked_prior(result.groups, result.metrics["all"], result.sweep.infinite, result.tasks,
                         members_of(settings.methods, settings.combinations), settings.select_aggregations,
-                        settings.prior_top, header, settings.statistic, settings.promise)
+                        settings.prior_top, header, settings.statistic, settings.promise, settings.sweep.or_promise)
 
 
 def protocol_early(datasets: Sequence[Dataset], statistics: Mapping[int, Sequence[TaskStatistics]],

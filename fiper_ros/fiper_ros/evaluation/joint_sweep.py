@@ -21,7 +21,9 @@ every test rollout, exactly as a calibration of that configuration would decide:
   scores by its equaliser (:func:`~fiper_ros.core.equalisation.fit_equaliser` of the fit part's
   :func:`~fiper_ros.core.combination.fold_maxima`, over every task's when pooled) before the ``votes``-th largest,
   and detector ``d``'s threshold is ``shape.values(T_d^{-1}(k))``, as :func:`~fiper_ros.core.combination.fit_joint`
-  fits them.
+  fits them;
+- an OR of ``N`` detectors at :attr:`~fiper_ros.evaluation.sweep.SweepSettings.or_promise` ``"delta"`` calibrates
+  each detector at ``delta / N`` in the column of delta (promise delta, the union bound).
 
 A ``k`` that is ``+inf`` (too few conformal rollouts for delta) is recorded, as in the per-task sweep. On request
 (``thresholds``) every configuration's per-detector thresholds are kept, as the per-task sweep keeps them.
@@ -150,7 +152,7 @@ def joint_sweep(streams: Mapping[str, Mapping[str, StreamScores]], combinations:
             chosen = {t: {d: current[(t, d)] if d in swept else fixed[(t, d)] for d in combination.detectors}
                       for t in tasks}
             for kind in _kinds(combination, kinds):
-                _configurations(combination, label if windowed else CUMULATIVE, kind, chosen, settings.deltas, bases,
+                _configurations(combination, label if windowed else CUMULATIVE, kind, chosen, settings, bases,
                                 pooled, _combines(combination, combines), out, maxima)
     return {t: TaskSweep(own["groups"], np.stack(own["alarms"]), np.stack(own["infinite"]),
                          np.array(own["conformal"], dtype=int), own.get("thresholds")) for t, own in out.items()}
@@ -179,11 +181,13 @@ def _equalisers(combination: Combination, kinds: Mapping[str, str], chosen: Mapp
 
 
 def _configurations(combination: Combination, label: str, kind: str, chosen: Mapping[str, Mapping[str, _Curves]],
-                    deltas: Sequence[float], bases: Mapping[str, ThresholdSettings], pooled: bool,
+                    settings: SweepSettings, bases: Mapping[str, ThresholdSettings], pooled: bool,
                     combines: Sequence[Combine], out: dict[str, dict[str, list]], maxima: dict[tuple, np.ndarray]
                     ) -> None:
     """Append every combine's group of one (combination, label, kind) to ``out``, per task (``maxima``: the fold
-    maxima of the label, cached)."""
+    maxima of the label, cached). In the column of delta each threshold is calibrated at
+    :meth:`~fiper_ros.evaluation.sweep.SweepSettings.threshold_delta` (an OR at promise delta: ``delta / N``, its
+    shapes too, as a calibration at that delta fits them)."""
     tasks = list(chosen)
     detectors = combination.detectors
     kinds = {d: info(d).shape or kind for d in detectors}
@@ -193,16 +197,27 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
     kept: dict[tuple[str, str], list[np.ndarray]] = {(t, str(c)): [] for t in tasks for c in combines}
     infinite: dict[tuple[str, str], list[bool]] = {(t, str(c)): [] for t in tasks for c in combines}
     behind: dict[tuple[str, str], int] = {}
-    for delta in deltas:
+
+    def normalised(level: float) -> tuple[dict[str, dict[str, Shape]], dict[tuple[str, str], Equaliser],
+                                          dict[str, np.ndarray]]:
+        """Shapes, equalisers and normalised conformal curves ``z[task]`` ``[detectors, M, L]`` at ``level``."""
         shapes = {t: {d: fixed.get((t, d)) or fit_shape(chosen[t][d].fit, _length(chosen[t]), kinds[d],
-                                                      replace(bases[t], delta=delta))
+                                                      replace(bases[t], delta=level))
                       for d in detectors} for t in tasks}
         equalisers = {} if combination.equalise == "none" else \
-            _equalisers(combination, kinds, chosen, bases, delta, pooled, maxima)
+            _equalisers(combination, kinds, chosen, bases, level, pooled, maxima)
         z = {t: np.stack([_normalised(chosen[t][d], shapes[t][d]) if (t, d) not in equalisers
                           else equalisers[(t, d)](_normalised(chosen[t][d], shapes[t][d])) for d in detectors])
              for t in tasks}
+        return shapes, equalisers, z
+
+    for delta in settings.deltas:
+        levels: dict[float, tuple] = {}
         for combine in combines:
+            level = settings.threshold_delta(delta, str(combine), len(detectors))
+            if level not in levels:
+                levels[level] = normalised(level)
+            shapes, equalisers, z = levels[level]
             votes = combine.votes(len(detectors))
             # joint: one k over the votes-th largest; and / or: one k per detector over its own scores
             members = [slice(None)] if combine.joint else [slice(i, i + 1) for i in range(len(detectors))]
@@ -211,14 +226,14 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
                 scores = {t: _scores(z[t][member], votes if combine.joint else 1) for t in tasks}
                 for t in tasks:
                     own = np.concatenate(list(scores.values())) if pooled else scores[t]
-                    ks[t].append(_quantile(own, delta, bases[t].conformal))
+                    ks[t].append(_quantile(own, level, bases[t].conformal))
                     behind[(t, str(combine))] = int(own.shape[0])
             for t in tasks:
                 per_detector = ks[t] * len(detectors) if combine.joint else ks[t]
                 if equalisers:
                     per_detector = [equalisers[(t, d)].inverse(k) for d, k in zip(detectors, per_detector)]
                 test_length = chosen[t][detectors[0]].test.shape[1]
-                gammas = [Threshold(kinds[d], delta, shapes[t][d].values(k), bases[t].extension).over(test_length)
+                gammas = [Threshold(kinds[d], level, shapes[t][d].values(k), bases[t].extension).over(test_length)
                           for d, k in zip(detectors, per_detector)]
                 alarms[(t, str(combine))].append(_alarms([chosen[t][d].test for d in detectors], gammas, votes))
                 if "thresholds" in out[t]:

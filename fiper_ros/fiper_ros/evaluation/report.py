@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from fiper_ros.core.auto import DELTA_PROMISE, PROMISES, RULE_SUMMARIES, TRANSFER
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, PROMISES, RULE_SUMMARIES, TRANSFER
 from fiper_ros.core.combine_mode import CombineMode
 from fiper_ros.core.detectors import info
 from fiper_ros.core.fusion import Combine
@@ -47,6 +47,12 @@ SPLIT_TEXT = {
              "test rollouts by models fitted on all (an approximate guarantee)",
     "same": "same data (the paper's Remark 1): models and thresholds on the same calibration successes "
             "(not covered by Proposition 1)",
+}
+#: What an OR's column of delta promises (:attr:`~fiper_ros.evaluation.sweep.SweepSettings.or_promise`).
+OR_PROMISE_TEXT = {
+    ENTRY_PROMISE: "An OR of N thresholds sets each at δ (the paper's; it promises N δ, marked so).",
+    DELTA_PROMISE: "An OR of N thresholds sets each at δ/N (--or-promise delta): every configuration, OR included, "
+                   "promises δ in the column of δ, so all are compared at equal promise.",
 }
 POOR = 0.4
 PARTIAL = "‡"
@@ -301,24 +307,32 @@ def chosen_window(result: EvaluationResult, chosen: MethodResult) -> str:
     return "; ".join(f"{task} {window_text(chosen.group_of(t))}" for t, task in enumerate(result.tasks))
 
 
-def promised_multiple(chosen: MethodResult, streams: tuple[str, ...], task: int = 0) -> int:
+def promised_multiple(chosen: MethodResult, streams: tuple[str, ...], task: int = 0,
+                      or_promise: str = ENTRY_PROMISE) -> int:
     """How many deltas a configuration's false alarms are promised to stay under: ``N`` for an OR of ``N``
-    thresholds at delta each (the union bound), else 1 (docs/method.md, "What each threshold guarantees")."""
+    thresholds at delta each (the union bound), else 1, and 1 for every configuration of a sweep whose OR thresholds
+    are at ``delta / N`` (``or_promise`` ``"delta"``, :attr:`~fiper_ros.evaluation.sweep.SweepSettings.or_promise`;
+    docs/method.md, "What each threshold guarantees")."""
     combine = chosen.group_of(task).combine
-    return Combine.parse(combine).promised_multiple(len(streams)) if combine else 1
+    if not combine or or_promise == DELTA_PROMISE:
+        return 1
+    return Combine.parse(combine).promised_multiple(len(streams))
 
 
 def guarantee_text(chosen: MethodResult, split: str, streams: tuple[str, ...], pooled: bool = False,
-                   task: int = 0) -> str:
+                   task: int = 0, or_promise: str = ENTRY_PROMISE) -> str:
     """What a configuration promises about false alarms on new successes (docs/method.md, "What each
     threshold guarantees"): the bound, or why there is none; ``streams`` are the configuration's detectors, ``task``
-    the task whose configuration it is where it was chosen per task. External scores were fitted on what their user
-    knows: the bound then holds only if that model saw no calibration rollout."""
+    the task whose configuration it is where it was chosen per task, ``or_promise`` the sweep's
+    (:func:`promised_multiple`). External scores were fitted on what their user knows: the bound then holds only if
+    that model saw no calibration rollout."""
     group = chosen.group_of(task)
     if group.kind not in GUARANTEED_KINDS:
         return "none (per-step quantile)"
-    multiple = promised_multiple(chosen, streams, task)
-    bound = f"{multiple}δ (OR)" if group.combine == CombineMode.OR else "δ"
+    multiple = promised_multiple(chosen, streams, task, or_promise)
+    bound = "δ"
+    if group.combine == CombineMode.OR:
+        bound = f"{multiple}δ (OR)" if multiple > 1 else f"δ (OR at δ/{len(streams)} each)"
     bound += " over all tasks (pooled)" if pooled else ""
     if all(not info(s).fitted for s in streams) or split == "split":
         text = f"≤ {bound}"  # nothing we fitted saw the conformal rollouts
@@ -342,7 +356,7 @@ def promise_rows(result: EvaluationResult, chosen: MethodResult, task: int, held
     standard error, the rate the configuration of ``streams`` promises (:func:`promised_multiple` times delta; a
     threshold without a guarantee is held to delta), whether the rate is above it by more than ``2 sigma``, the
     TPR, and whether the threshold is +inf."""
-    multiple = promised_multiple(chosen, streams, task)
+    multiple = promised_multiple(chosen, streams, task, result.settings.sweep.or_promise)
     n = result.sweep.id_successes[held_out][task]
     rows = []
     for d, delta in enumerate(result.settings.sweep.deltas):
@@ -389,7 +403,8 @@ def promise_table(result: EvaluationResult, protocol: ProtocolResult) -> str:
             own = first or chosen.per_task_choice  # a configuration chosen per task is named on every row
             lines.append("| " + " | ".join([
                 catalogue[method].label if first else "", config_text(chosen.group_of(t)) if own else "",
-                guarantee_text(chosen, split, catalogue[method].streams, result.settings.pooled, t) if own else "",
+                guarantee_text(chosen, split, catalogue[method].streams, result.settings.pooled, t,
+                               result.settings.sweep.or_promise) if own else "",
                 task, str(rows[0]["n"]), *values,
                 _deltas_text(above) if above else "none",
                 *([_signed(*gain(chosen, floor, t), seeds)] if floor is not None else [])]) + " |")
@@ -479,7 +494,8 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
         f"{' + cumulative' if s.sweep.cumulative else ''}, 1-delta in "
         f"{{{', '.join(f'{1 - d:.2f}' for d in s.sweep.deltas)}}} (metrics averaged over them), thresholds "
         f"{', '.join(KIND_LABELS[k] for k in s.sweep.kinds)}, FIPER pairs '{s.sweep.pairs}', "
-        f"{'/'.join(c.upper() for c in s.sweep.combines)}; {len(result.groups)} configurations per task and seed.",
+        f"{'/'.join(c.upper() for c in s.sweep.combines)}; {len(result.groups)} configurations per task and seed. "
+        f"{OR_PROMISE_TEXT[s.sweep.or_promise]}",
         "DT (each rollout's own length, App. B.4) in brackets: TPR or TNR below 0.4. Bold: best of the row "
         "(Table 1) or column (Table 2).",
     ]
@@ -500,12 +516,15 @@ def markdown(result: EvaluationResult, figures: list[str]) -> str:
                   table2(result, protocol), "",
                   f"## Table 3: combinations of detectors, {name} protocol (task average)", "",
                   "MAX and KTH:K share one conformal factor over the normalised detectors (the promise is δ); AND and "
-                  "OR give each detector its own (OR of N: N δ).", "",
+                  "OR give each detector its own "
+                  + ("(OR of N: N δ)." if s.sweep.or_promise == ENTRY_PROMISE else "(OR of N: each at δ/N, promise δ)."),
+                  "",
                   table3(result, protocol), "",
                   f"## The promise: false alarms on held-out ID successes, {name} protocol", "",
                   f"FA: the fraction of {held} ID-scenario successes alarmed (mean over seeds) ± its binomial "
-                  f"standard error; {FLAG}: above the configuration's promise (δ; N δ for an OR of N thresholds; δ where "
-                  f"there is no guarantee) + 2σ. TPR: over all failures, at the same δ. Guarantee: "
+                  f"standard error; {FLAG}: above the configuration's promise (δ; "
+                  + ("N δ for an OR of N thresholds; " if s.sweep.or_promise == ENTRY_PROMISE else "") + "δ where "
+                  "there is no guarantee) + 2σ. TPR: over all failures, at the same δ. Guarantee: "
                   "docs/method.md, 'What each threshold guarantees'.", "",
                   promise_table(result, protocol), "",
                   f"## Early detection (threshold-free), {name} protocol", "",
@@ -709,11 +728,12 @@ def _method_json(result: EvaluationResult, chosen: MethodResult, held_out: str, 
     streams = result.settings.catalogue()[chosen.method].streams
     return {
         "config": "per task" if chosen.per_task_choice else _config_json(chosen.group),
-        "guarantee": "per task" if chosen.per_task_choice else guarantee_text(chosen, split, streams,
-                                                                            result.settings.pooled),
+        "guarantee": "per task" if chosen.per_task_choice else guarantee_text(
+            chosen, split, streams, result.settings.pooled, or_promise=result.settings.sweep.or_promise),
         **({"early_detection": _early_json(early, result.tasks)} if early is not None else {}),
         "tasks": {task: {**({"config": _config_json(chosen.group_of(t)),
-                             "guarantee": guarantee_text(chosen, split, streams, result.settings.pooled, t)}
+                             "guarantee": guarantee_text(chosen, split, streams, result.settings.pooled, t,
+                                                         result.settings.sweep.or_promise)}
                             if chosen.per_task_choice else {}),
                          **{m: {"mean": mean[t, i], "std": std[t, i], "seeds": chosen.values[t, :, i]}
                             for i, m in enumerate(METRICS)},
@@ -770,6 +790,7 @@ def json_document(result: EvaluationResult) -> dict[str, Any]:
                      "combination_combines": list(s.combines), "pooled": s.pooled,
                      "windows": list(s.sweep.windows), "cumulative": s.sweep.cumulative, "deltas": list(s.sweep.deltas),
                      "thresholds": list(s.sweep.kinds), "combines": list(s.sweep.combines), "pairs": s.sweep.pairs,
+                     "or_promise": s.sweep.or_promise,
                      "protocols": list(s.protocols), "split_seed": s.split_seed, "q_auc": s.q_auc,
                      "calibration_split": s.method_settings.split_settings(),
                      "external_scores": {e.stream: {"file": str(e.path), "sha256": e.sha256}

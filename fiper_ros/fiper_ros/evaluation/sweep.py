@@ -26,16 +26,22 @@ are kept too (:attr:`TaskSweep.thresholds`): the arrays the alarms were decided 
 
 FIPER's ``(w_O, w_A)`` grid (``pairs``): ``"diagonal"`` (``w_O = w_A``, every window), ``"coarse"``
 (the diagonal plus all pairs of :data:`COARSE_WINDOWS`, the default) or ``"full"`` (all pairs; slow).
+
+The promise of an OR (``or_promise``, :data:`~fiper_ros.core.auto.PROMISES`): ``"entry"`` (the paper's, the
+default) sets both of FIPER's thresholds at delta, so the OR promises ``2 delta`` (Proposition 1 and the union
+bound); ``"delta"`` sets each at ``delta / 2`` (thresholds fitted at the halved deltas too), so every configuration
+of the sweep, OR included, is at promise delta in the column of delta: tables compare them at equal promise.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fiper_ros.core.combine_mode import COMBINES
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, PROMISES
+from fiper_ros.core.combine_mode import COMBINES, CombineMode
 from fiper_ros.core.fusion import exceeds, fuse
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
@@ -66,6 +72,9 @@ class SweepSettings:
     combines: tuple[str, ...] = COMBINES
     pairs: str = "coarse"
     max_pool: tuple[int, ...] = MAX_POOL_WINDOWS
+    or_promise: str = ENTRY_PROMISE
+    """What an OR of ``N`` thresholds promises in the column of delta (:data:`~fiper_ros.core.auto.PROMISES`):
+    ``"entry"``, each threshold at delta (promise ``N delta``); ``"delta"``, each at ``delta / N`` (promise delta)."""
 
     def __post_init__(self) -> None:
         if not self.windows or min(self.windows) < 1:
@@ -80,6 +89,15 @@ class SweepSettings:
             raise SettingsError(f"pairs must be one of {PAIR_GRIDS}, got {self.pairs!r}")
         if not self.deltas or any(not 0.0 < d < 1.0 for d in self.deltas):
             raise SettingsError(f"deltas must be in (0, 1), at least one, got {self.deltas}")
+        if self.or_promise not in PROMISES:
+            raise SettingsError(f"or_promise must be one of {', '.join(PROMISES)}, got {self.or_promise!r}")
+
+    def threshold_delta(self, delta: float, combine: str, detectors: int) -> float:
+        """The delta each of ``detectors`` thresholds combined by ``combine`` is calibrated at in the column of
+        ``delta``: ``delta / N`` for an OR of ``N`` at :attr:`or_promise` ``"delta"``, else ``delta``."""
+        if self.or_promise == DELTA_PROMISE and combine == CombineMode.OR.value and detectors > 1:
+            return delta / detectors
+        return delta
 
     def labels(self) -> list[str]:
         """Window labels in sweep order: ``"1"``, ``"2"``, ..., ``"cum"``, then ``"max2"``, ``"max3"``, ..."""
@@ -233,10 +251,19 @@ def sweep_task(
     gammas: list[np.ndarray] | None = [] if thresholds else None
     pairs = settings.fiper_pairs() if FIPER in methods else []
     kept: dict[str, dict[str, LabelAlarms]] = {s: {} for s in FIPER_STREAMS}
+    # an OR at promise delta: FIPER's thresholds at the deltas its columns need (:meth:`SweepSettings.threshold_delta`)
+    split = {combine: replace(settings, deltas=tuple(settings.threshold_delta(d, combine, len(FIPER_STREAMS))
+                                                     for d in settings.deltas)) for combine in settings.combines}
+    halved = {combine: own for combine, own in split.items() if own.deltas != settings.deltas}
+    kept_at: dict[str, dict[str, dict[str, LabelAlarms]]] = {c: {s: {} for s in FIPER_STREAMS} for c in halved}
     for name, stream in streams.items():
         keep = {pair[FIPER_STREAMS.index(name)] for pair in pairs} if name in FIPER_STREAMS else set()
         fixed = METHODS[name].fixed if name in METHODS else None
         grid = settings if fixed is None else _fixed_settings(settings, *fixed)
+        for combine, own in halved.items():
+            if keep:
+                kept_at[combine][name] = {r.label: r for r in _stream_alarms(stream, own, base, keep)
+                                          if r.exceeded is not None}
         for result in _stream_alarms(stream, grid, base, keep):
             if result.exceeded is not None:
                 kept[name][result.label] = result
@@ -248,9 +275,10 @@ def sweep_task(
                 if gammas is not None:
                     gammas.extend(result.gamma[:, :, None, :])
     for obs_label, act_label in pairs:
-        obs, act = kept["rnd_oe"][obs_label], kept["ace"][act_label]
-        assert obs.exceeded is not None and act.exceeded is not None
         for combine in settings.combines:
+            own = kept_at.get(combine, kept)
+            obs, act = own["rnd_oe"][obs_label], own["ace"][act_label]
+            assert obs.exceeded is not None and act.exceeded is not None
             fused = np.asarray(fuse(obs.exceeded, act.exceeded, combine), dtype=bool)
             groups.extend(Group(FIPER, f"{obs_label}/{act_label}", kind, combine) for kind in settings.kinds)
             alarms.extend(first_alarms(fused))

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 import fiper_ros
-from fiper_ros.core.auto import DELTA_PROMISE, RULES, TRANSFER, AutoSettings
+from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, RULES, TRANSFER, AutoSettings
 from fiper_ros.core.calibration.auto import finite_at_delta, transfer_settings
 from fiper_ros.core.detectors import declarable, info
 from fiper_ros.core.equalisation import DEFAULT_LEVEL
@@ -46,13 +46,16 @@ FAMILY_TOP = 10
 SMOOTH_STEPS = 2
 
 
-def selection(statistic: str, promise: str) -> dict[str, str]:
+def selection(statistic: str, promise: str, swept: str = ENTRY_PROMISE) -> dict[str, str]:
     """How a prior's entries are ranked, as its file says (``statistic``: a name of
     :data:`~fiper_ros.core.transfer.STATISTICS`; ``promise``: of :data:`~fiper_ros.core.auto.PROMISES`, the promise
-    its figures are at, :func:`at_equal_promise`)."""
+    its figures are at, :func:`at_equal_promise`; ``swept``: the sweep's
+    :attr:`~fiper_ros.evaluation.sweep.SweepSettings.or_promise`)."""
     twa = ("each configuration's TWA on a task averaged over its finite deltas and the seeds; configurations with no "
            "finite delta on some task and seed left out")
-    if promise == DELTA_PROMISE:
+    if promise == DELTA_PROMISE and swept == DELTA_PROMISE:
+        twa += "; an OR of N thresholds swept at delta / N each (every entry's figures at the promise delta)"
+    elif promise == DELTA_PROMISE:
         twa += ("; an OR of N thresholds only over the deltas d whose N d is a delta of the run, its figures at "
                 "promise N d (every entry's at the promises of the run's deltas)")
     return {"subset": "all test rollouts", "statistic": statistic, "ranks_by": STATISTICS[statistic], "twa": twa,
@@ -230,15 +233,19 @@ def chosen_groups(auto: AutoOutcome, groups: Sequence[Group], members: Mapping[s
 
 def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray, tasks: Sequence[str],
                  members: Mapping[str, Member], select_aggregations: Sequence[str], top: int,
-                 header: Mapping[str, Any], statistic: str, promise: str) -> Prior:
+                 header: Mapping[str, Any], statistic: str, promise: str, swept: str = ENTRY_PROMISE) -> Prior:
     """The prior of ``tasks`` (module docstring) from their rows of ``metrics`` ``[tasks, seeds, groups, deltas, 5]``
     (all test rollouts) and ``infinite`` ``[tasks, seeds, groups, deltas]``, ranked by ``statistic``
     (:func:`prior_order`) at ``promise`` (:data:`~fiper_ros.core.auto.PROMISES`; ``delta``: every entry's figures at
-    the promises of the header's deltas, :func:`at_equal_promise`); ``header``: the :class:`Prior`'s other fields
-    (seeds, deltas, calibration, made_from, command, version)."""
+    the promises of the header's deltas, :func:`at_equal_promise`, unless the sweep already set an OR's thresholds at
+    ``delta / N``: ``swept``, its :attr:`~fiper_ros.evaluation.sweep.SweepSettings.or_promise`); ``header``: the
+    :class:`Prior`'s other fields (seeds, deltas, calibration, made_from, command, version)."""
     if top < 1:
         raise ValueError(f"a prior keeps at least one entry, got top {top}")
-    if promise == DELTA_PROMISE:
+    if promise != DELTA_PROMISE and swept == DELTA_PROMISE:
+        raise ValueError(f"a prior at promise {promise!r} needs each OR's figures at delta each, the sweep's are at "
+                         "delta / N")
+    if promise == DELTA_PROMISE and swept != DELTA_PROMISE:
         metrics, infinite = at_equal_promise(groups, members, metrics, infinite, header["deltas"])
     twa = selection_twa(metrics, infinite)
     values = delta_mean(metrics)  # [tasks, seeds, groups, 5]
@@ -259,7 +266,7 @@ def ranked_prior(groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndar
     if not entries:
         raise PriorError(f"no configuration of the run on {', '.join(tasks)} can be a prior entry (a guaranteed "
                          "threshold, detectors a calibration declares, a finite delta on every task)")
-    return Prior(tuple(entries.values()), tuple(tasks), selection=selection(statistic, promise), **header)
+    return Prior(tuple(entries.values()), tuple(tasks), selection=selection(statistic, promise, swept), **header)
 
 
 def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, seeds: Sequence[int],
@@ -277,10 +284,10 @@ def prior_header(datasets: Sequence[Dataset], method_settings: MethodSettings, s
 def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: np.ndarray, infinite: np.ndarray,
                 members: Mapping[str, Member], method_settings: MethodSettings, seeds: Sequence[int],
                 deltas: Sequence[float], select_aggregations: Sequence[str], top: int,
-                statistic: str, promise: str, pooled: bool = False) -> list[Prior]:
+                statistic: str, promise: str, pooled: bool = False, swept: str = ENTRY_PROMISE) -> list[Prior]:
     """Per task ``T``, the prior of the other tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups,
-    deltas, 5]``) and ``infinite`` ranked by ``statistic`` at ``promise`` (:func:`ranked_prior`): a
-    leave-one-task-out selection over all methods at once; no row of ``T`` enters it."""
+    deltas, 5]``) and ``infinite`` ranked by ``statistic`` at ``promise`` (:func:`ranked_prior`, ``swept`` the sweep's
+    OR promise): a leave-one-task-out selection over all methods at once; no row of ``T`` enters it."""
     if len(datasets) < 2:
         raise ValueError(f"a prior of other tasks needs two tasks or more, got {len(datasets)}")
     names = [d.task for d in datasets]
@@ -290,7 +297,7 @@ def loto_priors(datasets: Sequence[Dataset], groups: Sequence[Group], metrics: n
         header = prior_header([datasets[n] for n in others], method_settings, seeds, deltas,
                               f"leave-one-task-out prior of this run for {names[t]}", pooled)
         priors.append(ranked_prior(groups, metrics[others], infinite[others], [names[n] for n in others], members,
-                                   select_aggregations, top, header, statistic, promise))
+                                   select_aggregations, top, header, statistic, promise, swept))
     return priors
 
 
@@ -300,18 +307,19 @@ def transfer_evaluation(datasets: Sequence[Dataset], scores: dict[tuple[str, int
                         deltas: Sequence[float], auto: AutoSettings, subsets: dict[str, list[np.ndarray | None]],
                         held_out: dict[str, list[np.ndarray]], select_aggregations: Sequence[str], top: int,
                         statistic: str, prior: Prior | None = None, progress: bool = True,
-                        pooled: bool = False) -> AutoOutcome:
+                        pooled: bool = False, swept: str = ENTRY_PROMISE) -> AutoOutcome:
     """``--auto --auto-rule transfer`` on every task and seed (module docstring): per task the prior of the other
     tasks' rows of ``metrics`` (all test rollouts, ``[tasks, seeds, groups, deltas, 5]``) and ``infinite`` ranked by
     ``statistic``, or ``prior`` for every task; metrics on ``subsets`` and false alarms on ``held_out`` as
     :func:`~fiper_ros.evaluation.auto.evaluate_choices` takes them. ``pooled``: the chosen entry's thresholds are
     pooled over every task (one conformal quantile of every task's normalised conformal curves, as the sweep's
     pooled ones; ``metrics`` are then the pooled sweep's), so the conformal successes of every task count toward a
-    finite threshold; its promise is over all tasks' successes."""
+    finite threshold; its promise is over all tasks' successes. ``swept``: the sweep's OR promise
+    (:func:`ranked_prior`)."""
     pool = candidate_streams(streams)
     priors = [prior] * len(datasets) if prior is not None else \
         loto_priors(datasets, groups, metrics, infinite, members, method_settings, seeds, deltas, select_aggregations,
-                    top, statistic, auto.promise, pooled)
+                    top, statistic, auto.promise, pooled, swept)
 
     def choices(t: int, dataset: Dataset, seed: int) -> tuple[list[str], list[dict[str, Any]], np.ndarray,
                                                               np.ndarray]:
