@@ -211,13 +211,15 @@ def _configurations(combination: Combination, label: str, kind: str, chosen: Map
              for t in tasks}
         return shapes, equalisers, z
 
+    delta_free = all(kinds[d] in DELTA_FREE_SHAPES for d in detectors)  # the same shapes and z at every level
     for delta in settings.deltas:
         levels: dict[float, tuple] = {}
         for combine in combines:
             level = settings.threshold_delta(delta, str(combine), len(detectors))
-            if level not in levels:
-                levels[level] = normalised(level)
-            shapes, equalisers, z = levels[level]
+            key = delta if delta_free else level
+            if key not in levels:
+                levels[key] = normalised(key)
+            shapes, equalisers, z = levels[key]
             votes = combine.votes(len(detectors))
             # joint: one k over the votes-th largest; and / or: one k per detector over its own scores
             members = [slice(None)] if combine.joint else [slice(i, i + 1) for i in range(len(detectors))]
