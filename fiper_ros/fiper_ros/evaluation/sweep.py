@@ -252,9 +252,9 @@ def sweep_task(
     pairs = settings.fiper_pairs() if FIPER in methods else []
     kept: dict[str, dict[str, LabelAlarms]] = {s: {} for s in FIPER_STREAMS}
     # an OR at promise delta: FIPER's thresholds at the deltas its columns need (:meth:`SweepSettings.threshold_delta`)
-    split = {combine: replace(settings, deltas=tuple(settings.threshold_delta(d, combine, len(FIPER_STREAMS))
-                                                     for d in settings.deltas)) for combine in settings.combines}
-    halved = {combine: own for combine, own in split.items() if own.deltas != settings.deltas}
+    per_combine = {combine: replace(settings, deltas=tuple(settings.threshold_delta(d, combine, len(FIPER_STREAMS))
+                                                           for d in settings.deltas)) for combine in settings.combines}
+    halved = {combine: own for combine, own in per_combine.items() if own.deltas != settings.deltas}
     kept_at: dict[str, dict[str, dict[str, LabelAlarms]]] = {c: {s: {} for s in FIPER_STREAMS} for c in halved}
     for name, stream in streams.items():
         keep = {pair[FIPER_STREAMS.index(name)] for pair in pairs} if name in FIPER_STREAMS else set()
