@@ -41,8 +41,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from fiper_ros.core.auto import DELTA_PROMISE, ENTRY_PROMISE, PROMISES
-from fiper_ros.core.combine_mode import COMBINES, CombineMode
-from fiper_ros.core.fusion import exceeds, fuse
+from fiper_ros.core.combine_mode import COMBINES
+from fiper_ros.core.fusion import Combine, exceeds, fuse
 from fiper_ros.core.thresholds import ThresholdSettings
 from fiper_ros.evaluation.cache import StreamScores
 from fiper_ros.evaluation.errors import SettingsError
@@ -94,9 +94,10 @@ class SweepSettings:
 
     def threshold_delta(self, delta: float, combine: str, detectors: int) -> float:
         """The delta each of ``detectors`` thresholds combined by ``combine`` is calibrated at in the column of
-        ``delta``: ``delta / N`` for an OR of ``N`` at :attr:`or_promise` ``"delta"``, else ``delta``."""
-        if self.or_promise == DELTA_PROMISE and combine == CombineMode.OR.value and detectors > 1:
-            return delta / detectors
+        ``delta``: at :attr:`or_promise` ``"delta"``, ``delta`` over the combine's promised multiple
+        (:meth:`~fiper_ros.core.fusion.Combine.promised_multiple`: ``N`` for an OR of ``N``), else ``delta``."""
+        if self.or_promise == DELTA_PROMISE:
+            return delta / Combine.parse(combine).promised_multiple(detectors)
         return delta
 
     def labels(self) -> list[str]:

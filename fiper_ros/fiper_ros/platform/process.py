@@ -161,7 +161,7 @@ def stop_executor(executor: Any) -> None:
     callback that never runs, and the wait would then last the whole ``CALLBACK_DRAIN_S`` (a node that did not
     exit within 10 s of its SIGINT, once in CI)."""
     executor.shutdown()
-    if not isinstance(executor, Executor) or isinstance(executor, SingleThreadedExecutor):
+    if not isinstance(executor, MultiThreadedExecutor):
         return
     # rclpy 7.1 (Jazzy) sets its shutdown flag before testing it, so Executor.shutdown() never waits for
     # the callbacks in flight; wait on the executor's own work tracker instead.
