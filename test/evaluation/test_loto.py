@@ -1,9 +1,11 @@
 """The protocols that choose per task: leave-one-task-out (each task's configuration chosen without its labels,
-reported on it) and clean-task (each task's chosen on its own validation half alone, reported on its other half)."""
+reported on it), clean-task (each task's chosen on its own validation half alone, reported on its other half) and
+paper-task (each task's chosen and reported on its own test rollouts: the per-task ceiling)."""
 
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,7 +16,8 @@ from fiper_ros.cli import main
 from fiper_ros.evaluation.data import Dataset
 from fiper_ros.evaluation.engine import EngineSettings, run_evaluation
 from fiper_ros.evaluation.methods import MethodSettings
-from fiper_ros.evaluation.protocol import METRICS, run_clean_task, run_loto, run_protocol, validation_split
+from fiper_ros.evaluation.protocol import (METRICS, run_clean_task, run_loto, run_paper_task, run_protocol,
+                                          validation_split)
 from fiper_ros.evaluation.report import write_reports
 from fiper_ros.evaluation.sweep import Group, SweepSettings
 from fiper_ros.evaluation.synthetic import make_task
@@ -198,3 +201,67 @@ def test_flipping_the_report_halfs_labels_leaves_every_choice_and_the_report_nam
     assert {chosen["tasks"][t]["guarantee"] for t in ("sorting", "push_t", "stacking")} <= {"≤ δ", "none (per-step quantile)"}
     assert {t: chosen["tasks"][t]["config"]["window"] for t in ("sorting", "push_t", "stacking")} == {
         d.task: g.window for d, g in zip(datasets, before.protocols["clean-task"].selected["rnd_oe"].task_groups)}
+
+
+def test_paper_task_chooses_each_task_on_its_own_rollouts_by_hand() -> None:
+    # HAND: a prefers w 1 (0.9), b w 2 (0.8), c w 1 (0.6); each reported where it was chosen
+    result = run_paper_task(GROUPS, _metrics(HAND), ["rnd_oe"])
+    chosen = result.selected["rnd_oe"]
+    assert [g.window for g in chosen.task_groups] == ["1", "2", "1"]
+    np.testing.assert_array_equal(chosen.values[:, 0, TWA], [0.9, 0.8, 0.6])
+    assert result.selection_twa["rnd_oe"] == pytest.approx((0.9 + 0.8 + 0.6) / 3)
+    assert result.protocol == "paper-task" and not result.default
+    infinite = np.zeros((3, 1, 2, 1), dtype=bool)
+    infinite[1, 0, 1] = True  # w 2 is +inf on b: b's ceiling is w 1's 0.2, not a NaN cell
+    metrics = _metrics(HAND)
+    metrics[1, 0, 1] = np.nan
+    chosen = run_paper_task(GROUPS, metrics, ["rnd_oe"], infinite=infinite).selected["rnd_oe"]
+    assert [g.window for g in chosen.task_groups] == ["1", "1", "1"]
+    np.testing.assert_array_equal(chosen.values[:, 0, TWA], [0.9, 0.2, 0.6])
+
+
+def test_paper_task_is_a_ceiling_of_the_protocols_that_report_on_all_rollouts() -> None:
+    # random metrics (2 seeds, 3 deltas, some +inf cells): per method and task, the paper-task figure is at least what
+    # the paper protocol (one choice for all tasks) and LOTO (chosen on the other tasks) report there, and equals the
+    # best any selectable configuration of the method has on that task
+    groups = [Group(m, str(w), k) for m in ("rnd_oe", "stac") for w in (1, 2, 3) for k in ("cp_band", "cp_constant")]
+    for trial in range(200):
+        rng = np.random.default_rng(trial)
+        metrics = rng.uniform(size=(4, 2, len(groups), 3, len(METRICS)))
+        infinite = rng.uniform(size=metrics.shape[:-1]) < 0.1
+        metrics[infinite] = np.nan
+        ceiling = run_paper_task(groups, metrics, ["rnd_oe", "stac"], infinite=infinite)
+        paper = run_protocol("paper", groups, metrics, metrics, ["rnd_oe", "stac"], 1, "cp_band", infinite=infinite)
+        loto = run_loto(groups, metrics, ["rnd_oe", "stac"], infinite=infinite)
+        usable = ~infinite.all(axis=3).any(axis=1)  # [tasks, groups]: a finite delta on every seed
+        with warnings.catch_warnings():  # an all-+inf (task, seed, group) has no mean: never a candidate below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            per_group = np.nanmean(np.nanmean(metrics[..., TWA], axis=3), axis=1)  # [tasks, groups]
+        for method in ("rnd_oe", "stac"):
+            top = ceiling.selected[method].per_task()[0][:, TWA]
+            members = [i for i, g in enumerate(groups) if g.method == method]
+            for t in range(4):
+                candidates = [per_group[t, i] for i in members if usable[t, i]]
+                assert top[t] == pytest.approx(max(candidates))
+            for other in (paper, loto):
+                if method in other.selected:
+                    below = other.selected[method].per_task()[0][:, TWA]
+                    assert np.all(np.isnan(below) | (below <= top + 1e-12))
+
+
+def test_paper_task_is_reported_as_a_ceiling_beside_auto(tmp_path: Path) -> None:
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--synthetic", "sorting,stacking", "--synthetic-test", "24", "--synthetic-scale", "0.25",
+                 "--tiny", "--methods", "elapsed,pca_kmeans", "--windows", "1-3", "--default-window", "1", "--deltas",
+                 "0.3", "--no-default-combos", "--protocol", "loto,paper-task", "--auto", "--auto-windows", "1,3",
+                 "--no-plots", "--no-cache", "--quiet", "--out", str(out)]) == 0
+    text = (out / "results.md").read_text()
+    assert "## Table 1: failure prediction, paper protocol chosen per task, the per-task ceiling" in text
+    assert "so a figure here is the ceiling of what the sweep's configurations can reach" in text
+    section = text[text.index("## --auto:"):]
+    header = next(line for line in section.splitlines() if line.startswith("| Task"))
+    assert "LOTO best (TWA)" in header and "ceiling: paper-task best (TWA)" in header
+    document = json.loads((out / "results.json").read_text())
+    ceiling, loto = (document["protocols"][p]["selected"]["pca_kmeans"]["tasks"] for p in ("paper-task", "loto"))
+    for task in ("sorting", "stacking"):
+        assert ceiling[task]["twa"]["mean"] >= loto[task]["twa"]["mean"]

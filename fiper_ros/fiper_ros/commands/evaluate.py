@@ -192,7 +192,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           help="comma list: paper (select and report on all test rollouts), clean (select on a "
                                "validation half), loto (each task's configuration selected on the other tasks; two "
                                "tasks or more), clean-task (each task's configuration selected on its own validation "
-                               "half)")
+                               "half), paper-task (each task's selected and reported on its own test rollouts: the "
+                               "per-task ceiling, not a result)")
     protocol.add_argument("--auto", action="store_true",
                           help="also choose each task's configuration as fiper calibrate --auto does, from its "
                                "calibration successes alone, and report it beside the protocols")

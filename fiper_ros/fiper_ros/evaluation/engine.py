@@ -30,7 +30,7 @@ from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSe
                                           streams_of)
 from fiper_ros.evaluation.progress import Progress
 from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, ProtocolResult, alarm_metrics, run_clean_task,
-                                           run_loto, run_protocol, validation_split)
+                                           run_loto, run_paper_task, run_protocol, validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
 from fiper_ros.evaluation.transfer import (chosen_groups, members_of, prior_header, ranked_prior,
@@ -434,6 +434,11 @@ def run_evaluation(
         if protocol == "clean-task":
             protocols[protocol] = run_clean_task(outcome.groups, outcome.metrics[selection], outcome.metrics[report],
                                                  settings.columns, settings.select_aggregations, outcome.infinite,
+                                                 outcome.held_out[report])
+            continue
+        if protocol == "paper-task":
+            protocols[protocol] = run_paper_task(outcome.groups, outcome.metrics[report], settings.columns,
+                                                 settings.select_aggregations, outcome.infinite,
                                                  outcome.held_out[report])
             continue
         protocols[protocol] = run_protocol(protocol, outcome.groups, outcome.metrics[selection],

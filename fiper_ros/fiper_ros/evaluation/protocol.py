@@ -20,8 +20,13 @@ Protocols:
 - ``"clean-task"``: the clean protocol's halves, but each task's configuration is selected on that task's own
   validation half alone (what a user who holds labelled failures of the task would choose for it), reported on
   its report half. It is the reference a configuration chosen without the task's failures (``"loto"``,
-  ``--auto``) is measured against, and the per-task oracle's honest counterpart: the report half never served
+  ``--auto``) is measured against, and the per-task ceiling's honest counterpart: the report half never served
   the choice.
+- ``"paper-task"``: the paper protocol chosen per task: each task's configuration is the one with the highest TWA on
+  that task's own test rollouts, reported on the same rollouts. It reads every label it reports on, so it is no
+  result but a ceiling: no configuration of the sweep, however chosen, reports more on a task (per method, its
+  figure is at least the paper and leave-one-task-out protocols' on every task), and a target above it needs
+  another detector or other data, not another rule of choice.
 
 A fixed default configuration (window and threshold type given, FIPER ``w/w`` with AND) is reported
 too. A method with a single configuration (the elapsed-time baseline) is reported with it in both. With
@@ -51,13 +56,13 @@ from fiper_ros.evaluation.methods import METHODS
 from fiper_ros.evaluation.sweep import FIPER, Group
 
 METRICS = ("twa", "acc", "dt", "tpr", "tnr")
-PROTOCOLS = ("paper", "clean", "loto", "clean-task")
+PROTOCOLS = ("paper", "clean", "loto", "clean-task", "paper-task")
 #: Per protocol, the subset of every task's test rollouts a configuration is selected on and the one it is reported
 #: on (:class:`~fiper_ros.evaluation.engine.SweepOutcome`); ``"loto"`` selects on the other tasks' subset.
 SUBSETS = {"paper": ("all", "all"), "clean": ("validation", "report"), "loto": ("all", "all"),
-           "clean-task": ("validation", "report")}
+           "clean-task": ("validation", "report"), "paper-task": ("all", "all")}
 #: The protocols that choose each task's configuration on its own (:attr:`MethodResult.task_groups`).
-PER_TASK = ("loto", "clean-task")
+PER_TASK = ("loto", "clean-task", "paper-task")
 
 
 def nanmean(values: np.ndarray, axis: int | tuple[int, ...]) -> np.ndarray:
@@ -276,6 +281,18 @@ def run_clean_task(groups: Sequence[Group], selection_metrics: np.ndarray, repor
     ``infinite`` and ``held_out`` as for :func:`run_protocol`."""
     return per_task_protocol("clean-task", groups, selection_metrics, report_metrics, lambda task: [task], methods,
                              select_aggregations, infinite, held_out)
+
+
+def run_paper_task(groups: Sequence[Group], metrics: np.ndarray, methods: Sequence[str],
+                   select_aggregations: Sequence[str] = ("window", "max"), infinite: np.ndarray | None = None,
+                   held_out: np.ndarray | None = None) -> ProtocolResult:
+    """The paper protocol chosen per task, the per-task ceiling: for every task ``t``, :func:`run_protocol` selects on
+    row ``t`` of ``metrics`` (``[tasks, seeds, groups, deltas, 5]``, all its test rollouts) and reports on the same
+    row (:func:`per_task_protocol`), so per method and task it reports the highest TWA (mean over seeds of the mean
+    over the finite deltas) any of its selectable configurations has there. ``infinite`` and ``held_out`` as for
+    :func:`run_protocol`."""
+    return per_task_protocol("paper-task", groups, metrics, metrics, lambda task: [task], methods, select_aggregations,
+                             infinite, held_out)
 
 
 def per_task_protocol(name: str, groups: Sequence[Group], selection_metrics: np.ndarray, report_metrics: np.ndarray,
