@@ -29,8 +29,8 @@ from fiper_ros.evaluation.joint_sweep import JOINT_COMBINE_DEFAULTS, joint_sweep
 from fiper_ros.evaluation.methods import (METHODS, Combination, Method, MethodSettings, method_of, pooled_methods,
                                           streams_of)
 from fiper_ros.evaluation.progress import Progress
-from fiper_ros.evaluation.protocol import (METRICS, PROTOCOLS, SUBSETS, ProtocolResult, alarm_metrics, run_clean_task,
-                                           run_loto, run_paper_task, run_protocol, validation_split)
+from fiper_ros.evaluation.protocol import (METRICS, ON_ONE_SUBSET, PROTOCOLS, SUBSETS, ProtocolResult, alarm_metrics,
+                                           run_clean_task, run_protocol, validation_split)
 from fiper_ros.evaluation.scoring import check_dataset, compute_streams
 from fiper_ros.evaluation.sweep import FIPER, Group, SweepSettings, TaskSweep, sweep_task
 from fiper_ros.evaluation.transfer import (chosen_groups, members_of, prior_header, ranked_prior,
@@ -427,18 +427,14 @@ def run_evaluation(
     protocols: dict[str, ProtocolResult] = {}
     for protocol in settings.protocols:
         selection, report = SUBSETS[protocol]
-        if protocol == "loto":
-            protocols[protocol] = run_loto(outcome.groups, outcome.metrics[report], settings.columns,
-                                           settings.select_aggregations, outcome.infinite, outcome.held_out[report])
+        if protocol in ON_ONE_SUBSET:  # chosen per task on the rollouts they report on (own or other tasks')
+            protocols[protocol] = ON_ONE_SUBSET[protocol](outcome.groups, outcome.metrics[report], settings.columns,
+                                                          settings.select_aggregations, outcome.infinite,
+                                                          outcome.held_out[report])
             continue
         if protocol == "clean-task":
             protocols[protocol] = run_clean_task(outcome.groups, outcome.metrics[selection], outcome.metrics[report],
                                                  settings.columns, settings.select_aggregations, outcome.infinite,
-                                                 outcome.held_out[report])
-            continue
-        if protocol == "paper-task":
-            protocols[protocol] = run_paper_task(outcome.groups, outcome.metrics[report], settings.columns,
-                                                 settings.select_aggregations, outcome.infinite,
                                                  outcome.held_out[report])
             continue
         protocols[protocol] = run_protocol(protocol, outcome.groups, outcome.metrics[selection],

@@ -329,3 +329,7 @@ def per_task_protocol(name: str, groups: Sequence[Group], selection_metrics: np.
               for m in folds[0].selection_twa}
     return ProtocolResult(name, per_task([f.selected for f in folds]), {}, per_task([f.combine_kind for f in folds]),
                           scores, per_task([f.combinations for f in folds]))
+
+
+#: The protocols that choose per task from one subset's metrics of every task (the rows they report on), by name.
+ON_ONE_SUBSET: dict[str, Callable[..., ProtocolResult]] = {"loto": run_loto, "paper-task": run_paper_task}
