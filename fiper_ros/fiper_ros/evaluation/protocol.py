@@ -24,7 +24,8 @@ Protocols:
   the choice.
 - ``"paper-task"``: the paper protocol chosen per task: each task's configuration is the one with the highest TWA on
   that task's own test rollouts, reported on the same rollouts. It reads every label it reports on, so it is no
-  result but a ceiling: no configuration of the sweep, however chosen, reports more on a task (per method, its
+  result but a ceiling: no configuration a protocol may select (``--select-cumulative`` adds the cumulative ones),
+  however chosen, reports more on a task (per method, its
   figure is at least the paper and leave-one-task-out protocols' on every task), and a target above it needs
   another detector or other data, not another rule of choice.
 

@@ -78,9 +78,12 @@ CHOSEN_TEXT = {
                   "validation half alone; no other task's labels and none of its report half enter the choice.",
     "paper-task": "Each task's configuration (per method: window and threshold type) maximises the TWA on the very "
                   "test rollouts it is reported on: no choice made without these labels reports more on the task, "
-                  "so a figure here is the ceiling of what the sweep's configurations can reach, not an estimate of "
-                  "what a user gets.",
+                  "so a figure here is the ceiling of what the sweep's configurations can reach (those a protocol "
+                  "may select: the cumulative ones only with --select-cumulative), not an estimate of what a user "
+                  "gets.",
 }
+#: The protocols reporting on all test rollouts whose best method per task --auto's section shows, with its column.
+BEST_ON_ALL = {"loto": "LOTO best (TWA)", "paper-task": "ceiling: paper-task best (TWA)"}
 FLAG = "⚠"
 TWA = METRICS.index("twa")
 
@@ -592,8 +595,8 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
     columns = ["Task", f"chosen (seed {result.settings.seeds[0]}, at δ)", "TWA", "TPR", "TNR", "DT", "FA at that δ",
                "q-AUC (average row: pooled)"]
     columns += [f"TWA − Elapsed{'' if floor[1] == 'all' else ', report half'}"] if floor is not None else []
-    columns += ["LOTO best (TWA)"] if "loto" in result.protocols else []
-    columns += ["ceiling: paper-task best (TWA)"] if "paper-task" in result.protocols else []
+    on_all = {p: title for p, title in BEST_ON_ALL.items() if p in result.protocols}
+    columns += list(on_all.values())
     columns += ["TWA, report half"] if "report" in auto.metrics else []
     # the protocols of two halves: each one's best configuration per task beside --auto's own on the report half
     beside = [p for p in PROTOCOLS if p in result.protocols and SUBSETS[p][1] == "report"]
@@ -615,8 +618,7 @@ def auto_section(result: EvaluationResult, auto: AutoOutcome) -> str:
             base = elapsed.values[t, :, TWA] if t < len(result.tasks) else nanmean(elapsed.values[..., TWA], axis=0)
             cells.append(_signed(float(nanmean(per_seed - base, axis=0)), float(nanstd(per_seed - base, axis=0)),
                                  seeds))
-        cells += [_best_cell(result, "loto", t)] if "loto" in result.protocols else []
-        cells += [_best_cell(result, "paper-task", t)] if "paper-task" in result.protocols else []
+        cells += [_best_cell(result, protocol, t) for protocol in on_all]
         if report is not None:
             cells.append(_cell(float(report[0][t][TWA]), float(report[1][t][TWA]), seeds, False))
         cells += [_best_cell(result, protocol, t) for protocol in beside]
